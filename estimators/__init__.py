@@ -1,0 +1,1 @@
+"""Estimators: parameter estimation from logs, and online state estimation (EKF, MHE)."""

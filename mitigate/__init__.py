@@ -1,0 +1,1 @@
+"""Stick-slip mitigation: controllers, closed loop, scenario runner, metrics, plots and the CLI."""

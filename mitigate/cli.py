@@ -1,0 +1,73 @@
+"""The ``mitigate`` command line.
+
+Each sub-command lives in ``mitigate/commands/<name>.py`` and exposes
+``register(subparsers)``; the parser it adds sets ``func`` to a ``run(args) -> int``.
+Bad input (``ConfigError``, ``DataError``) and solver failures become one line on
+stderr and exit code 2; there is never a traceback for bad input.  Set
+``MITIGATE_DEBUG=1`` to see tracebacks of internal errors.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+from models.errors import ConfigError, DataError, SolverFailure
+
+COMMANDS = ("simulate", "modal", "identify", "estimate", "run", "sweep")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors and exit code 2."""
+
+    def error(self, message):  # noqa: D401
+        sys.stderr.write(f"{self.prog}: error: {message} (see --help)\n")
+        sys.exit(2)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="mitigate",
+        description="Stick-slip mitigation workbench: simulate rigs, see their modes, identify them from logs, "
+                    "estimate the twist, and compare controllers.",
+        epilog="Example: mitigate run scenarios/stick_slip_30rpm.toml --out out/",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for name in COMMANDS:
+        try:
+            mod = importlib.import_module(f"mitigate.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"mitigate.commands.{name}":
+                continue
+            raise
+        mod.register(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except (ConfigError, DataError, SolverFailure) as exc:
+        sys.stderr.write(f"mitigate {args.command}: error: {exc}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write(f"mitigate {args.command}: interrupted\n")
+        return 130
+    except Exception as exc:  # an internal error: one line unless debugging
+        if os.environ.get("MITIGATE_DEBUG"):
+            raise
+        sys.stderr.write(f"mitigate {args.command}: internal error: {type(exc).__name__}: {exc} "
+                         f"(set MITIGATE_DEBUG=1 for a traceback)\n")
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,84 @@
+"""Small helpers shared by the CLI commands: output folders, JSON, tables."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from models.errors import ConfigError
+
+__all__ = ["add_common", "check_outputs", "emit_json", "format_table", "to_jsonable", "savefig_atomic"]
+
+
+def add_common(p: argparse.ArgumentParser, *, out: bool = True, default_out: str = "out") -> None:
+    """``--json`` and (optionally) ``--out DIR`` / ``--force``."""
+    p.add_argument("--json", action="store_true", help="print a machine-readable JSON document on stdout")
+    if out:
+        p.add_argument("--out", default=default_out, metavar="DIR", help=f"output folder (default: {default_out})")
+        p.add_argument("--force", action="store_true", help="overwrite existing output files")
+
+
+def check_outputs(paths: Iterable[os.PathLike | str], force: bool) -> None:
+    """Refuse (ConfigError) if any output exists and ``force`` is not set.  Call before writing anything."""
+    existing = [str(p) for p in paths if Path(p).exists()]
+    if existing and not force:
+        raise ConfigError(f"output file {existing[0]} exists"
+                          f"{f' (and {len(existing) - 1} more)' if len(existing) > 1 else ''}; "
+                          f"refusing to overwrite (use --force or another --out)")
+
+
+def to_jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def emit_json(payload: Any) -> None:
+    json.dump(to_jsonable(payload), sys.stdout, indent=2)
+    sys.stdout.write("\n")
+
+
+def format_table(headers: list[str], rows: list[list[Any]], floatfmt: str = "{:.4g}") -> str:
+    """A plain fixed-width text table."""
+    def cell(v):
+        if isinstance(v, (float, np.floating)):
+            return floatfmt.format(v) if math.isfinite(v) else "-"
+        return str(v)
+    cells = [[cell(v) for v in r] for r in rows]
+    widths = [max(len(h), *(len(r[j]) for r in cells)) if cells else len(h) for j, h in enumerate(headers)]
+    line = "  ".join(h.ljust(w) for h, w in zip(headers, widths))
+    sep = "  ".join("-" * w for w in widths)
+    body = ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in cells]
+    return "\n".join([line, sep, *body])
+
+
+def savefig_atomic(fig, path: os.PathLike | str, **kw) -> Path:
+    """Save a matplotlib figure as PNG via a temporary file and rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+    try:
+        fig.savefig(tmp, dpi=kw.pop("dpi", 110), **kw)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path

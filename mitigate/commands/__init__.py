@@ -1,0 +1,1 @@
+"""Sub-commands of the ``mitigate`` CLI, one module each."""

@@ -1,0 +1,1 @@
+"""Controllers: every one answers ``step(t, estimate, measurement) -> Action``."""
