@@ -1,0 +1,120 @@
+"""Baseline (c): a speed-raise supervisor in the style of SoftSpeed / SoftTorque.
+
+Industrial stick-slip supervisors raise the rotary speed when stick-slip is detected
+and bring it back when it has stopped.  On this rig the idea is sound physics: at
+N1 = 20 N the stick-slip limit cycle coexists with a linearly stable steady sliding
+(bistability); above roughly 45-50 rpm the limit cycle no longer exists, so a raise
+followed by a slow return lands the rig on the stable sliding branch at the nominal
+speed.
+
+Detection uses the MEASURED R1 speed only (no model) over a sliding window of
+``window`` seconds:
+
+- ``detect = "stuck"``: the fraction of samples with ``|omega1| <= stuck_speed``
+  (default half an encoder tick per DAQ period: 0.31 rad/s, so a stuck disc reads 0);
+- ``detect = "severity"``: (max - min) / (2 mean) of the windowed speed.
+
+Above ``on`` the supervisor raises the speed offset towards ``raise_max`` at
+``rate_up``; at or below ``off`` (a band: ``off < on``) it lowers the offset towards 0
+at ``rate_down``; in between it holds.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from mitigate.controllers._opts import check_number
+from mitigate.controllers.base import Action, Controller
+from models.errors import ConfigError
+
+__all__ = ["SupervisorOptions", "SpeedSupervisor"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class SupervisorOptions:
+    """Speed-raise supervisor options.
+
+    Parameters
+    ----------
+    detect : "stuck" (fraction of time stuck) or "severity" (windowed SSS)
+    window : detection window [s]
+    stuck_speed : |omega1| at or below which a sample counts as stuck [rad/s]
+    on, off : raise above ``on``; lower at or below ``off`` (``off < on``) [-]
+    raise_max : largest speed offset above the programme [rad/s]
+    rate_up, rate_down : rate limits of the offset [rad/s^2]
+    min_window : samples needed before detection starts [s]
+    """
+
+    detect: str = "stuck"
+    window: float = 3.0
+    stuck_speed: float = 0.31
+    on: float = 0.02
+    off: float = 0.0
+    raise_max: float = 2.1
+    rate_up: float = 0.4
+    rate_down: float = 0.15
+    min_window: float = 1.0
+
+    def __post_init__(self):
+        if self.detect not in ("stuck", "severity"):
+            raise ConfigError(f"detect must be 'stuck' or 'severity', got {self.detect!r}")
+        check_number(self, "window", lo=0.0, lo_open=True, unit="s")
+        check_number(self, "stuck_speed", lo=0.0, unit="rad/s")
+        check_number(self, "on", lo=0.0)
+        check_number(self, "off", lo=0.0)
+        if not self.off < self.on:
+            raise ConfigError(f"off must be < on = {self.on} (a band), got {self.off}")
+        check_number(self, "raise_max", lo=0.0, lo_open=True, unit="rad/s")
+        check_number(self, "rate_up", lo=0.0, lo_open=True, unit="rad/s^2")
+        check_number(self, "rate_down", lo=0.0, lo_open=True, unit="rad/s^2")
+        check_number(self, "min_window", lo=0.0, unit="s")
+        if self.min_window > self.window:
+            raise ConfigError(f"min_window must be <= window = {self.window} s, got {self.min_window}")
+
+
+class SpeedSupervisor(Controller):
+    """Raise the speed while stick-slip is detected, lower it back when it has stopped."""
+
+    name = "supervisor"
+
+    def __init__(self, options: SupervisorOptions, omega_nominal: float, dt: float):
+        super().__init__(omega_nominal)
+        self.options = options
+        self.dt = float(dt)
+        self.reset()
+
+    def reset(self) -> None:
+        self._buf: deque = deque()
+        self.offset = 0.0
+        self.mode = "hold"
+        self._t = None
+
+    def indicator(self) -> float:
+        """Current detection value of the window (stuck fraction or severity)."""
+        w = np.fromiter((v for _, v in self._buf), float)
+        if self.options.detect == "stuck":
+            return float(np.mean(np.abs(w) <= self.options.stuck_speed))
+        m = abs(float(np.mean(w)))
+        return float(np.max(w) - np.min(w)) / (2 * m) if m > 0 else float("inf")
+
+    def _step_impl(self, t: float, estimate, measurement: Mapping[str, float]) -> Action:
+        o = self.options
+        w1 = float(measurement["omega1"])
+        h = self.dt if self._t is None else max(t - self._t, 0.0)
+        self._t = t
+        if np.isfinite(w1):
+            self._buf.append((t, w1))
+        while self._buf and self._buf[0][0] <= t - o.window:
+            self._buf.popleft()
+        if self._buf and self._buf[-1][0] - self._buf[0][0] >= o.min_window - 1e-9:
+            ind = self.indicator()
+            self.mode = "raise" if ind > o.on else ("lower" if ind <= o.off else "hold")
+        if self.mode == "raise":
+            self.offset = min(o.raise_max, self.offset + o.rate_up * h)
+        elif self.mode == "lower":
+            self.offset = max(0.0, self.offset - o.rate_down * h)
+        return Action(0.0, self.omega_nominal + self.offset, f"{self.mode} (+{self.offset:.3g} rad/s)")
