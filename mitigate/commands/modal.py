@@ -1,0 +1,153 @@
+"""``mitigate modal``: natural frequencies, damping and mode shapes vs the thesis' measured modes."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+
+from mitigate.cliutil import add_common, check_outputs, emit_json, format_table, savefig_atomic
+from models.errors import ConfigError
+from models.modal import MEASURED_HZ, VARIANTS, compare_measured, modes, stability_map
+from models.params import load_params
+from models.rigs import MODEL_NAMES, get_model
+
+EPILOG = """examples:
+  mitigate modal --out out/                      # rig3, all variants, published parameters
+  mitigate modal --variant closed --n1 20 --omega 3.1416 --json
+  mitigate modal --params fitted.toml --variant free --out out/ --force
+  mitigate modal --model disc --variant closed --n1 20
+
+Variants: free = mechanical chain (thesis eq. 3-3 + shaft damping, rigid-body 0 Hz mode);
+clamped = motor end held fixed; closed = full model with DC motor + PI loop and pin
+friction, linearised at steady sliding at --omega [rad/s] with N1 = --n1 [N].
+"""
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "modal", help="torsional modes (free / clamped / closed loop) vs the measured 0, 0.396, 1.781 Hz",
+        description="Linearised modal analysis of a rig: mode table (model vs measured, error %%), PNG of the "
+                    "mode shapes and of the stability of steady sliding over (N1, speed).",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--params", metavar="FILE", help="parameter TOML (published or fitted); default: published")
+    p.add_argument("--model", default="rig3", choices=MODEL_NAMES, help="model (default: rig3)")
+    p.add_argument("--variant", default="all", choices=(*VARIANTS, "all"), help="variant (default: all)")
+    p.add_argument("--n1", type=float, default=None, help="pin force N1 [N] of the sliding point (default 20)")
+    p.add_argument("--omega", type=float, default=None,
+                   help="sliding speed [rad/s, disc side] (default: 30 rpm = 3.1416 for rig3/disc)")
+    p.add_argument("--no-map", action="store_true", help="skip the stability map PNG (rig3/disc)")
+    add_common(p)
+    p.set_defaults(func=run)
+
+
+def _plot_shapes(results, path, title):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(results), figsize=(4.5 * len(results), 4.2), squeeze=False)
+    for ax, r in zip(axes[0], results):
+        x = np.arange(len(r.dof_names))
+        for f, z, osc, s in zip(r.freq_hz, r.damping, r.oscillatory, r.shapes):
+            if r.model == "rig3" and f > 20:  # electrical / PI mode: its shape is not torsional
+                continue
+            label = "rigid body (0 Hz)" if f == 0 else f"{f:.3f} Hz, zeta {z:.3f}" + ("" if osc else " (real)")
+            ax.plot(x, s, marker="o", label=label)
+        ax.axhline(0, color="k", lw=0.6)
+        ax.set_xticks(x, [d.replace("theta", "angle R").replace("omega", "speed R") for d in r.dof_names])
+        ax.set_ylabel("normalised amplitude [-]")
+        ax.set_title(f"{r.model}: {r.variant}")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    try:
+        savefig_atomic(fig, path)
+    finally:
+        plt.close(fig)
+
+
+def _plot_map(n1, om, M, path, title):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.8))
+    lim = float(np.nanmax(np.abs(M))) or 1.0
+    pc = ax.pcolormesh(om * 60 / (2 * math.pi), n1, M, cmap="RdBu_r", vmin=-lim, vmax=lim, shading="nearest")
+    ax.contour(om * 60 / (2 * math.pi), n1, M, levels=[0.0], colors="k", linewidths=1.5)
+    fig.colorbar(pc, ax=ax, label="largest real part of eigenvalues [1/s]")
+    ax.set_xlabel("sliding speed [rpm, disc side]")
+    ax.set_ylabel("N1 [N]")
+    ax.set_title(title + "\n(red, right of the black line: steady sliding unstable)")
+    fig.tight_layout()
+    try:
+        savefig_atomic(fig, path)
+    finally:
+        plt.close(fig)
+
+
+def run(args) -> int:
+    model = get_model(args.model)
+    params = load_params(args.params, args.model) if args.params else model.published()
+    variants = list(VARIANTS) if args.variant == "all" else [args.variant]
+    if model.name != "rig3":
+        if args.variant in ("free", "clamped"):
+            raise ConfigError(f"--variant {args.variant} is defined for --model rig3 only, got --model {model.name}")
+        variants = ["closed"]
+    for name, v in (("--n1", args.n1), ("--omega", args.omega)):
+        if v is not None and not math.isfinite(v):
+            raise ConfigError(f"{name} must be a finite number, got {v}")
+    if args.n1 is not None and args.n1 < 0:
+        raise ConfigError(f"--n1 must be >= 0 N, got {args.n1}")
+    out = Path(args.out)
+    shapes_png = out / f"modal_{model.name}.png"
+    do_map = (not args.no_map) and model.name in ("rig3", "disc")
+    map_png = out / f"stability_map_{model.name}.png"
+    check_outputs([shapes_png] + ([map_png] if do_map else []), args.force)
+
+    results = [modes(model, params, v, omega=args.omega, load=args.n1) for v in variants]
+    payload = {"model": model.name, "params": args.params or "published", "measured_hz": list(MEASURED_HZ),
+               "variants": {}}
+    lines = []
+    for r in results:
+        cmp = compare_measured(r) if model.name == "rig3" else []
+        payload["variants"][r.variant] = {
+            "freq_hz": r.freq_hz, "damped_hz": r.damped_hz, "damping": r.damping, "oscillatory": r.oscillatory,
+            "shapes": r.shapes, "dof_names": r.dof_names, "max_real": r.max_real,
+            "stable": bool(r.max_real < 0), "status": r.status, "success": r.success,
+            "comparison": [{"mode": c[0], "model_hz": c[1], "measured_hz": c[2], "error_percent": c[3]} for c in cmp],
+        }
+        lines.append(f"\n{model.name} / {r.variant}: all modes (max real part {r.max_real:+.4g} 1/s, "
+                     f"{'stable' if r.max_real < 0 else 'UNSTABLE'}; {r.status})")
+        lines.append(format_table(["f_n [Hz]", "f_d [Hz]", "zeta [-]", "kind", "shape on " + ",".join(r.dof_names)],
+                                  [[f, fd, z, "oscillatory" if o else ("rigid" if f == 0 else "real"),
+                                    "[" + ", ".join(f"{v:+.3f}" for v in s) + "]"]
+                                   for f, fd, z, o, s in zip(r.freq_hz, r.damped_hz, r.damping, r.oscillatory,
+                                                             r.shapes)]))
+        if cmp:
+            lines.append(format_table(["mode", "model [Hz]", "measured [Hz]", "error [%]"],
+                                      [list(c) for c in cmp]))
+    out.mkdir(parents=True, exist_ok=True)
+    _plot_shapes(results, shapes_png, f"Mode shapes of {model.name} ({args.params or 'published parameters'})")
+    payload["png"] = str(shapes_png)
+    if do_map:
+        n1 = np.linspace(0.0, 40.0, 21)
+        om = np.linspace(0.2, 6.0, 30)
+        M = stability_map(model, params, n1, om)
+        _plot_map(n1, om, M, map_png, f"Stability of steady sliding, {model.name}")
+        payload["stability_map"] = {"png": str(map_png), "n1": n1, "omega": om, "max_real": M}
+    if args.json:
+        emit_json(payload)
+    else:
+        print(f"modal analysis of {model.name} ({args.params or 'published parameters'})"
+              + (f"; measured (thesis Fig. 3.7): {', '.join(f'{f:g}' for f in MEASURED_HZ)} Hz"
+                 if model.name == "rig3" else ""))
+        print("\n".join(lines))
+        print(f"\nwrote {shapes_png}" + (f" and {map_png}" if do_map else ""))
+    return 0
