@@ -1,0 +1,196 @@
+"""PNG maps of a sweep in the manner of seed 002 Figs. 9.31-9.33.
+
+- 2 axes: filled contours of each metric (first axis horizontal), one figure per start
+  mode, with the linear stability boundary of steady sliding (max real part = 0) as a
+  thick black line and the limit-cycle threshold as a dashed white line;
+- 2 axes and both start modes: a bistability map (where the run from rest and the run
+  from steady sliding disagree);
+- 3 axes: the threshold contour of the amplitude in the plane of the first two axes,
+  one line per value of the third axis (seed 002 Fig. 9.32), plus one amplitude map per value;
+- 1 axis: line plots.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from mitigate.cliutil import savefig_atomic
+
+__all__ = ["plot_maps", "LABELS"]
+
+LABELS = {
+    "amplitude": "stick-slip amplitude",
+    "severity": "severity SSS [-]",
+    "stuck_fraction": "fraction of time stuck [-]",
+    "frequency": "dominant frequency [Hz]",
+}
+
+_UNITS = {"n1": "N", "n2": "N", "omega_ref": "rad/s", "omega_drive": "rad/s", "axial_force": "N",
+          "c": "N m s/rad", "K": "N m/rad", "k1": "N m/rad", "k2": "N m/rad", "d1": "N m s/rad", "d2": "N m s/rad"}
+
+
+def _label(name: str) -> str:
+    if name.endswith("_scale") or name.startswith("mismatch."):
+        return f"{name} [-]"
+    return f"{name} [{_UNITS.get(name, 'SI')}]"
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def plot_maps(result, out_dir, *, title: str, amp_unit: str, threshold: float, prefix: str = "map") -> list[Path]:
+    """Write the PNG maps of a :class:`mitigate.sweep.SweepResult`; returns the paths."""
+    out_dir = Path(out_dir)
+    axes = result.axes
+    files = []
+    if len(axes) == 1:
+        files += _lines(result, out_dir, title, amp_unit, prefix)
+    elif len(axes) == 2:
+        for start, maps in result.maps.items():
+            for metric in ("amplitude", "severity", "stuck_fraction", "frequency"):
+                files.append(_contour(result, maps[metric], out_dir / f"{prefix}_{metric}_{start}.png",
+                                      f"{title}: {LABELS[metric]}{f' [{amp_unit}]' if metric == 'amplitude' else ''}"
+                                      f"\nstarted from {start}", metric, maps["amplitude"], threshold))
+        if len(result.maps) == 2:
+            files.append(_bistability(result, out_dir / f"{prefix}_bistability.png", title))
+    elif len(axes) == 3:
+        files += _threshold_family(result, out_dir, title, amp_unit, threshold, prefix)
+    return files
+
+
+def _stab(result, shape):
+    if result.stability is None or not np.any(np.isfinite(result.stability)):
+        return None
+    return result.stability.reshape(shape)
+
+
+def _contour(result, Z, path, title, metric, amp, threshold):
+    plt = _plt()
+    ax0, ax1 = result.axes[:2]
+    X, Y = np.meshgrid(ax0.values, ax1.values, indexing="ij")
+    fig, ax = plt.subplots(figsize=(6.4, 5.0))
+    Zp = np.ma.masked_invalid(Z)
+    if Zp.count() and np.ptp(Zp.compressed()) > 0:
+        cs = ax.contourf(X, Y, Zp, levels=14, cmap="viridis")
+        fig.colorbar(cs, ax=ax, label=LABELS[metric])
+    else:
+        ax.pcolormesh(X, Y, Zp, shading="nearest", cmap="viridis")
+        ax.text(0.5, 0.5, f"{LABELS[metric]} constant ({float(Zp.mean()) if Zp.count() else float('nan'):.3g})",
+                transform=ax.transAxes, ha="center", color="w")
+    handles = []
+    if np.nanmax(amp) > threshold > np.nanmin(amp):
+        ax.contour(X, Y, amp, levels=[threshold], colors="w", linestyles="--", linewidths=1.5)
+        handles.append(plt.Line2D([], [], color="w", ls="--", label=f"amplitude = {threshold:g} (limit-cycle threshold)"))
+    S = _stab(result, Z.shape)
+    if S is not None and np.nanmax(S) > 0 > np.nanmin(S):
+        ax.contour(X, Y, S, levels=[0.0], colors="k", linewidths=2.5)
+        handles.append(plt.Line2D([], [], color="k", lw=2.5, label="linear stability boundary of steady sliding"))
+    if handles:
+        leg = ax.legend(handles=handles, loc="upper left", fontsize=8, framealpha=0.6)
+        leg.get_frame().set_facecolor("0.6")
+    ax.set_xlabel(_label(ax0.name))
+    ax.set_ylabel(_label(ax1.name))
+    ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    p = savefig_atomic(fig, path)
+    plt.close(fig)
+    return p
+
+
+def _bistability(result, path, title):
+    plt = _plt()
+    from matplotlib.colors import ListedColormap
+    ax0, ax1 = result.axes[:2]
+    X, Y = np.meshgrid(ax0.values, ax1.values, indexing="ij")
+    r = result.maps["rest"]["limit_cycle"]
+    s = result.maps["sliding"]["limit_cycle"]
+    # 0 none, 1 only from rest (triggered: disturbance-induced), 2 only from sliding, 3 both
+    code = np.where(np.isfinite(r) & np.isfinite(s), (r > 0.5) * 1 + (s > 0.5) * 2, np.nan)
+    fig, ax = plt.subplots(figsize=(6.4, 5.0))
+    cmap = ListedColormap(["#d9f0d3", "#fdae61", "#abd9e9", "#d7191c"])
+    ax.pcolormesh(X, Y, np.ma.masked_invalid(code), cmap=cmap, vmin=-0.5, vmax=3.5, shading="nearest")
+    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in cmap.colors]
+    labels = ["steady sliding from both starts", "stick-slip from rest only (bistable)",
+              "stick-slip from sliding only", "stick-slip from both starts"]
+    S = _stab(result, code.shape)
+    if S is not None and np.nanmax(S) > 0 > np.nanmin(S):
+        ax.contour(X, Y, S, levels=[0.0], colors="k", linewidths=2.5)
+        handles.append(plt.Line2D([], [], color="k", lw=2.5))
+        labels.append("linear stability boundary of steady sliding")
+    ax.legend(handles, labels, loc="upper left", fontsize=7, framealpha=0.8)
+    ax.set_xlabel(_label(ax0.name))
+    ax.set_ylabel(_label(ax1.name))
+    ax.set_title(f"{title}: bistability (rest vs steady-sliding start)", fontsize=10)
+    fig.tight_layout()
+    p = savefig_atomic(fig, path)
+    plt.close(fig)
+    return p
+
+
+def _threshold_family(result, out_dir, title, amp_unit, threshold, prefix):
+    plt = _plt()
+    ax0, ax1, ax2 = result.axes
+    X, Y = np.meshgrid(ax0.values, ax1.values, indexing="ij")
+    files = []
+    for start, maps in result.maps.items():
+        A = maps["amplitude"]
+        fig, ax = plt.subplots(figsize=(6.4, 5.0))
+        handles, labels = [], []
+        colors = plt.cm.plasma(np.linspace(0.0, 0.85, ax2.count))
+        for k, v in enumerate(ax2.values):
+            Ak = A[:, :, k]
+            if np.nanmax(Ak) > threshold > np.nanmin(Ak):
+                ax.contour(X, Y, Ak, levels=[threshold], colors=[colors[k]], linewidths=2.0)
+                handles.append(plt.Line2D([], [], color=colors[k], lw=2.0))
+                labels.append(f"{ax2.name} = {v:.3g}")
+            else:
+                handles.append(plt.Line2D([], [], color=colors[k], lw=2.0, ls=":"))
+                labels.append(f"{ax2.name} = {v:.3g} ({'all above' if np.nanmin(Ak) >= threshold else 'all below'})")
+        ax.legend(handles, labels, loc="best", fontsize=8, title=f"amplitude = {threshold:g} {amp_unit}")
+        ax.set_xlabel(_label(ax0.name))
+        ax.set_ylabel(_label(ax1.name))
+        ax.set_title(f"{title}: instability threshold vs {ax2.name}\nstarted from {start}", fontsize=10)
+        fig.tight_layout()
+        files.append(savefig_atomic(fig, out_dir / f"{prefix}_threshold_{start}.png"))
+        plt.close(fig)
+        for k, v in enumerate(ax2.values):
+            fig, ax = plt.subplots(figsize=(6.4, 5.0))
+            Ak = np.ma.masked_invalid(A[:, :, k])
+            if Ak.count() and np.ptp(Ak.compressed()) > 0:
+                cs = ax.contourf(X, Y, Ak, levels=14, cmap="viridis")
+                fig.colorbar(cs, ax=ax, label=f"amplitude [{amp_unit}]")
+                if np.nanmax(Ak) > threshold > np.nanmin(Ak):
+                    ax.contour(X, Y, Ak, levels=[threshold], colors="k", linewidths=2.5)
+            ax.set_xlabel(_label(ax0.name))
+            ax.set_ylabel(_label(ax1.name))
+            ax.set_title(f"{title}: amplitude, {ax2.name} = {v:.3g}, from {start}\n"
+                         f"(black: amplitude = {threshold:g} {amp_unit})", fontsize=10)
+            fig.tight_layout()
+            files.append(savefig_atomic(fig, out_dir / f"{prefix}_amplitude_{start}_{ax2.name}{k}.png"))
+            plt.close(fig)
+    return files
+
+
+def _lines(result, out_dir, title, amp_unit, prefix):
+    plt = _plt()
+    ax0 = result.axes[0]
+    fig, axs = plt.subplots(2, 2, figsize=(9, 6.5), sharex=True)
+    for a, metric in zip(axs.ravel(), ("amplitude", "severity", "stuck_fraction", "frequency")):
+        for start, maps in result.maps.items():
+            a.plot(ax0.values, maps[metric], marker=".", label=f"from {start}")
+        a.set_ylabel(LABELS[metric] + (f" [{amp_unit}]" if metric == "amplitude" else ""))
+        a.grid(True, alpha=0.3)
+        a.legend(fontsize=8)
+    for a in axs[1]:
+        a.set_xlabel(_label(ax0.name))
+    fig.suptitle(f"{title}: sweep over {ax0.name}")
+    fig.tight_layout()
+    p = savefig_atomic(fig, out_dir / f"{prefix}_{ax0.name}.png")
+    plt.close(fig)
+    return [p]

@@ -1,0 +1,123 @@
+"""The results store of a parameter sweep: a manifest plus atomically written chunk files.
+
+Layout of a sweep folder::
+
+    DIR/manifest.json            grid definition, options and their hash
+    DIR/chunks/rest_00012.csv    one finished chunk of points (written to a temp file, then renamed)
+    DIR/results.csv              all points (written at the end)
+
+A chunk file exists only when all of its points are finished (``os.replace`` is atomic
+on POSIX), so a sweep killed at any moment (Ctrl-C, ``kill -9``) loses at most the
+chunks in flight.  A rerun with the same definition (same hash) skips the chunks
+already on disk; a rerun with a different definition into the same folder is refused
+unless ``force`` is given, which deletes the old chunks first.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from models.errors import ConfigError, DataError
+
+__all__ = ["SweepStore", "definition_hash"]
+
+
+def definition_hash(definition: Mapping[str, Any]) -> str:
+    """SHA-256 (first 16 hex digits) of the canonical JSON of a sweep definition."""
+    text = json.dumps(definition, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "w", newline="") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+class SweepStore:
+    """Folder holding one sweep's manifest and finished chunks.
+
+    Parameters
+    ----------
+    root : folder of the sweep
+    definition : JSON-serialisable grid definition (axes, options, scenario digest)
+    force : discard an existing store with a different definition (and its chunks)
+    """
+
+    def __init__(self, root: os.PathLike | str, definition: Mapping[str, Any], *, force: bool = False):
+        self.root = Path(root)
+        self.chunk_dir = self.root / "chunks"
+        self.definition = dict(definition)
+        self.hash = definition_hash(self.definition)
+        self.resumed = False
+        man = self.root / "manifest.json"
+        if man.exists():
+            try:
+                old = json.loads(man.read_text())
+            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+                raise DataError(f"{man}: unreadable sweep manifest ({exc}); use --force to start over") from None
+            if old.get("hash") == self.hash:
+                self.resumed = True
+            elif not force:
+                raise ConfigError(f"{self.root} holds a different sweep (hash {old.get('hash')}, this one {self.hash}); "
+                                  f"refusing to mix results (use --force to discard it, or another --out)")
+            else:
+                shutil.rmtree(self.chunk_dir, ignore_errors=True)
+                for f in ("results.csv",):
+                    (self.root / f).unlink(missing_ok=True)
+        elif force:
+            shutil.rmtree(self.chunk_dir, ignore_errors=True)
+        self.chunk_dir.mkdir(parents=True, exist_ok=True)
+        if not self.resumed:
+            _atomic_write(man, json.dumps({"hash": self.hash, "definition": self.definition}, indent=2, default=str))
+
+    def chunk_path(self, key: str) -> Path:
+        return self.chunk_dir / f"{key}.csv"
+
+    def done(self) -> set[str]:
+        """Keys of the chunks already on disk."""
+        return {p.stem for p in self.chunk_dir.glob("*.csv")}
+
+    def write_chunk(self, key: str, columns: Mapping[str, np.ndarray]) -> Path:
+        """Write one finished chunk atomically (columns of equal length)."""
+        names = list(columns)
+        rows = zip(*[np.asarray(columns[n]).tolist() for n in names])
+        lines = [",".join(names)]
+        for r in rows:
+            lines.append(",".join(repr(float(v)) if not isinstance(v, str) else v for v in r))
+        path = self.chunk_path(key)
+        _atomic_write(path, "\n".join(lines) + "\n")
+        return path
+
+    def read_chunk(self, key: str) -> dict[str, np.ndarray]:
+        path = self.chunk_path(key)
+        with open(path, newline="") as fh:
+            reader = csv.reader(fh)
+            try:
+                header = next(reader)
+            except StopIteration:
+                raise DataError(f"{path}: empty chunk file") from None
+            data = [list(map(float, r)) for r in reader if r]
+        arr = np.array(data, dtype=float).reshape(len(data), len(header))
+        return {h: arr[:, j] for j, h in enumerate(header)}
+
+    def write_results(self, columns: Mapping[str, np.ndarray]) -> Path:
+        """All points in one CSV (``results.csv``), written atomically."""
+        names = list(columns)
+        lines = [",".join(names)]
+        for r in zip(*[np.asarray(columns[n]).tolist() for n in names]):
+            lines.append(",".join(repr(float(v)) for v in r))
+        path = self.root / "results.csv"
+        _atomic_write(path, "\n".join(lines) + "\n")
+        return path
