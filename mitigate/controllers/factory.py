@@ -68,5 +68,6 @@ def make_controller(spec, scenario, index: int) -> Controller:
             if exc.name == "mitigate.controllers.nmpc":
                 raise ConfigError(f"{where}.kind: 'nmpc' is not available in this installation") from None
             raise
-        return make_nmpc(opts, scenario.model_params, dt_c, omega0, scenario.servo, where)
+        # the NMPC re-plans on its own OCP grid (options.dt) and is given the DAQ period
+        return make_nmpc(opts, scenario.model_params, scenario.dt, omega0, scenario.servo, where)
     raise ConfigError(f"{where}.kind must be one of {', '.join(CONTROLLER_KINDS)}, got {spec.kind!r}")
