@@ -262,7 +262,7 @@ class NMPCController(Controller):
             if x.shape != (7,) or not (np.all(np.isfinite(x)) and np.isfinite(n1)):
                 raise SolverFailure("non-finite estimate or n1")
             xa0 = np.concatenate([x, [n2a], self._u_prev])
-            q = np.concatenate([[max(n1, 0.0), self.omega_nominal], self._p])
+            q = self.spec.q(max(n1, 0.0), self.omega_nominal, self._p)
             if self.ocp.w is not None:
                 self.ocp.shift(steps)
             lo, hi = self._bounds()

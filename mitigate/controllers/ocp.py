@@ -11,8 +11,9 @@ stays inside one stage (shared/CASADI-FACTS.md)::
     du = [d omega_ref, d n2]                             (decision: input change per interval)
     u  = u_prev + du
 
-Per-stage parameters ``q = [n1, omega_nom, p...]``: the measured N1 [N] (held over the
-horizon), the nominal speed [rad/s] and the full rig3 parameter vector.
+Per-stage parameters ``q = [n1, omega_nom, omega_scale, n2_max, weights..., p...]``
+(:meth:`OCPSpec.q`): the measured N1 [N] (held over the horizon), the nominal speed
+[rad/s], the residual scales, the cost weights and the full rig3 parameter vector.
 
 The cost is a least-squares sum plus a linear pin-force term (friction work at pin 2 is
 linear in N2, and a linear cost leaves N2 exactly at zero when it does not pay)::
@@ -54,10 +55,12 @@ NU = 2          # [omega_ref, n2]
 
 @dataclass(frozen=True, kw_only=True)
 class OCPSpec:
-    """Everything that defines the OCP's functions (hashable; drives the compile cache).
+    """Everything that defines the OCP's functions.
 
-    Weights are per residual; the residuals are scaled by ``omega_scale`` [rad/s] and
-    ``n2_max`` [N] so that the weights are dimensionless.
+    Only the structural entries (dt, nsub, eps, tau_servo) enter the compiled code; the
+    weights and scales travel in the parameter vector ``q`` (see :meth:`OCPSpec.q`), so
+    one compiled library serves every tuning.  Residuals are scaled by ``omega_scale``
+    [rad/s] and ``n2_max`` [N] so that the weights are dimensionless.
     """
 
     horizon: int
@@ -75,6 +78,15 @@ class OCPSpec:
     w_dref: float
     w_dn2: float
     w_terminal: float
+
+    def q(self, n1: float, omega_nom: float, p) -> np.ndarray:
+        """Stage parameters [n1, omega_nom, omega_scale, n2_max, 8 weights, p...]."""
+        return np.concatenate([[n1, omega_nom, self.omega_scale, self.n2_max, self.w_speed, self.w_rel,
+                                self.w_ref, self.w_n2, self.c_n2, self.w_dref, self.w_dn2, self.w_terminal],
+                               np.asarray(p, float)])
+
+
+NQ0 = 12  # entries of q before the model parameters
 
 
 @dataclass(frozen=True)
@@ -130,8 +142,9 @@ def stage_functions(model, spec: OCPSpec) -> tuple[ca.Function, ca.Function, ca.
     n_p = model.n_p
     xa = ca.SX.sym("xa", NXA)
     du = ca.SX.sym("du", NU)
-    q = ca.SX.sym("q", 2 + n_p)
-    n1, wnom, p = q[0], q[1], q[2:]
+    q = ca.SX.sym("q", NQ0 + n_p)
+    n1, wnom, p = q[0], q[1], q[NQ0:]
+    ws, n2max, w_speed, w_rel, w_ref, w_n2, c_n2, w_dref, w_dn2, w_term = (q[j] for j in range(2, NQ0))
     u = xa[8:10] + du
     tau = spec.tau_servo
 
@@ -145,18 +158,17 @@ def stage_functions(model, spec: OCPSpec) -> tuple[ca.Function, ca.Function, ca.
     xn = ca.vertcat(xn[:NX], xn[7] if tau > 0 else u[1], u)
     F = ca.Function("nmpc_F", [xa, du, q], [xn], ["xa", "du", "q"], ["xa_next"])
 
-    ws = spec.omega_scale
     w1, w2, w3 = xa[2], xa[3], xa[4]
     r = ca.vertcat(
-        spec.w_speed * (w1 - wnom) / ws,
-        spec.w_rel * (w1 - w2) / ws,
-        spec.w_rel * (w2 - w3) / ws,
-        spec.w_ref * (u[0] - wnom) / ws,
-        spec.w_n2 * u[1] / spec.n2_max,
-        spec.w_dref * du[0] / ws,
-        spec.w_dn2 * du[1] / spec.n2_max,
+        w_speed * (w1 - wnom) / ws,
+        w_rel * (w1 - w2) / ws,
+        w_rel * (w2 - w3) / ws,
+        w_ref * (u[0] - wnom) / ws,
+        w_n2 * u[1] / n2max,
+        w_dref * du[0] / ws,
+        w_dn2 * du[1] / n2max,
     )
-    lin = spec.c_n2 * u[1] / spec.n2_max
+    lin = c_n2 * u[1] / n2max
     cost = ca.Function("nmpc_cost", [xa, du, q], [r, lin], ["xa", "du", "q"], ["r", "l"])
     z = ca.vertcat(xa, du)
     Jr = ca.jacobian(r, z)
@@ -165,8 +177,7 @@ def stage_functions(model, spec: OCPSpec) -> tuple[ca.Function, ca.Function, ca.
     stage = ca.Function("nmpc_stage", [xa, du, q],
                         [xn, ca.densify(ca.jacobian(xn, xa)), ca.densify(ca.jacobian(xn, du)), H, g, r, lin],
                         ["xa", "du", "q"], ["xn", "A", "B", "H", "g", "r", "l"])
-    rN = spec.w_terminal * ca.vertcat(spec.w_speed * (w1 - wnom) / ws, spec.w_rel * (w1 - w2) / ws,
-                                      spec.w_rel * (w2 - w3) / ws)
+    rN = w_term * ca.vertcat(w_speed * (w1 - wnom) / ws, w_rel * (w1 - w2) / ws, w_rel * (w2 - w3) / ws)
     JN = ca.jacobian(rN, xa)
     term = ca.Function("nmpc_term", [xa, q], [ca.densify(JN.T @ JN), ca.densify(JN.T @ rN), rN],
                        ["xa", "q"], ["H", "g", "r"])
@@ -189,7 +200,7 @@ def _compile(functions: list[ca.Function], tag: str) -> dict[str, ca.Function]:
             c = Path(tmp) / f"{tag}.c"
             c.write_text(src)
             tmp_so = d / f".{tag}_{key}.{os.getpid()}.so"
-            res = subprocess.run(["gcc", "-O2", "-fPIC", "-shared", str(c), "-o", str(tmp_so), "-lm"],
+            res = subprocess.run(["gcc", "-O1", "-fPIC", "-shared", str(c), "-o", str(tmp_so), "-lm"],
                                  capture_output=True, text=True)
             if res.returncode != 0:
                 raise SolverFailure(f"gcc failed compiling the NMPC stage: {res.stderr.strip()[:300]}")
