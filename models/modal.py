@@ -42,7 +42,6 @@ import math
 from dataclasses import dataclass, field
 
 import casadi as ca
-import control
 import numpy as np
 import scipy.linalg
 
@@ -98,7 +97,7 @@ class LinearModel:
     outputs: tuple[str, ...]
     eps: float
     model: str
-    ss: control.StateSpace = field(repr=False, compare=False)
+    ss: "control.StateSpace" = field(repr=False, compare=False)  # noqa: F821 (imported lazily: slow import)
     status: str = "ok"
     success: bool = True
 
@@ -248,9 +247,11 @@ def linearise(model: RigModel | str, params: ParameterSet, u, eps: float | None 
     if speeds and min(speeds) < 10 * eps:
         msgs.append(f"a contact speed {min(speeds):.3g} rad/s is not >> eps = {eps:g} rad/s: "
                     "the regularisation, not the sliding friction, sets the slope")
-    sys = control.ss(A, B, C, D, states=list(model.states), inputs=list(model.inputs), outputs=list(outputs))
+    import control  # lazily: importing python-control (scipy.signal) costs seconds at CLI start-up
+
+    sysm = control.ss(A, B, C, D, states=list(model.states), inputs=list(model.inputs), outputs=list(outputs))
     return LinearModel(A, B, C, D, x_op, u, tuple(model.states), tuple(model.inputs), tuple(outputs), eps,
-                       model.name, sys, "; ".join(msgs) or "ok", not msgs)
+                       model.name, sysm, "; ".join(msgs) or "ok", not msgs)
 
 
 # ----------------------------------------------------------------------------- mechanical chain
