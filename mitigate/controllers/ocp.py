@@ -235,11 +235,8 @@ class OCPSolver:
         self.sqp_tol = sqp_tol
         F, cost, stage, term = stage_functions(model, spec)
         self.F, self.cost_fn = F, cost
-        if compile and solver in ("rti", "sqp"):
-            tag = "nmpc_stage"
-            ext = _compile([stage, term], tag)
-            stage, term = ext["nmpc_stage"], ext["nmpc_term"]
         self._stage, self._term = stage, term
+        self._compiled = bool(compile and solver in ("rti", "sqp"))
         self._ix = np.array([k * self.nz + j for k in range(N + 1) for j in range(NXA)])
         self._iu = np.array([k * self.nz + NXA + j for k in range(N) for j in range(NU)])
         self.w = None   # current plan (primal), None until initialised
@@ -253,35 +250,49 @@ class OCPSolver:
 
     # ------------------------------------------------------------------ QP build
     def _build_qp(self):
+        """One Function evaluates every stage (compiled as one C call); the sparse QP
+        matrices are filled from its dense blocks by precomputed nonzero maps in numpy
+        (assembling them in MX/generated code scaled badly with N)."""
         N, nz = self.N, self.nz
-        w = ca.MX.sym("w", self.nw)
+        X = ca.MX.sym("X", NXA, N)
+        U = ca.MX.sym("U", NU, N)
+        xN = ca.MX.sym("xN", NXA)
         q = ca.MX.sym("q", self._stage.size1_in(2))
-        Z = ca.reshape(w[:N * nz], nz, N)
-        X, U = Z[:NXA, :], Z[NXA:, :]
-        xN = w[N * nz:]
-        smap = self._stage.map(N)
-        xn, A, B, H, g, r, l = smap(X, U, ca.repmat(q, 1, N))
+        xn, A, B, H, g, r, l = self._stage.map(N)(X, U, ca.repmat(q, 1, N))
         HN, gN, rN = self._term(xN, q)
-        Hs = [H[:, k * nz:(k + 1) * nz] for k in range(N)]
-        Hq = ca.diagcat(*Hs, HN)
-        gq = ca.vertcat(ca.vec(g), gN)
-        # constraint rows per stage: gap (NXA rows) then u-band (NU rows); columns [x_k u_k x_k+1]
+        self._stages = ca.Function("nmpc_stages", [X, U, xN, q], [xn, A, B, H, g, r, l, HN, gN, rN],
+                                   ["X", "U", "xN", "q"], ["xn", "A", "B", "H", "g", "r", "l", "HN", "gN", "rN"])
+        if self._compiled:
+            self._stages = _compile([self._stages], "nmpc_stages")["nmpc_stages"]
+        # Hessian: block diagonal of dense blocks -> CCS nonzeros are the blocks column by column
+        self._Hsp = ca.diagcat(*([ca.Sparsity.dense(nz, nz)] * N + [ca.Sparsity.dense(NXA, NXA)]))
+        # constraint matrix rows per stage: gap (NXA rows) then u-band (NU rows); columns [x_k u_k x_k+1]
+        Aph = ca.SX.sym("a", NXA, NXA * N)
+        Bph = ca.SX.sym("b", NXA, NU * N)
         E = np.zeros((NU, NXA))
         E[:, 8:10] = np.eye(NU)
         rows = []
-        Iz = -ca.MX.eye(NXA)
         for k in range(N):
-            gap = ca.horzcat(A[:, k * NXA:(k + 1) * NXA], B[:, k * NU:(k + 1) * NU], Iz)
-            band = ca.horzcat(ca.MX(ca.DM(E)), ca.MX.eye(NU), ca.MX(NU, NXA))
+            gap = ca.horzcat(Aph[:, k * NXA:(k + 1) * NXA], Bph[:, k * NU:(k + 1) * NU], -ca.SX.eye(NXA))
+            band = ca.horzcat(ca.SX(ca.DM(E)), ca.SX.eye(NU), ca.SX(NU, NXA))
             blk = ca.vertcat(gap, band)
             left, right = k * nz, self.nw - (k * nz + nz + NXA)
-            rows.append(ca.horzcat(ca.MX(blk.size1(), left), blk, ca.MX(blk.size1(), right)))
-        Aq = ca.vertcat(*rows)
-        gaps = xn - ca.horzcat(X[:, 1:], xN)     # F(x_k, u_k) - x_{k+1}
-        obj = 0.5 * ca.sumsqr(r) + ca.sum2(l) + 0.5 * ca.sumsqr(rN)
-        self._qpdata = ca.Function("nmpc_qpdata", [w, q], [Hq, gq, Aq, gaps, obj], ["w", "q"],
-                                   ["H", "g", "A", "gaps", "obj"])
-        self._Hsp, self._Asp = Hq.sparsity(), Aq.sparsity()
+            rows.append(ca.horzcat(ca.SX(blk.size1(), left), blk, ca.SX(blk.size1(), right)))
+        Asx = ca.vertcat(*rows)
+        self._Asp = Asx.sparsity()
+        src = ca.vertcat(ca.vec(Aph), ca.vec(Bph))
+        pos = {src[i].name(): i for i in range(src.numel())}
+        idx, const = [], []
+        for e in Asx.nonzeros():
+            if e.is_symbolic():
+                idx.append(pos[e.name()])
+                const.append(0.0)
+            else:
+                idx.append(-1)
+                const.append(float(e))
+        self._a_idx = np.array(idx)
+        self._a_const = np.array(const)
+        self._a_sym = self._a_idx >= 0
         opts: dict = {"error_on_fail": False}
         if self.qp_solver == "hpipm":
             t = self.qp_tol
@@ -408,12 +419,28 @@ class OCPSolver:
         self.w = w_new
         return OCPResult(U, X, cost, iters, status, True, time.perf_counter() - t0)
 
-    def _qp_step(self, w, q, lbw, ubw, lo, hi):
-        H, g, A, gaps, obj = self._qpdata(w, q)
+    def qp_data(self, w, q):
+        """Gauss-Newton QP at the plan ``w``: (H, g, A) as DM, gaps (N, NXA) = F(x_k,u_k) - x_{k+1}, cost."""
         N, nz = self.N, self.nz
-        U = w[:N * nz].reshape(N, nz)
-        ucur = U[:, 8:10] + U[:, NXA:]
-        gaps = np.array(gaps).T                     # (N, NXA)
+        Z = w[:N * nz].reshape(N, nz)
+        xN = w[N * nz:]
+        out = self._stages(Z[:, :NXA].T, Z[:, NXA:].T, xN, q)
+        xn, A, B, H, g, r, l, HN, gN, rN = (np.array(v) for v in out)
+        hnz = np.concatenate([H.ravel(order="F"), HN.ravel(order="F")])
+        src = np.concatenate([A.ravel(order="F"), B.ravel(order="F")])
+        anz = self._a_const.copy()
+        anz[self._a_sym] = src[self._a_idx[self._a_sym]]
+        gq = np.concatenate([g.ravel(order="F"), gN.ravel()])
+        Xnext = np.vstack([Z[1:, :NXA], xN[None, :]])
+        gaps = xn.T - Xnext
+        obj = 0.5 * float(np.sum(r ** 2)) + float(np.sum(l)) + 0.5 * float(np.sum(rN ** 2))
+        return ca.DM(self._Hsp, hnz), gq, ca.DM(self._Asp, anz), gaps, obj
+
+    def _qp_step(self, w, q, lbw, ubw, lo, hi):
+        H, g, A, gaps, obj = self.qp_data(w, q)
+        N, nz = self.N, self.nz
+        Z = w[:N * nz].reshape(N, nz)
+        ucur = Z[:, 8:10] + Z[:, NXA:]
         lba = np.empty((N, NXA + NU))
         uba = np.empty((N, NXA + NU))
         lba[:, :NXA] = uba[:, :NXA] = -gaps          # A dx + B du - dx+ = -(F - x+)
