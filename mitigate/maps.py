@@ -56,7 +56,7 @@ def plot_maps(result, out_dir, *, title: str, amp_unit: str, threshold: float, p
             for metric in ("amplitude", "severity", "stuck_fraction", "frequency"):
                 files.append(_contour(result, maps[metric], out_dir / f"{prefix}_{metric}_{start}.png",
                                       f"{title}: {LABELS[metric]}{f' [{amp_unit}]' if metric == 'amplitude' else ''}"
-                                      f"\nstarted from {start}", metric, maps["amplitude"], threshold))
+                                      f"\nstarted from {start}", metric, maps["amplitude"], threshold, amp_unit))
         if len(result.maps) == 2:
             files.append(_bistability(result, out_dir / f"{prefix}_bistability.png", title))
     elif len(axes) == 3:
@@ -65,20 +65,26 @@ def plot_maps(result, out_dir, *, title: str, amp_unit: str, threshold: float, p
 
 
 def _stab(result, shape):
-    if result.stability is None or not np.any(np.isfinite(result.stability)):
+    """(X, Y, S) of the sliding-stability sub-grid of a 2-axis sweep, or None."""
+    if result.stability is None or not np.any(np.isfinite(result.stability)) or len(result.axes) != 2:
         return None
-    return result.stability.reshape(shape)
+    i0, i1 = result.stability_subgrid
+    S = result.stability.reshape(shape)[np.ix_(i0, i1)]
+    if S.shape[0] < 2 or S.shape[1] < 2 or not (np.nanmax(S) > 0 > np.nanmin(S)):
+        return None
+    X, Y = np.meshgrid(result.axes[0].values[i0], result.axes[1].values[i1], indexing="ij")
+    return X, Y, S
 
 
-def _contour(result, Z, path, title, metric, amp, threshold):
+def _contour(result, Z, path, title, metric, amp, threshold, amp_unit=""):
     plt = _plt()
     ax0, ax1 = result.axes[:2]
     X, Y = np.meshgrid(ax0.values, ax1.values, indexing="ij")
-    fig, ax = plt.subplots(figsize=(6.4, 5.0))
+    fig, ax = plt.subplots(figsize=(6.4, 5.8))
     Zp = np.ma.masked_invalid(Z)
     if Zp.count() and np.ptp(Zp.compressed()) > 0:
         cs = ax.contourf(X, Y, Zp, levels=14, cmap="viridis")
-        fig.colorbar(cs, ax=ax, label=LABELS[metric])
+        fig.colorbar(cs, ax=ax, label=LABELS[metric] + (f" [{amp_unit}]" if metric == "amplitude" else ""))
     else:
         ax.pcolormesh(X, Y, Zp, shading="nearest", cmap="viridis")
         ax.text(0.5, 0.5, f"{LABELS[metric]} constant ({float(Zp.mean()) if Zp.count() else float('nan'):.3g})",
@@ -86,14 +92,13 @@ def _contour(result, Z, path, title, metric, amp, threshold):
     handles = []
     if np.nanmax(amp) > threshold > np.nanmin(amp):
         ax.contour(X, Y, amp, levels=[threshold], colors="w", linestyles="--", linewidths=1.5)
-        handles.append(plt.Line2D([], [], color="w", ls="--", label=f"amplitude = {threshold:g} (limit-cycle threshold)"))
-    S = _stab(result, Z.shape)
-    if S is not None and np.nanmax(S) > 0 > np.nanmin(S):
-        ax.contour(X, Y, S, levels=[0.0], colors="k", linewidths=2.5)
+        handles.append(plt.Line2D([], [], color="0.45", ls="--", label=f"white dashed: amplitude = {threshold:g} (limit-cycle threshold)"))
+    st = _stab(result, Z.shape)
+    if st is not None:
+        ax.contour(*st, levels=[0.0], colors="k", linewidths=2.5)
         handles.append(plt.Line2D([], [], color="k", lw=2.5, label="linear stability boundary of steady sliding"))
     if handles:
-        leg = ax.legend(handles=handles, loc="upper left", fontsize=8, framealpha=0.6)
-        leg.get_frame().set_facecolor("0.6")
+        ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.13), fontsize=8, ncol=1)
     ax.set_xlabel(_label(ax0.name))
     ax.set_ylabel(_label(ax1.name))
     ax.set_title(title, fontsize=10)
@@ -112,18 +117,18 @@ def _bistability(result, path, title):
     s = result.maps["sliding"]["limit_cycle"]
     # 0 none, 1 only from rest (triggered: disturbance-induced), 2 only from sliding, 3 both
     code = np.where(np.isfinite(r) & np.isfinite(s), (r > 0.5) * 1 + (s > 0.5) * 2, np.nan)
-    fig, ax = plt.subplots(figsize=(6.4, 5.0))
+    fig, ax = plt.subplots(figsize=(7.0, 6.0))
     cmap = ListedColormap(["#d9f0d3", "#fdae61", "#abd9e9", "#d7191c"])
     ax.pcolormesh(X, Y, np.ma.masked_invalid(code), cmap=cmap, vmin=-0.5, vmax=3.5, shading="nearest")
     handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in cmap.colors]
     labels = ["steady sliding from both starts", "stick-slip from rest only (bistable)",
               "stick-slip from sliding only", "stick-slip from both starts"]
-    S = _stab(result, code.shape)
-    if S is not None and np.nanmax(S) > 0 > np.nanmin(S):
-        ax.contour(X, Y, S, levels=[0.0], colors="k", linewidths=2.5)
+    st = _stab(result, code.shape)
+    if st is not None:
+        ax.contour(*st, levels=[0.0], colors="k", linewidths=2.5)
         handles.append(plt.Line2D([], [], color="k", lw=2.5))
         labels.append("linear stability boundary of steady sliding")
-    ax.legend(handles, labels, loc="upper left", fontsize=7, framealpha=0.8)
+    ax.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -0.13), fontsize=8, ncol=2)
     ax.set_xlabel(_label(ax0.name))
     ax.set_ylabel(_label(ax1.name))
     ax.set_title(f"{title}: bistability (rest vs steady-sliding start)", fontsize=10)

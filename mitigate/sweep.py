@@ -30,13 +30,17 @@ The ``[sweep]`` table of a scenario sets defaults::
     settle = 15.0             # [s] discarded before the metrics (default: half the duration)
     speed = "omega1"          # state whose speed gives severity, stuck fraction, frequency
     amplitude_of = "omega1"   # state whose half peak-to-peak is the amplitude (unit of that state)
-    threshold = 0.05          # amplitude above which a point counts as a limit cycle
+    threshold = 0.05          # amplitude above which a point counts as a limit cycle (if also sustained:
+                              # the late half of the window swings >= 80 % of the early half)
+    perturbation = 0.01       # [rad/s] added to the contact speeds of a steady-sliding start
     stuck_threshold = 1e-6    # [rad/s] |speed| at or below which the body counts as stuck
     chunk = 50                # points per chunk (unit of parallelism and of resuming)
     block = 200               # time steps per compiled call
     duration = 30.0           # [s] overrides scenario.duration for the sweep
     dt = 0.01                 # [s] overrides scenario.dt
     nsub = 10                 # substeps per dt (overrides plant.nsub)
+    stability_points = 20     # linear stability of steady sliding on a sub-grid of at most this many
+                              # values per axis (models.modal.sliding_stability; ~60 ms per point)
 """
 
 from __future__ import annotations
@@ -64,13 +68,13 @@ from mitigate.sweepstore import SweepStore
 
 __all__ = ["Axis", "parse_axis", "SweepOptions", "SweepPlan", "ChunkTask", "SweepResult", "plan_sweep",
            "run_chunk", "run_sweep", "batched_step", "METRICS", "options_from_scenario", "make_tasks",
-           "stability_margins", "assemble"]
+           "stability_indices", "stability_subgrid", "assemble"]
 
 #: per-point outputs of a sweep (besides the axis values)
-METRICS = ("amplitude", "severity", "stuck_fraction", "frequency", "mean_speed", "limit_cycle", "ok")
+METRICS = ("amplitude", "severity", "stuck_fraction", "frequency", "mean_speed", "growth", "limit_cycle", "ok")
 
 _SWEEP_KEYS = {"vary", "start", "settle", "speed", "amplitude_of", "threshold", "stuck_threshold", "chunk", "block",
-               "duration", "dt", "nsub"}
+               "duration", "dt", "nsub", "stability_points", "perturbation"}
 
 
 # ----------------------------------------------------------------------------- axes
@@ -131,6 +135,8 @@ class SweepOptions:
     stuck_threshold: float = 1e-6
     chunk: int = 50
     block: int = 200
+    stability_points: int = 20
+    perturbation: float = 0.01
     backend: str = "compiled"
 
     def __post_init__(self):
@@ -140,13 +146,13 @@ class SweepOptions:
             v = getattr(self, n)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"sweep.{n} must be a finite number > 0 s, got {v!r}")
-        for n in ("nsub", "chunk", "block"):
+        for n in ("nsub", "chunk", "block", "stability_points"):
             v = getattr(self, n)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ConfigError(f"sweep.{n} must be an integer >= 1, got {v!r}")
         if self.settle is not None and not (isinstance(self.settle, (int, float)) and 0 <= self.settle < self.duration):
             raise ConfigError(f"sweep.settle must be in [0, duration={self.duration}) s, got {self.settle!r}")
-        for n in ("threshold", "stuck_threshold"):
+        for n in ("threshold", "stuck_threshold", "perturbation"):
             v = getattr(self, n)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
                 raise ConfigError(f"sweep.{n} must be a finite number >= 0, got {v!r}")
@@ -183,7 +189,8 @@ def options_from_scenario(sc: Scenario, **overrides) -> SweepOptions:
     kw = dict(start=tab.get("start", "rest"), duration=tab.get("duration", sc.duration), dt=tab.get("dt", sc.dt),
               nsub=tab.get("nsub", sc.sim.nsub), settle=tab.get("settle"), speed=tab.get("speed", speed),
               amplitude_of=tab.get("amplitude_of", amp), threshold=tab.get("threshold", 0.05),
-              stuck_threshold=tab.get("stuck_threshold", 1e-6), chunk=tab.get("chunk", 50), block=tab.get("block", 200))
+              stuck_threshold=tab.get("stuck_threshold", 1e-6), chunk=tab.get("chunk", 50), block=tab.get("block", 200),
+              stability_points=tab.get("stability_points", 20), perturbation=tab.get("perturbation", 0.01))
     if overrides.get("duration") is not None and overrides.get("settle") is None:
         kw["settle"] = None   # a new duration without a new settle time: discard its first half
     kw.update({k: v for k, v in overrides.items() if v is not None})
@@ -382,15 +389,20 @@ class ChunkTask:
     threshold: float
     stuck_threshold: float
     backend: str = "compiled"
+    perturbation: float = 0.0    # [rad/s] added to the contact speeds of a sliding start
     controller: Any = None       # (scenario path, controller name) for closed-loop sweeps
+    kind: str = "simulate"       # simulate | stability (linear stability of steady sliding)
+    params: Any = None           # the scenario's plant ParameterSet (for kind="stability")
 
 
-def _x0(model, start, u, pvec, param_cls):
+def _x0(model, start, u, pvec, param_cls, perturbation=0.0):
     if start == "rest":
         return np.zeros(model.nx), True
     try:
         params = model.published().with_vector(param_cls.names(), pvec)
         x = model.steady_sliding(u, params)
+        # a small kick so that a linearly unstable sliding state does leave (the exact plant would sit on it)
+        x[list(model.contacts)] += perturbation
         return x, bool(np.all(np.isfinite(x)))
     except Exception:  # noqa: BLE001 - a failed equilibrium search marks the point, it does not stop the sweep
         return np.zeros(model.nx), False
@@ -400,16 +412,22 @@ def _reduce(speed: np.ndarray, amp: np.ndarray, dt: float, task: ChunkTask) -> d
     if not (np.all(np.isfinite(speed)) and np.all(np.isfinite(amp))):
         return {k: float("nan") for k in METRICS[:-2]} | {"limit_cycle": float("nan"), "ok": 0.0}
     a = mx.amplitude(amp)
-    cycle = a > task.threshold
+    # sustained, not a decaying transient: the late half of the window swings at least 80 % of the early half
+    h = len(amp) // 2
+    a_early, a_late = mx.amplitude(amp[:h]), mx.amplitude(amp[h:])
+    growth = a_late / a_early if a_early > 0 else (1.0 if a_late == 0 else float("inf"))
+    cycle = bool(a > task.threshold and growth >= 0.8)
     # a frequency is only meaningful for a limit cycle (else it is the spectrum of rounding noise)
     return {"amplitude": a, "severity": mx.severity(speed),
             "stuck_fraction": mx.stuck_fraction(speed, task.stuck_threshold),
             "frequency": mx.dominant_frequency(speed, dt) if cycle else float("nan"),
-            "mean_speed": float(np.mean(speed)), "limit_cycle": float(cycle), "ok": 1.0}
+            "mean_speed": float(np.mean(speed)), "growth": float(growth), "limit_cycle": float(cycle), "ok": 1.0}
 
 
 def run_chunk(task: ChunkTask) -> dict[str, np.ndarray]:
     """Simulate one chunk of points and reduce each to :data:`METRICS` (plus ``index``)."""
+    if task.kind == "stability":
+        return _run_chunk_stability(task)
     if task.controller is not None:
         return _run_chunk_closed_loop(task)
     model = get_model(task.model)
@@ -421,7 +439,7 @@ def run_chunk(task: ChunkTask) -> dict[str, np.ndarray]:
     x = np.empty((model.nx, m))
     started = np.ones(m, dtype=bool)
     for j in range(m):
-        x[:, j], started[j] = _x0(model, task.start, Uall[j, 0], task.P[j], model.param_cls)
+        x[:, j], started[j] = _x0(model, task.start, Uall[j, 0], task.P[j], model.param_cls, task.perturbation)
     th = np.zeros((1, m))
     Pt = task.P.T.copy()
     keep = n_steps - task.settle_steps
@@ -451,6 +469,20 @@ def run_chunk(task: ChunkTask) -> dict[str, np.ndarray]:
     return out
 
 
+def _run_chunk_stability(task: ChunkTask) -> dict[str, np.ndarray]:
+    from models.modal import sliding_stability
+    model = get_model(task.model)
+    out = np.full(len(task.indices), np.nan)
+    for j in range(len(task.indices)):
+        u = task.U[0].copy()
+        u[list(task.u_cols)] = task.u_vals[j]
+        try:
+            out[j] = sliding_stability(model, task.params.with_vector(task.params.names(), task.P[j]), u)[1]
+        except Exception:  # noqa: BLE001 - no steady sliding (e.g. zero speed): leave NaN
+            pass
+    return {"index": np.asarray(task.indices, dtype=float), "max_real": out}
+
+
 def _run_chunk_closed_loop(task: ChunkTask) -> dict[str, np.ndarray]:
     try:
         from mitigate import closedloop  # noqa: F401  (helper H4b's module)
@@ -472,8 +504,41 @@ def make_tasks(plan: SweepPlan, controller=None) -> list[ChunkTask]:
                                    u_cols=plan.u_cols, u_vals=plan.u_vals[idx], P=plan.P[idx],
                                    speed_index=model.states.index(o.speed),
                                    amp_index=model.states.index(o.amplitude_of), threshold=o.threshold,
-                                   stuck_threshold=o.stuck_threshold, backend=o.backend, controller=controller))
+                                   stuck_threshold=o.stuck_threshold, backend=o.backend, controller=controller,
+                                   perturbation=o.perturbation))
+    if stability_available():
+        idx = stability_indices(plan)
+        for c, lo in enumerate(range(0, len(idx), o.chunk)):
+            ii = idx[lo:lo + o.chunk]
+            tasks.append(ChunkTask(key=f"stability_{c:05d}", indices=ii, model=plan.scenario.model, start="sliding",
+                                   dt=o.dt, nsub=o.nsub, block=o.block, settle_steps=o.settle_steps, U=plan.U[:1],
+                                   u_cols=plan.u_cols, u_vals=plan.u_vals[ii], P=plan.P[ii], speed_index=0,
+                                   amp_index=0, threshold=o.threshold, stuck_threshold=o.stuck_threshold,
+                                   kind="stability", params=plan.scenario.plant_params))
     return tasks
+
+
+def stability_available() -> bool:
+    """Whether ``models.modal.sliding_stability`` (helper H1) is importable."""
+    try:
+        from models.modal import sliding_stability  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def stability_subgrid(plan: SweepPlan) -> tuple[np.ndarray, ...]:
+    """Per axis, the indices of the values at which the sliding stability is computed."""
+    S = plan.options.stability_points
+    return tuple(np.unique(np.round(np.linspace(0, a.count - 1, min(a.count, S))).astype(int)) for a in plan.axes)
+
+
+def stability_indices(plan: SweepPlan) -> np.ndarray:
+    """Flat point indices of the stability sub-grid."""
+    shape = tuple(a.count for a in plan.axes)
+    sub = stability_subgrid(plan)
+    mesh = np.meshgrid(*sub, indexing="ij")
+    return np.ravel_multi_index(tuple(m.ravel() for m in mesh), shape)
 
 
 # ----------------------------------------------------------------------------- running
@@ -485,7 +550,8 @@ class SweepResult:
     ----------
     axes : the axes; grid : (n_points, n_axes)
     maps : {start: {metric: (count_1, ..., count_k) array}} (axis order as given)
-    stability : max real part of the sliding linearisation per point (n_points,), or None
+    stability : max real part [1/s] of the sliding linearisation per point (n_points,; NaN off the
+        stability sub-grid :func:`stability_subgrid`), or None
     computed, reused : numbers of chunks computed now and found on disk
     """
 
@@ -499,6 +565,7 @@ class SweepResult:
     status: str = "ok"
     success: bool = True
     files: dict = field(default_factory=dict)
+    stability_subgrid: tuple = ()
 
 
 def _init_worker():
@@ -526,6 +593,8 @@ def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None,
     """
     t0 = time.perf_counter()
     tasks = make_tasks(plan, controller)
+    if not stability:
+        tasks = [t for t in tasks if t.kind != "stability"]
     done = store.done()
     pending = [t for t in tasks if t.key not in done]
     reused = len(tasks) - len(pending)
@@ -580,29 +649,12 @@ def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None,
                         raise
     if bar is not None:
         bar.close()
-    result = assemble(plan, store, tasks, stability=stability)
+    result = assemble(plan, store, tasks)
     return SweepResult(plan.axes, plan.grid, result[0], result[1], len(pending), reused,
-                       time.perf_counter() - t0, result[2], result[3])
+                       time.perf_counter() - t0, result[2], result[3], stability_subgrid=stability_subgrid(plan))
 
 
-def stability_margins(plan: SweepPlan) -> np.ndarray | None:
-    """Largest real part [1/s] of the steady-sliding linearisation at each point (``models.modal``)."""
-    try:
-        from models.modal import sliding_stability
-    except ImportError:
-        return None
-    model = get_model(plan.scenario.model)
-    out = np.full(plan.n_points, np.nan)
-    for j in range(plan.n_points):
-        u = plan.point_input(j, 0)
-        try:
-            out[j] = sliding_stability(model, plan.point_params(j), u)[1]
-        except Exception:  # noqa: BLE001 - no equilibrium (e.g. zero speed): leave NaN
-            pass
-    return out
-
-
-def assemble(plan: SweepPlan, store: SweepStore, tasks, *, stability: bool = True):
+def assemble(plan: SweepPlan, store: SweepStore, tasks):
     """Read all chunks of a finished sweep into maps and write ``results.csv``."""
     shape = tuple(a.count for a in plan.axes)
     maps = {}
@@ -610,7 +662,7 @@ def assemble(plan: SweepPlan, store: SweepStore, tasks, *, stability: bool = Tru
     for start in plan.options.starts:
         arr = {m: np.full(plan.n_points, np.nan) for m in METRICS}
         for t in tasks:
-            if t.start != start:
+            if t.start != start or t.kind != "simulate":
                 continue
             d = store.read_chunk(t.key)
             idx = d["index"].astype(int)
@@ -619,7 +671,13 @@ def assemble(plan: SweepPlan, store: SweepStore, tasks, *, stability: bool = Tru
         maps[start] = {m: v.reshape(shape) for m, v in arr.items()}
         for m in METRICS:
             cols[f"{m}_{start}"] = arr[m]
-    stab = stability_margins(plan) if stability else None
+    stab = None
+    stab_tasks = [t for t in tasks if t.kind == "stability"]
+    if stab_tasks:
+        stab = np.full(plan.n_points, np.nan)
+        for t in stab_tasks:
+            d = store.read_chunk(t.key)
+            stab[d["index"].astype(int)] = d["max_real"]
     if stab is not None:
         cols["sliding_max_real"] = stab
     bad = int(sum(np.sum(maps[s]["ok"] == 0) for s in maps))

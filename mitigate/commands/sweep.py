@@ -48,6 +48,8 @@ def register(sub) -> None:
     p.add_argument("--backend", choices=("compiled", "vm"), default="compiled",
                    help="compiled: plant step compiled to C once (cached); vm: CasADi virtual machine")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-stability", action="store_true",
+                   help="skip the linear stability of steady sliding (models.modal) and its boundary line")
     add_common(p, out=False)
     p.add_argument("--out", default=None, metavar="DIR", help="sweep folder (default: out/sweep-<scenario name>)")
     p.add_argument("--force", action="store_true", help="discard a different sweep already in --out")
@@ -87,7 +89,7 @@ def run(args) -> int:
     store = SweepStore(out, plan.definition(args.controller), force=args.force)
     t0 = time.perf_counter()
     res = run_sweep(plan, store, workers=args.workers, scheduler=args.scheduler, controller=controller,
-                    progress=not (args.no_progress or args.json))
+                    progress=not (args.no_progress or args.json), stability=not args.no_stability)
     model = get_model(sc.model)
     amp_unit = model.state_units[model.states.index(opts.amplitude_of)]
     files = plot_maps(res, out, title=f"{sc.name} ({opts.amplitude_of} amplitude)", amp_unit=amp_unit,
