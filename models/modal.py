@@ -39,7 +39,8 @@ thesis Ch. 3, eqs. (3-3)-(3-7), (3-9), (3-13), Fig. 3.7.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import cached_property
 
 import casadi as ca
 import numpy as np
@@ -82,7 +83,7 @@ class LinearModel:
     x_op, u_op : operating point (state, input)
     states, inputs, outputs : names
     eps : regularisation of the friction used [rad/s]
-    ss : the same system as a python-control ``StateSpace``
+    ss : the same system as a python-control ``StateSpace`` (property, built on first use)
     status : human-readable message; success : True if ``x_op`` is an equilibrium
     """
 
@@ -97,9 +98,16 @@ class LinearModel:
     outputs: tuple[str, ...]
     eps: float
     model: str
-    ss: "control.StateSpace" = field(repr=False, compare=False)  # noqa: F821 (imported lazily: slow import)
     status: str = "ok"
     success: bool = True
+
+    @cached_property
+    def ss(self):
+        """The system as a python-control ``StateSpace`` with named signals (built on first use)."""
+        import control  # lazily: importing python-control (scipy.signal) costs seconds at CLI start-up
+
+        return control.ss(self.A, self.B, self.C, self.D, states=list(self.states), inputs=list(self.inputs),
+                          outputs=list(self.outputs))
 
     def eigenvalues(self) -> np.ndarray:
         """Eigenvalues of A [1/s], sorted by magnitude."""
@@ -181,11 +189,24 @@ def operating_point(model: RigModel, params: ParameterSet, *, omega: float | Non
     raise ConfigError(f"no operating point defined for model {name!r}")
 
 
-def _equilibrium(model: RigModel, f: ca.Function, u, params: ParameterSet, guess) -> np.ndarray:
-    x = ca.SX.sym("x", model.nx)
-    g = ca.Function("g", [x], [f(x, ca.DM(u), ca.DM(params.vector()))])
-    solver = ca.rootfinder("eq", "newton", g, {"abstol": 1e-12, "max_iter": 100})
-    return np.array(solver(ca.DM(guess))).ravel()
+_FUNCS: dict = {}
+
+
+def _functions(model: RigModel, eps: float, outputs: tuple[str, ...]):
+    """(ode, Newton equilibrium solver g(x; u, p), Jacobian Function), cached per model/eps/outputs."""
+    key = (model.name, eps, outputs)
+    if key not in _FUNCS:
+        f = model.ode(eps)
+        x, uu, p = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu), ca.SX.sym("p", model.n_p)
+        xd = f(x, uu, p)
+        g = ca.Function("g", [x, ca.vertcat(uu, p)], [xd])
+        solver = ca.rootfinder("eq", "newton", g, {"abstol": 1e-12, "max_iter": 100})
+        y = model.meas_vector(list(outputs))(x, uu, p)
+        jac = ca.Function(f"{model.name}_lin", [x, uu, p],
+                          [ca.jacobian(xd, x), ca.jacobian(xd, uu), ca.jacobian(y, x), ca.jacobian(y, uu), xd],
+                          ["x", "u", "p"], ["A", "B", "C", "D", "xdot"])
+        _FUNCS[key] = (f, solver, jac)
+    return _FUNCS[key]
 
 
 def linearise(model: RigModel | str, params: ParameterSet, u, eps: float | None = None,
@@ -221,21 +242,17 @@ def linearise(model: RigModel | str, params: ParameterSet, u, eps: float | None 
     if u.shape != (model.nu,) or not np.all(np.isfinite(u)):
         raise ConfigError(f"u must be {model.nu} finite numbers {model.inputs}, got {u}")
     eps = model.eps_default if eps is None else float(eps)
-    f = model.ode(eps)
+    if not eps > 0:
+        raise ConfigError(f"eps must be > 0 rad/s, got {eps}")
+    if outputs is None:
+        outputs = tuple(n for n in model.output_names() if not n.startswith("theta"))
+    f, solver, jac = _functions(model, eps, tuple(outputs))
     if x_op is None:
-        x_op = _equilibrium(model, f, u, params, model.sliding_guess(u, params))
+        guess = model.sliding_guess(u, params)
+        x_op = np.array(solver(ca.DM(guess), ca.DM(np.concatenate([u, params.vector()])))).ravel()
     x_op = np.asarray(x_op, dtype=float).ravel()
     if x_op.shape != (model.nx,):
         raise ConfigError(f"x_op must have {model.nx} entries {model.states}, got shape {x_op.shape}")
-    if outputs is None:
-        outputs = tuple(n for n in model.output_names() if not n.startswith("theta"))
-    h = model.meas_vector(list(outputs))
-    x, uu, p = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu), ca.SX.sym("p", model.n_p)
-    xd = f(x, uu, p)
-    y = h(x, uu, p)
-    jac = ca.Function(f"{model.name}_lin", [x, uu, p],
-                      [ca.jacobian(xd, x), ca.jacobian(xd, uu), ca.jacobian(y, x), ca.jacobian(y, uu), xd],
-                      ["x", "u", "p"], ["A", "B", "C", "D", "xdot"])
     A, B, C, D, r = (np.array(v, dtype=float) for v in jac(x_op, u, params.vector()))
     res = float(np.max(np.abs(r))) if r.size else 0.0
     msgs = []
@@ -247,11 +264,8 @@ def linearise(model: RigModel | str, params: ParameterSet, u, eps: float | None 
     if speeds and min(speeds) < 10 * eps:
         msgs.append(f"a contact speed {min(speeds):.3g} rad/s is not >> eps = {eps:g} rad/s: "
                     "the regularisation, not the sliding friction, sets the slope")
-    import control  # lazily: importing python-control (scipy.signal) costs seconds at CLI start-up
-
-    sysm = control.ss(A, B, C, D, states=list(model.states), inputs=list(model.inputs), outputs=list(outputs))
     return LinearModel(A, B, C, D, x_op, u, tuple(model.states), tuple(model.inputs), tuple(outputs), eps,
-                       model.name, sysm, "; ".join(msgs) or "ok", not msgs)
+                       model.name, "; ".join(msgs) or "ok", not msgs)
 
 
 # ----------------------------------------------------------------------------- mechanical chain
