@@ -68,7 +68,7 @@ from mitigate.sweepstore import SweepStore
 
 __all__ = ["Axis", "parse_axis", "SweepOptions", "SweepPlan", "ChunkTask", "SweepResult", "plan_sweep",
            "run_chunk", "run_sweep", "batched_step", "METRICS", "options_from_scenario", "make_tasks",
-           "stability_indices", "stability_subgrid", "assemble"]
+           "stability_indices", "stability_subgrid", "assemble", "connect_scheduler"]
 
 #: per-point outputs of a sweep (besides the axis values)
 METRICS = ("amplitude", "severity", "stuck_fraction", "frequency", "mean_speed", "growth", "limit_cycle", "ok")
@@ -518,6 +518,18 @@ def make_tasks(plan: SweepPlan, controller=None) -> list[ChunkTask]:
     return tasks
 
 
+def connect_scheduler(address: str, timeout: float = 10.0):
+    """A ``distributed.Client`` for the Dask scheduler at ``address`` (imports Dask only here)."""
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ConfigError("--scheduler needs dask.distributed (pip install 'stickslip-workbench[dask]')") from None
+    try:
+        return Client(address, timeout=timeout)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise ConfigError(f"--scheduler {address}: cannot connect ({type(exc).__name__}: {exc})") from None
+
+
 def stability_available() -> bool:
     """Whether ``models.modal.sliding_stability`` (helper H1) is importable."""
     try:
@@ -615,14 +627,7 @@ def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None,
         if client is not None or scheduler:
             own = client is None
             if own:
-                try:
-                    from distributed import Client
-                except ImportError:
-                    raise ConfigError("--scheduler needs dask.distributed (pip install 'stickslip-workbench[dask]')") from None
-                try:
-                    client = Client(scheduler, timeout=10)
-                except (OSError, TimeoutError) as exc:
-                    raise ConfigError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+                client = connect_scheduler(scheduler)
             try:
                 from distributed import as_completed
                 futs = {client.submit(run_chunk, t, pure=False, key=f"sweep-{store.hash}-{t.key}"): t for t in pending}

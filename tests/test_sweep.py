@@ -135,7 +135,7 @@ def test_rig3_sliding_start_agrees_with_linear_stability(tmp_path):
 def test_cli_maps_json_and_refusal(tmp_path, capsys):
     out = tmp_path / "sw"
     argv = ["sweep", str(RIG3), "--vary", "omega_ref=1:6:3", "--vary", "n1=10:35:3", "--duration", "2",
-            "--workers", "1", "--backend", "vm", "--out", str(out), "--json", "--chunk", "5"]
+            "--workers", "1", "--backend", "vm", "--out", str(out), "--json", "--chunk", "5", "--no-stability"]
     assert main(argv) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["points"] == 9 and doc["chunks_computed"] >= 4 and doc["chunks_reused"] == 0
@@ -147,7 +147,7 @@ def test_cli_maps_json_and_refusal(tmp_path, capsys):
     doc2 = json.loads(capsys.readouterr().out)
     assert doc2["chunks_computed"] == 0 and doc2["chunks_reused"] == doc["chunks_computed"]
     # a different grid into the same folder is refused (exit 2), --force accepts it
-    argv3 = [a if a != "n1=10:35:3" else "n1=10:35:2" for a in argv]
+    argv3 = [a if a != "n1=10:35:3" else "n1=10:35:2" for a in argv] + ["--start", "rest"]
     assert main(argv3) == 2
     assert "different sweep" in capsys.readouterr().err
     assert main(argv3 + ["--force"]) == 0

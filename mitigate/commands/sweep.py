@@ -60,7 +60,7 @@ def run(args) -> int:
     from models.rigs import get_model
     from mitigate.maps import plot_maps
     from mitigate.scenario import load_scenario
-    from mitigate.sweep import options_from_scenario, parse_axis, plan_sweep, run_sweep
+    from mitigate.sweep import connect_scheduler, options_from_scenario, parse_axis, plan_sweep, run_sweep
     from mitigate.sweepstore import SweepStore
 
     sc = load_scenario(args.scenario)
@@ -86,10 +86,15 @@ def run(args) -> int:
                               "which is not in this checkout; open-loop sweeps work without it") from None
         controller = (sc.path, args.controller)
     out = Path(args.out) if args.out else Path("out") / f"sweep-{sc.name}"
-    store = SweepStore(out, plan.definition(args.controller), force=args.force)
     t0 = time.perf_counter()
-    res = run_sweep(plan, store, workers=args.workers, scheduler=args.scheduler, controller=controller,
-                    progress=not (args.no_progress or args.json), stability=not args.no_stability)
+    client = connect_scheduler(args.scheduler) if args.scheduler else None   # before any file is written
+    try:
+        store = SweepStore(out, plan.definition(args.controller), force=args.force)
+        res = run_sweep(plan, store, workers=args.workers, client=client, controller=controller,
+                        progress=not (args.no_progress or args.json), stability=not args.no_stability)
+    finally:
+        if client is not None:
+            client.close()
     model = get_model(sc.model)
     amp_unit = model.state_units[model.states.index(opts.amplitude_of)]
     files = plot_maps(res, out, title=f"{sc.name} ({opts.amplitude_of} amplitude)", amp_unit=amp_unit,
