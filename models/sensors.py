@@ -96,9 +96,11 @@ class Sensors:
         self.dt = float(dt)
         self.rng = rng
         self._prev: dict[str, float] = {}
+        self._prev_true: dict[str, float] = {}
 
     def reset(self):
         self._prev = {}
+        self._prev_true = {}
 
     def measure(self, truth: dict[str, float]) -> dict[str, float]:
         o = self.options
@@ -107,7 +109,14 @@ class Sensors:
             if ang not in truth:
                 continue
             step = o.motor_angle_step if ang == "theta3" else o.angle_step
-            val = float(quantise(truth[ang], step)) if o.quantise else float(truth[ang])
+            true = float(truth[ang])
+            if ang in self._prev and abs(true - self._prev_true[ang]) <= 1e-9:
+                # a body at rest keeps its encoder count: the absolute angle is rebuilt from twist
+                # coordinates, and its ~1e-13 rad round-off must not flip a tick at a boundary
+                val = self._prev[ang]
+            else:
+                val = float(quantise(true, step)) if o.quantise else true
+            self._prev_true[ang] = true
             out[ang] = val
             if ang in self._prev:
                 out[spd] = (val - self._prev[ang]) / self.dt
