@@ -390,7 +390,7 @@ class ChunkTask:
     stuck_threshold: float
     backend: str = "compiled"
     perturbation: float = 0.0    # [rad/s] added to the contact speeds of a sliding start
-    controller: Any = None       # (scenario path, controller name) for closed-loop sweeps
+    controller: Any = None       # (scenario path, controller name, duration [s]) for closed-loop sweeps
     kind: str = "simulate"       # simulate | stability (linear stability of steady sliding)
     params: Any = None           # the scenario's plant ParameterSet (for kind="stability")
 
@@ -484,16 +484,62 @@ def _run_chunk_stability(task: ChunkTask) -> dict[str, np.ndarray]:
 
 
 def _run_chunk_closed_loop(task: ChunkTask) -> dict[str, np.ndarray]:
-    try:
-        from mitigate import closedloop  # noqa: F401  (helper H4b's module)
-    except ImportError:
-        raise ConfigError("--controller needs mitigate/closedloop.py, which is not available in this checkout") from None
-    raise ConfigError("--controller: closed-loop sweeps are not implemented yet (see README)")
+    """Closed loop per point (``mitigate.closedloop``): the scenario with the point's constant inputs and
+    plant parameters, its estimator and the named controller (which keeps the NOMINAL model)."""
+    import dataclasses
+
+    from mitigate.closedloop import run_closed_loop
+    from mitigate.controllers.factory import make_controller
+    from mitigate.profiles import Profile
+    from mitigate.scenario import load_scenario
+    from models.simulator import Plant
+
+    path, name, duration = task.controller
+    sc0 = load_scenario(path)
+    index = [c.name for c in sc0.controllers].index(name)
+    model = get_model(task.model)
+    m = len(task.indices)
+    rows, started = [], np.ones(m, dtype=bool)
+    for j in range(m):
+        inputs = dict(sc0.inputs)
+        for c, v in zip(task.u_cols, task.u_vals[j]):
+            inputs[model.inputs[c]] = Profile("constant", (0.0,), (float(v),))
+        params = sc0.plant_params.with_vector(sc0.plant_params.names(), task.P[j])
+        sim = dataclasses.replace(sc0.sim, dt=task.dt, nsub=task.nsub, start=task.start)
+        sc = sc0.replace(inputs=inputs, plant_params=params, sim=sim, dt=task.dt, duration=duration)
+        u0 = np.asarray(sc.input_vector(0.0), dtype=float)
+        x0, started[j] = _x0(model, task.start, u0, task.P[j], model.param_cls, task.perturbation)
+        plant = Plant(model, params, sim, sensors=sc.sensors, servo=sc.servo, x0=x0, u0=u0)
+        res = run_closed_loop(sc, make_controller(sc.controllers[index], sc, index), plant=plant)
+        X = np.asarray(res.x)
+        if not res.success or X.shape[0] < task.settle_steps + 4:
+            rows.append({k: float("nan") for k in METRICS[:-2]} | {"limit_cycle": float("nan"), "ok": 0.0})
+            continue
+        rows.append(_reduce(X[task.settle_steps + 1:, task.speed_index], X[task.settle_steps + 1:, task.amp_index],
+                            task.dt, task))
+    out = {"index": np.asarray(task.indices, dtype=float)}
+    for k in METRICS:
+        out[k] = np.array([r[k] for r in rows])
+    out["ok"] = out["ok"] * started
+    return out
 
 
-def make_tasks(plan: SweepPlan, controller=None) -> list[ChunkTask]:
-    """All chunks of a plan, for each start mode; keys like ``rest_00003``."""
+def make_tasks(plan: SweepPlan, controller: str | None = None) -> list[ChunkTask]:
+    """All chunks of a plan, for each start mode; keys like ``rest_00003``.
+
+    ``controller``: name of a ``[[controllers]]`` entry for closed-loop points (rig3 only).
+    """
     o = plan.options
+    if controller is not None:
+        sc = plan.scenario
+        if sc.model != "rig3":
+            raise ConfigError(f"--controller: closed-loop sweeps need a rig3 scenario, got model {sc.model!r}")
+        if controller not in [c.name for c in sc.controllers]:
+            raise ConfigError(f"--controller must be one of the scenario's [[controllers]] names "
+                              f"{[c.name for c in sc.controllers]}, got {controller!r}")
+        if not sc.path:
+            raise ConfigError("--controller: the scenario must come from a file (workers reload it)")
+        controller = (str(Path(sc.path).resolve()), controller, o.duration)
     model = get_model(plan.scenario.model)
     tasks = []
     for start in o.starts:

@@ -84,7 +84,7 @@ def run(args) -> int:
         except ImportError:
             raise ConfigError("--controller needs mitigate/closedloop.py (closed-loop runner), "
                               "which is not in this checkout; open-loop sweeps work without it") from None
-        controller = (sc.path, args.controller)
+        controller = args.controller
     out = Path(args.out) if args.out else Path("out") / f"sweep-{sc.name}"
     t0 = time.perf_counter()
     client = connect_scheduler(args.scheduler) if args.scheduler else None   # before any file is written
