@@ -158,3 +158,22 @@ def test_cli_maps_json_and_refusal(tmp_path, capsys):
     assert main(["sweep", str(RIG3), "--vary", "n1=1:2", "--out", str(tmp_path / "x")]) == 2
     assert main(["sweep", str(RIG3), "--controller", "nope", "--out", str(tmp_path / "x")]) == 2
     assert not (tmp_path / "x").exists()
+
+
+def test_closed_loop_pi_only_equals_open_loop():
+    """Cross-check: the closed loop with the 'PI only' controller (programmed set-point, N2 = 0) gives
+    the same map as the open-loop batched plant; the brake changes it (how well it mitigates is
+    ``mitigate run``'s subject, not this test's)."""
+    pytest.importorskip("mitigate.closedloop")
+    sc = load_scenario(RIG3)
+    o = options_from_scenario(sc, duration=14.0, settle=10.0, start="rest", backend="vm", chunk=2)
+    plan = plan_sweep(sc, [parse_axis("omega_ref=2.5:2.5:1"), parse_axis("n1=20:35:2")], o)
+    open_ = run_chunk([t for t in make_tasks(plan) if t.kind == "simulate"][0])
+    pi = run_chunk([t for t in make_tasks(plan, "PI only") if t.kind == "simulate"][0])
+    brake = run_chunk([t for t in make_tasks(plan, "R2 brake") if t.kind == "simulate"][0])
+    for k in ("amplitude", "severity", "stuck_fraction"):
+        assert np.allclose(pi[k], open_[k], rtol=1e-9, atol=1e-12), k
+    assert np.all(open_["limit_cycle"] == 1)
+    assert not np.allclose(brake["amplitude"], open_["amplitude"], rtol=1e-3)   # the brake acts from t = 10 s
+    with pytest.raises(ConfigError, match="controllers"):
+        make_tasks(plan, "nope")
