@@ -56,7 +56,9 @@ UNIT_FACTORS: dict[str, tuple[str, float]] = {
     "n": ("N", 1.0), "kn": ("N", 1e3), "mn": ("N", 1e-3), "kgf": ("N", 9.80665), "lbf": ("N", 4.4482216152605),
 }
 # ambiguous spellings that are refused even though they look like units
-_AMBIGUOUS = {"mn m": "mN m or MN m"}
+_AMBIGUOUS = {"mn m": "mN m or MN m", "mn": "mN or MN"}
+# the exact-case spellings that resolve an ambiguous lower-case key (milli-newton)
+_EXACT_CASE = {"mN m", "mN", "mN*m", "mN.m"}
 
 _HEADER = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*\[([^\]]*)\]\s*$")
 
@@ -65,6 +67,10 @@ def convert_unit(name: str, unit: str, where: str) -> float:
     """Factor that converts ``unit`` to the canonical unit of channel ``name``."""
     canon = CANONICAL_UNITS[name]
     key = " ".join(unit.strip().lower().replace("·", " ").split())
+    raw = " ".join(unit.strip().replace("·", " ").split())
+    if key in _AMBIGUOUS and raw not in _EXACT_CASE:
+        raise DataError(f"{where}: unit [{unit}] is ambiguous ({_AMBIGUOUS[key]}); "
+                        f"write it exactly as 'mN m' / 'mN' or convert to [{canon}]")
     if key in UNIT_FACTORS:
         target, factor = UNIT_FACTORS[key]
         if target == canon:
