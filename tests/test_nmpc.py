@@ -209,3 +209,22 @@ def test_inputs_respect_bounds_and_rate_limits(stick_slip_runs):
     assert np.all(d_n <= c.n2_rate * o.dt * (1 + 1e-6) + 1e-9)
     changed = np.nonzero((d_w > 1e-12) | (d_n > 1e-12))[0] + 1
     assert np.all(changed % 5 == 0)
+
+
+def test_preparation_split_gives_the_same_plans():
+    """RTI with the preparation phase moved to the held sample after each plan computes the same
+    QP (same linearisation point and parameters here: noise-free N1), so the same actions."""
+    x0 = M.steady_sliding([W0, 20.0, 0.0], P)
+    x0[2] = 1.0
+    acts = {}
+    for prep in (True, False):
+        c = make_nmpc({"horizon": 10, "compile": False, "prepare_ahead": prep}, P, 0.01, W0, ServoOptions(), "n")
+        plant = Plant(M, P, SimOptions(seed=0), sensors=None, servo=ServoOptions(), x0=x0)
+        out = []
+        for k in range(40):
+            a = c.step(k * 0.01, _est(k * 0.01, plant.x), {"n1": 20.0, "n2": plant.u_applied[2], "omega_ref": W0})
+            out.append((a.omega_ref, a.n2))
+            plant.step([a.omega_ref, 20.0, a.n2])
+        acts[prep] = np.array(out)
+    assert np.ptp(acts[True][:, 0]) > 1e-3  # the controller moved
+    np.testing.assert_allclose(acts[True], acts[False], rtol=1e-7, atol=1e-8)

@@ -94,6 +94,8 @@ class NMPCOptions:
     compile : compile the stage function with gcc (cached on disk) for rti/sqp
     qp_solver : "hpipm", "qrqp" or "osqp"; qp_tol : QP tolerance
     model_servo : predict the servo's first-order lag (tau from ServoOptions)
+    prepare_ahead : RTI preparation/feedback split (rti/sqp): linearise at the shifted plan in the
+        first call after a plan (a held sample), so a planning call only solves the QP
     """
 
     horizon: int = 20
@@ -111,6 +113,7 @@ class NMPCOptions:
     qp_tol: float = 1e-6
     sqp_max_iter: int = 20
     model_servo: bool = True
+    prepare_ahead: bool = True
     where: str = "nmpc"
 
     def __post_init__(self):
@@ -138,8 +141,9 @@ class NMPCOptions:
         _num(self.qp_tol, f"{w}.qp_tol", pos=True)
         if isinstance(self.sqp_max_iter, bool) or not isinstance(self.sqp_max_iter, int) or self.sqp_max_iter < 1:
             raise ConfigError(f"{w}.sqp_max_iter must be an integer >= 1, got {self.sqp_max_iter!r}")
-        if not isinstance(self.model_servo, bool):
-            raise ConfigError(f"{w}.model_servo must be true or false, got {self.model_servo!r}")
+        for name in ("model_servo", "prepare_ahead"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"{w}.{name} must be true or false, got {getattr(self, name)!r}")
 
     @classmethod
     def from_mapping(cls, options: Mapping, where: str = "nmpc") -> "NMPCOptions":
@@ -208,6 +212,7 @@ class NMPCController(Controller):
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
+        self.ocp.shift(0)           # drops prepared QP data
         self.ocp.w = None
         self.ocp.lam_g = None
         self._servo = None
@@ -219,6 +224,7 @@ class NMPCController(Controller):
         self._u_prev = None         # last command [omega_ref, n2]
         self.last_result = None
         self.solve_times: list[float] = []
+        self._q_prep = None         # parameters for the pending preparation phase
 
     def _bounds(self):
         o = self.options
@@ -248,6 +254,12 @@ class NMPCController(Controller):
             self._u_prev = np.array([wr, n2a])
         due = self._t_solve is None or t - self._t_solve >= o.dt - 0.5 * self.dt_daq
         if not due and self._action is not None:
+            if self._q_prep is not None:
+                q_prep, self._q_prep = self._q_prep, None
+                try:
+                    self.ocp.prepare(q_prep)
+                except Exception:  # noqa: BLE001 - the next plan linearises itself
+                    self.ocp.shift(0)
             a = self._action  # between plans: zero-order hold (fallbacks are counted once, when made)
             return Action(a.n2, a.omega_ref, f"hold: {a.status}", a.success, "")
         steps = 1 if self._t_solve is None else max(1, int(round((t - self._t_solve) / o.dt)))
@@ -263,8 +275,9 @@ class NMPCController(Controller):
                 raise SolverFailure("non-finite estimate or n1")
             xa0 = np.concatenate([x, [n2a], self._u_prev])
             q = self.spec.q(max(n1, 0.0), self.omega_nominal, self._p)
-            if self.ocp.w is not None:
-                self.ocp.shift(steps)
+            if self.ocp.w is not None and not (self.ocp.prepared and steps == 1):
+                # prepare() already shifted by one interval
+                self.ocp.shift(steps - 1 if self.ocp.prepared else steps)
             lo, hi = self._bounds()
             rate = np.array([o.omega_rate, self.n2_rate])
             res = self.ocp.solve(xa0, q, lo, hi, rate)
@@ -275,6 +288,8 @@ class NMPCController(Controller):
         self.last_result = res
         self.solve_times.append(res.solve_time)
         self._plan_u, self._t_plan = res.u, t
+        if o.prepare_ahead and o.solver != "ipopt":
+            self._q_prep = q
         u0 = np.clip(res.u[0], lo, hi)
         return self._hold(Action(float(u0[1]), float(u0[0]), res.status, True, ""))
 

@@ -241,6 +241,7 @@ class OCPSolver:
         self._iu = np.array([k * self.nz + NXA + j for k in range(N) for j in range(NU)])
         self.w = None   # current plan (primal), None until initialised
         self.lam_g = None
+        self._prepared = None  # (q, qp data) linearised at the current w (RTI preparation phase)
         if solver in ("rti", "sqp"):
             self._build_qp()
         elif solver == "ipopt":
@@ -343,8 +344,24 @@ class OCPSolver:
         self.w = w
         self.lam_g = None
 
+    @property
+    def prepared(self) -> bool:
+        """Whether a preparation phase has linearised the current plan."""
+        return self._prepared is not None
+
+    def prepare(self, q) -> None:
+        """RTI preparation phase: shift the plan by one interval and linearise there now, so the
+        next :meth:`solve` only embeds the new initial state and solves the QP (feedback phase).
+        The linearisation uses ``q`` as known now (N1 measured at the last plan)."""
+        if self.w is None or self.solver == "ipopt":
+            return
+        self.shift(1)
+        q = np.asarray(q, float)
+        self._prepared = (q, self.qp_data(self.w, q))
+
     def shift(self, steps: int = 1) -> None:
         """Shift the plan by ``steps`` intervals (warm start); the tail repeats the last stage."""
+        self._prepared = None
         if self.w is None or steps <= 0:
             return
         nz, N = self.nz, self.N
@@ -417,6 +434,7 @@ class OCPSolver:
         if viol > 1e-4 * scale:
             raise SolverFailure(f"{self.solver}: plan violates bounds by {viol:.3g} ({status})")
         self.w = w_new
+        self._prepared = None
         return OCPResult(U, X, cost, iters, status, True, time.perf_counter() - t0)
 
     def qp_data(self, w, q):
@@ -436,8 +454,8 @@ class OCPSolver:
         obj = 0.5 * float(np.sum(r ** 2)) + float(np.sum(l)) + 0.5 * float(np.sum(rN ** 2))
         return ca.DM(self._Hsp, hnz), gq, ca.DM(self._Asp, anz), gaps, obj
 
-    def _qp_step(self, w, q, lbw, ubw, lo, hi):
-        H, g, A, gaps, obj = self.qp_data(w, q)
+    def _qp_step(self, w, q, lbw, ubw, lo, hi, data=None):
+        H, g, A, gaps, obj = self.qp_data(w, q) if data is None else data
         N, nz = self.N, self.nz
         Z = w[:N * nz].reshape(N, nz)
         ucur = Z[:, 8:10] + Z[:, NXA:]
@@ -460,8 +478,10 @@ class OCPSolver:
         nmax = 1 if self.solver == "rti" else self.sqp_max_iter
         obj = np.nan
         status = "rti step" if self.solver == "rti" else "max_iter"
+        prepared, self._prepared = self._prepared, None
         for it in range(nmax):
-            dw, obj = self._qp_step(w, q, lbw, ubw, lo, hi)
+            data = prepared[1] if (it == 0 and prepared is not None) else None
+            dw, obj = self._qp_step(w, q, lbw, ubw, lo, hi, data)
             w = w + dw
             iters += 1
             if self.solver == "sqp" and np.max(np.abs(dw)) < self.sqp_tol:
