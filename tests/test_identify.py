@@ -1,0 +1,111 @@
+"""Multiple-shooting Gauss-Newton identification (estimators.identify): truth recovery and input checks."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from estimators.identify import IdentifiabilityWarning, IdentifyOptions, identify
+from models.errors import ConfigError, DataError
+from models.logs import Log
+from models.params import published
+from models.rigs import get_model
+from models.simulator import SimOptions, simulate
+
+# true disc set, off the published one (k -10 %, d +40 %, mu_k -8 %, mu_s -10 %)
+TRUE_DISC = published("disc").replace(k=1.0, d=0.03, mu_k=0.28, mu_s=0.45)
+
+
+@pytest.fixture(scope="module")
+def disc_logs():
+    """Two stick-slip logs of the EXACT plant (1000-tick encoders, 10 ms, 0.2 N load-cell noise)."""
+    m = get_model("disc")
+    a = simulate(m, TRUE_DISC, np.array([1.0, 20.0]), 10.0, SimOptions(seed=1)).to_log()
+    b = simulate(m, TRUE_DISC, np.array([0.8, 16.0]), 10.0, SimOptions(seed=2)).to_log()
+    return a, b
+
+
+def test_disc_truth_recovery_two_logs(disc_logs):
+    a, b = disc_logs
+    assert np.mean(a["omega1"] == 0) > 0.2  # real stick phases in the data
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IdentifiabilityWarning)
+        fit = identify([a, b], "disc", published("disc"),
+                       IdentifyOptions(free=("k", "d", "mu_k", "mu_s"), eps=0.002, nsub=20))
+    assert fit.success, fit.status
+    err = {n: e / getattr(TRUE_DISC, n) - 1 for n, e in zip(fit.names, fit.estimate)}
+    # targets of the issue: stiffness 3 %, friction levels 5 %, damping 30 %
+    assert abs(err["k"]) < 0.03
+    assert abs(err["mu_k"]) < 0.05 and abs(err["mu_s"]) < 0.05
+    assert abs(err["d"]) < 0.30
+    # started from the published set, which is off by 10-40 %
+    assert all(abs(i / getattr(TRUE_DISC, n) - 1) > 0.05 for n, i in zip(fit.names, fit.initial))
+    assert np.all(np.isfinite(fit.stderr)) and np.all(fit.stderr > 0)
+    assert np.allclose(np.diag(fit.corr), 1.0)
+    assert len(fit.t) == 2 and set(fit.nrmse) == {"omega1", "theta1-theta3"}
+    assert fit.nrmse["theta1-theta3"] < 0.02
+    assert fit.params.stderr_of("k") == pytest.approx(fit.stderr[0])
+
+
+def test_holdout_validation_uses_exact_plant(disc_logs):
+    a, _ = disc_logs
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IdentifiabilityWarning)
+        fit = identify(a, "disc", published("disc"), IdentifyOptions(free=("k", "mu_k"), eps=0.005, nsub=10),
+                       holdout=0.3)
+    v = fit.validation
+    assert v is not None and v.method == "hybrid"
+    assert v.t[0] > fit.t[0][-1] - 1e-9
+    assert v.nrmse["theta1-theta3"] < 0.1
+    assert abs(v.period_error) < 0.2 and abs(v.amplitude_error) < 0.2
+
+
+def test_poor_identifiability_warns():
+    # steady sliding at one speed: mu_k, mu_s and v_s cannot be told apart
+    m = get_model("disc")
+    log = simulate(m, TRUE_DISC, np.array([3.0, 20.0]), 3.0, SimOptions(seed=3, start="sliding")).to_log()
+    with pytest.warns(IdentifiabilityWarning) as rec:
+        fit = identify(log, "disc", TRUE_DISC, IdentifyOptions(free=("mu_k", "mu_s", "v_s"), nsub=4, eps=0.05))
+    text = " ".join(str(w.message) for w in rec)
+    assert "mu_s" in text or "v_s" in text
+    assert fit.warnings
+
+
+def test_bad_inputs(disc_logs):
+    a, _ = disc_logs
+    with pytest.raises(ConfigError, match="free parameter 'q'"):
+        identify(a, "disc", published("disc"), IdentifyOptions(free=("q",)))
+    with pytest.raises(ConfigError, match="outside its bounds"):
+        identify(a, "disc", published("disc"), IdentifyOptions(free=("k",), bounds={"k": (2.0, 3.0)}))
+    no_input = Log(a.t, {k: v for k, v in a.channels.items() if k != "n1"}, "x.csv")
+    with pytest.raises(DataError, match="missing input column 'n1'"):
+        identify(no_input, "disc", published("disc"), IdentifyOptions(free=("k",)))
+    with pytest.raises(ConfigError, match="identify.nsub"):
+        IdentifyOptions(free=("k",), nsub=0)
+    with pytest.raises(ConfigError, match="at least one"):
+        IdentifyOptions(free=())
+    short = a.slice(0.0, 0.05)
+    with pytest.raises(DataError, match="needs at least 11 samples"):
+        identify(short, "disc", published("disc"), IdentifyOptions(free=("k",)))
+
+
+@pytest.mark.slow
+def test_rig3_truth_recovery():
+    """3-disc rig, N1 = 20 N at 30 rpm, exact plant with PI loop; fit k1, k2, d1, mu_k, mu_s."""
+    m = get_model("rig3")
+    true = published("rig3").replace(k1=1.05, k2=0.38, d1=0.025, mu_k=0.29, mu_s=0.52)
+    log = simulate(m, true, np.array([np.pi, 20.0, 0.0]), 5.0, SimOptions(seed=2)).to_log()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IdentifiabilityWarning)
+        fit = identify(log, "rig3", published("rig3"),
+                       IdentifyOptions(free=("k1", "k2", "d1", "mu_k", "mu_s"), eps=0.005, nsub=10))
+    assert fit.success
+    err = {n: e / getattr(true, n) - 1 for n, e in zip(fit.names, fit.estimate)}
+    assert abs(err["k1"]) < 0.03 and abs(err["k2"]) < 0.03
+    assert abs(err["mu_k"]) < 0.05 and abs(err["mu_s"]) < 0.05
+    assert abs(err["d1"]) < 0.30
+    # the stiffness and damping standard errors cover the truth (3 SE); the friction ones
+    # do not (regularisation bias, see the module docstring / report)
+    for n in ("k1", "k2", "d1"):
+        i = fit.names.index(n)
+        assert abs(fit.estimate[i] - getattr(true, n)) < 3 * fit.stderr[i]
