@@ -179,6 +179,19 @@ class MHE(StateEstimator):
         qp_opts = {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False} \
             if options.qpsol == "qrqp" else {"error_on_fail": False, "osqp": {"verbose": False}}
         self.qp = None if options.qpsol == "cholesky" else ca.conic("mhe_qp", options.qpsol, {"h": H.sparsity(), "a": ca.Sparsity(0, nx * (N + 1))}, qp_opts)
+        # zero-copy calls: numpy arrays bound once to the Functions' argument/result buffers
+        self._gn_in = [np.zeros(self.gn.nnz_in(i)) for i in range(self.gn.n_in())]
+        self._gn_out = [np.zeros(self.gn.nnz_out(i)) for i in range(self.gn.n_out())]
+        self._gn_buf, self._gn_eval = self.gn.buffer()
+        for i, a in enumerate(self._gn_in):
+            self._gn_buf.set_arg(i, memoryview(a))
+        for i, a in enumerate(self._gn_out):
+            self._gn_buf.set_res(i, memoryview(a))
+        self._gn_in[6][:] = self._p
+        self._gn_in[7][:] = self._iq
+        hs = H.sparsity()
+        self._H_rows, self._H_cols = (np.array(v, dtype=np.intp) for v in hs.get_triplet())
+        self._Hd = np.zeros((nx * (N + 1), nx * (N + 1)))
         self._lbw = np.tile(em.lb, N + 1)
         self._ubw = np.tile(em.ub, N + 1)
 
@@ -196,6 +209,20 @@ class MHE(StateEstimator):
         self.arrival = ca.Function("mhe_arrival", [xa, Pa, ua, ma, pa], [0.5 * (Pn + Pn.T)],
                                    ["x", "P", "u", "m", "p"], ["P_next"])
 
+        self._ar_in = [np.zeros(self.arrival.nnz_in(i)) for i in range(self.arrival.n_in())]
+        self._ar_out = np.zeros(self.arrival.nnz_out(0))
+        self._ar_buf, self._ar_eval = self.arrival.buffer()
+        for i, a in enumerate(self._ar_in):
+            self._ar_buf.set_arg(i, memoryview(a))
+        self._ar_buf.set_res(0, memoryview(self._ar_out))
+        self._ar_in[4][:] = self._p
+        # measurement channels -> internal measurements, in numpy (linear map and mask products)
+        yr, mr = ca.SX.sym("y", len(self.channels)), ca.SX.sym("m", len(self.channels))
+        yi_, mi_ = em.to_internal(yr, mr)
+        self._T = np.array(ca.evalf(ca.jacobian(yi_, yr)))
+        self._mask_idx = [np.array([i for i in range(len(self.channels)) if ca.depends_on(mi_[j], mr[i])])
+                          for j in range(ny)]
+
         # buffers (the last N+1 samples)
         self._Y = deque(maxlen=N + 1)     # internal measurements (NaN-free)
         self._M = deque(maxlen=N + 1)     # internal masks
@@ -208,8 +235,9 @@ class MHE(StateEstimator):
         self.qp_failures = 0
 
     def _internal(self, y, mask):
-        yi, mi = self.em.to_internal(np.where(mask, y, 0.0), mask.astype(float))
-        return np.array(yi).ravel(), np.array(mi).ravel()
+        yi = self._T @ np.where(mask, y, 0.0)
+        mi = np.array([float(mask[ix].all()) for ix in self._mask_idx])
+        return yi, mi
 
     def _update_impl(self, y, mask, u, t):
         e_ekf = self.ekf.update(dict(zip(self.channels, y)), u, t)   # the fallback runs every step
@@ -233,12 +261,16 @@ class MHE(StateEstimator):
             # slide: arrival prior from the previous solution's node 1 and an EKF Riccati step
             w_old = self._w
             x0_old = w_old[:nx]
-            self._Pbar = np.array(self.arrival(x0_old, self._Pbar, self._u_leaving, self._m_leaving,
-                                               self._p)).reshape(nx, nx)
+            a = self._ar_in
+            a[0][:] = x0_old
+            a[1][:] = self._Pbar.ravel(order="F")
+            a[2][:] = self._u_leaving
+            a[3][:] = self._m_leaving
+            self._ar_eval()
+            self._Pbar = self._ar_out.reshape(nx, nx, order="F").copy()
             self._xbar = w_old[nx:2 * nx].copy()
-            xl = w_old[-nx:]
-            xn = np.array(self.em.F(xl, u, self._p)).ravel()
-            self._w = np.concatenate([w_old[nx:], xn])
+            # warm start: shifted solution; the new node from the EKF (already one predict+correct ahead)
+            self._w = np.concatenate([w_old[nx:], e_ekf.x])
         self._u_leaving = self._U[0].copy()
         self._m_leaving = self._M[0].copy()
         try:
@@ -250,20 +282,29 @@ class MHE(StateEstimator):
         Wm = (np.array(self._M) / self._sr).T
         w = self._w
         for _ in range(self.options.max_iter):
-            H, g, _ = self.gn(w, self._xbar, W0, Um, Ym, Wm, self._p, self._iq)
+            gi = self._gn_in
+            gi[0][:] = w
+            gi[1][:] = self._xbar
+            gi[2][:] = W0.ravel(order="F")
+            gi[3][:] = Um.ravel(order="F")
+            gi[4][:] = Ym.ravel(order="F")
+            gi[5][:] = Wm.ravel(order="F")
+            self._gn_eval()
+            Hd = self._Hd
+            Hd[self._H_rows, self._H_cols] = self._gn_out[0]
+            g = self._gn_out[1]
             self.iterations += 1
             if self.qp is None:
-                Hd = H.full()
                 cf = scipy.linalg.cho_factor(Hd, check_finite=False)
-                d = -scipy.linalg.cho_solve(cf, g.full().ravel(), check_finite=False)
+                d = -scipy.linalg.cho_solve(cf, g, check_finite=False)
             else:
+                H = ca.DM(self.gn.sparsity_out(0), self._gn_out[0])
                 sol = self.qp(h=H, g=g, lbx=self._lbw - w, ubx=self._ubw - w)
                 if not self.qp.stats()["success"]:
                     self.qp_failures += 1
                     raise RuntimeError(f"QP ({self.options.qpsol}) failed: "
                                        f"{self.qp.stats().get('return_status', '?')}")
                 d = np.array(sol["x"]).ravel()
-                Hd = H.full()
                 cf = None
             if not np.all(np.isfinite(d)):
                 raise FloatingPointError("non-finite QP step")
