@@ -490,6 +490,7 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
         raise ConfigError(f"initial parameters must be {m.param_cls.__name__} for model {m.name!r}, "
                           f"got {type(initial).__name__}")
     logs = [logs] if isinstance(logs, Log) else list(logs)
+    logs = [lg.with_speeds() for lg in logs]  # e.g. omega_drive from theta_drive
     if not logs:
         raise DataError("identify needs at least one log")
     if not (isinstance(holdout, (int, float)) and 0 <= holdout < 0.9):
