@@ -54,7 +54,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable
 
 import casadi as ca
 import numpy as np
@@ -659,8 +659,8 @@ def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None,
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=len(tasks) * 0 + sum(len(t.indices) for t in tasks), initial=sum(len(t.indices) for t in tasks if t.key in done),
-                   unit="pt", desc=f"sweep {plan.scenario.name}")
+        bar = tqdm(total=sum(len(t.indices) for t in tasks), unit="pt", desc=f"sweep {plan.scenario.name}",
+                   initial=sum(len(t.indices) for t in tasks if t.key in done))
 
     def finish(task, res):
         store.write_chunk(task.key, res)

@@ -4,7 +4,6 @@ physics of the maps (seed 002 Sect. 9.8, modal stability), CLI."""
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np

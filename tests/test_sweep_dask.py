@@ -54,10 +54,9 @@ def test_local_sweep_does_not_import_dask(tmp_path):
     assert res.stdout.strip().splitlines()[-1] == "False False"
 
 
-@pytest.mark.slow
 def test_bad_scheduler_is_one_line_error(tmp_path):
     from mitigate.cli import main
     rc = main(["sweep", str(LEAD), "--vary", "axial_force=80:320:2", "--duration", "0.02", "--no-stability",
-               "--scheduler", "tcp://127.0.0.1:1", "--out", str(tmp_path / "o")])
+               "--scheduler", "tcp://127.0.0.1:1", "--scheduler-timeout", "1", "--out", str(tmp_path / "o")])
     assert rc == 2
     assert not (tmp_path / "o").exists()

@@ -41,6 +41,8 @@ def register(sub) -> None:
                    help="initial state of each run (default: sweep.start of the scenario, else rest)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler (tcp://host:port) to send chunks to; default: local processes")
+    p.add_argument("--scheduler-timeout", type=float, default=10.0, metavar="S",
+                   help="seconds to wait for the Dask scheduler (default 10)")
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count)")
     p.add_argument("--duration", type=float, default=None, help="seconds per run (default: sweep/scenario)")
     p.add_argument("--settle", type=float, default=None, help="seconds discarded before the metrics (default: half)")
@@ -87,7 +89,7 @@ def run(args) -> int:
         controller = args.controller
     out = Path(args.out) if args.out else Path("out") / f"sweep-{sc.name}"
     t0 = time.perf_counter()
-    client = connect_scheduler(args.scheduler) if args.scheduler else None   # before any file is written
+    client = connect_scheduler(args.scheduler, args.scheduler_timeout) if args.scheduler else None   # before any file is written
     try:
         store = SweepStore(out, plan.definition(args.controller), force=args.force)
         res = run_sweep(plan, store, workers=args.workers, client=client, controller=controller,
