@@ -87,7 +87,6 @@ def main(argv=None) -> int:
                      statistics.median(times) * npts / chunk_pts, statistics.median(times), p95(times), npts))
 
     # thread map of the compiled step (CasADi "thread" map, 2 threads), one block
-    import casadi as ca
     from mitigate import sweep as swmod
     F = swmod._FN_CACHE[("rig3", opts.dt, opts.nsub, "compiled")]
     acc = F.mapaccum("acc", opts.block, [0, 1], [0, 1])
