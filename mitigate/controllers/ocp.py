@@ -299,7 +299,7 @@ class OCPSolver:
             t = self.qp_tol
             opts.update(N=N, nx=[NXA] * (N + 1), nu=[NU] * N + [0], ng=[NU] * N + [0],
                         hpipm={"res_g_max": t, "res_b_max": t, "res_d_max": t, "res_m_max": t, "iter_max": 100,
-                               "mode": "robust"})
+                               "mode": "speed"})
         elif self.qp_solver == "qrqp":
             opts.update(print_iter=False, print_header=False, print_info=False)
         elif self.qp_solver == "osqp":
