@@ -228,3 +228,17 @@ def test_preparation_split_gives_the_same_plans():
         acts[prep] = np.array(out)
     assert np.ptp(acts[True][:, 0]) > 1e-3  # the controller moved
     np.testing.assert_allclose(acts[True], acts[False], rtol=1e-7, atol=1e-8)
+
+
+def test_nominal_jump_is_followed_within_the_rate_limit():
+    """A speed-programme jump larger than one rate-limited move stays feasible (the band is
+    widened where it cannot be reached yet) and omega_ref follows at the rate limit."""
+    c = make_nmpc({"horizon": 5, "compile": False, "omega_rate": 10.0}, P, 0.01, W0, ServoOptions(), "n")
+    x = M.steady_sliding([W0, 20.0, 0.0], P)
+    meas = {"n1": 20.0, "n2": 0.0, "omega_ref": W0}
+    wr = [c.step(k * 0.01, _est(k * 0.01, x), meas).omega_ref for k in range(10)]
+    c.set_nominal(W0 + 6.0)   # band is now [W0 + 3, W0 + 9]: W0 is 3 rad/s outside it
+    wr += [c.step(k * 0.01, _est(k * 0.01, x), meas).omega_ref for k in range(10, 40)]
+    assert c.counts.failures == 0
+    assert np.max(np.abs(np.diff(wr))) <= 10.0 * 0.05 + 1e-9
+    assert wr[-1] > W0 + 2.0

@@ -290,7 +290,10 @@ class NMPCController(Controller):
         self._plan_u, self._t_plan = res.u, t
         if o.prepare_ahead and o.solver != "ipopt":
             self._q_prep = q
-        u0 = np.clip(res.u[0], lo, hi)
+        # remove QP-tolerance excursions only; the band may have been widened for reachability
+        # (nominal speed jumped by more than a rate-limited move), so clip to the widened band
+        step = rate * o.dt
+        u0 = np.clip(res.u[0], np.minimum(lo, xa0[8:10] + step), np.maximum(hi, xa0[8:10] - step))
         return self._hold(Action(float(u0[1]), float(u0[0]), res.status, True, ""))
 
     def _shift_or_baseline(self, t, why) -> Action:
