@@ -11,6 +11,10 @@ metrics (:mod:`mitigate.metrics`).  Axes are written ``name=start:stop:count``
 - ``<param>_scale`` (e.g. ``K_scale``): the scenario's plant value is multiplied;
 - ``mismatch.<param>``: the mismatch factor on the nominal value is replaced.
 
+With a controller (``--controller NAME``, rig3 only) each point is instead one closed-loop run
+of :func:`mitigate.closedloop.run_closed_loop` (estimator and controller keep the NOMINAL
+model: a swept plant parameter is a plant/model mismatch for them).
+
 Every point is run from rest and/or from steady sliding at its input
 (``start = "rest" | "sliding" | "both"``); where the two differ, stick-slip exists
 next to a stable steady sliding (bistability: it is triggered by disturbances).
@@ -19,8 +23,11 @@ Speed: the plant is the exact stick/slip step :func:`models.hybrid.hybrid_step_f
 compiled once to C (gcc, on-disk cache keyed by the source hash; falls back to the
 CasADi VM without a compiler), accumulated over blocks of time steps
 (``mapaccum``) and mapped over the points of a chunk (``map``).  Chunks run in
-worker processes, or on a Dask cluster (``scheduler``).  Results are written per
-chunk by :class:`mitigate.sweepstore.SweepStore`, so an interrupted sweep resumes.
+worker processes, or on a Dask cluster (``scheduler``); CasADi's ``map(n, "thread", 2)``
+gave no speed-up over the serial map here (benchmarks/results/sweep.md), processes do.  Results are written per
+chunk by :class:`mitigate.sweepstore.SweepStore`, so an interrupted sweep resumes.  The
+store's hash covers the axes, the options and the scenario file's content: editing the
+scenario makes a rerun into the same folder a different sweep (refused without ``--force``).
 
 The ``[sweep]`` table of a scenario sets defaults::
 
