@@ -42,17 +42,13 @@ the CasADi Function directly.
 
 from __future__ import annotations
 
-import ctypes
-import hashlib
 import math
-import os
-import subprocess
-import tempfile
 from dataclasses import dataclass, fields
-from pathlib import Path
 from typing import Any, Mapping
 
 import casadi as ca
+
+from models.codegen import CtypesFunction, cache_dir, compile_cached  # noqa: F401  (re-exported)
 import numpy as np
 
 from estimators.base import Estimate, StateEstimator
@@ -362,84 +358,7 @@ def ekf_step_function(em: EstimationModel, model_np: int) -> ca.Function:
 # compiled functions, cached on disk
 # --------------------------------------------------------------------------------------------
 
-def cache_dir() -> Path:
-    """``$XDG_CACHE_HOME/stickslip`` or ``~/.cache/stickslip`` (override: ``$STICKSLIP_CACHE``)."""
-    env = os.environ.get("STICKSLIP_CACHE")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "stickslip"
-
-
-def compile_cached(fn: ca.Function, opt: str = "-O2") -> Path:
-    """Generate C for ``fn``, build a shared library with gcc, cache it by the hash of the code.
-
-    Returns the path of the ``.so``; raises RuntimeError if the build fails.
-    """
-    code_dir = Path(tempfile.mkdtemp(prefix="stickslip_cg_"))
-    try:
-        cname = f"{fn.name()}.c"
-        cg = ca.CodeGenerator(cname, {"with_header": False})
-        cg.add(fn)
-        cg.generate(str(code_dir) + os.sep)
-        src = (code_dir / cname).read_text()
-        key = hashlib.sha256((src + opt).encode()).hexdigest()[:16]
-        d = cache_dir()
-        d.mkdir(parents=True, exist_ok=True)
-        so = d / f"{fn.name()}_{key}.so"
-        if so.exists():
-            return so
-        csrc = d / f"{fn.name()}_{key}.c"
-        csrc.write_text(src)
-        tmp = d / f".{so.name}.tmp{os.getpid()}"
-        r = subprocess.run(["gcc", opt, "-shared", "-fPIC", "-o", str(tmp), str(csrc), "-lm"],
-                           capture_output=True, text=True)
-        if r.returncode != 0:
-            raise RuntimeError(f"gcc failed building {fn.name()}: {r.stderr.strip()[:300]}")
-        os.replace(tmp, so)
-        return so
-    finally:
-        for f in code_dir.iterdir():
-            f.unlink()
-        code_dir.rmdir()
-
-
-class CtypesFunction:
-    """Call a generated CasADi function in a shared library with preallocated numpy buffers.
-
-    ``self.inputs[i]`` / ``self.outputs[j]`` are float64 arrays (dense, column-major for
-    matrices) bound once to the C argument/result pointers; fill the inputs, call
-    :meth:`__call__`, read the outputs.  No allocation per call.
-    """
-
-    def __init__(self, so_path: Path, fn: ca.Function):
-        self._lib = ctypes.CDLL(str(so_path))
-        name = fn.name()
-        self._f = getattr(self._lib, name)
-        self._f.restype = ctypes.c_int
-        self._f.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_int]
-        for i in range(fn.n_in()):
-            if not fn.sparsity_in(i).is_dense():
-                raise ValueError(f"{name}: input {i} is not dense")
-        for i in range(fn.n_out()):
-            if not fn.sparsity_out(i).is_dense():
-                raise ValueError(f"{name}: output {i} is not dense")
-        self.inputs = [np.zeros(fn.nnz_in(i)) for i in range(fn.n_in())]
-        self.outputs = [np.zeros(fn.nnz_out(i)) for i in range(fn.n_out())]
-        self._arg = (ctypes.c_void_p * max(fn.sz_arg(), 1))()
-        self._res = (ctypes.c_void_p * max(fn.sz_res(), 1))()
-        for i, b in enumerate(self.inputs):
-            self._arg[i] = b.ctypes.data
-        for i, b in enumerate(self.outputs):
-            self._res[i] = b.ctypes.data
-        self._iw = (ctypes.c_longlong * max(fn.sz_iw(), 1))()
-        self._w = np.zeros(max(fn.sz_w(), 1))
-        self._args = (ctypes.addressof(self._arg), ctypes.addressof(self._res), ctypes.addressof(self._iw),
-                      self._w.ctypes.data, 0)
-
-    def __call__(self) -> None:
-        if self._f(*self._args) != 0:
-            raise RuntimeError("compiled function returned an error")
+# (cache_dir, compile_cached and CtypesFunction live in models.codegen)
 
 
 # --------------------------------------------------------------------------------------------

@@ -55,15 +55,14 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-import shutil
-import subprocess
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
 import casadi as ca
+
+from models.codegen import load_compiled
 import numpy as np
 
 from models.errors import ConfigError
@@ -312,36 +311,12 @@ def plan_sweep(sc: Scenario, axes: list[Axis] | tuple[Axis, ...], options: Sweep
 _FN_CACHE: dict = {}
 
 
-def cache_dir() -> Path:
-    """Folder of compiled plant steps (``$MITIGATE_CACHE`` or ``~/.cache/stickslip-workbench``)."""
-    d = os.environ.get("MITIGATE_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "stickslip-workbench")
-    return Path(d)
-
-
 def _compiled(F: ca.Function) -> ca.Function | None:
-    """``F`` compiled to a shared library (cached on disk by source hash); None without gcc."""
-    cc = shutil.which("gcc") or shutil.which("cc")
-    if cc is None:
+    """``F`` compiled to a shared library (cached on disk, :mod:`models.codegen`); None without gcc."""
+    try:
+        return load_compiled(F)[F.name()]
+    except RuntimeError:
         return None
-    with tempfile.TemporaryDirectory(prefix="mitigate_cg_") as tmp:
-        cg = ca.CodeGenerator(f"{F.name()}.c", {"with_header": False})
-        cg.add(F)
-        cg.generate(tmp + os.sep)
-        src = Path(tmp, f"{F.name()}.c").read_text()
-        digest = hashlib.sha256((src + ca.__version__).encode()).hexdigest()[:20]
-        d = cache_dir()
-        so = d / f"{F.name()}_{digest}.so"
-        if not so.exists():
-            d.mkdir(parents=True, exist_ok=True)
-            tmp_so = Path(tmp, "lib.so")
-            res = subprocess.run([cc, "-O2", "-fPIC", "-shared", str(Path(tmp, f"{F.name()}.c")), "-o", str(tmp_so), "-lm"],
-                                 capture_output=True, text=True)
-            if res.returncode != 0:
-                return None
-            part = so.with_name(f".{so.name}.{os.getpid()}")
-            shutil.copy(tmp_so, part)
-            os.replace(part, so)
-    return ca.external(F.name(), str(so))
 
 
 def batched_step(model_name: str, dt: float, nsub: int, block: int, n_points: int, backend: str = "compiled"):

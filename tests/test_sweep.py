@@ -26,7 +26,7 @@ LEAD = ROOT / "scenarios" / "sweep_leadscrew.toml"
 
 @pytest.fixture(autouse=True)
 def _cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("MITIGATE_CACHE", str(tmp_path_factory.getbasetemp() / "cc_cache"))
+    monkeypatch.setenv("STICKSLIP_CACHE", str(tmp_path_factory.getbasetemp() / "cc_cache"))
 
 
 def test_parse_axis():

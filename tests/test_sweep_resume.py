@@ -31,7 +31,7 @@ def _read(path: Path) -> np.ndarray:
 
 @pytest.mark.slow
 def test_sigkill_then_resume(tmp_path):
-    env = dict(os.environ, MITIGATE_CACHE=str(tmp_path / "cache"))
+    env = dict(os.environ, STICKSLIP_CACHE=str(tmp_path / "cache"))
     killed = tmp_path / "killed"
     proc = subprocess.Popen(_cmd(killed), cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     chunks = killed / "chunks"

@@ -32,21 +32,18 @@ Solvers (:class:`OCPSolver`):
 
 from __future__ import annotations
 
-import hashlib
-import os
-import subprocess
-import tempfile
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import casadi as ca
+
+from models.codegen import load_compiled
 import numpy as np
 
 from models.discretise import rk4
 from models.errors import ConfigError, SolverFailure
 
-__all__ = ["OCPSpec", "OCPSolver", "OCPResult", "stage_functions", "rk4_substeps_needed", "cache_dir"]
+__all__ = ["OCPSpec", "OCPSolver", "OCPResult", "stage_functions", "rk4_substeps_needed"]
 
 NX = 7          # rig3 state
 NXA = NX + 3    # augmented state
@@ -100,12 +97,6 @@ class OCPResult:
     status: str
     success: bool
     solve_time: float
-
-
-def cache_dir() -> Path:
-    """``$XDG_CACHE_HOME/stickslip`` or ``~/.cache/stickslip``."""
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "stickslip"
 
 
 def rk4_substeps_needed(model, params, dt: float, eps: float, n1_max: float, n2_max: float,
@@ -185,27 +176,11 @@ def stage_functions(model, spec: OCPSpec) -> tuple[ca.Function, ca.Function, ca.
 
 
 def _compile(functions: list[ca.Function], tag: str) -> dict[str, ca.Function]:
-    """Generate C for ``functions``, compile with gcc -O2 into the cache (keyed by the
-    hash of the C source) and load them as external Functions."""
-    cg = ca.CodeGenerator(f"{tag}.c", {"with_header": False})
-    for fn in functions:
-        cg.add(fn)
-    src = cg.dump()
-    key = hashlib.sha256((ca.__version__ + src).encode()).hexdigest()[:16]
-    d = cache_dir()
-    d.mkdir(parents=True, exist_ok=True)
-    so = d / f"{tag}_{key}.so"
-    if not so.exists():
-        with tempfile.TemporaryDirectory() as tmp:
-            c = Path(tmp) / f"{tag}.c"
-            c.write_text(src)
-            tmp_so = d / f".{tag}_{key}.{os.getpid()}.so"
-            res = subprocess.run(["gcc", "-O1", "-fPIC", "-shared", str(c), "-o", str(tmp_so), "-lm"],
-                                 capture_output=True, text=True)
-            if res.returncode != 0:
-                raise SolverFailure(f"gcc failed compiling the NMPC stage: {res.stderr.strip()[:300]}")
-            os.replace(tmp_so, so)  # atomic: parallel runs never load a half-written library
-    return {fn.name(): ca.external(fn.name(), str(so)) for fn in functions}
+    """Compile the stage functions with gcc -O1 (cached on disk, :mod:`models.codegen`) and load them."""
+    try:
+        return load_compiled(functions, "-O1", tag)
+    except RuntimeError as exc:
+        raise SolverFailure(f"compiling the NMPC stage failed: {exc}") from None
 
 
 class OCPSolver:

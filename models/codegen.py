@@ -1,0 +1,130 @@
+"""Compiled CasADi Functions, cached on disk.
+
+Function evaluation dominates the cost of the NMPC, the MHE, the EKF, the batched plant
+of the sweeps and the identification (``shared/CASADI-FACTS.md``: compiling is 12-15x
+faster), so those generate C for a *small* Function (one stage, one step), build it with
+gcc once, and cache the shared library by the hash of its C source (plus the CasADi
+version and the optimisation flag).  The cache folder is ``$STICKSLIP_CACHE``, else
+``$XDG_CACHE_HOME/stickslip``, else ``~/.cache/stickslip``.  Libraries are written via a
+temporary file and renamed, so parallel processes never load a half-written library.
+Nothing is written into the working directory.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+from typing import Sequence
+
+import casadi as ca
+import numpy as np
+
+__all__ = ["cache_dir", "compiler", "compile_cached", "load_compiled", "CtypesFunction"]
+
+
+def cache_dir() -> Path:
+    """``$STICKSLIP_CACHE``, else ``$XDG_CACHE_HOME/stickslip``, else ``~/.cache/stickslip``."""
+    env = os.environ.get("STICKSLIP_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "stickslip"
+
+
+def compiler() -> str | None:
+    """Path of the C compiler (gcc or cc), or None."""
+    return shutil.which("gcc") or shutil.which("cc")
+
+
+def compile_cached(functions: ca.Function | Sequence[ca.Function], opt: str = "-O2", tag: str | None = None) -> Path:
+    """Generate C for ``functions``, build a shared library, cache it; return its path.
+
+    Parameters
+    ----------
+    functions : one Function or several (they share one library)
+    opt : gcc optimisation flag
+    tag : library name stem (default: the first Function's name)
+
+    Raises
+    ------
+    RuntimeError : no C compiler, or the build failed (first 300 characters of gcc's error).
+    """
+    fns = [functions] if isinstance(functions, ca.Function) else list(functions)
+    tag = tag or fns[0].name()
+    cc = compiler()
+    if cc is None:
+        raise RuntimeError("no C compiler (gcc/cc) found")
+    cg = ca.CodeGenerator(f"{tag}.c", {"with_header": False})
+    for fn in fns:
+        cg.add(fn)
+    src = cg.dump()
+    key = hashlib.sha256((ca.__version__ + opt + src).encode()).hexdigest()[:16]
+    d = cache_dir()
+    d.mkdir(parents=True, exist_ok=True)
+    so = d / f"{tag}_{key}.so"
+    if so.exists():
+        return so
+    with tempfile.TemporaryDirectory(prefix="stickslip_cg_") as tmp:
+        c = Path(tmp) / f"{tag}.c"
+        c.write_text(src)
+        part = d / f".{so.name}.{os.getpid()}.tmp"
+        res = subprocess.run([cc, opt, "-fPIC", "-shared", str(c), "-o", str(part), "-lm"],
+                             capture_output=True, text=True)
+        if res.returncode != 0:
+            if part.exists():
+                part.unlink()
+            raise RuntimeError(f"{cc} failed building {tag}: {res.stderr.strip()[:300]}")
+        os.replace(part, so)
+    return so
+
+
+def load_compiled(functions: ca.Function | Sequence[ca.Function], opt: str = "-O2",
+                  tag: str | None = None) -> dict[str, ca.Function]:
+    """Compile (cached) and load as ``casadi.external`` Functions, keyed by name."""
+    fns = [functions] if isinstance(functions, ca.Function) else list(functions)
+    so = compile_cached(fns, opt, tag)
+    return {fn.name(): ca.external(fn.name(), str(so)) for fn in fns}
+
+
+class CtypesFunction:
+    """Call a generated CasADi function in a shared library with preallocated numpy buffers.
+
+    ``self.inputs[i]`` / ``self.outputs[j]`` are float64 arrays (dense, column-major for
+    matrices) bound once to the C argument/result pointers; fill the inputs, call
+    :meth:`__call__`, read the outputs.  No allocation per call: this is what brings a
+    small compiled step (EKF) to a few microseconds from Python.
+    """
+
+    def __init__(self, so_path: Path, fn: ca.Function):
+        self._lib = ctypes.CDLL(str(so_path))
+        name = fn.name()
+        self._f = getattr(self._lib, name)
+        self._f.restype = ctypes.c_int
+        self._f.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_int]
+        for i in range(fn.n_in()):
+            if not fn.sparsity_in(i).is_dense():
+                raise ValueError(f"{name}: input {i} is not dense")
+        for i in range(fn.n_out()):
+            if not fn.sparsity_out(i).is_dense():
+                raise ValueError(f"{name}: output {i} is not dense")
+        self.inputs = [np.zeros(fn.nnz_in(i)) for i in range(fn.n_in())]
+        self.outputs = [np.zeros(fn.nnz_out(i)) for i in range(fn.n_out())]
+        self._arg = (ctypes.c_void_p * max(fn.sz_arg(), 1))()
+        self._res = (ctypes.c_void_p * max(fn.sz_res(), 1))()
+        for i, b in enumerate(self.inputs):
+            self._arg[i] = b.ctypes.data
+        for i, b in enumerate(self.outputs):
+            self._res[i] = b.ctypes.data
+        self._iw = (ctypes.c_longlong * max(fn.sz_iw(), 1))()
+        self._w = np.zeros(max(fn.sz_w(), 1))
+        self._args = (ctypes.addressof(self._arg), ctypes.addressof(self._res), ctypes.addressof(self._iw),
+                      self._w.ctypes.data, 0)
+
+    def __call__(self) -> None:
+        if self._f(*self._args) != 0:
+            raise RuntimeError("compiled function returned an error")
