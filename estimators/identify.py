@@ -55,6 +55,7 @@ from models.logs import Log
 from models.params import ParameterSet
 from models.rigs import RigModel, get_model
 from models.sensors import SensorOptions
+from estimators.identify_gn import ShootingProblem, compiled_or_none, sample_function, solve_gn
 
 __all__ = ["IdentifyOptions", "FitResult", "Validation", "identify", "default_noise", "output_channels",
            "validate_fit", "IdentifiabilityWarning"]
@@ -90,7 +91,16 @@ class IdentifyOptions:
         starting at rest).  Without it a constant friction offset and a twist offset are
         indistinguishable from speeds alone (``k phi + T_f`` enters only as a sum).
     input_row : "end" (row k+1 holds the input over [t_k, t_k+1), the simulator's logs) or "start"
-    max_iter, tol : IPOPT iteration limit and tolerance
+    max_iter, tol : iteration limit and tolerance (GN: converged when the scaled step is below
+        ``sqrt(tol)`` and the scaled gaps below ``100 tol``; IPOPT: its ``tol``)
+    solver : "gn" (hand-written constrained Gauss-Newton on the sparse KKT system,
+        :mod:`estimators.identify_gn`) or "ipopt" (IPOPT with the GN Hessian, uncompiled)
+    compile : GN only: build the per-sample sensitivity function with gcc (cached on disk
+        under ``$XDG_CACHE_HOME/stickslip``); None: if gcc is available; False: CasADi's
+        virtual machine (same numbers, ~5-10x slower)
+    stuck_weight : weight (0..1] of the speed residuals of samples where a measured contact
+        speed is exactly zero (stuck to within one encoder tick per sample).  The regularised
+        model creeps there while the plant sticks; 1 keeps plain least squares
     corr_warn, rse_warn : identifiability thresholds (|correlation|, relative standard error)
     progress : print a one-line status per IPOPT iteration to stderr
     """
@@ -110,6 +120,9 @@ class IdentifyOptions:
     corr_warn: float = 0.95
     rse_warn: float = 0.5
     progress: bool = False
+    solver: str = "gn"
+    compile: bool | None = None
+    stuck_weight: float = 1.0
 
     def __post_init__(self):
         if isinstance(self.free, str):
@@ -135,6 +148,12 @@ class IdentifyOptions:
             raise ConfigError(f"identify.corr_warn must be in (0, 1], got {self.corr_warn!r}")
         if not self.rse_warn > 0:
             raise ConfigError(f"identify.rse_warn must be > 0, got {self.rse_warn!r}")
+        if self.solver not in ("gn", "ipopt"):
+            raise ConfigError(f"identify.solver must be 'gn' or 'ipopt', got {self.solver!r}")
+        if self.compile not in (None, True, False):
+            raise ConfigError(f"identify.compile must be true, false or unset, got {self.compile!r}")
+        if not (isinstance(self.stuck_weight, (int, float)) and 0 < self.stuck_weight <= 1):
+            raise ConfigError(f"identify.stuck_weight must be in (0, 1], got {self.stuck_weight!r}")
         if self.noise is not None:
             for k, v in self.noise.items():
                 if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -556,7 +575,16 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
     # --- the NLP
     nsub = options.nsub or auto_nsub(m, initial, np.max(np.abs(np.concatenate(
         [np.column_stack([lg[name] for name in m.inputs]) for lg in logs])), axis=0), dt, options.eps)
-    G = _interval_function(m, dt, M, nsub, options.eps, outputs, options.speed_average)
+    h_all = _output_function(m, outputs)
+    avg = [options.speed_average and o.startswith("omega") for o in outputs]
+    S = sample_function(m, nsub, h_all, avg)
+    S_run = S
+    use_c = options.compile if options.compile is not None else (options.solver == "gn")
+    if use_c:
+        S_run = compiled_or_none(S) or S
+    compiled = S_run is not S
+    G = _interval_function(m, dt, M, nsub, options.eps, outputs, options.speed_average) \
+        if options.solver == "ipopt" else None
     ny = len(outputs)
     Ublocks, Yblocks, Wblocks, node_init, log_ranges = [], [], [], [], []
     sig = np.array([noise[o] for o in outputs])
@@ -567,11 +595,21 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
         Uint = U[1:] if options.input_row == "end" else U[:-1]
         Y = np.column_stack([_channel(lg, o)[:n_used] for o in outputs])[1:]
         Ublocks.append(Uint.reshape(nint, M, m.nu))
+        # samples where a measured contact speed is exactly zero (stuck within one tick per sample)
+        known = _state_from_log(m, lg, initial)
+        cont = [o for o in outputs if o.startswith("omega") and o in lg.channels
+                and any(j in known and np.array_equal(known[j], lg[o]) for j in m.contacts)]
+        stuck = np.zeros(n_used - 1, bool)
+        for o in cont:
+            stuck |= (lg[o][1:n_used] == 0.0)
+        Wblocks.append(np.broadcast_to((stuck[:, None] & np.array([o.startswith("omega") for o in outputs])[None, :])
+                                       .reshape(nint, M, ny), (nint, M, ny)))
         Yblocks.append(Y.reshape(nint, M, ny))
         log_ranges.append(nint)
     Uall = np.concatenate(Ublocks)          # (Nint, M, nu)
     Yall = np.concatenate(Yblocks)          # (Nint, M, ny)
     Nint = Uall.shape[0]
+    stuck_mask = np.concatenate(Wblocks)    # (Nint, M, ny): speed residuals at stuck samples
 
     # initial node states: smooth simulation with the initial parameters, measured states overwritten
     p_init = initial.vector()
@@ -595,7 +633,9 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
             nodes[k] = x
             if k < nint:
                 Ub = lg_u[(k * M + 1 if options.input_row == "end" else k * M):][:M]
-                xn = np.array(G(x, Ub.T, p_init)[0]).ravel()
+                xn = x.copy()
+                for Uk in Ub:
+                    xn = np.array(S_run(xn, Uk, p_init, dt, options.eps)[0]).ravel()
                 x = xn if np.all(np.isfinite(xn)) and np.max(np.abs(xn)) < 1e6 else nodes[k].copy()
         node_init.append(nodes)
         x_abs = np.maximum(x_abs, np.max(np.abs(nodes), axis=0))
@@ -607,105 +647,134 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
     # decision variables (scaled): [theta; nodes of log 1; nodes of log 2; ...]
     n_nodes = [nint + 1 for nint in log_ranges]
     nw = nf + m.nx * sum(n_nodes)
-    w = ca.MX.sym("w", nw)
-    th = w[:nf] * th_scale
-    p_full = ca.MX(ca.DM(p_init))
-    p_parts = [p_full[i] for i in range(m.n_p)]
-    for i, j in enumerate(free_idx):
-        p_parts[j] = th[i]
-    p_sym = ca.vertcat(*p_parts)
-    S = []
-    off = nf
-    xs_dm = ca.DM(x_scale)
-    for nn in n_nodes:
-        blk = ca.reshape(w[off:off + m.nx * nn], m.nx, nn)
-        S.append(blk * ca.repmat(xs_dm, 1, nn))
-        off += m.nx * nn
-    starts = ca.horzcat(*[s[:, :-1] for s in S])        # (nx, Nint)
-    ends_target = ca.horzcat(*[s[:, 1:] for s in S])
-    Gm = G.map(Nint, "thread", 2)
-    Ustack = ca.DM(np.concatenate([Uall[i].T for i in range(Nint)], axis=1))  # (nu, Nint*M)
-    Xend, Ypred = Gm(starts, Ustack, ca.repmat(p_sym, 1, Nint))
-    Ymeas = np.concatenate([Yall[i].T for i in range(Nint)], axis=1)         # (ny, Nint*M)
-    wgt = ca.DM(1.0 / sig)
-    r = (Ypred - ca.DM(Ymeas)) * ca.repmat(wgt, 1, Nint * M)
-    r = ca.vec(r)
-    gap = ca.vec((Xend - ends_target) / ca.repmat(xs_dm, 1, Nint))
-    f_obj = 0.5 * ca.dot(r, r)
-    J_r = ca.jacobian(r, w)
-    lam_f = ca.MX.sym("lam_f")
-    lam_g = ca.MX.sym("lam_g", gap.numel())
-    pp = ca.MX.sym("pp", 0)
-    H = lam_f * ca.mtimes(J_r.T, J_r)
-    hess = ca.Function("gn_hess", [w, pp, lam_f, lam_g], [ca.triu(H)], ["x", "p", "lam_f", "lam_g"],
-                       ["triu_hess_gamma_x_x"])
-    nlp = {"x": w, "f": f_obj, "g": gap}
-    its = {"n": 0}
-
-    class _Cb(ca.Callback):
-        def __init__(self):
-            ca.Callback.__init__(self)
-            self.construct("id_progress", {})
-
-        def get_n_in(self):
-            return ca.nlpsol_n_out()
-
-        def get_n_out(self):
-            return 1
-
-        def get_name_in(self, i):
-            return ca.nlpsol_out(i)
-
-        def get_name_out(self, i):
-            return "ret"
-
-        def get_sparsity_in(self, i):
-            n = ca.nlpsol_out(i)
-            if n in ("f",):
-                return ca.Sparsity.scalar()
-            if n in ("x", "lam_x"):
-                return ca.Sparsity.dense(nw)
-            if n in ("g", "lam_g"):
-                return ca.Sparsity.dense(gap.numel())
-            return ca.Sparsity(0, 0)
-
-        def eval(self, arg):
-            its["n"] += 1
-            if options.progress:
-                import sys
-                sys.stderr.write(f"\ridentify {m.name}: iteration {its['n']:3d}, cost {float(arg[1]):.6g}   ")
-                sys.stderr.flush()
-            return [0]
-
-    cb = _Cb()
-    opts = {"hess_lag": hess, "print_time": False, "iteration_callback": cb,
-            "ipopt": {"print_level": 0, "sb": "yes", "max_iter": options.max_iter, "tol": options.tol,
-                      "acceptable_tol": 1e-5, "linear_solver": "mumps", "mu_strategy": "adaptive"}}
-    solver = ca.nlpsol("identify", "ipopt", nlp, opts)
     w0 = np.concatenate([theta0 / th_scale] + [(nodes / x_scale).T.ravel(order="F") for nodes in node_init])
     lbx = np.full(nw, -np.inf)
     ubx = np.full(nw, np.inf)
     lbx[:nf] = lo / th_scale
     ubx[:nf] = hi / th_scale
-    sol = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
-    if options.progress:
-        import sys
-        sys.stderr.write("\n")
-    stats = solver.stats()
-    w_opt = np.array(sol["x"]).ravel()
-    if not np.all(np.isfinite(w_opt)):
-        raise SolverFailure(f"identify {m.name}: the solver returned non-finite values ({stats.get('return_status')})")
-    status = str(stats.get("return_status", "unknown"))
-    success = bool(stats.get("success", False)) or status == "Solved_To_Acceptable_Level"
-    theta = w_opt[:nf] * th_scale
+    Ymeas = Yall.reshape(Nint * M, ny).T                                    # (ny, Nint*M)
+    if options.solver == "gn":
+        wgt_arr = np.broadcast_to(1.0 / sig, Yall.shape).copy()  # per residual
+        if options.stuck_weight < 1:
+            wgt_arr[stuck_mask] *= math.sqrt(options.stuck_weight)
+        starts_idx = np.concatenate([off_n + np.arange(nint) for off_n, nint in
+                                     zip(np.cumsum([0] + n_nodes[:-1]), log_ranges)])
+        prob = ShootingProblem(S_run, m.nx, m.n_p, p_init, free_idx, th_scale, x_scale, Uall, Yall, wgt_arr,
+                               starts_idx, dt, options.eps)
 
-    Yp_all = np.array(ca.Function("yp", [w], [Ypred])(w_opt))
-    # --- covariance from the GN information matrix of the constrained problem
-    fJ = ca.Function("fJ", [w], [r, J_r, gap, ca.jacobian(gap, w)])
-    r_v, Jr_v, g_v, A_v = fJ(w_opt)
-    r_v = np.array(r_v).ravel()
-    Jr = sp.csc_matrix(Jr_v.sparse()) if hasattr(Jr_v, "sparse") else sp.csc_matrix(np.array(Jr_v))
-    A = sp.csc_matrix(A_v.sparse()) if hasattr(A_v, "sparse") else sp.csc_matrix(np.array(A_v))
+        def _progress(it, f, gmax, step):
+            if options.progress:
+                import sys
+                sys.stderr.write(f"\ridentify {m.name}: iteration {it:3d}, cost {f:.6g}, gap {gmax:.2e}, "
+                                 f"step {step:.2e}   ")
+                sys.stderr.flush()
+
+        res = solve_gn(prob, w0, lbx[:nf], ubx[:nf], max_iter=options.max_iter, tol=options.tol, callback=_progress)
+        if options.progress:
+            import sys
+            sys.stderr.write("\n")
+        w_opt = res.w
+        if not np.all(np.isfinite(w_opt)):
+            raise SolverFailure(f"identify {m.name}: the solver returned non-finite values ({res.status})")
+        status, success, iterations = res.status, res.success, res.iterations
+        r_v, _g, Jr, A, Yp3 = prob.evaluate(w_opt)
+        Yp_all = Yp3.reshape(Nint * M, ny).T
+        theta = w_opt[:nf] * th_scale
+    else:
+        w = ca.MX.sym("w", nw)
+        th = w[:nf] * th_scale
+        p_full = ca.MX(ca.DM(p_init))
+        p_parts = [p_full[i] for i in range(m.n_p)]
+        for i, j in enumerate(free_idx):
+            p_parts[j] = th[i]
+        p_sym = ca.vertcat(*p_parts)
+        Snodes = []
+        off = nf
+        xs_dm = ca.DM(x_scale)
+        for nn in n_nodes:
+            blk = ca.reshape(w[off:off + m.nx * nn], m.nx, nn)
+            Snodes.append(blk * ca.repmat(xs_dm, 1, nn))
+            off += m.nx * nn
+        starts = ca.horzcat(*[s[:, :-1] for s in Snodes])        # (nx, Nint)
+        ends_target = ca.horzcat(*[s[:, 1:] for s in Snodes])
+        Gm = G.map(Nint, "thread", 2)
+        Ustack = ca.DM(np.concatenate([Uall[i].T for i in range(Nint)], axis=1))  # (nu, Nint*M)
+        Xend, Ypred = Gm(starts, Ustack, ca.repmat(p_sym, 1, Nint))
+        wgt = ca.DM(1.0 / sig)
+        r = (Ypred - ca.DM(Ymeas)) * ca.repmat(wgt, 1, Nint * M)
+        r = ca.vec(r)
+        gap = ca.vec((Xend - ends_target) / ca.repmat(xs_dm, 1, Nint))
+        f_obj = 0.5 * ca.dot(r, r)
+        J_r = ca.jacobian(r, w)
+        lam_f = ca.MX.sym("lam_f")
+        lam_g = ca.MX.sym("lam_g", gap.numel())
+        pp = ca.MX.sym("pp", 0)
+        H = lam_f * ca.mtimes(J_r.T, J_r)
+        hess = ca.Function("gn_hess", [w, pp, lam_f, lam_g], [ca.triu(H)], ["x", "p", "lam_f", "lam_g"],
+                           ["triu_hess_gamma_x_x"])
+        nlp = {"x": w, "f": f_obj, "g": gap}
+        its = {"n": 0}
+
+        class _Cb(ca.Callback):
+            def __init__(self):
+                ca.Callback.__init__(self)
+                self.construct("id_progress", {})
+
+            def get_n_in(self):
+                return ca.nlpsol_n_out()
+
+            def get_n_out(self):
+                return 1
+
+            def get_name_in(self, i):
+                return ca.nlpsol_out(i)
+
+            def get_name_out(self, i):
+                return "ret"
+
+            def get_sparsity_in(self, i):
+                n = ca.nlpsol_out(i)
+                if n in ("f",):
+                    return ca.Sparsity.scalar()
+                if n in ("x", "lam_x"):
+                    return ca.Sparsity.dense(nw)
+                if n in ("g", "lam_g"):
+                    return ca.Sparsity.dense(gap.numel())
+                return ca.Sparsity(0, 0)
+
+            def eval(self, arg):
+                its["n"] += 1
+                if options.progress:
+                    import sys
+                    sys.stderr.write(f"\ridentify {m.name}: iteration {its['n']:3d}, cost {float(arg[1]):.6g}   ")
+                    sys.stderr.flush()
+                return [0]
+
+        cb = _Cb()
+        opts = {"hess_lag": hess, "print_time": False, "iteration_callback": cb,
+                "ipopt": {"print_level": 0, "sb": "yes", "max_iter": options.max_iter, "tol": options.tol,
+                          "acceptable_tol": 1e-5, "linear_solver": "mumps", "mu_strategy": "adaptive"}}
+        solver = ca.nlpsol("identify", "ipopt", nlp, opts)
+        sol = solver(x0=w0, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
+        if options.progress:
+            import sys
+            sys.stderr.write("\n")
+        stats = solver.stats()
+        w_opt = np.array(sol["x"]).ravel()
+        if not np.all(np.isfinite(w_opt)):
+            raise SolverFailure(f"identify {m.name}: the solver returned non-finite values ({stats.get('return_status')})")
+        status = str(stats.get("return_status", "unknown"))
+        success = bool(stats.get("success", False)) or status == "Solved_To_Acceptable_Level"
+        theta = w_opt[:nf] * th_scale
+
+        iterations = int(stats.get("iter_count", its["n"]))
+        Yp_all = np.array(ca.Function("yp", [w], [Ypred])(w_opt))
+        # --- covariance from the GN information matrix of the constrained problem
+        fJ = ca.Function("fJ", [w], [r, J_r, gap, ca.jacobian(gap, w)])
+        r_v, Jr_v, g_v, A_v = fJ(w_opt)
+        r_v = np.array(r_v).ravel()
+        Jr = sp.csc_matrix(Jr_v.sparse()) if hasattr(Jr_v, "sparse") else sp.csc_matrix(np.array(Jr_v))
+        A = sp.csc_matrix(A_v.sparse()) if hasattr(A_v, "sparse") else sp.csc_matrix(np.array(A_v))
     n_res = r_v.size
     dof = n_res - (nf + m.nx * len(train))
     sigma2 = float(r_v @ r_v / max(dof, 1))
@@ -791,7 +860,7 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
         model=m.name, names=tuple(options.free), estimate=clipped, stderr=se, initial=theta0, corr=corr,
         params=fitted, t=tuple(t_list), measured=tuple(meas_list), simulated=tuple(sim_list),
         residuals=tuple(res_list), nrmse=nrmse, sigma2=sigma2, tau=tau, nsub=nsub, noise=noise, states=tuple(states),
-        status=status, success=success, iterations=int(stats.get("iter_count", its["n"])),
+        status=status, success=success, iterations=iterations,
         wall_time=time.perf_counter() - t_start, warnings=tuple(warns), at_bound=at_bound,
         validation=validation)
 

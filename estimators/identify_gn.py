@@ -1,0 +1,284 @@
+"""Hand-written constrained Gauss-Newton for multiple-shooting identification.
+
+Used by :func:`estimators.identify.identify` (``solver="gn"``, the default).
+
+- :func:`sample_function`: ONE DAQ sample of the regularised model (RK4, ``nsub`` substeps,
+  zero-order-hold input, speeds averaged over the sample by quadrature) with its forward
+  sensitivities: ``S(x, u, p, dt, eps) -> (x_next, y, A, B, C, D)`` with
+  ``A = dx_next/dx``, ``B = dx_next/dp``, ``C = dy/dx``, ``D = dy/dp`` (``p`` the full
+  parameter vector).  ``dt`` and ``eps`` are inputs, so one compiled library serves every
+  sample period and regularisation of a model / substep count / output set.
+- :func:`compiled_or_none`: the same Function generated to C, built with gcc and cached on
+  disk by the hash of its source (:func:`estimators.ekf.compile_cached`, cache folder
+  ``$XDG_CACHE_HOME/stickslip``); None if gcc is missing or fails (the caller then uses the
+  CasADi virtual machine, same numbers, ~10x slower).
+- :class:`ShootingProblem`: residuals, continuity gaps and their sparse Jacobians for all
+  intervals at once (the sample function mapped over the intervals, sensitivities chained
+  over the ``M`` samples of an interval in numpy).
+- :func:`solve_gn`: SQP with the Gauss-Newton Hessian ``J^T J``: each iteration solves the
+  sparse KKT system ``[[J^T J + mu I, A^T], [A, 0]]`` (scipy SuperLU), bounds on the
+  parameters by a small active set, step length by backtracking on the l1 merit function
+  ``0.5 |r|^2 + nu |g|_1``.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import sys
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from models.rigs import RigModel
+
+__all__ = ["sample_function", "compiled_or_none", "ShootingProblem", "solve_gn", "GNResult"]
+
+_COMPILED: dict = {}
+
+
+def sample_function(model: RigModel, nsub: int, h_all: ca.Function, avg: list[bool]) -> ca.Function:
+    """One sample with sensitivities; see the module docstring.
+
+    ``h_all(x, u, p)`` stacks the compared outputs; ``avg[i]`` marks outputs returned as
+    means over the sample (quadrature) rather than end values.
+    """
+    x = ca.SX.sym("x", model.nx)
+    u = ca.SX.sym("u", model.nu)
+    p = ca.SX.sym("p", model.n_p)
+    dt = ca.SX.sym("dt")
+    eps = ca.SX.sym("eps")
+    rhs = model.smooth_rhs(x, u, p, eps)
+    rhs = ca.vertcat(*rhs) if isinstance(rhs, list) else rhs
+    yexpr = h_all(x, u, p)
+    idx_avg = [i for i, a in enumerate(avg) if a]
+    q_rhs = ca.vertcat(*[yexpr[i] for i in idx_avg]) if idx_avg else ca.SX(0, 1)
+    fa = ca.Function("fa", [x, u, p, eps], [ca.vertcat(rhs, q_rhs)])
+    nx, nq = model.nx, len(idx_avg)
+    hs = dt / nsub
+    xa = ca.vertcat(x, ca.SX.zeros(nq))
+    for _ in range(nsub):
+        k1 = fa(xa[:nx], u, p, eps)
+        k2 = fa(xa[:nx] + hs / 2 * k1[:nx], u, p, eps)
+        k3 = fa(xa[:nx] + hs / 2 * k2[:nx], u, p, eps)
+        k4 = fa(xa[:nx] + hs * k3[:nx], u, p, eps)
+        xa = xa + hs / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    xn = xa[:nx]
+    yend = h_all(xn, u, p)
+    ys, jq = [], 0
+    for i in range(len(avg)):
+        if avg[i]:
+            ys.append(xa[nx + jq] / dt)
+            jq += 1
+        else:
+            ys.append(yend[i])
+    y = ca.vertcat(*ys)
+    return ca.Function(f"{model.name}_id_sens_n{nsub}_y{len(avg)}", [x, u, p, dt, eps],
+                       [xn, y, ca.jacobian(xn, x), ca.jacobian(xn, p), ca.jacobian(y, x), ca.jacobian(y, p)],
+                       ["x", "u", "p", "dt", "eps"], ["x_next", "y", "A", "B", "C", "D"])
+
+
+def compiled_or_none(fn: ca.Function) -> ca.Function | None:
+    """``fn`` as a gcc-built, disk-cached external Function, or None if that is not possible."""
+    key = fn.serialize()
+    if key in _COMPILED:
+        return _COMPILED[key]
+    out = None
+    if shutil.which("gcc"):
+        try:
+            from estimators.ekf import compile_cached
+            so = compile_cached(fn, "-O1")
+            out = ca.external(fn.name(), str(so))
+        except Exception as exc:  # noqa: BLE001 - fall back to the virtual machine
+            sys.stderr.write(f"identify: compiling {fn.name()} failed ({exc}); using the uncompiled function\n")
+            out = None
+    _COMPILED[key] = out
+    return out
+
+
+class ShootingProblem:
+    """Residuals and continuity gaps of a multiple-shooting fit and their sparse Jacobians.
+
+    Decision vector ``w = [theta / th_scale; nodes / x_scale]`` (nodes row-major per node,
+    logs one after another).  Residual order: interval, sample, channel.  Gap order:
+    interval, state.
+    """
+
+    def __init__(self, S: ca.Function, nx: int, n_p: int, p_base, free_idx, th_scale, x_scale,
+                 U, Ymeas, wgt, starts, dt: float, eps: float, threads: int = 2):
+        # U (Nint, M, nu), Ymeas (Nint, M, ny), starts (Nint,) node index of each interval start
+        self.nx, self.n_p = nx, n_p
+        self.p_base = np.asarray(p_base, float)
+        self.free_idx = np.asarray(free_idx, int)
+        self.nf = len(free_idx)
+        self.th_scale = np.asarray(th_scale, float)
+        self.x_scale = np.asarray(x_scale, float)
+        self.U = U
+        self.Ymeas = Ymeas
+        self.wgt = np.broadcast_to(np.asarray(wgt, float), Ymeas.shape)  # 1/noise per residual
+        self.starts = np.asarray(starts, int)
+        self.Nint, self.M, self.ny = Ymeas.shape
+        self.n_nodes = int(self.starts.max()) + 2 if self.Nint else 0
+        self.nw = self.nf + nx * self.n_nodes
+        self.dt, self.eps = float(dt), float(eps)
+        self.F = S.map(self.Nint, "thread", threads) if threads > 1 else S.map(self.Nint)
+        self._build_patterns()
+
+    def split(self, w):
+        theta = w[:self.nf] * self.th_scale
+        nodes = w[self.nf:].reshape(self.n_nodes, self.nx) * self.x_scale
+        return theta, nodes
+
+    def _build_patterns(self):
+        nf, nx, M, ny, N = self.nf, self.nx, self.M, self.ny, self.Nint
+        # residual Jacobian: rows (i, k, c), columns theta (nf) and start node of i (nx)
+        rows = np.arange(N * M * ny).reshape(N, M, ny)
+        cols_t = np.broadcast_to(np.arange(nf), (N, M, ny, nf))
+        cols_s = nf + nx * self.starts[:, None, None, None] + np.arange(nx)[None, None, None, :]
+        cols_s = np.broadcast_to(cols_s, (N, M, ny, nx))
+        self._jr_rows = np.concatenate([np.broadcast_to(rows[..., None], (N, M, ny, nf)).ravel(),
+                                        np.broadcast_to(rows[..., None], (N, M, ny, nx)).ravel()])
+        self._jr_cols = np.concatenate([cols_t.ravel(), cols_s.ravel()])
+        grow = np.arange(N * nx).reshape(N, nx)
+        gct = np.broadcast_to(np.arange(nf), (N, nx, nf))
+        gcs = np.broadcast_to(nf + nx * self.starts[:, None, None] + np.arange(nx)[None, None, :], (N, nx, nx))
+        self._a_rows = np.concatenate([np.broadcast_to(grow[..., None], (N, nx, nf)).ravel(),
+                                       np.broadcast_to(grow[..., None], (N, nx, nx)).ravel(), grow.ravel()])
+        self._a_cols = np.concatenate([gct.ravel(), gcs.ravel(),
+                                       (nf + nx * (self.starts[:, None] + 1) + np.arange(nx)[None, :]).ravel()])
+
+    def evaluate(self, w, jac: bool = True):
+        """Return ``r, g, Jr, A, Ypred`` (``Jr``, ``A`` sparse CSC, None if not ``jac``)."""
+        nf, nx, M, ny, N = self.nf, self.nx, self.M, self.ny, self.Nint
+        theta, nodes = self.split(np.asarray(w, float))
+        p = self.p_base.copy()
+        p[self.free_idx] = theta
+        P = np.repeat(p[:, None], N, axis=1)
+        X = nodes[self.starts].T.copy()                      # (nx, N)
+        Ypred = np.empty((N, M, ny))
+        if jac:
+            Sx = np.repeat(np.eye(nx)[None], N, axis=0)      # (N, nx, nx)
+            Sp = np.zeros((N, nx, nf))
+            Jy_s = np.empty((N, M, ny, nx))
+            Jy_t = np.empty((N, M, ny, nf))
+        for k in range(M):
+            out = self.F(X, self.U[:, k, :].T, P, self.dt, self.eps)
+            xn = np.asarray(out[0])
+            Ypred[:, k, :] = np.asarray(out[1]).T
+            if jac:
+                A = np.asarray(out[2]).reshape(nx, N, nx).transpose(1, 0, 2)
+                B = np.asarray(out[3]).reshape(nx, N, self.n_p).transpose(1, 0, 2)[:, :, self.free_idx]
+                C = np.asarray(out[4]).reshape(ny, N, nx).transpose(1, 0, 2)
+                D = np.asarray(out[5]).reshape(ny, N, self.n_p).transpose(1, 0, 2)[:, :, self.free_idx]
+                Jy_s[:, k] = C @ Sx
+                Jy_t[:, k] = C @ Sp + D
+                Sp = A @ Sp + B
+                Sx = A @ Sx
+            X = xn
+        r = ((Ypred - self.Ymeas) * self.wgt).ravel()
+        xs = self.x_scale
+        g = ((X.T - nodes[self.starts + 1]) / xs).ravel()
+        if not jac:
+            return r, g, None, None, Ypred
+        wq = self.wgt[..., None]
+        vals_r = np.concatenate([(Jy_t * wq * self.th_scale).ravel(), (Jy_s * wq * xs).ravel()])
+        Jr = sp.csc_matrix((vals_r, (self._jr_rows, self._jr_cols)), shape=(N * M * ny, self.nw))
+        vals_a = np.concatenate([(Sp / xs[None, :, None] * self.th_scale).ravel(),
+                                 (Sx / xs[None, :, None] * xs[None, None, :]).ravel(),
+                                 -np.ones(N * nx)])
+        A = sp.csc_matrix((vals_a, (self._a_rows, self._a_cols)), shape=(N * nx, self.nw))
+        return r, g, Jr, A, Ypred
+
+
+@dataclass(frozen=True)
+class GNResult:
+    w: np.ndarray
+    iterations: int
+    status: str
+    success: bool
+
+
+def solve_gn(prob: ShootingProblem, w0, lb, ub, *, max_iter: int = 100, tol: float = 1e-8,
+             callback=None) -> GNResult:
+    """Constrained Gauss-Newton (SQP with ``J^T J``) on a :class:`ShootingProblem`.
+
+    ``lb``/``ub`` bound the scaled parameters ``w[:nf]`` only.  Converged when the scaled
+    step is below ``sqrt(tol)`` in max-norm and the scaled gaps below ``100 tol``.
+    """
+    nf, nw = prob.nf, prob.nw
+    w = np.asarray(w0, float).copy()
+    w[:nf] = np.clip(w[:nf], lb, ub)
+    r, g, Jr, A, _ = prob.evaluate(w)
+    nu_pen = 1.0
+    status, success = "maximum number of iterations reached", False
+    it = 0
+    for it in range(1, max_iter + 1):
+        f = 0.5 * float(r @ r)
+        H = (Jr.T @ Jr).tocsc()
+        grad = Jr.T @ r
+        hd = H.diagonal()
+        mu = 1e-10 * max(1.0, float(hd.max()))
+        fixed: set[int] = set()
+        for j in range(nf):  # parameters at a bound whose gradient pushes outward
+            if (w[j] <= lb[j] + 1e-12 and grad[j] > 0) or (w[j] >= ub[j] - 1e-12 and grad[j] < 0):
+                fixed.add(j)
+        ng = A.shape[0]
+        for _ in range(nf + 1):
+            E = sp.csc_matrix((np.ones(len(fixed)), (np.arange(len(fixed)), sorted(fixed))), shape=(len(fixed), nw))
+            Aall = sp.vstack([A, E]).tocsc()
+            rhs_c = np.r_[-g, [0.0] * len(fixed)]
+            for j_i, j in enumerate(sorted(fixed)):
+                rhs_c[ng + j_i] = (min(max(w[j], lb[j]), ub[j]) - w[j])
+            K = sp.bmat([[H + mu * sp.identity(nw, format="csc"), Aall.T],
+                         [Aall, -1e-12 * sp.identity(Aall.shape[0], format="csc")]], format="csc")
+            try:
+                sol = spla.splu(K).solve(np.r_[-grad, rhs_c])
+            except RuntimeError:
+                return GNResult(w, it, "singular KKT matrix", False)
+            dw, lam = sol[:nw], sol[nw:nw + ng]
+            viol = [j for j in range(nf) if j not in fixed and (w[j] + dw[j] < lb[j] - 1e-12 or w[j] + dw[j] > ub[j] + 1e-12)]
+            if not viol:
+                break
+            # fix the most violated one at its bound
+            fixed.add(max(viol, key=lambda j: max(lb[j] - w[j] - dw[j], w[j] + dw[j] - ub[j])))
+        # truncate the step into the box (remaining small violations)
+        t_max = 1.0
+        for j in range(nf):
+            if dw[j] < 0 and w[j] + dw[j] < lb[j]:
+                t_max = min(t_max, (lb[j] - w[j]) / dw[j])
+            if dw[j] > 0 and w[j] + dw[j] > ub[j]:
+                t_max = min(t_max, (ub[j] - w[j]) / dw[j])
+        nu_pen = max(nu_pen, 1.5 * float(np.max(np.abs(lam))) if lam.size else 0.0)
+        gl1 = float(np.sum(np.abs(g)))
+        phi0 = f + nu_pen * gl1
+        dphi = float(grad @ dw) - nu_pen * gl1
+        step_inf = float(np.max(np.abs(dw))) if nw else 0.0
+        if callback is not None:
+            callback(it, f, float(np.max(np.abs(g))) if g.size else 0.0, step_inf)
+        if step_inf < math.sqrt(tol) and (g.size == 0 or np.max(np.abs(g)) < 100 * tol):
+            status, success = "converged (small step)", True
+            break
+        alpha = t_max
+        accepted = False
+        for _ in range(30):
+            wt = w + alpha * dw
+            wt[:nf] = np.clip(wt[:nf], lb, ub)
+            rt, gt, _, _, _ = prob.evaluate(wt, jac=False)
+            if np.all(np.isfinite(rt)) and np.all(np.isfinite(gt)):
+                phit = 0.5 * float(rt @ rt) + nu_pen * float(np.sum(np.abs(gt)))
+                if phit <= phi0 + 1e-4 * alpha * min(dphi, 0.0):
+                    accepted = True
+                    break
+            alpha *= 0.5
+        if not accepted:
+            if np.max(np.abs(g)) < 1e-6 and step_inf < 1e-3:
+                status, success = "converged (no further decrease)", True
+            else:
+                status, success = "line search failed", False
+            break
+        w = wt
+        r, g, Jr, A, _ = prob.evaluate(w)
+    return GNResult(w, it, status, success)
