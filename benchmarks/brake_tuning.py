@@ -15,9 +15,9 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-GAINS_OVER = (2.0, 5.0, 10.0, 20.0, 40.0)
-GAINS_REL = (0.0, 10.0)
-TAUS = (0.0, 0.03, 0.1)
+GAINS_OVER = (2.0, 5.0, 10.0, 20.0, 40.0, 80.0, 160.0)
+GAINS_REL = (0.0, 10.0, 40.0)
+TAUS = (0.0, 0.03)
 
 
 def _one(args):
