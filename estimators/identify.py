@@ -578,10 +578,13 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
     h_all = _output_function(m, outputs)
     avg = [options.speed_average and o.startswith("omega") for o in outputs]
     S = sample_function(m, nsub, h_all, avg)
+    S_val = sample_function(m, nsub, h_all, avg, values_only=True)
     S_run = S
     use_c = options.compile if options.compile is not None else (options.solver == "gn")
     if use_c:
         S_run = compiled_or_none(S) or S
+        if S_run is not S:
+            S_val = compiled_or_none(S_val) or S_val
     compiled = S_run is not S
     G = _interval_function(m, dt, M, nsub, options.eps, outputs, options.speed_average) \
         if options.solver == "ipopt" else None
@@ -635,7 +638,7 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
                 Ub = lg_u[(k * M + 1 if options.input_row == "end" else k * M):][:M]
                 xn = x.copy()
                 for Uk in Ub:
-                    xn = np.array(S_run(xn, Uk, p_init, dt, options.eps)[0]).ravel()
+                    xn = np.array(S_val(xn, Uk, p_init, dt, options.eps)[0]).ravel()
                 x = xn if np.all(np.isfinite(xn)) and np.max(np.abs(xn)) < 1e6 else nodes[k].copy()
         node_init.append(nodes)
         x_abs = np.maximum(x_abs, np.max(np.abs(nodes), axis=0))
@@ -660,7 +663,7 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
         starts_idx = np.concatenate([off_n + np.arange(nint) for off_n, nint in
                                      zip(np.cumsum([0] + n_nodes[:-1]), log_ranges)])
         prob = ShootingProblem(S_run, m.nx, m.n_p, p_init, free_idx, th_scale, x_scale, Uall, Yall, wgt_arr,
-                               starts_idx, dt, options.eps)
+                               starts_idx, dt, options.eps, S_val=S_val)
 
         def _progress(it, f, gmax, step):
             if options.progress:

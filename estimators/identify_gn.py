@@ -40,11 +40,13 @@ __all__ = ["sample_function", "compiled_or_none", "ShootingProblem", "solve_gn",
 _COMPILED: dict = {}
 
 
-def sample_function(model: RigModel, nsub: int, h_all: ca.Function, avg: list[bool]) -> ca.Function:
+def sample_function(model: RigModel, nsub: int, h_all: ca.Function, avg: list[bool], *,
+                    values_only: bool = False) -> ca.Function:
     """One sample with sensitivities; see the module docstring.
 
     ``h_all(x, u, p)`` stacks the compared outputs; ``avg[i]`` marks outputs returned as
-    means over the sample (quadrature) rather than end values.
+    means over the sample (quadrature) rather than end values.  ``values_only``: only
+    ``(x_next, y)`` (for line searches and simulation).
     """
     x = ca.SX.sym("x", model.nx)
     u = ca.SX.sym("u", model.nu)
@@ -76,6 +78,9 @@ def sample_function(model: RigModel, nsub: int, h_all: ca.Function, avg: list[bo
         else:
             ys.append(yend[i])
     y = ca.vertcat(*ys)
+    if values_only:
+        return ca.Function(f"{model.name}_id_val_n{nsub}_y{len(avg)}", [x, u, p, dt, eps], [xn, y],
+                           ["x", "u", "p", "dt", "eps"], ["x_next", "y"])
     return ca.Function(f"{model.name}_id_sens_n{nsub}_y{len(avg)}", [x, u, p, dt, eps],
                        [xn, y, ca.jacobian(xn, x), ca.jacobian(xn, p), ca.jacobian(y, x), ca.jacobian(y, p)],
                        ["x", "u", "p", "dt", "eps"], ["x_next", "y", "A", "B", "C", "D"])
@@ -108,7 +113,8 @@ class ShootingProblem:
     """
 
     def __init__(self, S: ca.Function, nx: int, n_p: int, p_base, free_idx, th_scale, x_scale,
-                 U, Ymeas, wgt, starts, dt: float, eps: float, threads: int = 2):
+                 U, Ymeas, wgt, starts, dt: float, eps: float, threads: int = 2,
+                 S_val: ca.Function | None = None):
         # U (Nint, M, nu), Ymeas (Nint, M, ny), starts (Nint,) node index of each interval start
         self.nx, self.n_p = nx, n_p
         self.p_base = np.asarray(p_base, float)
@@ -125,7 +131,26 @@ class ShootingProblem:
         self.nw = self.nf + nx * self.n_nodes
         self.dt, self.eps = float(dt), float(eps)
         self.F = S.map(self.Nint, "thread", threads) if threads > 1 else S.map(self.Nint)
+        Sv = S_val if S_val is not None else S
+        self.Fv = Sv.map(self.Nint, "thread", threads) if threads > 1 else Sv.map(self.Nint)
         self._build_patterns()
+
+    def kkt_order(self, n_extra: int) -> np.ndarray:
+        """Symmetric permutation of the KKT unknowns ``[w; gap multipliers; extra rows]`` to
+        a banded matrix with a border: per node its states then the gaps of the interval it
+        starts; the parameters and the ``n_extra`` bound rows last."""
+        nf, nx = self.nf, self.nx
+        ng = self.Nint * nx
+        gap_of = -np.ones(self.n_nodes, int)
+        gap_of[self.starts] = np.arange(self.Nint)
+        blocks = []
+        for n in range(self.n_nodes):
+            blocks.append(nf + nx * n + np.arange(nx))
+            if gap_of[n] >= 0:
+                blocks.append(self.nw + nx * gap_of[n] + np.arange(nx))
+        blocks.append(np.arange(nf))
+        blocks.append(self.nw + ng + np.arange(n_extra))
+        return np.concatenate(blocks)
 
     def split(self, w):
         theta = w[:self.nf] * self.th_scale
@@ -165,7 +190,7 @@ class ShootingProblem:
             Jy_s = np.empty((N, M, ny, nx))
             Jy_t = np.empty((N, M, ny, nf))
         for k in range(M):
-            out = self.F(X, self.U[:, k, :].T, P, self.dt, self.eps)
+            out = (self.F if jac else self.Fv)(X, self.U[:, k, :].T, P, self.dt, self.eps)
             xn = np.asarray(out[0])
             Ypred[:, k, :] = np.asarray(out[1]).T
             if jac:
@@ -213,6 +238,7 @@ def solve_gn(prob: ShootingProblem, w0, lb, ub, *, max_iter: int = 100, tol: flo
     w[:nf] = np.clip(w[:nf], lb, ub)
     r, g, Jr, A, _ = prob.evaluate(w)
     nu_pen = 1.0
+    lm = 1e-10          # Levenberg-Marquardt damping relative to max diag(J^T J), adapted below
     status, success = "maximum number of iterations reached", False
     it = 0
     for it in range(1, max_iter + 1):
@@ -220,7 +246,7 @@ def solve_gn(prob: ShootingProblem, w0, lb, ub, *, max_iter: int = 100, tol: flo
         H = (Jr.T @ Jr).tocsc()
         grad = Jr.T @ r
         hd = H.diagonal()
-        mu = 1e-10 * max(1.0, float(hd.max()))
+        mu = lm * max(1.0, float(hd.max()))
         fixed: set[int] = set()
         for j in range(nf):  # parameters at a bound whose gradient pushes outward
             if (w[j] <= lb[j] + 1e-12 and grad[j] > 0) or (w[j] >= ub[j] - 1e-12 and grad[j] < 0):
@@ -234,10 +260,14 @@ def solve_gn(prob: ShootingProblem, w0, lb, ub, *, max_iter: int = 100, tol: flo
                 rhs_c[ng + j_i] = (min(max(w[j], lb[j]), ub[j]) - w[j])
             K = sp.bmat([[H + mu * sp.identity(nw, format="csc"), Aall.T],
                          [Aall, -1e-12 * sp.identity(Aall.shape[0], format="csc")]], format="csc")
+            perm = prob.kkt_order(len(fixed))
             try:
-                sol = spla.splu(K).solve(np.r_[-grad, rhs_c])
+                Kp = K[perm][:, perm].tocsc()
+                solp = spla.splu(Kp, permc_spec="NATURAL", diag_pivot_thresh=0.1).solve(np.r_[-grad, rhs_c][perm])
             except RuntimeError:
                 return GNResult(w, it, "singular KKT matrix", False)
+            sol = np.empty_like(solp)
+            sol[perm] = solp
             dw, lam = sol[:nw], sol[nw:nw + ng]
             viol = [j for j in range(nf) if j not in fixed and (w[j] + dw[j] < lb[j] - 1e-12 or w[j] + dw[j] > ub[j] + 1e-12)]
             if not viol:
@@ -258,8 +288,17 @@ def solve_gn(prob: ShootingProblem, w0, lb, ub, *, max_iter: int = 100, tol: flo
         step_inf = float(np.max(np.abs(dw))) if nw else 0.0
         if callback is not None:
             callback(it, f, float(np.max(np.abs(g))) if g.size else 0.0, step_inf)
-        if step_inf < math.sqrt(tol) and (g.size == 0 or np.max(np.abs(g)) < 100 * tol):
+        gmax = float(np.max(np.abs(g))) if g.size else 0.0
+        if step_inf < math.sqrt(tol) and gmax < 100 * tol:
             status, success = "converged (small step)", True
+            break
+        # predicted GN decrease of the cost negligible and the gaps small: converged
+        pred = -float(grad @ dw) - 0.5 * float(np.sum((Jr @ dw) ** 2))
+        # (the cost is in units of noise-normalised squares: a decrease of 1e-4 s^2 moves the
+        # parameters by ~0.01 standard errors)
+        s2 = max(1.0, 2 * f / max(r.size - nw + g.size, 1))
+        if 0 <= pred <= max(tol * f, 1e-4 * s2) and gmax < 1e-5:
+            status, success = "converged (no predicted decrease)", True
             break
         alpha = t_max
         accepted = False
@@ -280,5 +319,6 @@ def solve_gn(prob: ShootingProblem, w0, lb, ub, *, max_iter: int = 100, tol: flo
                 status, success = "line search failed", False
             break
         w = wt
+        lm = max(lm / 10, 1e-12) if alpha >= 0.5 * t_max else min(lm * 10, 1e-2)
         r, g, Jr, A, _ = prob.evaluate(w)
     return GNResult(w, it, status, success)
