@@ -96,6 +96,9 @@ class NMPCOptions:
     model_servo : predict the servo's first-order lag (tau from ServoOptions)
     prepare_ahead : RTI preparation/feedback split (rti/sqp): linearise at the shifted plan in the
         first call after a plan (a held sample), so a planning call only solves the QP
+    use_load_estimate : scale the measured N1 by the estimator's ``load1`` state (the EKF/MHE
+        random-walk factor on R1's friction load) when the estimate has one: a disturbance
+        model that absorbs friction mismatch and "formation" drift
     """
 
     horizon: int = 20
@@ -114,6 +117,7 @@ class NMPCOptions:
     sqp_max_iter: int = 20
     model_servo: bool = True
     prepare_ahead: bool = True
+    use_load_estimate: bool = True
     where: str = "nmpc"
 
     def __post_init__(self):
@@ -141,7 +145,7 @@ class NMPCOptions:
         _num(self.qp_tol, f"{w}.qp_tol", pos=True)
         if isinstance(self.sqp_max_iter, bool) or not isinstance(self.sqp_max_iter, int) or self.sqp_max_iter < 1:
             raise ConfigError(f"{w}.sqp_max_iter must be an integer >= 1, got {self.sqp_max_iter!r}")
-        for name in ("model_servo", "prepare_ahead"):
+        for name in ("model_servo", "prepare_ahead", "use_load_estimate"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{w}.{name} must be true or false, got {getattr(self, name)!r}")
 
@@ -271,6 +275,9 @@ class NMPCController(Controller):
                 raise SolverFailure("no state estimate")
             x = np.asarray(estimate.x, float).ravel()[:7]
             n1 = float(measurement["n1"])
+            names = getattr(estimate, "names", ())
+            if o.use_load_estimate and "load1" in names:
+                n1 *= float(np.clip(estimate.x[names.index("load1")], 0.2, 5.0))
             if x.shape != (7,) or not (np.all(np.isfinite(x)) and np.isfinite(n1)):
                 raise SolverFailure("non-finite estimate or n1")
             xa0 = np.concatenate([x, [n2a], self._u_prev])
