@@ -242,3 +242,22 @@ def test_nominal_jump_is_followed_within_the_rate_limit():
     assert c.counts.failures == 0
     assert np.max(np.abs(np.diff(wr))) <= 10.0 * 0.05 + 1e-9
     assert wr[-1] > W0 + 2.0
+
+
+@pytest.mark.parametrize("use, expected", [(True, 1.5 * 20.0), (False, 20.0)])
+def test_load_estimate_scales_the_predicted_n1(use, expected, monkeypatch):
+    # the EKF/MHE state load1 multiplies N1 in their model; the NMPC predicts with the same factor
+    c = make_nmpc({"horizon": 5, "compile": False, "use_load_estimate": use}, P, 0.01, W0, ServoOptions(), "nmpc")
+    seen = []
+    q_orig = type(c.spec).q
+
+    def spy(self, n1, *args):
+        seen.append(n1)
+        return q_orig(self, n1, *args)
+
+    monkeypatch.setattr(type(c.spec), "q", spy)
+    x = get_model("rig3").steady_sliding([W0, 20.0, 0.0], P)
+    est = Estimate(0.0, np.concatenate([x, [1.5]]), np.eye(8), get_model("rig3").states + ("load1",))
+    a = c.step(0.0, est, {"n1": 20.0, "omega_ref": W0})
+    assert a.success
+    assert seen and seen[0] == pytest.approx(expected)
