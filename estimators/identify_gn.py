@@ -263,7 +263,8 @@ def solve_gn(prob: ShootingProblem, w0, lb, ub, *, max_iter: int = 100, tol: flo
             perm = prob.kkt_order(len(fixed))
             try:
                 Kp = K[perm][:, perm].tocsc()
-                solp = spla.splu(Kp, permc_spec="NATURAL", diag_pivot_thresh=0.1).solve(np.r_[-grad, rhs_c][perm])
+                lu = spla.splu(Kp, permc_spec="NATURAL", diag_pivot_thresh=0.1)
+                solp = lu.solve(np.r_[-grad, rhs_c][perm])
             except RuntimeError:
                 return GNResult(w, it, "singular KKT matrix", False)
             sol = np.empty_like(solp)
@@ -302,7 +303,7 @@ def solve_gn(prob: ShootingProblem, w0, lb, ub, *, max_iter: int = 100, tol: flo
             break
         alpha = t_max
         accepted = False
-        for _ in range(30):
+        for ls in range(30):
             wt = w + alpha * dw
             wt[:nf] = np.clip(wt[:nf], lb, ub)
             rt, gt, _, _, _ = prob.evaluate(wt, jac=False)
@@ -311,6 +312,22 @@ def solve_gn(prob: ShootingProblem, w0, lb, ub, *, max_iter: int = 100, tol: flo
                 if phit <= phi0 + 1e-4 * alpha * min(dphi, 0.0):
                     accepted = True
                     break
+                if ls == 0:
+                    # second-order correction (Nocedal & Wright 18.3): the minimum-norm (in the
+                    # GN metric) change that removes the gaps left by the full step, from the same
+                    # factorisation; counters the Maratos effect of the l1 merit function
+                    rhs = np.r_[np.zeros(nw), -gt, np.zeros(Aall.shape[0] - ng)]
+                    cp = lu.solve(rhs[perm])
+                    corr = np.empty_like(cp)
+                    corr[perm] = cp
+                    ws = wt + corr[:nw]
+                    ws[:nf] = np.clip(ws[:nf], lb, ub)
+                    rs, gs, _, _, _ = prob.evaluate(ws, jac=False)
+                    if np.all(np.isfinite(rs)) and np.all(np.isfinite(gs)):
+                        phis = 0.5 * float(rs @ rs) + nu_pen * float(np.sum(np.abs(gs)))
+                        if phis <= phi0 + 1e-4 * alpha * min(dphi, 0.0):
+                            wt, accepted = ws, True
+                            break
             alpha *= 0.5
         if not accepted:
             if np.max(np.abs(g)) < 1e-6 and step_inf < 1e-3:

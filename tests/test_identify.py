@@ -109,3 +109,66 @@ def test_rig3_truth_recovery():
     for n in ("k1", "k2", "d1"):
         i = fit.names.index(n)
         assert abs(fit.estimate[i] - getattr(true, n)) < 3 * fit.stderr[i]
+
+
+@pytest.fixture(scope="module")
+def short_log():
+    m = get_model("disc")
+    return simulate(m, TRUE_DISC, np.array([1.0, 20.0]), 3.0, SimOptions(seed=4)).to_log()
+
+
+def test_gn_matches_ipopt_and_compiled_matches_vm(short_log):
+    """The hand-written GN, its uncompiled variant and IPOPT (GN Hessian) reach the same optimum."""
+    fits = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IdentifiabilityWarning)
+        for key, kw in (("gn_c", dict(solver="gn", compile=None)), ("gn_vm", dict(solver="gn", compile=False)),
+                        ("ipopt", dict(solver="ipopt"))):
+            fits[key] = identify(short_log, "disc", published("disc"),
+                                 IdentifyOptions(free=("k", "mu_k", "mu_s"), eps=0.005, nsub=10, **kw))
+    for f in fits.values():
+        assert f.success, f.status
+    ref = fits["ipopt"]
+    for key in ("gn_c", "gn_vm"):
+        # agreement well inside the standard errors
+        assert np.all(np.abs(fits[key].estimate - ref.estimate) < 0.02 * ref.stderr), (key, fits[key].estimate)
+        assert np.allclose(fits[key].stderr, ref.stderr, rtol=0.02)
+    assert np.allclose(fits["gn_c"].estimate, fits["gn_vm"].estimate, rtol=1e-8, atol=0)
+
+
+def test_shooting_jacobians_match_finite_differences(short_log):
+    """Chained per-sample sensitivities = finite differences of residuals and gaps."""
+    from estimators.identify import _output_function
+    from estimators.identify_gn import ShootingProblem, sample_function
+
+    m = get_model("disc")
+    outs = ("omega1", "theta1-theta3")
+    S = sample_function(m, 4, _output_function(m, outs), [True, False])
+    rng = np.random.default_rng(0)
+    nint, M = 3, 5
+    U = np.repeat(np.array([[1.0, 20.0]]), nint * M, axis=0).reshape(nint, M, 2)
+    Y = rng.standard_normal((nint, M, 2))
+    free = [m.param_cls.names().index(n) for n in ("k", "d", "mu_k")]
+    prob = ShootingProblem(S, m.nx, m.n_p, published("disc").vector(), free, np.ones(3), np.ones(2), U, Y,
+                           np.array([2.0, 50.0]), np.arange(nint), 0.01, 0.05, threads=1)
+    w = np.r_[published("disc").vector(("k", "d", "mu_k")), 0.1 * rng.standard_normal(2 * (nint + 1)) + [0, 0.5] * (nint + 1)]
+    r, g, Jr, A, _ = prob.evaluate(w)
+    h = 1e-6
+    for j in range(w.size):
+        e = np.zeros(w.size)
+        e[j] = h
+        rp, gp, *_ = prob.evaluate(w + e, jac=False)
+        rm, gm, *_ = prob.evaluate(w - e, jac=False)
+        np.testing.assert_allclose(Jr[:, j].toarray().ravel(), (rp - rm) / (2 * h), rtol=1e-4, atol=1e-5)
+        np.testing.assert_allclose(A[:, j].toarray().ravel(), (gp - gm) / (2 * h), rtol=1e-4, atol=1e-6)
+
+
+def test_new_options_validate(short_log):
+    with pytest.raises(ConfigError, match="identify.solver"):
+        IdentifyOptions(free=("k",), solver="lm")
+    with pytest.raises(ConfigError, match="identify.input_cutoff.n1"):
+        IdentifyOptions(free=("k",), input_cutoff={"n1": -1.0})
+    with pytest.raises(ConfigError, match="identify.stuck_weight"):
+        IdentifyOptions(free=("k",), stuck_weight=0.0)
+    with pytest.raises(ConfigError, match="not an input"):
+        identify(short_log, "disc", published("disc"), IdentifyOptions(free=("k",), input_cutoff={"omega1": 1.0}))
