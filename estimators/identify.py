@@ -33,14 +33,16 @@ Method
   the parameters (``A`` the continuity Jacobian, ``s^2`` the residual variance per degree
   of freedom), from which standard errors and the correlation matrix follow.
 
-The regularised model cannot stick exactly: it creeps where the plant sticks.  On logs of
-the exact plant with long stick phases this biases the friction and damping estimates;
-the bias shrinks with ``eps`` (default 0.005 rad/s, far below the 0.05 of the controllers'
-models) at the cost of substeps.  Measured (benchmarks/results/identify.md): stiffness
-within 1 %, friction levels within 1-7 %, damping off by 25-100 %.  The standard errors
-are statistical (white noise, inflated by the residuals' autocorrelation time) and do
-not include this bias: they cover the truth for stiffness and damping but not always for
-the friction levels.
+Biases.  The regularised model cannot stick exactly: it creeps where the plant sticks
+(default ``eps`` 0.005 rad/s, far below the 0.05 of the controllers' models).  The logged
+inputs are taken as exact, so load-cell noise on a normal force is an error in the
+variables; at 3x the nominal noise it is the dominant bias of damping and friction on the
+benchmark's disc logs (``input_cutoff`` low-passes such inputs).  Measured
+(benchmarks/results/identify.md, 60 s logs): stiffness within 0.7 %, friction levels within
+1-11 % (0.4-3.8 % with the force low-passed), damping off by 6-101 % raw (12-22 % with the
+force low-passed, disc); 2-11 s per fit on 2 cores.  The standard errors are statistical
+(white noise, inflated by the residuals' autocorrelation time) and do not include these
+biases.
 """
 
 from __future__ import annotations
@@ -103,17 +105,14 @@ class IdentifyOptions:
         :mod:`estimators.identify_gn`) or "ipopt" (IPOPT with the GN Hessian, uncompiled)
     compile : GN only: build the per-sample sensitivity function with gcc (cached on disk
         under ``$XDG_CACHE_HOME/stickslip``); None: if gcc is available; False: CasADi's
-        virtual machine (same numbers, ~5-10x slower)
+        virtual machine (same numbers, about 2x slower)
     input_cutoff : ``{input channel: cutoff [Hz]}``: zero-phase 2nd-order Butterworth low-pass
         applied to those logged inputs before the fit.  The model takes the logged inputs as
         exact; load-cell noise on a normal force is then an error in the variables that biases
         damping and friction (disc, noise x3: d off by 62-100 % raw, 19-29 % with the true force).
         Choose the cutoff below the noise band but above the force's real bandwidth
-    stuck_weight : weight (0..1] of the speed residuals of samples where a measured contact
-        speed is exactly zero (stuck to within one encoder tick per sample).  The regularised
-        model creeps there while the plant sticks; 1 keeps plain least squares
     corr_warn, rse_warn : identifiability thresholds (|correlation|, relative standard error)
-    progress : print a one-line status per IPOPT iteration to stderr
+    progress : print a one-line status per iteration to stderr
     """
 
     free: tuple[str, ...]
@@ -133,7 +132,6 @@ class IdentifyOptions:
     progress: bool = False
     solver: str = "gn"
     compile: bool | None = None
-    stuck_weight: float = 1.0
     input_cutoff: Mapping[str, float] | None = None
 
     def __post_init__(self):
@@ -164,8 +162,6 @@ class IdentifyOptions:
             raise ConfigError(f"identify.solver must be 'gn' or 'ipopt', got {self.solver!r}")
         if self.compile not in (None, True, False):
             raise ConfigError(f"identify.compile must be true, false or unset, got {self.compile!r}")
-        if not (isinstance(self.stuck_weight, (int, float)) and 0 < self.stuck_weight <= 1):
-            raise ConfigError(f"identify.stuck_weight must be in (0, 1], got {self.stuck_weight!r}")
         for k, v in (self.input_cutoff or {}).items():
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ConfigError(f"identify.input_cutoff.{k} must be a frequency > 0 Hz, got {v!r}")
@@ -625,7 +621,7 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
     G = _interval_function(m, dt, M, nsub, options.eps, outputs, options.speed_average) \
         if options.solver == "ipopt" else None
     ny = len(outputs)
-    Ublocks, Yblocks, Wblocks, node_init, log_ranges = [], [], [], [], []
+    Ublocks, Yblocks, node_init, log_ranges = [], [], [], []
     sig = np.array([noise[o] for o in outputs])
     for lg, nint in train:
         n_used = nint * M + 1
@@ -634,21 +630,11 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
         Uint = U[1:] if options.input_row == "end" else U[:-1]
         Y = np.column_stack([_channel(lg, o)[:n_used] for o in outputs])[1:]
         Ublocks.append(Uint.reshape(nint, M, m.nu))
-        # samples where a measured contact speed is exactly zero (stuck within one tick per sample)
-        known = _state_from_log(m, lg, initial)
-        cont = [o for o in outputs if o.startswith("omega") and o in lg.channels
-                and any(j in known and np.array_equal(known[j], lg[o]) for j in m.contacts)]
-        stuck = np.zeros(n_used - 1, bool)
-        for o in cont:
-            stuck |= (lg[o][1:n_used] == 0.0)
-        Wblocks.append(np.broadcast_to((stuck[:, None] & np.array([o.startswith("omega") for o in outputs])[None, :])
-                                       .reshape(nint, M, ny), (nint, M, ny)))
         Yblocks.append(Y.reshape(nint, M, ny))
         log_ranges.append(nint)
     Uall = np.concatenate(Ublocks)          # (Nint, M, nu)
     Yall = np.concatenate(Yblocks)          # (Nint, M, ny)
     Nint = Uall.shape[0]
-    stuck_mask = np.concatenate(Wblocks)    # (Nint, M, ny): speed residuals at stuck samples
 
     # initial node states: smooth simulation with the initial parameters, measured states overwritten
     p_init = initial.vector()
@@ -693,9 +679,7 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
     ubx[:nf] = hi / th_scale
     Ymeas = Yall.reshape(Nint * M, ny).T                                    # (ny, Nint*M)
     if options.solver == "gn":
-        wgt_arr = np.broadcast_to(1.0 / sig, Yall.shape).copy()  # per residual
-        if options.stuck_weight < 1:
-            wgt_arr[stuck_mask] *= math.sqrt(options.stuck_weight)
+        wgt_arr = np.broadcast_to(1.0 / sig, Yall.shape)  # per residual
         starts_idx = np.concatenate([off_n + np.arange(nint) for off_n, nint in
                                      zip(np.cumsum([0] + n_nodes[:-1]), log_ranges)])
         prob = ShootingProblem(S_run, m.nx, m.n_p, p_init, free_idx, th_scale, x_scale, Uall, Yall, wgt_arr,

@@ -329,6 +329,9 @@ def solve_gn(prob: ShootingProblem, w0, lb, ub, *, max_iter: int = 100, tol: flo
                             wt, accepted = ws, True
                             break
             alpha *= 0.5
+        if not accepted and lm < 1e-3:
+            lm = max(lm * 100, 1e-8)      # shorter, more gradient-like steps; retry from w
+            continue
         if not accepted:
             if np.max(np.abs(g)) < 1e-6 and step_inf < 1e-3:
                 status, success = "converged (no further decrease)", True

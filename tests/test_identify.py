@@ -168,7 +168,5 @@ def test_new_options_validate(short_log):
         IdentifyOptions(free=("k",), solver="lm")
     with pytest.raises(ConfigError, match="identify.input_cutoff.n1"):
         IdentifyOptions(free=("k",), input_cutoff={"n1": -1.0})
-    with pytest.raises(ConfigError, match="identify.stuck_weight"):
-        IdentifyOptions(free=("k",), stuck_weight=0.0)
     with pytest.raises(ConfigError, match="not an input"):
         identify(short_log, "disc", published("disc"), IdentifyOptions(free=("k",), input_cutoff={"omega1": 1.0}))
