@@ -9,7 +9,7 @@ Used by :func:`estimators.identify.identify` (``solver="gn"``, the default).
   parameter vector).  ``dt`` and ``eps`` are inputs, so one compiled library serves every
   sample period and regularisation of a model / substep count / output set.
 - :func:`compiled_or_none`: the same Function generated to C, built with gcc and cached on
-  disk by the hash of its source (:func:`estimators.ekf.compile_cached`, cache folder
+  disk by the hash of its source (:func:`models.codegen.load_compiled`, cache folder
   ``$XDG_CACHE_HOME/stickslip``); None if gcc is missing or fails (the caller then uses the
   CasADi virtual machine, same numbers, ~10x slower).
 - :class:`ShootingProblem`: residuals, continuity gaps and their sparse Jacobians for all
@@ -24,7 +24,6 @@ Used by :func:`estimators.identify.identify` (``solver="gn"``, the default).
 from __future__ import annotations
 
 import math
-import shutil
 import sys
 from dataclasses import dataclass
 
@@ -33,6 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from models.codegen import compiler, load_compiled
 from models.rigs import RigModel
 
 __all__ = ["sample_function", "compiled_or_none", "ShootingProblem", "solve_gn", "GNResult"]
@@ -92,11 +92,9 @@ def compiled_or_none(fn: ca.Function) -> ca.Function | None:
     if key in _COMPILED:
         return _COMPILED[key]
     out = None
-    if shutil.which("gcc"):
+    if compiler() is not None:
         try:
-            from estimators.ekf import compile_cached
-            so = compile_cached(fn, "-O1")
-            out = ca.external(fn.name(), str(so))
+            out = load_compiled(fn, "-O1")[fn.name()]
         except Exception as exc:  # noqa: BLE001 - fall back to the virtual machine
             sys.stderr.write(f"identify: compiling {fn.name()} failed ({exc}); using the uncompiled function\n")
             out = None
