@@ -47,6 +47,9 @@ def test_table_output(disc_csv, tmp_path, capsys):
 @pytest.mark.parametrize("args, msg", [
     (["--free", "k,zz"], "unknown parameter 'zz'"),
     (["--free", "k", "--holdout", "0.95"], "--holdout must be"),
+    (["--free", "k", "--input-cutoff", "n1"], "--input-cutoff must look like CHANNEL=HZ"),
+    (["--free", "k", "--input-cutoff", "n2=0.5"], "n2 is not an input of disc"),
+    (["--free", "k", "--input-cutoff", "n1=-1"], "must be a frequency > 0 Hz"),
 ])
 def test_bad_arguments_exit_2_and_write_nothing(disc_csv, tmp_path, capsys, args, msg):
     out = tmp_path / "f.toml"

@@ -51,6 +51,9 @@ def register(subparsers) -> None:
     p.add_argument("--nsub", type=int, default=None, help="RK4 substeps per sample (default: from the stiff rate)")
     p.add_argument("--shoot-every", type=int, default=10, help="samples per shooting interval (default 10)")
     p.add_argument("--max-iter", type=int, default=100, help="solver iteration limit (default 100)")
+    p.add_argument("--input-cutoff", action="append", default=[], metavar="CHANNEL=HZ",
+                   help="zero-phase low-pass of a noisy, slowly varying input before fitting, e.g. n1=0.5 "
+                        "(repeatable; the model takes logged inputs as exact)")
     p.add_argument("--tdms-map", metavar="TOML", help="channel mapping for TDMS logs (models.tdms)")
     p.add_argument("--json", action="store_true", help="print a machine-readable JSON document on stdout")
     p.set_defaults(func=run)
@@ -106,8 +109,22 @@ def run(args) -> int:
     targets = [out] + ([Path(args.plot)] if args.plot else [])
     check_outputs(targets, args.force)
     logs = [_read_log(p, args.tdms_map) for p in args.logs]
+    cutoff = {}
+    for item in args.input_cutoff:
+        name, sep, val = item.partition("=")
+        try:
+            cutoff[name.strip()] = float(val)
+        except ValueError:
+            sep = ""
+        if not sep or not name.strip():
+            raise ConfigError(f"--input-cutoff must look like CHANNEL=HZ (e.g. n1=0.5), got {item!r}")
+    unknown = sorted(set(cutoff) - set(model.inputs))
+    if unknown:
+        raise ConfigError(f"--input-cutoff: {', '.join(unknown)} is not an input of {model.name} "
+                          f"(inputs: {', '.join(model.inputs)})")
     options = IdentifyOptions(free=free, eps=args.eps, nsub=args.nsub, shoot_every=args.shoot_every,
-                              max_iter=args.max_iter, progress=(not args.json) and sys.stderr.isatty())
+                              max_iter=args.max_iter, progress=(not args.json) and sys.stderr.isatty(),
+                              input_cutoff=cutoff or None)
     if not args.json:
         sys.stderr.write(f"identify {model.name}: {len(logs)} log(s), {sum(len(lg.t) for lg in logs)} samples, "
                          f"free {', '.join(free)} ...\n")
