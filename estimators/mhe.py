@@ -59,7 +59,7 @@ _QFLOOR = 1e-10   # [state unit^2] floor of the gap weights: keeps J'J well cond
 
 
 @dataclass(frozen=True, kw_only=True)
-class MHEOptions:
+class MHEOptions(EKFOptions):
     """Options of the MHE (``[estimator]`` with ``kind = "mhe"``); shares the EKF's model/noise options.
 
     Parameters
@@ -74,28 +74,9 @@ class MHEOptions:
     window: int = 20
     max_iter: int = 1
     qpsol: str = "cholesky"
-    channels: tuple = ALL_CHANNELS
-    angles: str = "zeroed"
-    augment: tuple = ("load1",)
-    eps: float = 0.05
-    nsub: int = 4
-    q_torque: float = 0.02
-    q_current: float = 0.05
-    q_load: float = 0.05
-    q_twist: float = 1e-4
-    p0_twist: float = 0.5
-    p0_speed: float = 1.0
-    p0_current: float = 2.0
-    p0_z: float = 1.0
-    p0_load: float = 0.3
-    compile: bool = True
 
     def __post_init__(self):
-        if isinstance(self.channels, list):
-            object.__setattr__(self, "channels", tuple(self.channels))
-        if isinstance(self.augment, list):
-            object.__setattr__(self, "augment", tuple(self.augment))
-        _check_common(self, "estimator")
+        super().__post_init__()
         if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 2:
             raise ConfigError(f"estimator.window must be an integer >= 2 samples, got {self.window!r}")
         if isinstance(self.max_iter, bool) or not isinstance(self.max_iter, int) or self.max_iter < 1:
