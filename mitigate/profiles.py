@@ -21,6 +21,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from models.errors import ConfigError
+from models.checks import finite_number as _num
 
 __all__ = ["Profile", "parse_profile"]
 
@@ -31,12 +32,6 @@ _KEYS = {
     "ramp": {"t0", "t1", "v0", "v1"},
     "random": {"mean", "std", "hold", "min", "max", "seed"},
 }
-
-
-def _num(v: Any, where: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ConfigError(f"{where} must be a finite number, got {v!r}")
-    return float(v)
 
 
 @dataclass(frozen=True)

@@ -47,7 +47,6 @@ line naming the field.
 
 from __future__ import annotations
 
-import math
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -55,6 +54,7 @@ from typing import Any, Mapping
 
 from models.actuators import ServoOptions
 from models.errors import ConfigError
+from models.checks import finite_number as _num
 from models.params import ParameterSet, load_params, published
 from models.rigs import MODEL_NAMES, get_model
 from models.sensors import SensorOptions
@@ -120,16 +120,6 @@ def _check_keys(tab: Mapping, allowed, where: str):
     for k in tab:
         if k not in allowed:
             raise ConfigError(f"{where}.{k}: unknown key; expected one of {', '.join(sorted(allowed))}")
-
-
-def _num(v, where, *, positive=False, nonneg=False) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ConfigError(f"{where} must be a finite number, got {v!r}")
-    if positive and not v > 0:
-        raise ConfigError(f"{where} must be > 0, got {v!r}")
-    if nonneg and v < 0:
-        raise ConfigError(f"{where} must be >= 0, got {v!r}")
-    return float(v)
 
 
 def _options(cls, tab: Mapping, where: str, extra: Mapping | None = None):

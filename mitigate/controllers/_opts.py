@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-import math
 
+from models.checks import finite_number
 from models.errors import ConfigError
 
 __all__ = ["check_number", "check_bool"]
@@ -12,10 +12,8 @@ __all__ = ["check_number", "check_bool"]
 def check_number(obj, name: str, *, lo: float | None = None, hi: float | None = None,
                  lo_open: bool = False, unit: str = "") -> None:
     """Raise ConfigError naming ``name`` unless ``getattr(obj, name)`` is a finite number in range."""
-    v = getattr(obj, name)
+    v = finite_number(getattr(obj, name), name, unit=unit)
     u = f" {unit}" if unit else ""
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ConfigError(f"{name} must be a finite number{u}, got {v!r}")
     if lo is not None and (v <= lo if lo_open else v < lo):
         raise ConfigError(f"{name} must be {'>' if lo_open else '>='} {lo}{u}, got {v!r}")
     if hi is not None and v > hi:

@@ -20,7 +20,6 @@ Failures: a failed or bound-violating solve -> the previous plan shifted to now
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
 from typing import Mapping
 
@@ -30,6 +29,7 @@ from mitigate.controllers.base import Action, Controller
 from mitigate.controllers.ocp import NXA, OCPSolver, OCPSpec, rk4_substeps_needed
 from models.actuators import Servo, ServoOptions
 from models.errors import ConfigError, SolverFailure
+from models.checks import finite_number as _num
 from models.params import Rig3Params
 from models.rigs import get_model
 
@@ -37,16 +37,6 @@ __all__ = ["NMPCOptions", "NMPCWeights", "NMPCController", "make_nmpc"]
 
 _SOLVERS = ("rti", "sqp", "ipopt")
 _QP = ("hpipm", "qrqp", "osqp")
-
-
-def _num(v, where, *, pos=False, nonneg=False):
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ConfigError(f"{where} must be a finite number, got {v!r}")
-    if pos and not v > 0:
-        raise ConfigError(f"{where} must be > 0, got {v!r}")
-    if nonneg and v < 0:
-        raise ConfigError(f"{where} must be >= 0, got {v!r}")
-    return float(v)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -124,25 +114,25 @@ class NMPCOptions:
         w = self.where
         if isinstance(self.horizon, bool) or not isinstance(self.horizon, int) or self.horizon < 2:
             raise ConfigError(f"{w}.horizon must be an integer >= 2, got {self.horizon!r}")
-        _num(self.dt, f"{w}.dt [s]", pos=True)
+        _num(self.dt, f"{w}.dt [s]", positive=True)
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) or self.substeps < 0:
             raise ConfigError(f"{w}.substeps must be an integer >= 0 (0 = automatic), got {self.substeps!r}")
-        _num(self.eps, f"{w}.eps [rad/s]", pos=True)
+        _num(self.eps, f"{w}.eps [rad/s]", positive=True)
         if not isinstance(self.weights, NMPCWeights):
             raise ConfigError(f"{w}.weights must be a table of weights, got {type(self.weights).__name__}")
         if self.n2_max is not None:
-            _num(self.n2_max, f"{w}.n2_max [N]", pos=True)
+            _num(self.n2_max, f"{w}.n2_max [N]", positive=True)
         if self.n2_rate is not None:
-            _num(self.n2_rate, f"{w}.n2_rate [N/s]", pos=True)
+            _num(self.n2_rate, f"{w}.n2_rate [N/s]", positive=True)
         _num(self.omega_band, f"{w}.omega_band [rad/s]", nonneg=True)
-        _num(self.omega_rate, f"{w}.omega_rate [rad/s^2]", pos=True)
+        _num(self.omega_rate, f"{w}.omega_rate [rad/s^2]", positive=True)
         if self.solver not in _SOLVERS:
             raise ConfigError(f"{w}.solver must be one of {', '.join(_SOLVERS)}, got {self.solver!r}")
         if not isinstance(self.compile, bool):
             raise ConfigError(f"{w}.compile must be true or false, got {self.compile!r}")
         if self.qp_solver not in _QP:
             raise ConfigError(f"{w}.qp_solver must be one of {', '.join(_QP)}, got {self.qp_solver!r}")
-        _num(self.qp_tol, f"{w}.qp_tol", pos=True)
+        _num(self.qp_tol, f"{w}.qp_tol", positive=True)
         if isinstance(self.sqp_max_iter, bool) or not isinstance(self.sqp_max_iter, int) or self.sqp_max_iter < 1:
             raise ConfigError(f"{w}.sqp_max_iter must be an integer >= 1, got {self.sqp_max_iter!r}")
         for name in ("model_servo", "prepare_ahead", "use_load_estimate"):

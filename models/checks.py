@@ -1,0 +1,31 @@
+"""Validation of user-given numbers: one place for the one-line error messages.
+
+Every option dataclass, scenario field and profile uses :func:`finite_number`, so that a
+bad value always reads ``"<where> must be ..., got <value>"``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from models.errors import ConfigError
+
+__all__ = ["finite_number"]
+
+
+def finite_number(v: Any, where: str, *, positive: bool = False, nonneg: bool = False, unit: str = "") -> float:
+    """``float(v)`` if ``v`` is a finite real number (not a bool) within the sign constraint.
+
+    Raises
+    ------
+    ConfigError : ``"<where> must be a finite number [unit], got <v>"`` (or ``> 0`` / ``>= 0``).
+    """
+    u = f" {unit}" if unit else ""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ConfigError(f"{where} must be a finite number{u}, got {v!r}")
+    if positive and not v > 0:
+        raise ConfigError(f"{where} must be > 0{u}, got {v!r}")
+    if nonneg and v < 0:
+        raise ConfigError(f"{where} must be >= 0{u}, got {v!r}")
+    return float(v)
