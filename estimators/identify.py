@@ -113,6 +113,13 @@ class IdentifyOptions:
         Choose the cutoff below the noise band but above the force's real bandwidth
     corr_warn, rse_warn : identifiability thresholds (|correlation|, relative standard error)
     progress : print a one-line status per iteration to stderr
+    systematic : also estimate a regularisation-sensitivity (systematic) error: refit, warm-started
+        from the estimate, with the friction regularisation halved (``eps/2``; lead screw: its
+        zero-speed rate ``r1`` doubled) and twice the substeps (``nsub`` given) or the automatic
+        substeps for the new ``eps``; ``syserr = |theta(eps) - theta(eps/2)|`` per parameter and
+        the total error ``sqrt(stderr^2 + syserr^2)`` (:attr:`FitResult.error`).  Off by default
+        (one more fit, usually 1-3x the time of the first)
+    systematic_iter : iteration limit of that refit
     """
 
     free: tuple[str, ...]
@@ -133,6 +140,8 @@ class IdentifyOptions:
     solver: str = "gn"
     compile: bool | None = None
     input_cutoff: Mapping[str, float] | None = None
+    systematic: bool = False
+    systematic_iter: int = 20
 
     def __post_init__(self):
         if isinstance(self.free, str):
@@ -144,7 +153,9 @@ class IdentifyOptions:
             raise ConfigError(f"identify.free must not repeat names, got {list(self.free)}")
         if self.eps is not None and not (isinstance(self.eps, (int, float)) and math.isfinite(self.eps) and self.eps > 0):
             raise ConfigError(f"identify.eps must be a finite number > 0 rad/s, got {self.eps!r}")
-        for name in ("nsub", "shoot_every", "max_iter"):
+        if self.systematic not in (True, False):
+            raise ConfigError(f"identify.systematic must be true or false, got {self.systematic!r}")
+        for name in ("nsub", "shoot_every", "max_iter", "systematic_iter"):
             v = getattr(self, name)
             if name == "nsub" and v is None:
                 continue
@@ -214,6 +225,8 @@ class FitResult:
     noise : noise level used per channel
     states : per log: (n_nodes, nx) fitted node states
     status, success, iterations, wall_time [s], warnings, validation (or None)
+    syserr : (n_free,) regularisation-sensitivity error ``|theta(eps) - theta(eps/2)|`` (SI units),
+        or None when not requested (``IdentifyOptions.systematic``); NaN where the refit failed
     """
 
     model: str
@@ -240,14 +253,25 @@ class FitResult:
     warnings: tuple = ()
     at_bound: tuple = ()
     validation: Validation | None = None
+    syserr: np.ndarray | None = None
+
+    @property
+    def error(self) -> np.ndarray:
+        """Total error ``sqrt(stderr^2 + syserr^2)`` (just ``stderr`` when no systematic error was estimated)."""
+        if self.syserr is None:
+            return self.stderr
+        return np.sqrt(self.stderr ** 2 + self.syserr ** 2)
 
     def as_dict(self) -> dict:
         """A JSON-friendly summary."""
+        params = {n: {"estimate": float(e), "stderr": float(s), "initial": float(i), "unit": self.params.spec(n).unit}
+                  for n, e, s, i in zip(self.names, self.estimate, self.stderr, self.initial)}
+        if self.syserr is not None:
+            for n, y, t in zip(self.names, self.syserr, self.error):
+                params[n].update({"syserr": float(y), "error": float(t)})
         return {
             "model": self.model,
-            "parameters": {n: {"estimate": float(e), "stderr": float(s), "initial": float(i),
-                               "unit": self.params.spec(n).unit}
-                           for n, e, s, i in zip(self.names, self.estimate, self.stderr, self.initial)},
+            "parameters": params,
             "corr": self.corr.tolist(),
             "nrmse": dict(self.nrmse),
             "sigma2": self.sigma2,
@@ -517,7 +541,7 @@ def _lowpass_inputs(log: Log, model: RigModel, cutoff: Mapping[str, float]) -> L
 
 # --------------------------------------------------------------------------- the fit
 def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: ParameterSet,
-             options: IdentifyOptions, *, holdout: float = 0.0) -> FitResult:
+             options: IdentifyOptions, *, holdout: float = 0.0, _validate: bool = True) -> FitResult:
     """Fit the free parameters of ``model`` to one or several logs.
 
     Parameters
@@ -577,6 +601,7 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
             if name not in lg.channels:
                 raise DataError(f"{lg.source}: missing input column {name!r} needed by model {m.name!r} "
                                 f"(inputs: {', '.join(m.inputs)})")
+    logs_in = logs  # before the input low-pass (the systematic refit filters again)
     if options.input_cutoff:
         logs = [_lowpass_inputs(lg, m, options.input_cutoff) for lg in logs]
     outputs = options.outputs or output_channels(m, logs[0])
@@ -873,8 +898,20 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
         "bounds": {n: [float(a), float(b)] for n, a, b in fitted.fit_bounds},
         "stderr": {n: float(s) for n, s in zip(options.free, se) if np.isfinite(s)}})
 
+    syserr = None
+    if options.systematic:
+        syserr, msg = _regularisation_sensitivity(logs_in, m, fitted, options, holdout)
+        if msg:
+            warns.append(msg)
+            warnings.warn(msg, IdentifiabilityWarning, stacklevel=2)
+        total = np.sqrt(se ** 2 + syserr ** 2)
+        fitted = type(fitted).from_mapping({
+            "model": m.name, "params": fitted.as_dict(),
+            "bounds": {n: [float(a), float(b)] for n, a, b in fitted.fit_bounds},
+            "stderr": {n: float(s) for n, s in zip(options.free, total) if np.isfinite(s)}})
+
     validation = None
-    if held is not None:
+    if held is not None and _validate:
         lg, ntr = held
         n_used = log_ranges[0] * M
         validation = validate_fit(m, fitted, lg, n_used, states[0][-1], outputs, options)
@@ -885,7 +922,37 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
         residuals=tuple(res_list), nrmse=nrmse, sigma2=sigma2, tau=tau, nsub=nsub, noise=noise, states=tuple(states),
         status=status, success=success, iterations=iterations,
         wall_time=time.perf_counter() - t_start, warnings=tuple(warns), at_bound=at_bound,
-        validation=validation)
+        validation=validation, syserr=syserr)
+
+
+def _regularisation_sensitivity(logs, m: RigModel, fitted: ParameterSet, options: IdentifyOptions,
+                                holdout: float) -> tuple[np.ndarray, str]:
+    """``|theta(eps) - theta(eps/2)|``: refit warm-started from ``fitted`` with the regularisation halved.
+
+    The smooth friction of most models has the width ``eps`` [rad/s]; the lead screw's has
+    the zero-speed rate ``r1`` [s/rad] instead (its ``ode`` ignores ``eps``), which is doubled.
+    The substeps are doubled when given, else chosen anew for the stiffer model.  Returns the
+    per-parameter difference (NaN if the refit failed) and a warning message ("" if none).
+    """
+    from dataclasses import replace
+
+    start, eps2 = fitted, options.eps / 2
+    if "r1" in m.param_cls.names():
+        if "r1" in options.free:
+            nan = np.full(len(options.free), np.nan)
+            return nan, "systematic error not estimated: the regularisation rate r1 is itself a free parameter"
+        start, eps2 = fitted.replace(r1=2 * fitted.r1), options.eps
+    opt2 = replace(options, eps=eps2, nsub=None if options.nsub is None else 2 * options.nsub, systematic=False,
+                   max_iter=options.systematic_iter, progress=False)
+    theta = fitted.vector(options.free)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fit2 = identify(logs, m, start, opt2, holdout=holdout, _validate=False)
+    except SolverFailure as exc:
+        return np.full(theta.size, np.nan), f"systematic error not estimated: the refit failed ({exc})"
+    msg = "" if fit2.success else f"systematic error from an unconverged refit ({fit2.status})"
+    return np.abs(fit2.estimate - theta), msg
 
 
 # --------------------------------------------------------------------------- validation

@@ -74,3 +74,19 @@ def test_log_without_model_inputs_exit_2(disc_csv, tmp_path, capsys):
     rc = main(["identify", str(disc_csv), "--model", "rig2", "--free", "k", "--out", str(tmp_path / "f.toml")])
     assert rc == 2
     assert "missing input column 'motor_torque'" in capsys.readouterr().err
+
+
+def test_systematic_flag_prints_columns_and_writes_total(disc_csv, tmp_path, capsys):
+    out = tmp_path / "f.toml"
+    rc = main(["identify", str(disc_csv), "--model", "disc", "--free", "k", "--out", str(out), "--nsub", "10",
+               "--systematic"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "syst. error" in text and "total error" in text
+    assert "TOTAL error" in out.read_text()
+    p = load_params(out, "disc")
+    rc = main(["identify", str(disc_csv), "--model", "disc", "--free", "k", "--out", str(tmp_path / "g.toml"),
+               "--nsub", "10", "--json", "--systematic"])
+    doc = json.loads(capsys.readouterr().out)["parameters"]["k"]
+    assert rc == 0 and doc["syserr"] >= 0 and doc["error"] >= doc["stderr"]
+    assert p.stderr_of("k") == pytest.approx(doc["error"])

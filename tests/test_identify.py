@@ -170,3 +170,28 @@ def test_new_options_validate(short_log):
         IdentifyOptions(free=("k",), input_cutoff={"n1": -1.0})
     with pytest.raises(ConfigError, match="not an input"):
         identify(short_log, "disc", published("disc"), IdentifyOptions(free=("k",), input_cutoff={"omega1": 1.0}))
+
+
+def test_systematic_error_from_halved_regularisation(disc_logs):
+    a, _ = disc_logs
+    opts = dict(free=("k", "mu_k"), eps=0.005, nsub=10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IdentifiabilityWarning)
+        plain = identify(a, "disc", published("disc"), IdentifyOptions(**opts))
+        fit = identify(a, "disc", published("disc"), IdentifyOptions(**opts, systematic=True, systematic_iter=10))
+    assert plain.syserr is None and np.array_equal(plain.error, plain.stderr)  # default unchanged
+    np.testing.assert_allclose(fit.estimate, plain.estimate, rtol=1e-12)        # first fit is the same
+    assert fit.syserr.shape == (2,) and np.all(np.isfinite(fit.syserr)) and np.all(fit.syserr >= 0)
+    assert np.any(fit.syserr > 0)  # eps/2 moves the estimate (regularisation bias)
+    assert np.all(fit.error >= fit.stderr)
+    np.testing.assert_allclose(fit.error, np.hypot(fit.stderr, fit.syserr))
+    assert fit.params.stderr_of("k") == pytest.approx(fit.error[0])            # [stderr] holds the total
+    d = fit.as_dict()["parameters"]["mu_k"]
+    assert d["error"] == pytest.approx(fit.error[1]) and d["syserr"] >= 0
+
+
+def test_systematic_options_checked():
+    with pytest.raises(ConfigError, match="identify.systematic_iter"):
+        IdentifyOptions(free=("k",), systematic=True, systematic_iter=0)
+    with pytest.raises(ConfigError, match="identify.systematic must be"):
+        IdentifyOptions(free=("k",), systematic="yes")
