@@ -16,6 +16,12 @@ library), the same uncompiled (CasADi virtual machine, one run), and one accurac
 disc: the normal-force input low-passed at 0.5 Hz (``input_cutoff``); rig2: eps = 0.002.
 
 Run: python benchmarks/bench_identify.py [--quick] [--repeat 3]   (writes benchmarks/results/identify.md)
+
+Coverage of the error bars: ``python benchmarks/bench_identify.py --systematic [--quick]`` fits every
+case once with the default options and ``systematic=True`` (refit with eps/2) and tabulates, per
+parameter, |err|/SE (statistical) and |err|/total with total = sqrt(SE^2 + syserr^2); plus the
+lead-screw step-2 case of tests/test_twostep.py (r1 = 1 -> 2 s/rad, nsub 10 -> 20).  It replaces
+only the section between the ``<!-- systematic -->`` markers of benchmarks/results/identify.md.
 """
 
 from __future__ import annotations
@@ -127,5 +133,64 @@ def main():
     print(f"wrote {out}")
 
 
+def leadscrew_case():
+    true = published("leadscrew")
+    log = simulate(get_model("leadscrew"), true, np.array([40.0, 314.3]), 0.1,
+                   SimOptions(dt=2e-4, nsub=10, seed=3)).to_log()
+    return ("leadscrew", "Fig. 9.23 set, step 2 (0.1 s, r1 = 1 s/rad)", true, 1.0, log, ("K", "c", "sm"), 10,
+            true.replace(K=1.4, c=4e-4, sm=1.1, r1=1.0))
+
+
+def systematic_main():
+    """Coverage of SE and of the total error (SE + regularisation sensitivity) on the benchmark cases."""
+    rows = ["<!-- systematic -->", "## Error bars: statistical SE vs. total error with `systematic=True`", "",
+            f"Command: `python benchmarks/bench_identify.py --systematic{' --quick' if QUICK else ''}` "
+            f"({DUR:g} s logs; default options, eps = 0.005 -> 0.0025 for the refit, nsub doubled or automatic; "
+            f"1-min load average at start {os.getloadavg()[0]:.1f}).  covered: |err| <= 2 x error bar.", "",
+            "| model | true set | noise x | param | err [%] | SE [%] | syserr [%] | |err|/SE | |err|/total | wall [s] (both fits) | refit |",
+            "|---|---|---|---|---|---|---|---|---|---|---|"]
+    d0 = published("disc")
+    cases = []
+    for label, true in (("A", d0.replace(k=1.0, d=0.03, mu_k=0.28, mu_s=0.45)),
+                        ("B", d0.replace(k=1.285, d=0.0172, mu_k=0.32, mu_s=0.55))):
+        for ns in (1.0, 3.0):
+            cases.append(("disc", label, true, ns, disc_log(true, 1, ns), ("k", "d", "mu_k", "mu_s"), 10,
+                          published("disc")))
+    r2 = published("rig2").replace(Ts=0.30, v_s=1.0)
+    for ns in (1.0, 3.0):
+        cases.append(("rig2", "seed-001, Ts = 0.30", r2, ns, rig2_log(r2, 2, ns), ("k", "c", "Tc", "Ts"), None,
+                      initial_for("rig2")))
+    cases.append(leadscrew_case())
+    n_se = n_tot = n_all = 0
+    for model, label, true, ns, log, free, nsub, init in cases:
+        opts = IdentifyOptions(free=free, eps=0.005, nsub=nsub, systematic=True)
+        t0 = time.perf_counter()
+        fit = identify(log, model, init, opts)
+        wall = time.perf_counter() - t0
+        refit = next((w for w in fit.warnings if w.startswith("systematic")), "converged")
+        for n, e, se, sy, tot in zip(fit.names, fit.estimate, fit.stderr, fit.syserr, fit.error):
+            tv = getattr(true, n)
+            err = e - tv
+            a, b = abs(err) / se, abs(err) / tot
+            n_all += 1
+            n_se += a <= 2
+            n_tot += b <= 2
+            rows.append(f"| {model} | {label} | {ns:g} | {n} | {100 * err / tv:+.2f} | {100 * se / abs(tv):.2f} | "
+                        f"{100 * sy / abs(tv):.2f} | {a:.1f} | {b:.1f} | {wall:.1f} | {refit} |")
+            print(rows[-1], flush=True)
+    rows += ["", f"Covered (|err| <= 2 x bar): statistical SE {n_se}/{n_all}, total error {n_tot}/{n_all}.",
+             "<!-- /systematic -->"]
+    out = Path(__file__).parent / "results" / "identify.md"
+    old = out.read_text() if out.exists() else ""
+    block = "\n".join(rows)
+    if "<!-- systematic -->" in old and "<!-- /systematic -->" in old:
+        i, j = old.index("<!-- systematic -->"), old.index("<!-- /systematic -->") + len("<!-- /systematic -->")
+        new = old[:i] + block + old[j:]
+    else:
+        new = old.rstrip("\n") + "\n\n" + block + "\n"
+    out.write_text(new)
+    print(f"wrote {out}")
+
+
 if __name__ == "__main__":
-    main()
+    systematic_main() if "--systematic" in sys.argv else main()

@@ -42,7 +42,11 @@ benchmark's disc logs (``input_cutoff`` low-passes such inputs).  Measured
 1-11 % (0.4-3.8 % with the force low-passed), damping off by 6-101 % raw (12-22 % with the
 force low-passed, disc); 2-11 s per fit on 2 cores.  The standard errors are statistical
 (white noise, inflated by the residuals' autocorrelation time) and do not include these
-biases.
+biases.  ``IdentifyOptions(systematic=True)`` adds the regularisation sensitivity
+``syserr = |theta(eps) - theta(eps/2)|`` (one refit, warm-started from the estimate) and the total
+``sqrt(SE^2 + syserr^2)``; it captures the eps bias only, not the input-noise (errors-in-variables)
+bias nor a jump of the refit to another local minimum (benchmarks/results/identify.md, section
+"Error bars").
 """
 
 from __future__ import annotations
