@@ -545,7 +545,8 @@ def _lowpass_inputs(log: Log, model: RigModel, cutoff: Mapping[str, float]) -> L
 
 # --------------------------------------------------------------------------- the fit
 def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: ParameterSet,
-             options: IdentifyOptions, *, holdout: float = 0.0, _validate: bool = True) -> FitResult:
+             options: IdentifyOptions, *, holdout: float = 0.0, _validate: bool = True,
+             _nodes=None) -> FitResult:
     """Fit the free parameters of ``model`` to one or several logs.
 
     Parameters
@@ -668,7 +669,16 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
     # initial node states: smooth simulation with the initial parameters, measured states overwritten
     p_init = initial.vector()
     x_abs = np.zeros(m.nx)
-    for (lg, nint) in train:
+    if _nodes is not None:  # warm start (systematic refit): node states of a previous fit of the same logs
+        if [len(n) for n in _nodes] != [nint + 1 for _lg, nint in train]:
+            raise ConfigError("warm-start node states do not match the logs' shooting intervals")
+        train_loop = []
+        node_init = [np.asarray(n, dtype=float).copy() for n in _nodes]
+        for nodes in node_init:
+            x_abs = np.maximum(x_abs, np.max(np.abs(nodes), axis=0))
+    else:
+        train_loop = train
+    for (lg, nint) in train_loop:
         known = _state_from_log(m, lg, initial)
         u_first = np.array([lg[name][1 if options.input_row == "end" else 0] for name in m.inputs])
         try:
@@ -904,7 +914,7 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
 
     syserr = None
     if options.systematic:
-        syserr, msg = _regularisation_sensitivity(logs_in, m, fitted, options, holdout)
+        syserr, msg = _regularisation_sensitivity(logs_in, m, fitted, options, holdout, states)
         if msg:
             warns.append(msg)
             warnings.warn(msg, IdentifiabilityWarning, stacklevel=2)
@@ -930,8 +940,9 @@ def identify(logs: Log | Sequence[Log], model: str | RigModel, initial: Paramete
 
 
 def _regularisation_sensitivity(logs, m: RigModel, fitted: ParameterSet, options: IdentifyOptions,
-                                holdout: float) -> tuple[np.ndarray, str]:
-    """``|theta(eps) - theta(eps/2)|``: refit warm-started from ``fitted`` with the regularisation halved.
+                                holdout: float, states) -> tuple[np.ndarray, str]:
+    """``|theta(eps) - theta(eps/2)|``: refit warm-started from ``fitted`` and its node ``states``
+    with the regularisation halved.
 
     The smooth friction of most models has the width ``eps`` [rad/s]; the lead screw's has
     the zero-speed rate ``r1`` [s/rad] instead (its ``ode`` ignores ``eps``), which is doubled.
@@ -952,7 +963,7 @@ def _regularisation_sensitivity(logs, m: RigModel, fitted: ParameterSet, options
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            fit2 = identify(logs, m, start, opt2, holdout=holdout, _validate=False)
+            fit2 = identify(logs, m, start, opt2, holdout=holdout, _validate=False, _nodes=states)
     except SolverFailure as exc:
         return np.full(theta.size, np.nan), f"systematic error not estimated: the refit failed ({exc})"
     msg = "" if fit2.success else f"systematic error from an unconverged refit ({fit2.status})"
