@@ -952,7 +952,7 @@ def _regularisation_sensitivity(logs, m: RigModel, fitted: ParameterSet, options
     from dataclasses import replace
 
     start, eps2 = fitted, options.eps / 2
-    if "r1" in m.param_cls.names():
+    if m.name == "leadscrew":  # r1 of rig3 is a pin radius, not a regularisation
         if "r1" in options.free:
             nan = np.full(len(options.free), np.nan)
             return nan, "systematic error not estimated: the regularisation rate r1 is itself a free parameter"
