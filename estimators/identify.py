@@ -122,7 +122,7 @@ class IdentifyOptions:
         zero-speed rate ``r1`` doubled) and twice the substeps (``nsub`` given) or the automatic
         substeps for the new ``eps``; ``syserr = |theta(eps) - theta(eps/2)|`` per parameter and
         the total error ``sqrt(stderr^2 + syserr^2)`` (:attr:`FitResult.error`).  Off by default
-        (one more fit, usually 1-3x the time of the first)
+        (costs one more, warm-started fit)
     systematic_iter : iteration limit of that refit
     """
 

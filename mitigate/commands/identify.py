@@ -58,7 +58,7 @@ def register(subparsers) -> None:
     p.add_argument("--systematic", action="store_true",
                    help="also estimate a systematic error: refit with the friction regularisation halved "
                         "(eps/2; lead screw: r1 doubled) and take |theta(eps) - theta(eps/2)|; prints extra columns "
-                        "and writes the TOTAL error sqrt(SE^2 + syserr^2) into [stderr] (about 2x the time)")
+                        "and writes the TOTAL error sqrt(SE^2 + syserr^2) into [stderr] (one more, warm-started fit)")
     p.add_argument("--tdms-map", metavar="TOML", help="channel mapping for TDMS logs (models.tdms)")
     p.add_argument("--json", action="store_true", help="print a machine-readable JSON document on stdout")
     p.set_defaults(func=run)
