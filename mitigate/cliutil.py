@@ -14,7 +14,8 @@ import numpy as np
 
 from models.errors import ConfigError
 
-__all__ = ["add_common", "check_outputs", "emit_json", "format_table", "to_jsonable", "savefig_atomic"]
+__all__ = ["add_common", "check_outputs", "emit_json", "format_table", "to_jsonable", "savefig_atomic",
+           "finish_figure"]
 
 
 def add_common(p: argparse.ArgumentParser, *, out: bool = True, default_out: str = "out") -> None:
@@ -82,3 +83,16 @@ def savefig_atomic(fig, path: os.PathLike | str, **kw) -> Path:
         if tmp.exists():
             tmp.unlink()
     return path
+
+
+def finish_figure(fig, path: os.PathLike | str, title: str | None = None, dpi: int = 110) -> Path:
+    """Title, tight layout, atomic PNG save, and close (always, even on failure)."""
+    import matplotlib.pyplot as plt
+
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    try:
+        return savefig_atomic(fig, path, dpi=dpi)
+    finally:
+        plt.close(fig)

@@ -16,7 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from mitigate.cliutil import savefig_atomic  # noqa: E402
+from mitigate.cliutil import finish_figure  # noqa: E402
 
 __all__ = ["plot_comparison", "plot_phase_portraits", "plot_metric_bars", "BAR_METRICS"]
 
@@ -52,12 +52,7 @@ def plot_comparison(results: Mapping[str, object], title: str, path: str | os.Pa
     axes[0].legend(loc="upper right", fontsize=8, ncol=min(4, len(results)))
     axes[0].set_title("true plant states; dotted line: control switched on")
     axes[-1].set_xlabel("time [s]")
-    fig.suptitle(title)
-    fig.tight_layout()
-    try:
-        return savefig_atomic(fig, path, dpi=dpi)
-    finally:
-        plt.close(fig)
+    return finish_figure(fig, path, title, dpi=dpi)
 
 
 def plot_phase_portraits(results: Mapping[str, object], title: str, path: str | os.PathLike, dpi: int = 110):
@@ -77,12 +72,7 @@ def plot_phase_portraits(results: Mapping[str, object], title: str, path: str | 
         ax.legend(loc="upper left", fontsize=7)
     for ax in axes.ravel()[len(results):]:
         ax.set_visible(False)
-    fig.suptitle(title)
-    fig.tight_layout()
-    try:
-        return savefig_atomic(fig, path, dpi=dpi)
-    finally:
-        plt.close(fig)
+    return finish_figure(fig, path, title, dpi=dpi)
 
 
 def plot_metric_bars(metrics: Mapping[str, Mapping[str, float]], title: str, path: str | os.PathLike,
@@ -104,9 +94,4 @@ def plot_metric_bars(metrics: Mapping[str, Mapping[str, float]], title: str, pat
         ax.grid(True, axis="y", alpha=0.3)
     for ax in axes.ravel()[len(keys):]:
         ax.set_visible(False)
-    fig.suptitle(title)
-    fig.tight_layout()
-    try:
-        return savefig_atomic(fig, path, dpi=dpi)
-    finally:
-        plt.close(fig)
+    return finish_figure(fig, path, title, dpi=dpi)

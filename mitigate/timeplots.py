@@ -24,7 +24,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from mitigate.cliutil import savefig_atomic  # noqa: E402
+from mitigate.cliutil import finish_figure  # noqa: E402
 from models.errors import DataError  # noqa: E402
 
 __all__ = ["plot_time_histories", "stick_intervals"]
@@ -103,9 +103,4 @@ def plot_time_histories(t, channels: Mapping[str, np.ndarray], title: str, path:
         ax.set_ylabel(ylabel)
         ax.grid(True, alpha=0.3)
     axes[-1].set_xlabel("time [s]")
-    fig.suptitle(title)
-    fig.tight_layout()
-    try:
-        return savefig_atomic(fig, path, dpi=dpi)
-    finally:
-        plt.close(fig)
+    return finish_figure(fig, path, title, dpi=dpi)
