@@ -370,10 +370,8 @@ class OCPSolver:
         ubw = np.full(self.nw, np.inf)
         lbw[:NXA] = ubw[:NXA] = xa0
         step = np.asarray(rate) * self.spec.dt
-        for k in range(N):
-            i = k * self.nz + NXA
-            lbw[i:i + NU] = -step
-            ubw[i:i + NU] = step
+        lbw[:N * self.nz].reshape(N, self.nz)[:, NXA:] = -step   # views: the du of every stage
+        ubw[:N * self.nz].reshape(N, self.nz)[:, NXA:] = step
         reach = np.arange(1, N + 1)[:, None] * step[None, :]
         uprev = np.asarray(xa0[8:10])[None, :]
         lo = np.minimum(lo_u[None, :], uprev + reach)
