@@ -47,14 +47,13 @@ line naming the field.
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Mapping
 
 from models.actuators import ServoOptions
 from models.errors import ConfigError
-from models.checks import finite_number as _num
+from models.checks import finite_number as _num, read_toml
 from models.params import ParameterSet, load_params, published
 from models.rigs import MODEL_NAMES, get_model
 from models.sensors import SensorOptions
@@ -235,15 +234,4 @@ def parse_scenario(data: Mapping[str, Any], path: str = "<scenario>") -> Scenari
 
 def load_scenario(path) -> Scenario:
     """Read and validate a scenario TOML file."""
-    p = Path(path)
-    try:
-        text = p.read_text()
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: scenario file not found") from None
-    except (IsADirectoryError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: cannot read scenario ({exc})") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: not valid TOML ({exc})") from None
-    return parse_scenario(data, str(p))
+    return parse_scenario(read_toml(path, "scenario file"), str(path))

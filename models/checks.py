@@ -1,4 +1,4 @@
-"""Validation of user-given numbers: one place for the one-line error messages.
+"""Validation of user input (numbers, TOML files): one place for the one-line error messages.
 
 Every option dataclass, scenario field and profile uses :func:`finite_number`, so that a
 bad value always reads ``"<where> must be ..., got <value>"``.
@@ -7,11 +7,14 @@ bad value always reads ``"<where> must be ..., got <value>"``.
 from __future__ import annotations
 
 import math
+import os
+import tomllib
+from pathlib import Path
 from typing import Any
 
 from models.errors import ConfigError
 
-__all__ = ["finite_number"]
+__all__ = ["finite_number", "read_toml"]
 
 
 def finite_number(v: Any, where: str, *, positive: bool = False, nonneg: bool = False, unit: str = "") -> float:
@@ -29,3 +32,21 @@ def finite_number(v: Any, where: str, *, positive: bool = False, nonneg: bool = 
     if nonneg and v < 0:
         raise ConfigError(f"{where} must be >= 0{u}, got {v!r}")
     return float(v)
+
+
+def read_toml(path: str | os.PathLike, what: str) -> dict:
+    """Parse a TOML file; a missing, unreadable or malformed file is one ConfigError naming it.
+
+    ``what`` names the kind of file in the message ("parameter file", "scenario", ...).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: {what} not found") from None
+    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read {what} ({exc})") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None

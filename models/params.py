@@ -29,7 +29,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Mapping
@@ -37,6 +36,7 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 
 from models.errors import ConfigError
+from models.checks import read_toml
 
 __all__ = [
     "Spec",
@@ -364,12 +364,7 @@ def published(model: str) -> ParameterSet:
 def load_params(path: str | os.PathLike, model: str | None = None) -> ParameterSet:
     """Load a parameter TOML file; ``model`` (if given) must match the file's ``model`` key."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: parameter file not found") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path, "parameter file")
     name = data.get("model", model)
     if name is None:
         raise ConfigError(f"{path}: missing field 'model' (one of {', '.join(PARAM_CLASSES)})")

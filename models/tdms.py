@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
 from pathlib import Path
 
 import numpy as np
 
 from models.errors import ConfigError, DataError
+from models.checks import read_toml
 from models.logs import CANONICAL_UNITS, Log, convert_unit
 
 __all__ = ["read_tdms", "load_mapping"]
@@ -47,12 +47,7 @@ def _need_nptdms():
 def load_mapping(path: str | os.PathLike) -> dict:
     """Read and check a TDMS channel mapping (see module docstring)."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: mapping file not found") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path, "mapping file")
     for key in data:
         if key not in ("time", "channels"):
             raise ConfigError(f"{path}: unknown key {key!r}; expected 'time' and 'channels'")

@@ -72,3 +72,10 @@ def test_replace_validates():
     with pytest.raises(ConfigError, match="unknown parameter"):
         Rig3Params().replace(J9=1.0)
     assert math.isclose(Rig3Params().J3, 0.02368)
+
+
+def test_directory_as_parameter_file_is_one_line_error(tmp_path):
+    from models.errors import ConfigError
+    from models.params import load_params
+    with pytest.raises(ConfigError, match=r"cannot read parameter file"):
+        load_params(tmp_path)
