@@ -261,3 +261,23 @@ def test_load_estimate_scales_the_predicted_n1(use, expected, monkeypatch):
     a = c.step(0.0, est, {"n1": 20.0, "omega_ref": W0})
     assert a.success
     assert seen and seen[0] == pytest.approx(expected)
+
+
+def test_default_qp_tolerance_moves_like_a_tight_solve():
+    """The default hpipm tolerance (1e-5, chosen for speed) changes the applied first move by
+    less than 3e-3 rad/s and 0.04 N against an exact active-set solve (qrqp) of the same QP,
+    from states in stick-slip."""
+    x0 = M.steady_sliding([W0, 20.0, 0.0], P)
+    meas = {"n1": 20.0, "n2": 0.0, "omega_ref": W0}
+    for w1, phi12 in ((0.0, 0.25), (5.0, -0.1), (1.0, 0.0)):
+        x = x0.copy()
+        x[2], x[0] = w1, x0[0] + phi12
+        moves = []
+        for qp in ({}, {"qp_solver": "qrqp"}):
+            c = make_nmpc({"horizon": 50, "compile": False, **qp}, P, 0.01, W0, ServoOptions(), "n")
+            a = c.step(0.0, _est(0.0, x), meas)
+            assert a.success, a.status
+            moves.append((a.omega_ref, a.n2))
+        (w_d, n_d), (w_t, n_t) = moves
+        assert abs(w_d - w_t) < 3e-3 and abs(n_d - n_t) < 0.04
+        assert abs(w_t - W0) > 1e-3 or n_t > 1e-3  # a real move

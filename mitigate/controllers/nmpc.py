@@ -82,7 +82,7 @@ class NMPCOptions:
     omega_rate : rate limit of omega_ref [rad/s^2]
     solver : "rti" (one Gauss-Newton QP per plan), "sqp" (Gauss-Newton to convergence), "ipopt" (reference)
     compile : compile the stage function with gcc (cached on disk) for rti/sqp
-    qp_solver : "hpipm", "qrqp" or "osqp"; qp_tol : QP tolerance
+    qp_solver : "hpipm", "qrqp" or "osqp"; qp_tol : QP tolerance (see :class:`OCPSolver`)
     model_servo : predict the servo's first-order lag (tau from ServoOptions)
     prepare_ahead : RTI preparation/feedback split (rti/sqp): linearise at the shifted plan in the
         first call after a plan (a held sample), so a planning call only solves the QP
@@ -103,7 +103,7 @@ class NMPCOptions:
     solver: str = "rti"
     compile: bool = True
     qp_solver: str = "hpipm"
-    qp_tol: float = 1e-6
+    qp_tol: float = 1e-5
     sqp_max_iter: int = 20
     model_servo: bool = True
     prepare_ahead: bool = True

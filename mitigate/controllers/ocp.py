@@ -193,19 +193,21 @@ class OCPSolver:
     solver : "rti" | "sqp" | "ipopt"
     compile : compile the stage functions (gcc, cached) for "rti"/"sqp"
     qp_solver : "hpipm" (structure exploiting), "qrqp" or "osqp"
-    qp_tol : QP tolerance
+    qp_tol : QP tolerance (hpipm residuals).  1e-5 is the default: hpipm needs 3 instead of 4
+        iterations at N = 50, and the first move differs from a 1e-10 solution by < 3e-3 rad/s
+        and < 0.04 N (BENCHMARKS.md; one speed count of the encoders at 10 ms is 0.63 rad/s).  "sqp" uses min(qp_tol, sqp_tol / 10) so that its step test can pass.
     sqp_max_iter, sqp_tol : Gauss-Newton iterations and step tolerance of "sqp"
     """
 
     def __init__(self, model, spec: OCPSpec, *, solver: str = "rti", compile: bool = True,
-                 qp_solver: str = "hpipm", qp_tol: float = 1e-6, sqp_max_iter: int = 20, sqp_tol: float = 1e-6):
+                 qp_solver: str = "hpipm", qp_tol: float = 1e-5, sqp_max_iter: int = 20, sqp_tol: float = 1e-6):
         self.spec = spec
         self.solver = solver
         self.N = N = spec.horizon
         self.nz = NXA + NU
         self.nw = N * self.nz + NXA
         self.qp_solver = qp_solver
-        self.qp_tol = qp_tol
+        self.qp_tol = qp_tol if solver != "sqp" else min(qp_tol, 0.1 * sqp_tol)
         self.sqp_max_iter = sqp_max_iter
         self.sqp_tol = sqp_tol
         F, cost, stage, term = stage_functions(model, spec)
@@ -217,6 +219,7 @@ class OCPSolver:
         self.w = None   # current plan (primal), None until initialised
         self.lam_g = None
         self._prepared = None  # (q, qp data) linearised at the current w (RTI preparation phase)
+        self._vb_key, self._vb = None, None  # cached variable-bound templates (_var_bounds)
         if solver in ("rti", "sqp"):
             self._build_qp()
         elif solver == "ipopt":
@@ -362,18 +365,27 @@ class OCPSolver:
         return U, X
 
     # ------------------------------------------------------------------ bounds
+    def _var_bounds(self, rate):
+        """Variable bound templates (absolute): du of every stage within +-rate*dt, states free
+        (the initial state is set per call).  Cached: the rate limits rarely change."""
+        step = np.asarray(rate, float) * self.spec.dt
+        key = step.tobytes()
+        if self._vb_key != key:
+            N = self.N
+            lbw = np.full(self.nw, -np.inf)
+            ubw = np.full(self.nw, np.inf)
+            lbw[:N * self.nz].reshape(N, self.nz)[:, NXA:] = -step   # views: the du of every stage
+            ubw[:N * self.nz].reshape(N, self.nz)[:, NXA:] = step
+            self._vb_key, self._vb = key, (lbw, ubw, step, np.arange(1, N + 1)[:, None] * step[None, :])
+        return self._vb
+
     def _bounds(self, xa0, lo_u, hi_u, rate):
         """Variable bounds (absolute) and u-band bounds per stage; the band is widened where a
         rate-limited move from the previous input cannot reach it yet (always feasible)."""
-        N = self.N
-        lbw = np.full(self.nw, -np.inf)
-        ubw = np.full(self.nw, np.inf)
+        lbt, ubt, step, reach = self._var_bounds(rate)
+        lbw, ubw = lbt.copy(), ubt.copy()
         lbw[:NXA] = ubw[:NXA] = xa0
-        step = np.asarray(rate) * self.spec.dt
-        lbw[:N * self.nz].reshape(N, self.nz)[:, NXA:] = -step   # views: the du of every stage
-        ubw[:N * self.nz].reshape(N, self.nz)[:, NXA:] = step
-        reach = np.arange(1, N + 1)[:, None] * step[None, :]
-        uprev = np.asarray(xa0[8:10])[None, :]
+        uprev = xa0[8:10][None, :]
         lo = np.minimum(lo_u[None, :], uprev + reach)
         hi = np.maximum(hi_u[None, :], uprev - reach)
         return lbw, ubw, lo, hi
@@ -398,12 +410,15 @@ class OCPSolver:
         else:
             res = self._solve_gn(q, lbw, ubw, lo, hi)
         w_new, cost, iters, status = res
-        viol = max(float(np.max(lbw - w_new)), float(np.max(w_new - ubw)))
-        U, X = _plan_from(w_new, self.N, self.nz)
-        viol = max(viol, float(np.max(lo - U)), float(np.max(U - hi)))
-        scale = np.maximum(1.0, np.abs(np.concatenate([lbw[np.isfinite(lbw)], ubw[np.isfinite(ubw)]]))).max()
         if not np.all(np.isfinite(w_new)):
             raise SolverFailure(f"{self.solver}: non-finite plan ({status})")
+        # bounds that can be violated: the initial state, |du| <= step and the u band (states are free)
+        step = self._vb[2]
+        U, X = _plan_from(w_new, self.N, self.nz)
+        du = w_new[:self.N * self.nz].reshape(self.N, self.nz)[:, NXA:]
+        viol = max(float(np.max(np.abs(w_new[:NXA] - xa0))), float(np.max(np.abs(du) - step)),
+                   float(np.max(lo - U)), float(np.max(U - hi)))
+        scale = max(1.0, float(np.max(np.abs(xa0))), float(np.max(step)))
         if viol > 1e-4 * scale:
             raise SolverFailure(f"{self.solver}: plan violates bounds by {viol:.3g} ({status})")
         self.w = w_new
@@ -425,24 +440,21 @@ class OCPSolver:
         Xnext = np.vstack([Z[1:, :NXA], xN[None, :]])
         gaps = xn.T - Xnext
         obj = 0.5 * float(np.sum(r ** 2)) + float(np.sum(l)) + 0.5 * float(np.sum(rN ** 2))
-        return ca.DM(self._Hsp, hnz), gq, ca.DM(self._Asp, anz), gaps, obj
+        # constraint rows per stage: gap (A dx + B du - dx+ = -(F - x+)) then the u band (set per call)
+        lba = np.empty((N, NXA + NU))
+        lba[:, :NXA] = -gaps
+        uba = lba.copy()
+        ucur = Z[:, 8:10] + Z[:, NXA:]
+        return ca.DM(self._Hsp, hnz), gq, ca.DM(self._Asp, anz), (lba, uba, ucur), obj
 
     def _qp_step(self, w, q, lbw, ubw, lo, hi, data=None):
-        H, g, A, gaps, obj = self.qp_data(w, q) if data is None else data
-        N, nz = self.N, self.nz
-        Z = w[:N * nz].reshape(N, nz)
-        ucur = Z[:, 8:10] + Z[:, NXA:]
-        lba = np.empty((N, NXA + NU))
-        uba = np.empty((N, NXA + NU))
-        lba[:, :NXA] = uba[:, :NXA] = -gaps          # A dx + B du - dx+ = -(F - x+)
+        H, g, A, (lba, uba, ucur), obj = self.qp_data(w, q) if data is None else data
         lba[:, NXA:] = lo - ucur
         uba[:, NXA:] = hi - ucur
         sol = self._qp(h=H, g=g, a=A, lba=lba.ravel(), uba=uba.ravel(), lbx=lbw - w, ubx=ubw - w)
-        st = self._qp.stats()
-        dw = np.array(sol["x"]).ravel()
-        if not st.get("success", False):
-            raise SolverFailure(f"QP ({self.qp_solver}) failed: {st.get('return_status', '?')}")
-        return dw, float(obj)
+        if not self._qp.stats()["success"]:
+            raise SolverFailure(f"QP ({self.qp_solver}) failed: {self._qp.stats().get('return_status', '?')}")
+        return sol["x"].full().ravel(), float(obj)
 
     def _solve_gn(self, q, lbw, ubw, lo, hi):
         # initial-value embedding: w keeps the plan's x0, the QP bound dx0 = xa0 - x0 moves it
