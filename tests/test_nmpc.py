@@ -14,7 +14,7 @@ import pytest
 
 from estimators.base import Estimate
 from mitigate.controllers.nmpc import NMPCOptions, make_nmpc
-from mitigate.controllers.ocp import NU, NXA, stage_functions
+from mitigate.controllers.ocp import NU, NXA, applied, hold, stage_functions
 from mitigate.metrics import severity
 from models import get_model
 from models.actuators import ServoOptions
@@ -79,11 +79,12 @@ def test_rti_step_at_equilibrium_matches_lqr(QP):
     c = make_nmpc(opts, P, 0.01, wn, ServoOptions(), "nmpc")
     spec, ocp = c.spec, c.ocp
     xs = M.steady_sliding([wn, 20.0, n2], P)
-    xa_eq = np.concatenate([xs, [n2], [wn, n2]])
+    xa_eq = np.concatenate([xs, [n2, wn]])
+    v_eq = hold(xa_eq)
     q = spec.q(20.0, wn, P.vector())
     F, cost, _, term = stage_functions(M, spec)
     # the equilibrium is a fixed point of the discrete model with zero cost
-    assert np.allclose(np.array(F(xa_eq, np.zeros(NU), q)).ravel(), xa_eq, atol=1e-8)
+    assert np.allclose(np.array(F(xa_eq, v_eq, q)).ravel(), xa_eq, atol=1e-8)
     import casadi as ca
     xa, du = ca.SX.sym("xa", NXA), ca.SX.sym("du", NU)
     xn = F(xa, du, q)
@@ -91,7 +92,7 @@ def test_rti_step_at_equilibrium_matches_lqr(QP):
     _, _, rN = term(xa, q)
     lin = ca.Function("lin", [xa, du], [ca.jacobian(xn, xa), ca.jacobian(xn, du), ca.jacobian(r, xa),
                                         ca.jacobian(r, du), ca.jacobian(rN, xa)])
-    A, B, Jx, Ju, JN = (np.array(v) for v in lin(xa_eq, np.zeros(NU)))
+    A, B, Jx, Ju, JN = (np.array(v) for v in lin(xa_eq, v_eq))
     Q, R, S, QN = Jx.T @ Jx, Ju.T @ Ju, Jx.T @ Ju, JN.T @ JN
     K0, _ = _riccati_first_gain(A, B, Q, R, S, QN, spec.horizon)
     # the recursion itself against python-control's dlqr (long horizon, regularised Q)
@@ -102,10 +103,10 @@ def test_rti_step_at_equilibrium_matches_lqr(QP):
 
     dx = np.zeros(NXA)
     dx[2], dx[0] = 0.02, 0.002  # omega1 +0.02 rad/s, twist +2 mrad
-    ocp.w = np.concatenate([np.tile(np.concatenate([xa_eq, np.zeros(NU)]), spec.horizon), xa_eq])
+    ocp.w = np.concatenate([np.tile(np.concatenate([xa_eq, v_eq]), spec.horizon), xa_eq])
     lo, hi = np.array([wn - 3, 0.0]), np.array([wn + 3, 40.0])
     res = ocp.solve(xa_eq + dx, q, lo, hi, np.array([1e3, 1e4]))
-    du_nmpc = res.u[0] - xa_eq[8:10]
+    du_nmpc = res.u[0] - applied(xa_eq, v_eq)  # = v_0 - v_eq (the deviation leaves n2_s, omega_ref_prev alone)
     du_lqr = -K0 @ dx
     assert np.abs(du_lqr).max() > 1e-3  # a real move, not a trivial zero
     # qrqp (active set) solves the QP exactly; hpipm (interior point) stops at ~1e-6 residuals
@@ -178,8 +179,9 @@ def stick_slip_runs():
     w1, cmds = [], []
     for k in range(n):
         t = t_start + k * 0.01
+        force = plant.u_applied[2]  # the servo's force when the command is computed
         a = c.step(t, _est(t, plant.x), plant.measure())
-        cmds.append((t, a.omega_ref, a.n2))
+        cmds.append((t, a.omega_ref, a.n2, force))
         plant.step([a.omega_ref, 20.0, a.n2])
         w1.append(plant.x[2])
     return dict(w_free=w_free, w1=np.array(w1), cmds=np.array(cmds), c=c, servo=servo)
@@ -198,15 +200,18 @@ def test_stick_slip_of_r1_suppressed(stick_slip_runs):
 def test_inputs_respect_bounds_and_rate_limits(stick_slip_runs):
     r = stick_slip_runs
     c, servo = r["c"], r["servo"]
-    t, wref, n2 = r["cmds"].T
+    t, wref, n2, force = r["cmds"].T
     o = c.options
     assert np.all(n2 >= -1e-9) and np.all(n2 <= servo.n_max + 1e-9)
     assert np.all(np.abs(wref - W0) <= o.omega_band + 1e-9) and np.all(wref >= 0)
     assert np.max(n2) > 0.5 or np.max(np.abs(wref - W0)) > 0.05  # it did act
-    # changes happen only at plan times (every dt) and by at most rate * dt
+    # changes happen only at plan times (every dt); omega_ref by at most rate * dt; a new N2
+    # command asks the servo for at most its rate limit: |command - force| <= n2_rate * tau
     d_w, d_n = np.abs(np.diff(wref)), np.abs(np.diff(n2))
     assert np.all(d_w <= o.omega_rate * o.dt * (1 + 1e-6) + 1e-9)
-    assert np.all(d_n <= c.n2_rate * o.dt * (1 + 1e-6) + 1e-9)
+    plans = np.arange(0, len(t), 5)
+    assert np.all(np.abs(n2 - force)[plans] <= c.n2_rate * servo.tau * (1 + 1e-6) + 1e-9)
+    assert np.max(np.abs(n2 - force)[plans]) > 0.3 * c.n2_rate * servo.tau  # the limit is approached
     changed = np.nonzero((d_w > 1e-12) | (d_n > 1e-12))[0] + 1
     assert np.all(changed % 5 == 0)
 

@@ -47,7 +47,8 @@ class NMPCWeights:
     rel : omega1 - omega2 and omega2 - omega3 (relative speeds across the shaft)
     ref : omega_ref - omega_nominal (stay near the programme's set-point)
     n2 : quadratic pin force; n2_linear : linear pin force (friction work / wear at pin 2)
-    d_ref, d_n2 : input changes per OCP interval; terminal : factor on the terminal speeds
+    d_ref : set-point change per OCP interval; d_n2 : servo activity, (N2 command - servo force)
+        = tau x the servo's rate; terminal : factor on the terminal speeds
     """
 
     speed: float = 1.0
@@ -77,7 +78,8 @@ class NMPCOptions:
     substeps : RK4 substeps per interval (0: the smallest stable number, |h lambda| <= 2.5)
     eps : friction regularisation [rad/s]
     weights : NMPCWeights (or a table of them)
-    n2_max : pin-force upper bound [N] (None: servo.n_max); n2_rate : its rate limit [N/s] (None: servo.rate_max)
+    n2_max : pin-force upper bound [N] (None: servo.n_max); n2_rate : the servo's rate limit [N/s]
+        (None: servo.rate_max), imposed as ``|N2 command - servo force| <= n2_rate tau``
     omega_band : omega_ref stays within omega_nominal +- omega_band [rad/s] (and >= 0)
     omega_rate : rate limit of omega_ref [rad/s^2]
     solver : "rti" (one Gauss-Newton QP per plan), "sqp" (Gauss-Newton to convergence), "ipopt" (reference)
@@ -270,7 +272,9 @@ class NMPCController(Controller):
                 n1 *= float(np.clip(estimate.x[names.index("load1")], 0.2, 5.0))
             if x.shape != (7,) or not (np.all(np.isfinite(x)) and np.isfinite(n1)):
                 raise SolverFailure("non-finite estimate or n1")
-            xa0 = np.concatenate([x, [n2a], self._u_prev])
+            # servo force (or, without a servo model, the previous command) and the previous set-point
+            n2s = n2a if o.model_servo else self._u_prev[1]
+            xa0 = np.concatenate([x, [n2s, self._u_prev[0]]])
             q = self.spec.q(max(n1, 0.0), self.omega_nominal, self._p)
             if self.ocp.w is not None and not (self.ocp.prepared and steps == 1):
                 # prepare() already shifted by one interval
@@ -287,10 +291,9 @@ class NMPCController(Controller):
         self._plan_u, self._t_plan = res.u, t
         if o.prepare_ahead and o.solver != "ipopt":
             self._q_prep = q
-        # remove QP-tolerance excursions only; the band may have been widened for reachability
-        # (nominal speed jumped by more than a rate-limited move), so clip to the widened band
-        step = rate * o.dt
-        u0 = np.clip(res.u[0], np.minimum(lo, xa0[8:10] + step), np.maximum(hi, xa0[8:10] - step))
+        # remove QP-tolerance excursions only; the ranges may have been widened for reachability
+        # (nominal speed jumped by more than a rate-limited move), so clip to the widened ones
+        u0 = np.clip(res.u[0], *self.ocp.input_range(xa0, lo, hi, rate))
         return self._hold(Action(float(u0[1]), float(u0[0]), res.status, True, ""))
 
     def _shift_or_baseline(self, t, why) -> Action:

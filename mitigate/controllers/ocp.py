@@ -6,10 +6,18 @@ regularised rig3 model.  The state is augmented so that every cost and constrain
 stays inside one stage (shared/CASADI-FACTS.md)::
 
     xa = [phi12, phi23, omega1, omega2, omega3, i, z,   (rig3 state)
-          n2_act,                                        (servo pin force [N], 1st-order lag)
-          omega_ref_prev, n2_prev]                       (previous input)
-    du = [d omega_ref, d n2]                             (decision: input change per interval)
-    u  = u_prev + du
+          n2_s,                                          (servo pin force [N], 1st-order lag tau)
+          omega_ref_prev]                                (previous speed set-point [rad/s])
+    v  = [d omega_ref, n2_cmd]                           (decision per interval)
+    u  = [omega_ref_prev + d omega_ref, n2_cmd]          (applied inputs)
+
+Constraints per stage: ``|d omega_ref| <= omega_rate dt`` and ``n2_cmd`` in [0, n2_max]
+(simple bounds); ``omega_ref`` in its band and the servo's rate ``|n2_cmd - n2_s| / tau <=
+n2_rate`` (two general rows, :func:`stage_rows`).  Limiting the servo's rate, not the
+command's increments, is what the servo physically does, and it needs no previous-command
+state: 9 augmented states instead of 10, which makes hpipm's Riccati recursion about a fifth
+cheaper.  Without a servo model (``tau_servo = 0``) ``n2_s`` is the previous command and the
+row limits the command's change per interval, ``|n2_cmd - n2_prev| <= n2_rate dt``.
 
 Per-stage parameters ``q = [n1, omega_nom, omega_scale, n2_max, weights..., p...]``
 (:meth:`OCPSpec.q`): the measured N1 [N] (held over the horizon), the nominal speed
@@ -18,7 +26,7 @@ Per-stage parameters ``q = [n1, omega_nom, omega_scale, n2_max, weights..., p...
 The cost is a least-squares sum plus a linear pin-force term (friction work at pin 2 is
 linear in N2, and a linear cost leaves N2 exactly at zero when it does not pay)::
 
-    sum_k 0.5 |r(xa_k, du_k)|^2 + c_n2 * n2_k   +  0.5 |r_N(xa_N)|^2
+    sum_k 0.5 |r(xa_k, v_k)|^2 + c_n2 * n2_k   +  0.5 |r_N(xa_N)|^2
 
 so Gauss-Newton gives a positive semi-definite Hessian at no extra cost.
 
@@ -43,11 +51,32 @@ import numpy as np
 from models.discretise import rk4
 from models.errors import ConfigError, SolverFailure
 
-__all__ = ["OCPSpec", "OCPSolver", "OCPResult", "stage_functions", "rk4_substeps_needed"]
+__all__ = ["OCPSpec", "OCPSolver", "OCPResult", "stage_functions", "stage_rows", "hold", "applied",
+           "rk4_substeps_needed"]
 
 NX = 7          # rig3 state
-NXA = NX + 3    # augmented state
-NU = 2          # [omega_ref, n2]
+NXA = NX + 2    # augmented state [x, n2_s, omega_ref_prev]
+NU = 2          # decision [d omega_ref, n2_cmd]
+I_N2, I_WREF = 7, 8   # positions of the servo force and the previous set-point in xa
+# general rows per stage: C xa + v = [omega_ref, n2_cmd - n2_s]
+_C = np.zeros((NU, NXA))
+_C[0, I_WREF] = 1.0
+_C[1, I_N2] = -1.0
+
+
+def stage_rows(xa, v):
+    """The general constraint rows of a stage, ``[omega_ref, n2_cmd - n2_s]`` (numpy or CasADi)."""
+    return _C @ xa + v
+
+
+def hold(xa):
+    """The decision ``v`` that holds the current inputs: no set-point change, command = servo force."""
+    return np.array([0.0, float(xa[I_N2])])
+
+
+def applied(xa, v):
+    """Applied inputs ``[omega_ref, n2_cmd]`` of decision ``v`` at augmented state ``xa``."""
+    return np.array([float(xa[I_WREF]) + float(v[0]), float(v[1])])
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -76,6 +105,11 @@ class OCPSpec:
     w_dn2: float
     w_terminal: float
 
+    def servo_step(self, n2_rate: float) -> float:
+        """Largest ``|n2_cmd - n2_s|`` [N]: ``n2_rate tau`` (servo at its rate limit), or
+        ``n2_rate dt`` without a servo model."""
+        return float(n2_rate) * (self.tau_servo if self.tau_servo > 0 else self.dt)
+
     def q(self, n1: float, omega_nom: float, p) -> np.ndarray:
         """Stage parameters [n1, omega_nom, omega_scale, n2_max, 8 weights, p...]."""
         return np.concatenate([[n1, omega_nom, self.omega_scale, self.n2_max, self.w_speed, self.w_rel,
@@ -90,8 +124,8 @@ NQ0 = 12  # entries of q before the model parameters
 class OCPResult:
     """One OCP solve: the plan (time on axis 0) and its status."""
 
-    u: np.ndarray          # (N, 2) absolute inputs [omega_ref rad/s, n2 N]
-    xa: np.ndarray         # (N+1, 10) predicted augmented states
+    u: np.ndarray          # (N, 2) applied inputs [omega_ref rad/s, n2 command N]
+    xa: np.ndarray         # (N+1, 9) predicted augmented states
     cost: float
     iterations: int
     status: str
@@ -123,31 +157,31 @@ def stage_functions(model, spec: OCPSpec) -> tuple[ca.Function, ca.Function, ca.
 
     Returns
     -------
-    F : (xa, du, q) -> xa_next, the discrete augmented dynamics
-    cost : (xa, du, q) -> (r, l), stage residual and linear cost
-    stage : (xa, du, q) -> (xn, A, B, H, g, r, l): dynamics, Jacobians, GN Hessian block
-        (12x12, [xa; du] order), gradient of the stage cost, residual and linear cost
+    F : (xa, v, q) -> xa_next, the discrete augmented dynamics
+    cost : (xa, v, q) -> (r, l), stage residual and linear cost
+    stage : (xa, v, q) -> (xn, A, B, H, g, r, l): dynamics, Jacobians, GN Hessian block
+        (11x11, [xa; v] order), gradient of the stage cost, residual and linear cost
     term : (xa, q) -> (H, g, r): terminal GN Hessian block, gradient and residual
     """
     f = model.ode(spec.eps)
     n_p = model.n_p
     xa = ca.SX.sym("xa", NXA)
-    du = ca.SX.sym("du", NU)
+    v = ca.SX.sym("v", NU)
     q = ca.SX.sym("q", NQ0 + n_p)
     n1, wnom, p = q[0], q[1], q[NQ0:]
     ws, n2max, w_speed, w_rel, w_ref, w_n2, c_n2, w_dref, w_dn2, w_term = (q[j] for j in range(2, NQ0))
-    u = xa[8:10] + du
+    u = ca.vertcat(xa[I_WREF] + v[0], v[1])
     tau = spec.tau_servo
 
     def faug(x_, u_, p_):
-        n2_in = x_[7] if tau > 0 else u_[1]
+        n2_in = x_[I_N2] if tau > 0 else u_[1]
         xdot = f(x_[:NX], ca.vertcat(u_[0], n1, n2_in), p_)
-        n2dot = (u_[1] - x_[7]) / tau if tau > 0 else 0 * x_[7]
-        return ca.vertcat(xdot, n2dot, 0, 0)
+        n2dot = (u_[1] - x_[I_N2]) / tau if tau > 0 else 0 * x_[I_N2]
+        return ca.vertcat(xdot, n2dot, 0)
 
     xn = rk4(faug, xa, u, p, spec.dt, spec.nsub)
-    xn = ca.vertcat(xn[:NX], xn[7] if tau > 0 else u[1], u)
-    F = ca.Function("nmpc_F", [xa, du, q], [xn], ["xa", "du", "q"], ["xa_next"])
+    xn = ca.vertcat(xn[:NX], xn[I_N2] if tau > 0 else u[1], u[0])
+    F = ca.Function("nmpc_F", [xa, v, q], [xn], ["xa", "v", "q"], ["xa_next"])
 
     w1, w2, w3 = xa[2], xa[3], xa[4]
     r = ca.vertcat(
@@ -156,18 +190,18 @@ def stage_functions(model, spec: OCPSpec) -> tuple[ca.Function, ca.Function, ca.
         w_rel * (w2 - w3) / ws,
         w_ref * (u[0] - wnom) / ws,
         w_n2 * u[1] / n2max,
-        w_dref * du[0] / ws,
-        w_dn2 * du[1] / n2max,
+        w_dref * v[0] / ws,
+        w_dn2 * (v[1] - xa[I_N2]) / n2max,   # servo activity (tau * its rate)
     )
     lin = c_n2 * u[1] / n2max
-    cost = ca.Function("nmpc_cost", [xa, du, q], [r, lin], ["xa", "du", "q"], ["r", "l"])
-    z = ca.vertcat(xa, du)
+    cost = ca.Function("nmpc_cost", [xa, v, q], [r, lin], ["xa", "v", "q"], ["r", "l"])
+    z = ca.vertcat(xa, v)
     Jr = ca.jacobian(r, z)
     H = ca.densify(Jr.T @ Jr)
     g = ca.densify(Jr.T @ r + ca.jacobian(lin, z).T)
-    stage = ca.Function("nmpc_stage", [xa, du, q],
-                        [xn, ca.densify(ca.jacobian(xn, xa)), ca.densify(ca.jacobian(xn, du)), H, g, r, lin],
-                        ["xa", "du", "q"], ["xn", "A", "B", "H", "g", "r", "l"])
+    stage = ca.Function("nmpc_stage", [xa, v, q],
+                        [xn, ca.densify(ca.jacobian(xn, xa)), ca.densify(ca.jacobian(xn, v)), H, g, r, lin],
+                        ["xa", "v", "q"], ["xn", "A", "B", "H", "g", "r", "l"])
     rN = w_term * ca.vertcat(w_speed * (w1 - wnom) / ws, w_rel * (w1 - w2) / ws, w_rel * (w2 - w3) / ws)
     JN = ca.jacobian(rN, xa)
     term = ca.Function("nmpc_term", [xa, q], [ca.densify(JN.T @ JN), ca.densify(JN.T @ rN), rN],
@@ -245,11 +279,11 @@ class OCPSolver:
             self._stages = _compile([self._stages], "nmpc_stages")["nmpc_stages"]
         # Hessian: block diagonal of dense blocks -> CCS nonzeros are the blocks column by column
         self._Hsp = ca.diagcat(*([ca.Sparsity.dense(nz, nz)] * N + [ca.Sparsity.dense(NXA, NXA)]))
-        # constraint matrix rows per stage: gap (NXA rows) then u-band (NU rows); columns [x_k u_k x_k+1]
+        # constraint matrix rows per stage: gap (NXA rows) then the general rows (NU, stage_rows);
+        # columns [x_k v_k x_k+1]
         Aph = ca.SX.sym("a", NXA, NXA * N)
         Bph = ca.SX.sym("b", NXA, NU * N)
-        E = np.zeros((NU, NXA))
-        E[:, 8:10] = np.eye(NU)
+        E = _C
         rows = []
         for k in range(N):
             gap = ca.horzcat(Aph[:, k * NXA:(k + 1) * NXA], Bph[:, k * NU:(k + 1) * NU], -ca.SX.eye(NXA))
@@ -299,9 +333,7 @@ class OCPSolver:
         HN, gN, rN = self._term(xN, q)
         obj = 0.5 * ca.sumsqr(r) + ca.sum2(l) + 0.5 * ca.sumsqr(rN)
         gaps = xn - ca.horzcat(X[:, 1:], xN)
-        E = ca.DM.zeros(NU, NXA)
-        E[:, 8:10] = ca.DM.eye(NU)
-        band = E @ X + U
+        band = ca.DM(_C) @ X + U
         g = ca.vertcat(ca.vec(ca.vertcat(gaps, band)))
         self._ng = g.size1()
         self._ipopt = ca.nlpsol("nmpc_ipopt", "ipopt", {"x": w, "p": q, "f": obj, "g": g},
@@ -315,9 +347,11 @@ class OCPSolver:
         w = np.zeros(self.nw)
         x = np.asarray(xa0, float)
         Fq = self.F
+        v = hold(x)
         for k in range(self.N):
             w[k * self.nz:k * self.nz + NXA] = x
-            x = np.array(Fq(x, np.zeros(NU), q)).ravel()
+            w[k * self.nz + NXA:(k + 1) * self.nz] = v
+            x = np.array(Fq(x, v, q)).ravel()
         w[self.N * self.nz:] = x
         self.w = w
         self.lam_g = None
@@ -349,7 +383,7 @@ class OCPSolver:
         Xall = np.vstack([Z[:, :NXA], xN])          # (N+1, NXA)
         Uall = Z[:, NXA:]                            # (N, NU)
         Xs = np.vstack([Xall[s:], np.repeat(Xall[-1:], s, axis=0)])
-        Us = np.vstack([Uall[s:], np.zeros((s, NU))])
+        Us = np.vstack([Uall[s:], np.repeat([[0.0, Uall[-1, 1]]], s, axis=0)])  # tail holds the last inputs
         w = np.empty(self.nw)
         w[:N * nz] = np.hstack([Xs[:N], Us]).ravel()
         w[N * nz:] = Xs[N]
@@ -357,38 +391,54 @@ class OCPSolver:
         self.lam_g = None
 
     def plan(self) -> tuple[np.ndarray, np.ndarray]:
-        """Current plan: absolute inputs (N, 2) and states (N+1, NXA)."""
-        N, nz = self.N, self.nz
-        Z = self.w[:N * nz].reshape(N, nz)
-        X = np.vstack([Z[:, :NXA], self.w[N * nz:]])
-        U = Z[:, 8:10] + Z[:, NXA:]
-        return U, X
+        """Current plan: applied inputs (N, 2) and states (N+1, NXA)."""
+        return _plan_from(self.w, self.N, self.nz)
 
     # ------------------------------------------------------------------ bounds
     def _var_bounds(self, rate):
-        """Variable bound templates (absolute): du of every stage within +-rate*dt, states free
-        (the initial state is set per call).  Cached: the rate limits rarely change."""
-        step = np.asarray(rate, float) * self.spec.dt
-        key = step.tobytes()
+        """Templates of the decision bounds: ``|d omega_ref| <= omega_rate dt`` per stage, the
+        states free (the initial state and the n2_cmd range are set per call), and the rows'
+        reach per stage.  Cached: the rate limits rarely change."""
+        rate = np.asarray(rate, float)
+        key = rate.tobytes()
         if self._vb_key != key:
             N = self.N
             lbw = np.full(self.nw, -np.inf)
             ubw = np.full(self.nw, np.inf)
-            lbw[:N * self.nz].reshape(N, self.nz)[:, NXA:] = -step   # views: the du of every stage
-            ubw[:N * self.nz].reshape(N, self.nz)[:, NXA:] = step
-            self._vb_key, self._vb = key, (lbw, ubw, step, np.arange(1, N + 1)[:, None] * step[None, :])
+            dw = rate[0] * self.spec.dt
+            lbw[:N * self.nz].reshape(N, self.nz)[:, NXA] = -dw   # views: d omega_ref of every stage
+            ubw[:N * self.nz].reshape(N, self.nz)[:, NXA] = dw
+            ds = self.spec.servo_step(rate[1])
+            self._vb_key = key
+            self._vb = (lbw, ubw, np.array([dw, ds]), np.arange(1, N + 1) * dw)
         return self._vb
 
+    def input_range(self, xa0, lo_u, hi_u, rate):
+        """Range of the first applied inputs ``[omega_ref, n2_cmd]``: the bounds ``lo_u``,
+        ``hi_u``, the set-point's rate and the servo's rate from ``xa0``; a bound is widened
+        where the rate limit cannot reach it yet, so the range is never empty."""
+        _, _, (dw, ds), _ = self._var_bounds(rate)
+        lo = np.array([max(lo_u[0], xa0[I_WREF] - dw), max(lo_u[1], xa0[I_N2] - ds)])
+        hi = np.array([min(hi_u[0], xa0[I_WREF] + dw), min(hi_u[1], xa0[I_N2] + ds)])
+        return np.minimum(lo, np.array([xa0[I_WREF] + dw, xa0[I_N2] + ds])), np.maximum(
+            hi, np.array([xa0[I_WREF] - dw, xa0[I_N2] - ds]))
+
     def _bounds(self, xa0, lo_u, hi_u, rate):
-        """Variable bounds (absolute) and u-band bounds per stage; the band is widened where a
-        rate-limited move from the previous input cannot reach it yet (always feasible)."""
-        lbt, ubt, step, reach = self._var_bounds(rate)
+        """Decision bounds (absolute) and the general rows' bounds per stage (N, 2).  The
+        omega_ref band and the n2_cmd range are widened where a rate-limited move cannot
+        reach them yet (always feasible)."""
+        lbt, ubt, (dw, ds), reach = self._var_bounds(rate)
         lbw, ubw = lbt.copy(), ubt.copy()
         lbw[:NXA] = ubw[:NXA] = xa0
-        uprev = xa0[8:10][None, :]
-        lo = np.minimum(lo_u[None, :], uprev + reach)
-        hi = np.maximum(hi_u[None, :], uprev - reach)
-        return lbw, ubw, lo, hi
+        n2s = xa0[I_N2]
+        lbw[NXA + 1:self.N * self.nz:self.nz] = min(lo_u[1], n2s + ds)
+        ubw[NXA + 1:self.N * self.nz:self.nz] = max(hi_u[1], n2s - ds)
+        glo = np.empty((self.N, NU))
+        ghi = np.empty((self.N, NU))
+        glo[:, 0] = np.minimum(lo_u[0], xa0[I_WREF] + reach)
+        ghi[:, 0] = np.maximum(hi_u[0], xa0[I_WREF] - reach)
+        glo[:, 1], ghi[:, 1] = -ds, ds
+        return lbw, ubw, glo, ghi
 
     # ------------------------------------------------------------------ solve
     def solve(self, xa0, q, lo_u, hi_u, rate) -> OCPResult:
@@ -412,13 +462,14 @@ class OCPSolver:
         w_new, cost, iters, status = res
         if not np.all(np.isfinite(w_new)):
             raise SolverFailure(f"{self.solver}: non-finite plan ({status})")
-        # bounds that can be violated: the initial state, |du| <= step and the u band (states are free)
-        step = self._vb[2]
+        # bounds that can be violated: the initial state, the decisions' and the rows' (states are free)
         U, X = _plan_from(w_new, self.N, self.nz)
-        du = w_new[:self.N * self.nz].reshape(self.N, self.nz)[:, NXA:]
-        viol = max(float(np.max(np.abs(w_new[:NXA] - xa0))), float(np.max(np.abs(du) - step)),
-                   float(np.max(lo - U)), float(np.max(U - hi)))
-        scale = max(1.0, float(np.max(np.abs(xa0))), float(np.max(step)))
+        V = w_new[:self.N * self.nz].reshape(self.N, self.nz)[:, NXA:]
+        G = V + X[:-1] @ _C.T
+        vb = lbw[:self.N * self.nz].reshape(self.N, self.nz)[:, NXA:], ubw[:self.N * self.nz].reshape(self.N, self.nz)[:, NXA:]
+        viol = max(float(np.max(np.abs(w_new[:NXA] - xa0))), float(np.max(vb[0] - V)), float(np.max(V - vb[1])),
+                   float(np.max(lo - G)), float(np.max(G - hi)))
+        scale = max(1.0, float(np.max(np.abs(xa0))), float(np.max(self._vb[2])))
         if viol > 1e-4 * scale:
             raise SolverFailure(f"{self.solver}: plan violates bounds by {viol:.3g} ({status})")
         self.w = w_new
@@ -440,17 +491,17 @@ class OCPSolver:
         Xnext = np.vstack([Z[1:, :NXA], xN[None, :]])
         gaps = xn.T - Xnext
         obj = 0.5 * float(np.sum(r ** 2)) + float(np.sum(l)) + 0.5 * float(np.sum(rN ** 2))
-        # constraint rows per stage: gap (A dx + B du - dx+ = -(F - x+)) then the u band (set per call)
+        # constraint rows per stage: gap (A dx + B dv - dx+ = -(F - x+)) then the general rows (set per call)
         lba = np.empty((N, NXA + NU))
         lba[:, :NXA] = -gaps
         uba = lba.copy()
-        ucur = Z[:, 8:10] + Z[:, NXA:]
-        return ca.DM(self._Hsp, hnz), gq, ca.DM(self._Asp, anz), (lba, uba, ucur), obj
+        gcur = Z[:, NXA:] + Z[:, :NXA] @ _C.T
+        return ca.DM(self._Hsp, hnz), gq, ca.DM(self._Asp, anz), (lba, uba, gcur), obj
 
     def _qp_step(self, w, q, lbw, ubw, lo, hi, data=None):
-        H, g, A, (lba, uba, ucur), obj = self.qp_data(w, q) if data is None else data
-        lba[:, NXA:] = lo - ucur
-        uba[:, NXA:] = hi - ucur
+        H, g, A, (lba, uba, gcur), obj = self.qp_data(w, q) if data is None else data
+        lba[:, NXA:] = lo - gcur
+        uba[:, NXA:] = hi - gcur
         sol = self._qp(h=H, g=g, a=A, lba=lba.ravel(), uba=uba.ravel(), lbx=lbw - w, ubx=ubw - w)
         if not self._qp.stats()["success"]:
             raise SolverFailure(f"QP ({self.qp_solver}) failed: {self._qp.stats().get('return_status', '?')}")
@@ -495,5 +546,5 @@ class OCPSolver:
 def _plan_from(w, N, nz):
     Z = w[:N * nz].reshape(N, nz)
     X = np.vstack([Z[:, :NXA], w[N * nz:]])
-    U = Z[:, 8:10] + Z[:, NXA:]
+    U = np.column_stack([Z[:, I_WREF] + Z[:, NXA], Z[:, NXA + 1]])
     return U, X

@@ -1,0 +1,222 @@
+"""Parametric-bootstrap error bars and bias correction for :func:`estimators.identify.identify`.
+
+The Gauss-Newton standard errors of a fit assume white Gaussian output noise and exact
+inputs.  Real and simulated rig logs break both: 1000-tick encoders quantise the angles
+(speeds from backward differences then carry a 0.63 rad/s count), the load cells put noise on
+the logged normal forces that the model takes as exact (an error in the variables), and the
+fitted model regularises the friction the plant sticks with.  Each of these biases the
+estimates by more than the statistical error bar (BENCHMARKS.md, identification).
+
+The parametric bootstrap measures those effects instead of assuming them away:
+
+1. simulate the exact stick/slip plant (:func:`models.simulator.simulate`) with the
+   *fitted* parameters, from the fitted initial state, driven by the logged inputs, through
+   the sensor model (encoders, load-cell noise) with a fresh seed per replicate;
+2. fit every replicate exactly as the original log was fitted (same options, warm-started
+   from the fit);
+3. the spread of the replicate estimates is the sampling error of the whole pipeline, and
+   their mean offset from the fitted values is its bias at these parameters.
+
+The bias-corrected estimate is ``theta_hat - (mean(theta*) - theta_hat)`` and its standard
+error ``sd(theta*) sqrt(1 + 1/B)`` (the corrected value inherits the replicate mean's own
+error).  Force and torque inputs (unit N or N m) are low-passed (zero-phase, ``force_cutoff``)
+to serve as the true forces; the replicate's sensors add fresh load-cell noise to them.
+Speed inputs (a measured drive speed) are replayed as logged.
+
+This is as good as the simulator's account of the rig: on simulated logs it reproduces the
+data-generating process; on a real rig the sensor options must describe its sensors.
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from models import get_model
+from models.errors import ConfigError, DataError
+from models.logs import Log
+from models.sensors import SensorOptions
+from models.simulator import SimOptions, simulate
+
+__all__ = ["BootstrapOptions", "BootstrapResult", "bootstrap"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class BootstrapOptions:
+    """Options of :func:`bootstrap`.
+
+    Parameters
+    ----------
+    replicates : number of simulated replicate logs B (>= 2)
+    seed : seed of the first replicate's sensor noise (replicate b uses ``seed + b``)
+    sensors : the rig's sensors (encoder ticks, load-cell noise); default the reference rig's
+    force_cutoff : low-pass [Hz] applied to force/torque inputs to obtain the true forces
+    sim_nsub : substeps per sample of the exact plant (stick/slip switching resolves to dt/sim_nsub)
+    max_iter : iteration limit of each replicate fit
+    workers : processes (1: in this process)
+    progress : progress bar (tqdm) on stderr
+    """
+
+    replicates: int = 8
+    seed: int = 1000
+    sensors: SensorOptions = SensorOptions()
+    force_cutoff: float = 2.0
+    sim_nsub: int = 10
+    max_iter: int = 40
+    workers: int = 1
+    progress: bool = False
+
+    def __post_init__(self):
+        for name, least in (("replicates", 2), ("sim_nsub", 1), ("max_iter", 1), ("workers", 1)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < least:
+                raise ConfigError(f"bootstrap.{name} must be an integer >= {least}, got {v!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
+            raise ConfigError(f"bootstrap.seed must be an integer, got {self.seed!r}")
+        fc = self.force_cutoff
+        if isinstance(fc, bool) or not (isinstance(fc, (int, float)) and np.isfinite(fc) and fc > 0):
+            raise ConfigError(f"bootstrap.force_cutoff must be a frequency > 0 Hz, got {fc!r}")
+        if not isinstance(self.sensors, SensorOptions):
+            raise ConfigError(f"bootstrap.sensors must be SensorOptions, got {type(self.sensors).__name__}")
+
+
+@dataclass(frozen=True)
+class BootstrapResult:
+    """Result of :func:`bootstrap` (SI units; parameters in ``names`` order).
+
+    Attributes
+    ----------
+    names : fitted parameter names
+    estimate : the original fit's estimates
+    replicates : (B_ok, n) estimates of the successful replicate fits
+    bias : mean(replicates) - estimate, the pipeline's bias at the fitted parameters
+    sd : standard deviation of the replicates (ddof = 1)
+    corrected : estimate - bias
+    stderr : standard error of ``corrected``, ``sd sqrt(1 + 1/B_ok)``
+    failures : replicate fits that failed (excluded)
+    status, success, wall_time [s]
+    """
+
+    names: tuple
+    estimate: np.ndarray
+    replicates: np.ndarray
+    bias: np.ndarray
+    sd: np.ndarray
+    corrected: np.ndarray
+    stderr: np.ndarray
+    failures: int
+    status: str
+    success: bool
+    wall_time: float
+
+    def as_dict(self) -> dict:
+        return {"names": list(self.names), "estimate": self.estimate.tolist(), "bias": self.bias.tolist(),
+                "sd": self.sd.tolist(), "corrected": self.corrected.tolist(), "stderr": self.stderr.tolist(),
+                "replicates_ok": int(self.replicates.shape[0]), "failures": self.failures,
+                "status": self.status, "success": self.success, "wall_time_s": self.wall_time}
+
+
+def _force_like(unit: str) -> bool:
+    return unit in ("N", "N m")
+
+
+def _replicate_inputs(log: Log, model, n_rows: int, input_row: str, cutoff: float) -> np.ndarray:
+    """(n_rows - 1, nu) inputs applied over each sample interval: logged inputs, forces low-passed."""
+    from scipy.signal import butter, filtfilt
+
+    cols = []
+    nyq = 0.5 / log.dt
+    for name, unit in zip(model.inputs, model.input_units):
+        x = np.asarray(log[name], dtype=float)[:n_rows]
+        if _force_like(unit) and cutoff < nyq and x.size > 9:
+            b, a = butter(2, cutoff / nyq)
+            x = filtfilt(b, a, x)
+        cols.append(x)
+    U = np.column_stack(cols)
+    return U[1:] if input_row == "end" else U[:-1]
+
+
+def _one_replicate(args):
+    """Simulate replicate ``b`` of every log and fit it; returns the estimates or None."""
+    from estimators.identify import identify  # local: keeps the module light for process workers
+
+    (b, model_name, params, logs, n_rows, x0s, nodes, options, boot) = args
+    m = get_model(model_name)
+    reps = []
+    for j, (lg, n, x0) in enumerate(zip(logs, n_rows, x0s)):
+        U = _replicate_inputs(lg, m, n, options.input_row, boot.force_cutoff)
+        sim = simulate(m, params, U, (n - 1) * lg.dt,
+                       SimOptions(dt=lg.dt, nsub=boot.sim_nsub, seed=boot.seed + 7919 * b + j),
+                       sensors=boot.sensors, x0=x0)
+        if not sim.success:
+            return None
+        reps.append(sim.to_log())
+    opts = replace(options, input_row="end", max_iter=boot.max_iter, systematic=False, progress=False)
+    try:
+        fit = identify(reps, m, params, opts, _validate=False, _nodes=nodes)
+    except Exception:  # noqa: BLE001 - a failed replicate is counted, not fatal
+        return None
+    if not fit.success or not np.all(np.isfinite(fit.estimate)):
+        return None
+    return np.asarray(fit.estimate, dtype=float)
+
+
+def bootstrap(fit, logs: Log | list[Log], options, boot: BootstrapOptions = BootstrapOptions()) -> BootstrapResult:
+    """Parametric bootstrap of a fit (see the module docstring).
+
+    Parameters
+    ----------
+    fit : :class:`estimators.identify.FitResult` of ``logs`` with ``options``
+    logs : the log(s) that were fitted (the training part is taken from ``fit``)
+    options : the :class:`estimators.identify.IdentifyOptions` of the fit
+    boot : :class:`BootstrapOptions`
+
+    Returns
+    -------
+    BootstrapResult (``success`` False if fewer than two replicate fits succeeded)
+    """
+    t0 = time.perf_counter()
+    logs = [logs] if isinstance(logs, Log) else list(logs)
+    if len(logs) != len(fit.t):
+        raise DataError(f"bootstrap: the fit used {len(fit.t)} log(s), got {len(logs)}")
+    m = get_model(fit.model)
+    n_rows = [len(t) + 1 for t in fit.t]            # rows of each log the fit used
+    x0s = [np.asarray(s[0], dtype=float) for s in fit.states]
+    nodes = [np.asarray(s, dtype=float) for s in fit.states]
+    logs = [lg.with_speeds() for lg in logs]
+    jobs = [(b, m.name, fit.params, logs, n_rows, x0s, nodes, options, boot) for b in range(boot.replicates)]
+    results = []
+    bar = None
+    if boot.progress:
+        from tqdm import tqdm
+        bar = tqdm(total=len(jobs), desc=f"bootstrap {m.name}", unit="fit")
+    if boot.workers > 1:
+        with ProcessPoolExecutor(max_workers=boot.workers) as ex:
+            for r in ex.map(_one_replicate, jobs):
+                results.append(r)
+                if bar is not None:
+                    bar.update()
+    else:
+        for job in jobs:
+            results.append(_one_replicate(job))
+            if bar is not None:
+                bar.update()
+    if bar is not None:
+        bar.close()
+    ok = [r for r in results if r is not None]
+    failures = len(results) - len(ok)
+    est = np.asarray(fit.estimate, dtype=float)
+    nan = np.full(est.shape, np.nan)
+    if len(ok) < 2:
+        return BootstrapResult(tuple(fit.names), est, np.empty((len(ok), est.size)), nan, nan, nan, nan,
+                               failures, f"only {len(ok)} of {len(results)} replicate fits succeeded", False,
+                               time.perf_counter() - t0)
+    R = np.vstack(ok)
+    bias = R.mean(axis=0) - est
+    sd = R.std(axis=0, ddof=1)
+    status = f"{len(ok)} replicates" + (f", {failures} failed" if failures else "")
+    return BootstrapResult(tuple(fit.names), est, R, bias, sd, est - bias, sd * np.sqrt(1 + 1 / len(ok)),
+                           failures, status, True, time.perf_counter() - t0)
