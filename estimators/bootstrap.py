@@ -17,9 +17,11 @@ The parametric bootstrap measures those effects instead of assuming them away:
 3. the spread of the replicate estimates is the sampling error of the whole pipeline, and
    their mean offset from the fitted values is its bias at these parameters.
 
-The bias-corrected estimate is ``theta_hat - (mean(theta*) - theta_hat)`` and its standard
-error ``sd(theta*) sqrt(1 + 1/B)`` (the corrected value inherits the replicate mean's own
-error).  Force and torque inputs (unit N or N m) are low-passed (zero-phase, ``force_cutoff``)
+The error bar reported is the bootstrap's root-mean-square error of the estimator,
+``sqrt(bias^2 + sd^2)``: it covers what the pipeline gets wrong systematically as well as its
+scatter.  A bias-corrected value ``theta_hat - bias`` is reported too, for information only: with
+a handful of replicates its own scatter (``sd sqrt(1 + 1/B)``) is often larger than the bias it
+removes (BENCHMARKS.md), so the fitted value stays the estimate.  Force and torque inputs (unit N or N m) are low-passed (zero-phase, ``force_cutoff``)
 to serve as the true forces; the replicate's sensors add fresh load-cell noise to them.
 Speed inputs (a measured drive speed) are replayed as logged.
 
@@ -55,7 +57,7 @@ class BootstrapOptions:
     sensors : the rig's sensors (encoder ticks, load-cell noise); default the reference rig's
     force_cutoff : low-pass [Hz] applied to force/torque inputs to obtain the true forces
     sim_nsub : substeps per sample of the exact plant (stick/slip switching resolves to dt/sim_nsub)
-    max_iter : iteration limit of each replicate fit
+    max_iter : iteration limit of each replicate fit (None: the original fit's)
     workers : processes (1: in this process)
     progress : progress bar (tqdm) on stderr
     """
@@ -65,13 +67,15 @@ class BootstrapOptions:
     sensors: SensorOptions = SensorOptions()
     force_cutoff: float = 2.0
     sim_nsub: int = 10
-    max_iter: int = 40
+    max_iter: int | None = None
     workers: int = 1
     progress: bool = False
 
     def __post_init__(self):
         for name, least in (("replicates", 2), ("sim_nsub", 1), ("max_iter", 1), ("workers", 1)):
             v = getattr(self, name)
+            if name == "max_iter" and v is None:
+                continue
             if isinstance(v, bool) or not isinstance(v, int) or v < least:
                 raise ConfigError(f"bootstrap.{name} must be an integer >= {least}, got {v!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int):
@@ -91,12 +95,15 @@ class BootstrapResult:
     ----------
     names : fitted parameter names
     estimate : the original fit's estimates
-    replicates : (B_ok, n) estimates of the successful replicate fits
+    replicates : (B_ok, n) estimates of the replicate fits that returned finite values
     bias : mean(replicates) - estimate, the pipeline's bias at the fitted parameters
     sd : standard deviation of the replicates (ddof = 1)
-    corrected : estimate - bias
-    stderr : standard error of ``corrected``, ``sd sqrt(1 + 1/B_ok)``
-    failures : replicate fits that failed (excluded)
+    error : ``sqrt(bias^2 + sd^2)``, the root-mean-square error: the reported error bar
+    corrected : estimate - bias (information only), with standard error ``sd sqrt(1 + 1/B_ok)``
+    corrected_stderr : that standard error
+    unconverged : replicate fits that stopped without their convergence test (kept: dropping them
+        would select the easy noise realisations)
+    failures : replicate simulations or fits that raised or returned non-finite values (excluded)
     status, success, wall_time [s]
     """
 
@@ -105,8 +112,10 @@ class BootstrapResult:
     replicates: np.ndarray
     bias: np.ndarray
     sd: np.ndarray
+    error: np.ndarray
     corrected: np.ndarray
-    stderr: np.ndarray
+    corrected_stderr: np.ndarray
+    unconverged: int
     failures: int
     status: str
     success: bool
@@ -114,8 +123,9 @@ class BootstrapResult:
 
     def as_dict(self) -> dict:
         return {"names": list(self.names), "estimate": self.estimate.tolist(), "bias": self.bias.tolist(),
-                "sd": self.sd.tolist(), "corrected": self.corrected.tolist(), "stderr": self.stderr.tolist(),
-                "replicates_ok": int(self.replicates.shape[0]), "failures": self.failures,
+                "sd": self.sd.tolist(), "error": self.error.tolist(), "corrected": self.corrected.tolist(),
+                "corrected_stderr": self.corrected_stderr.tolist(), "replicates": int(self.replicates.shape[0]),
+                "unconverged": self.unconverged, "failures": self.failures,
                 "status": self.status, "success": self.success, "wall_time_s": self.wall_time}
 
 
@@ -140,7 +150,7 @@ def _replicate_inputs(log: Log, model, n_rows: int, input_row: str, cutoff: floa
 
 
 def _one_replicate(args):
-    """Simulate replicate ``b`` of every log and fit it; returns the estimates or None."""
+    """Simulate replicate ``b`` of every log and fit it; returns (estimates, converged) or None."""
     from estimators.identify import identify  # local: keeps the module light for process workers
 
     (b, model_name, params, logs, n_rows, x0s, nodes, options, boot) = args
@@ -154,14 +164,15 @@ def _one_replicate(args):
         if not sim.success:
             return None
         reps.append(sim.to_log())
-    opts = replace(options, input_row="end", max_iter=boot.max_iter, systematic=False, progress=False)
+    opts = replace(options, input_row="end", max_iter=boot.max_iter or options.max_iter, systematic=False,
+                   progress=False)
     try:
         fit = identify(reps, m, params, opts, _validate=False, _nodes=nodes)
     except Exception:  # noqa: BLE001 - a failed replicate is counted, not fatal
         return None
-    if not fit.success or not np.all(np.isfinite(fit.estimate)):
+    if not np.all(np.isfinite(fit.estimate)):
         return None
-    return np.asarray(fit.estimate, dtype=float)
+    return np.asarray(fit.estimate, dtype=float), bool(fit.success)
 
 
 def bootstrap(fit, logs: Log | list[Log], options, boot: BootstrapOptions = BootstrapOptions()) -> BootstrapResult:
@@ -208,15 +219,18 @@ def bootstrap(fit, logs: Log | list[Log], options, boot: BootstrapOptions = Boot
         bar.close()
     ok = [r for r in results if r is not None]
     failures = len(results) - len(ok)
+    unconverged = sum(1 for r in ok if not r[1])
     est = np.asarray(fit.estimate, dtype=float)
     nan = np.full(est.shape, np.nan)
     if len(ok) < 2:
-        return BootstrapResult(tuple(fit.names), est, np.empty((len(ok), est.size)), nan, nan, nan, nan,
-                               failures, f"only {len(ok)} of {len(results)} replicate fits succeeded", False,
-                               time.perf_counter() - t0)
-    R = np.vstack(ok)
+        return BootstrapResult(tuple(fit.names), est, np.empty((len(ok), est.size)), nan, nan, nan, nan, nan,
+                               unconverged, failures, f"only {len(ok)} of {len(results)} replicate fits returned "
+                               f"estimates", False, time.perf_counter() - t0)
+    R = np.vstack([r[0] for r in ok])
     bias = R.mean(axis=0) - est
     sd = R.std(axis=0, ddof=1)
-    status = f"{len(ok)} replicates" + (f", {failures} failed" if failures else "")
-    return BootstrapResult(tuple(fit.names), est, R, bias, sd, est - bias, sd * np.sqrt(1 + 1 / len(ok)),
-                           failures, status, True, time.perf_counter() - t0)
+    status = f"{len(ok)} replicates" + (f", {unconverged} unconverged" if unconverged else "") + \
+        (f", {failures} failed" if failures else "")
+    return BootstrapResult(tuple(fit.names), est, R, bias, sd, np.hypot(bias, sd), est - bias,
+                           sd * np.sqrt(1 + 1 / len(ok)), unconverged, failures, status, True,
+                           time.perf_counter() - t0)

@@ -50,6 +50,10 @@ def test_table_output(disc_csv, tmp_path, capsys):
     (["--free", "k", "--input-cutoff", "n1"], "--input-cutoff must look like CHANNEL=HZ"),
     (["--free", "k", "--input-cutoff", "n2=0.5"], "n2 is not an input of disc"),
     (["--free", "k", "--input-cutoff", "n1=-1"], "must be a frequency > 0 Hz"),
+    (["--free", "k", "--bootstrap", "1"], "--bootstrap must be an integer >= 2"),
+    (["--free", "k", "--bootstrap", "3", "--systematic"], "--bootstrap and --systematic are alternatives"),
+    (["--free", "k", "--bootstrap", "3", "--workers", "0"], "--workers must be an integer >= 1"),
+    (["--free", "k", "--bootstrap", "3", "--encoder-ticks", "0"], "sensors.ticks_per_rev must be an integer >= 1"),
 ])
 def test_bad_arguments_exit_2_and_write_nothing(disc_csv, tmp_path, capsys, args, msg):
     out = tmp_path / "f.toml"
@@ -90,3 +94,16 @@ def test_systematic_flag_prints_columns_and_writes_total(disc_csv, tmp_path, cap
     doc = json.loads(capsys.readouterr().out)["parameters"]["k"]
     assert rc == 0 and doc["syserr"] >= 0 and doc["error"] >= doc["stderr"]
     assert p.stderr_of("k") == pytest.approx(doc["error"])
+
+
+def test_bootstrap_writes_rms_error_as_stderr(disc_csv, tmp_path, capsys):
+    out = tmp_path / "boot.toml"
+    rc = main(["identify", str(disc_csv), "--model", "disc", "--free", "k,mu_k", "--out", str(out),
+               "--nsub", "10", "--bootstrap", "2", "--json"])
+    assert rc == 0
+    doc = json.loads(capsys.readouterr().out)
+    b = doc["bootstrap"]
+    assert b["success"] and b["replicates"] == 2 and b["names"] == ["k", "mu_k"]
+    assert np.allclose(b["error"], np.hypot(b["bias"], b["sd"]))
+    p = load_params(out, "disc")
+    assert p.stderr_of("k") == pytest.approx(b["error"][0]) and p.stderr_of("mu_k") == pytest.approx(b["error"][1])

@@ -28,6 +28,7 @@ EPILOG = """examples:
   mitigate identify run1.csv run2.csv --model disc --free k,d,mu_k,mu_s --holdout 0.2 --plot fit.png --json
   mitigate identify rig.tdms --tdms-map channels.toml --model rig2 --free k,c,Tc --out fitted.toml --force
   mitigate identify run1.csv --model disc --free k,mu_k --systematic --out fitted.toml   # + regularisation error
+  mitigate identify run1.csv --model disc --free k,d,mu_k,mu_s --bootstrap 8 --workers 2   # bootstrap error bars
 """
 
 
@@ -59,6 +60,17 @@ def register(subparsers) -> None:
                    help="also estimate a systematic error: refit with the friction regularisation halved "
                         "(eps/2; lead screw: r1 doubled) and take |theta(eps) - theta(eps/2)|; prints extra columns "
                         "and writes the TOTAL error sqrt(SE^2 + syserr^2) into [stderr] (one more, warm-started fit)")
+    p.add_argument("--bootstrap", type=int, default=0, metavar="B",
+                   help="parametric bootstrap with B >= 2 replicate logs simulated (exact plant, sensor model) "
+                        "from the fit: prints the pipeline's bias and scatter and writes the RMS error "
+                        "sqrt(bias^2 + sd^2) into [stderr] (B more, warm-started fits)")
+    p.add_argument("--workers", type=int, default=1, help="processes for the bootstrap fits (default 1)")
+    p.add_argument("--encoder-ticks", type=int, default=1000,
+                   help="bootstrap sensor model: encoder ticks per revolution (default 1000)")
+    p.add_argument("--force-noise", type=float, default=0.2,
+                   help="bootstrap sensor model: load-cell noise on the pin forces, std [N] (default 0.2)")
+    p.add_argument("--torque-noise", type=float, default=0.01,
+                   help="bootstrap sensor model: motor-torque noise, std [N m] (default 0.01)")
     p.add_argument("--tdms-map", metavar="TOML", help="channel mapping for TDMS logs (models.tdms)")
     p.add_argument("--json", action="store_true", help="print a machine-readable JSON document on stdout")
     p.set_defaults(func=run)
@@ -110,6 +122,21 @@ def run(args) -> int:
         initial.spec(n)  # ConfigError naming the parameter
     if not (math.isfinite(args.holdout) and 0 <= args.holdout < 0.9):
         raise ConfigError(f"--holdout must be a fraction in [0, 0.9), got {args.holdout}")
+    boot = None
+    if args.bootstrap:
+        from estimators.bootstrap import BootstrapOptions
+        from models.sensors import SensorOptions
+        if args.bootstrap < 2:
+            raise ConfigError(f"--bootstrap must be an integer >= 2 (replicates), got {args.bootstrap}")
+        if args.systematic:
+            raise ConfigError("--bootstrap and --systematic are alternatives (the bootstrap's exact-plant "
+                              "replicates include the regularisation error); got both")
+        if args.workers < 1:
+            raise ConfigError(f"--workers must be an integer >= 1, got {args.workers}")
+        sensors = SensorOptions(ticks_per_rev=args.encoder_ticks, force_noise=args.force_noise,
+                                torque_noise=args.torque_noise)
+        boot = BootstrapOptions(replicates=args.bootstrap, sensors=sensors, workers=args.workers,
+                                progress=(not args.json) and sys.stderr.isatty())
     out = Path(args.out)
     targets = [out] + ([Path(args.plot)] if args.plot else [])
     check_outputs(targets, args.force)
@@ -138,21 +165,42 @@ def run(args) -> int:
         fit = identify(logs, model, initial, options, holdout=args.holdout)
     note = (f"fitted by mitigate identify ({fit.status}) from {', '.join(args.logs)}; "
             f"free: {', '.join(free)}; eps = {args.eps} rad/s")
+    params = fit.params
+    bres = None
+    if boot is not None:
+        from dataclasses import replace as dc_replace
+
+        from estimators.bootstrap import bootstrap
+        if not args.json:
+            sys.stderr.write(f"bootstrap: {boot.replicates} replicate logs ...\n")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            bres = bootstrap(fit, logs, options, boot)
+        if bres.success:
+            params = dc_replace(params, stderr=tuple((n, float(e)) for n, e in zip(fit.names, bres.error)))
+            note += (f"; [stderr] is the parametric-bootstrap RMS error sqrt(bias^2 + sd^2) over "
+                     f"{bres.replicates.shape[0]} replicates")
     if args.systematic:
         note += ("; [stderr] is the TOTAL error sqrt(SE^2 + syserr^2), syserr = |theta(eps) - theta(eps/2)| "
                  "(regularisation sensitivity), SE statistical")
     out.parent.mkdir(parents=True, exist_ok=True)
-    fit.params.save(out, overwrite=args.force, note=note)
+    params.save(out, overwrite=args.force, note=note)
     if args.plot:
         _plot(fit, args.plot)
     pub = published(args.model)
     if args.json:
         payload = fit.as_dict()
         payload.update({"out": str(out), "plot": args.plot, "logs": list(args.logs),
-                        "published": {n: getattr(pub, n) for n in free}})
+                        "published": {n: getattr(pub, n) for n in free},
+                        "bootstrap": bres.as_dict() if bres is not None else None})
         emit_json(payload)
     else:
-        if fit.syserr is None:
+        if bres is not None and bres.success:
+            rows = [[n, e, s, b, d, r, getattr(pub, n), fit.params.spec(n).unit]
+                    for n, e, s, b, d, r in zip(fit.names, fit.estimate, fit.stderr, bres.bias, bres.sd, bres.error)]
+            print(format_table(["parameter", "estimate", "std. error", "boot. bias", "boot. sd", "RMS error",
+                                "published", "unit"], rows))
+        elif fit.syserr is None:
             rows = [[n, e, s, getattr(pub, n), fit.params.spec(n).unit]
                     for n, e, s in zip(fit.names, fit.estimate, fit.stderr)]
             print(format_table(["parameter", "estimate", "std. error", "published", "unit"], rows))
@@ -168,7 +216,10 @@ def run(args) -> int:
             print(f"hold-out (exact plant): NRMSE " + ", ".join(f"{k} {100 * x:.1f} %" for k, x in v.nrmse.items())
                   + f"; stick-slip period {v.period_measured:.3g} s measured vs {v.period_simulated:.3g} s; "
                   f"amplitude {v.amplitude_measured:.3g} vs {v.amplitude_simulated:.3g} rad/s")
+        if bres is not None:
+            print(f"bootstrap: {bres.status} ({bres.wall_time:.1f} s)"
+                  + ("" if bres.success else "; [stderr] keeps the Gauss-Newton standard errors"))
         for w in fit.warnings:
             print(f"warning: {w}")
         print(f"wrote {out}" + (f" and {args.plot}" if args.plot else ""))
-    return 0 if fit.success else 1
+    return 0 if fit.success and (bres is None or bres.success) else 1
