@@ -22,6 +22,13 @@ case once with the default options and ``systematic=True`` (refit with eps/2) an
 parameter, |err|/SE (statistical) and |err|/total with total = sqrt(SE^2 + syserr^2); plus the
 lead-screw step-2 case of tests/test_twostep.py (r1 = 1 -> 2 s/rad, nsub 10 -> 20).  It replaces
 only the section between the ``<!-- systematic -->`` markers of benchmarks/results/identify.md.
+
+Coverage of the bootstrap error bars: ``python benchmarks/bench_identify.py --bootstrap [--quick]``
+fits every case once, runs ``estimators.bootstrap`` with B = 6 replicates (2 worker processes) and
+tabulates per parameter the error, the statistical SE, the bootstrap bias, scatter and RMS error,
+and |err|/SE and |err|/RMS; the cases are those above plus the 3-disc rig (published set, N1 = 20 N,
+30 rpm, from rest; free k1, k2, d1, mu_k, mu_s from a guess 10 % off).  It replaces only the
+section between the ``<!-- bootstrap -->`` markers.
 """
 
 from __future__ import annotations
@@ -192,5 +199,80 @@ def systematic_main():
     print(f"wrote {out}")
 
 
+def rig3_case():
+    true = published("rig3")
+    log = simulate(get_model("rig3"), true, np.array([np.pi, 20.0, 0.0]), DUR, SimOptions(seed=1)).to_log()
+    guess = true.replace(k1=1.0, k2=0.33, d1=0.03, mu_k=0.28, mu_s=0.45)
+    return ("rig3", "published, N1 = 20 N, 30 rpm", true, 1.0, log, ("k1", "k2", "d1", "mu_k", "mu_s"), None, guess)
+
+
+def _replace_section(marker, block):
+    out = Path(__file__).parent / "results" / "identify.md"
+    old = out.read_text() if out.exists() else ""
+    a, b = f"<!-- {marker} -->", f"<!-- /{marker} -->"
+    if a in old and b in old:
+        i, j = old.index(a), old.index(b) + len(b)
+        new = old[:i] + block + old[j:]
+    else:
+        new = old.rstrip("\n") + "\n\n" + block + "\n"
+    out.write_text(new)
+    print(f"wrote {out}")
+
+
+def bootstrap_main():
+    """Coverage of the parametric-bootstrap RMS error on the benchmark cases and the 3-disc rig."""
+    from estimators.bootstrap import BootstrapOptions, bootstrap
+
+    B = 6
+    rows = ["<!-- bootstrap -->", "## Error bars: parametric bootstrap (`identify --bootstrap`)", "",
+            f"Command: `python benchmarks/bench_identify.py --bootstrap{' --quick' if QUICK else ''}` "
+            f"({DUR:g} s logs; default options, eps = 0.005; B = {B} replicates on 2 worker processes; "
+            f"1-min load average at start {os.getloadavg()[0]:.1f}).  Replicates: the exact plant with the "
+            f"FITTED parameters, the logged inputs (normal forces low-passed at 2 Hz), the sensor model at "
+            f"the log's noise level.  covered: |err| <= 2 x error bar.", "",
+            "| model | true set | noise x | param | err [%] | SE [%] | boot. bias [%] | boot. sd [%] "
+            "| RMS error [%] | |err|/SE | |err|/RMS | fit [s] | bootstrap [s] | replicates |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    d0 = published("disc")
+    cases = [rig3_case()]
+    for label, true in (("A", d0.replace(k=1.0, d=0.03, mu_k=0.28, mu_s=0.45)),
+                        ("B", d0.replace(k=1.285, d=0.0172, mu_k=0.32, mu_s=0.55))):
+        for ns in (1.0, 3.0):
+            cases.append(("disc", label, true, ns, disc_log(true, 1, ns), ("k", "d", "mu_k", "mu_s"), 10,
+                          published("disc")))
+    r2 = published("rig2").replace(Ts=0.30, v_s=1.0)
+    for ns in (1.0, 3.0):
+        cases.append(("rig2", "seed-001, Ts = 0.30", r2, ns, rig2_log(r2, 2, ns), ("k", "c", "Tc", "Ts"), None,
+                      initial_for("rig2")))
+    n_se = n_b = n_all = 0
+    for model, label, true, ns, log, free, nsub, init in cases:
+        opts = IdentifyOptions(free=free, eps=0.005, nsub=nsub)
+        t0 = time.perf_counter()
+        fit = identify(log, model, init, opts)
+        t_fit = time.perf_counter() - t0
+        bo = bootstrap(fit, log, opts, BootstrapOptions(replicates=B, sensors=SensorOptions(noise_scale=ns),
+                                                        workers=2))
+        for i, n in enumerate(fit.names):
+            tv = getattr(true, n)
+            err = fit.estimate[i] - tv
+            a, b = abs(err) / fit.stderr[i], abs(err) / bo.error[i]
+            n_all += 1
+            n_se += a <= 2
+            n_b += b <= 2
+            pc = lambda v: 100 * v / abs(tv)  # noqa: E731
+            rows.append(f"| {model} | {label} | {ns:g} | {n} | {pc(err):+.2f} | {pc(fit.stderr[i]):.2f} | "
+                        f"{pc(bo.bias[i]):+.2f} | {pc(bo.sd[i]):.2f} | {pc(bo.error[i]):.2f} | {a:.1f} | {b:.2f} | "
+                        f"{t_fit:.1f} | {bo.wall_time:.1f} | {bo.status} |")
+            print(rows[-1], flush=True)
+    rows += ["", f"Covered (|err| <= 2 x bar): statistical SE {n_se}/{n_all}, bootstrap RMS error {n_b}/{n_all}.",
+             "<!-- /bootstrap -->"]
+    _replace_section("bootstrap", "\n".join(rows))
+
+
 if __name__ == "__main__":
-    systematic_main() if "--systematic" in sys.argv else main()
+    if "--systematic" in sys.argv:
+        systematic_main()
+    elif "--bootstrap" in sys.argv:
+        bootstrap_main()
+    else:
+        main()

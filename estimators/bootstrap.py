@@ -12,8 +12,11 @@ The parametric bootstrap measures those effects instead of assuming them away:
 1. simulate the exact stick/slip plant (:func:`models.simulator.simulate`) with the
    *fitted* parameters, from the fitted initial state, driven by the logged inputs, through
    the sensor model (encoders, load-cell noise) with a fresh seed per replicate;
-2. fit every replicate exactly as the original log was fitted (same options, warm-started
-   from the fit);
+2. fit every replicate exactly as the original log was fitted (same options, starting from
+   the fitted parameters; the state nodes are initialised from the replicate itself, as for
+   any log: a replicate driven by a logged motor torque drifts away from the original's
+   trajectory, and warm-starting its nodes from the original fit left rig2's replicates
+   unconverged and biased);
 3. the spread of the replicate estimates is the sampling error of the whole pipeline, and
    their mean offset from the fitted values is its bias at these parameters.
 
@@ -21,9 +24,13 @@ The error bar reported is the bootstrap's root-mean-square error of the estimato
 ``sqrt(bias^2 + sd^2)``: it covers what the pipeline gets wrong systematically as well as its
 scatter.  A bias-corrected value ``theta_hat - bias`` is reported too, for information only: with
 a handful of replicates its own scatter (``sd sqrt(1 + 1/B)``) is often larger than the bias it
-removes (BENCHMARKS.md), so the fitted value stays the estimate.  Force and torque inputs (unit N or N m) are low-passed (zero-phase, ``force_cutoff``)
-to serve as the true forces; the replicate's sensors add fresh load-cell noise to them.
-Speed inputs (a measured drive speed) are replayed as logged.
+removes (BENCHMARKS.md), so the fitted value stays the estimate.
+
+Normal-force inputs (unit N: pin forces, the lead screw's axial force, set by servos and
+springs, so slow) are low-passed (zero-phase, ``force_cutoff``) to serve as the true forces; the
+replicate's sensors add fresh load-cell noise to them.  Other inputs (a motor torque that follows a
+speed loop, a measured drive speed, a set-point) are replayed as logged: a low-pass would remove
+real content, and their noise then only excites the replica a little more than the rig.
 
 This is as good as the simulator's account of the rig: on simulated logs it reproduces the
 data-generating process; on a real rig the sensor options must describe its sensors.
@@ -55,7 +62,8 @@ class BootstrapOptions:
     replicates : number of simulated replicate logs B (>= 2)
     seed : seed of the first replicate's sensor noise (replicate b uses ``seed + b``)
     sensors : the rig's sensors (encoder ticks, load-cell noise); default the reference rig's
-    force_cutoff : low-pass [Hz] applied to force/torque inputs to obtain the true forces
+    force_cutoff : low-pass [Hz] applied to normal-force inputs (unit N) to obtain the true forces;
+        None: replay them as logged
     sim_nsub : substeps per sample of the exact plant (stick/slip switching resolves to dt/sim_nsub)
     max_iter : iteration limit of each replicate fit (None: the original fit's)
     workers : processes (1: in this process)
@@ -65,7 +73,7 @@ class BootstrapOptions:
     replicates: int = 8
     seed: int = 1000
     sensors: SensorOptions = SensorOptions()
-    force_cutoff: float = 2.0
+    force_cutoff: float | None = 2.0
     sim_nsub: int = 10
     max_iter: int | None = None
     workers: int = 1
@@ -81,7 +89,8 @@ class BootstrapOptions:
         if isinstance(self.seed, bool) or not isinstance(self.seed, int):
             raise ConfigError(f"bootstrap.seed must be an integer, got {self.seed!r}")
         fc = self.force_cutoff
-        if isinstance(fc, bool) or not (isinstance(fc, (int, float)) and np.isfinite(fc) and fc > 0):
+        if fc is not None and (isinstance(fc, bool) or not (isinstance(fc, (int, float)) and np.isfinite(fc)
+                                                            and fc > 0)):
             raise ConfigError(f"bootstrap.force_cutoff must be a frequency > 0 Hz, got {fc!r}")
         if not isinstance(self.sensors, SensorOptions):
             raise ConfigError(f"bootstrap.sensors must be SensorOptions, got {type(self.sensors).__name__}")
@@ -129,8 +138,8 @@ class BootstrapResult:
                 "status": self.status, "success": self.success, "wall_time_s": self.wall_time}
 
 
-def _force_like(unit: str) -> bool:
-    return unit in ("N", "N m")
+def _normal_force(unit: str) -> bool:
+    return unit == "N"
 
 
 def _replicate_inputs(log: Log, model, n_rows: int, input_row: str, cutoff: float) -> np.ndarray:
@@ -141,7 +150,7 @@ def _replicate_inputs(log: Log, model, n_rows: int, input_row: str, cutoff: floa
     nyq = 0.5 / log.dt
     for name, unit in zip(model.inputs, model.input_units):
         x = np.asarray(log[name], dtype=float)[:n_rows]
-        if _force_like(unit) and cutoff < nyq and x.size > 9:
+        if cutoff is not None and _normal_force(unit) and cutoff < nyq and x.size > 9:
             b, a = butter(2, cutoff / nyq)
             x = filtfilt(b, a, x)
         cols.append(x)
@@ -153,7 +162,7 @@ def _one_replicate(args):
     """Simulate replicate ``b`` of every log and fit it; returns (estimates, converged) or None."""
     from estimators.identify import identify  # local: keeps the module light for process workers
 
-    (b, model_name, params, logs, n_rows, x0s, nodes, options, boot) = args
+    (b, model_name, params, logs, n_rows, x0s, options, boot) = args
     m = get_model(model_name)
     reps = []
     for j, (lg, n, x0) in enumerate(zip(logs, n_rows, x0s)):
@@ -166,8 +175,12 @@ def _one_replicate(args):
         reps.append(sim.to_log())
     opts = replace(options, input_row="end", max_iter=boot.max_iter or options.max_iter, systematic=False,
                    progress=False)
+    import warnings
+
     try:
-        fit = identify(reps, m, params, opts, _validate=False, _nodes=nodes)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # identifiability warnings of replicates repeat the original's
+            fit = identify(reps, m, params, opts, _validate=False)
     except Exception:  # noqa: BLE001 - a failed replicate is counted, not fatal
         return None
     if not np.all(np.isfinite(fit.estimate)):
@@ -196,9 +209,8 @@ def bootstrap(fit, logs: Log | list[Log], options, boot: BootstrapOptions = Boot
     m = get_model(fit.model)
     n_rows = [len(t) + 1 for t in fit.t]            # rows of each log the fit used
     x0s = [np.asarray(s[0], dtype=float) for s in fit.states]
-    nodes = [np.asarray(s, dtype=float) for s in fit.states]
     logs = [lg.with_speeds() for lg in logs]
-    jobs = [(b, m.name, fit.params, logs, n_rows, x0s, nodes, options, boot) for b in range(boot.replicates)]
+    jobs = [(b, m.name, fit.params, logs, n_rows, x0s, options, boot) for b in range(boot.replicates)]
     results = []
     bar = None
     if boot.progress:
