@@ -206,3 +206,19 @@ def test_systematic_refit_changes_only_the_regularisation_rig3():
         fit = identify(log, "rig3", true.replace(mu_k=0.28), IdentifyOptions(free=("mu_k",), systematic=True))
     assert fit.params.r1 == true.r1
     assert 0 <= fit.syserr[0] < 0.05 * fit.estimate[0]   # the eps/2 bias is small; the bug gave 50 %
+
+
+def test_noisy_force_input_gets_a_hint(disc_logs):
+    from estimators.identify import input_noise_hints
+    from models.sensors import SensorOptions
+
+    a, _ = disc_logs
+    m = get_model("disc")
+    hints = input_noise_hints([a], m, None)
+    assert len(hints) == 1 and "input n1" in hints[0] and "--input-cutoff n1=0.5" in hints[0]
+    sd = float(hints[0].split("(")[1].split(" N")[0])
+    assert 0.15 < sd < 0.25                      # the 0.2 N load-cell noise of the simulator
+    assert input_noise_hints([a], m, {"n1": 0.5}) == []
+    clean = simulate(m, TRUE_DISC, np.array([1.0, 20.0]), 10.0, SimOptions(seed=1),
+                     sensors=SensorOptions(force_noise=0.0)).to_log()
+    assert input_noise_hints([clean], m, None) == []
