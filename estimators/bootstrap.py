@@ -66,6 +66,9 @@ class BootstrapOptions:
         None: replay them as logged
     sim_nsub : substeps per sample of the exact plant (stick/slip switching resolves to dt/sim_nsub)
     max_iter : iteration limit of each replicate fit (None: the original fit's)
+    start : where each replicate fit starts: "initial" (the original fit's initial guess, so the
+        replicates repeat the whole pipeline, local minima included) or "fit" (the fitted values:
+        faster, but blind to where the optimiser stops)
     workers : processes (1: in this process)
     progress : progress bar (tqdm) on stderr
     """
@@ -76,6 +79,7 @@ class BootstrapOptions:
     force_cutoff: float | None = 2.0
     sim_nsub: int = 10
     max_iter: int | None = None
+    start: str = "initial"
     workers: int = 1
     progress: bool = False
 
@@ -92,6 +96,8 @@ class BootstrapOptions:
         if fc is not None and (isinstance(fc, bool) or not (isinstance(fc, (int, float)) and np.isfinite(fc)
                                                             and fc > 0)):
             raise ConfigError(f"bootstrap.force_cutoff must be a frequency > 0 Hz, got {fc!r}")
+        if self.start not in ("initial", "fit"):
+            raise ConfigError(f"bootstrap.start must be 'initial' or 'fit', got {self.start!r}")
         if not isinstance(self.sensors, SensorOptions):
             raise ConfigError(f"bootstrap.sensors must be SensorOptions, got {type(self.sensors).__name__}")
 
@@ -162,7 +168,7 @@ def _one_replicate(args):
     """Simulate replicate ``b`` of every log and fit it; returns (estimates, converged) or None."""
     from estimators.identify import identify  # local: keeps the module light for process workers
 
-    (b, model_name, params, logs, n_rows, x0s, options, boot) = args
+    (b, model_name, params, start, logs, n_rows, x0s, options, boot) = args
     m = get_model(model_name)
     reps = []
     for j, (lg, n, x0) in enumerate(zip(logs, n_rows, x0s)):
@@ -180,7 +186,7 @@ def _one_replicate(args):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # identifiability warnings of replicates repeat the original's
-            fit = identify(reps, m, params, opts, _validate=False)
+            fit = identify(reps, m, start, opts, _validate=False)
     except Exception:  # noqa: BLE001 - a failed replicate is counted, not fatal
         return None
     if not np.all(np.isfinite(fit.estimate)):
@@ -210,7 +216,8 @@ def bootstrap(fit, logs: Log | list[Log], options, boot: BootstrapOptions = Boot
     n_rows = [len(t) + 1 for t in fit.t]            # rows of each log the fit used
     x0s = [np.asarray(s[0], dtype=float) for s in fit.states]
     logs = [lg.with_speeds() for lg in logs]
-    jobs = [(b, m.name, fit.params, logs, n_rows, x0s, options, boot) for b in range(boot.replicates)]
+    start = fit.params if boot.start == "fit" else fit.params.with_vector(fit.names, fit.initial)
+    jobs = [(b, m.name, fit.params, start, logs, n_rows, x0s, options, boot) for b in range(boot.replicates)]
     results = []
     bar = None
     if boot.progress:

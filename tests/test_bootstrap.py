@@ -54,6 +54,7 @@ def test_bootstrap_is_reproducible(fit_and_boot):
     ({"force_cutoff": 0.0}, "bootstrap.force_cutoff must be a frequency > 0 Hz"),
     ({"workers": 0}, "bootstrap.workers must be an integer >= 1"),
     ({"seed": 1.5}, "bootstrap.seed must be an integer"),
+    ({"start": "guess"}, "bootstrap.start must be .initial. or .fit."),
 ])
 def test_bad_options(kw, match):
     with pytest.raises(ConfigError, match=match):
