@@ -33,7 +33,12 @@ speed loop, a measured drive speed, a set-point) are replayed as logged: a low-p
 real content, and their noise then only excites the replica a little more than the rig.
 
 This is as good as the simulator's account of the rig: on simulated logs it reproduces the
-data-generating process; on a real rig the sensor options must describe its sensors.
+data-generating process; on a real rig the sensor options must describe its sensors.  It
+measures the pipeline's bias at the FITTED parameters; where that bias changes abruptly with the
+parameters (a cost with several minima, as rig2's damping c in the seed-001 setting) or where the
+logged input was produced in closed loop from the noisy measurements (rig2's motor torque from a
+PI loop, replayed open loop here), the replicates do not reproduce the original error and the
+error bar can be too small (BENCHMARKS.md).
 """
 
 from __future__ import annotations
