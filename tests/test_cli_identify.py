@@ -42,6 +42,7 @@ def test_table_output(disc_csv, tmp_path, capsys):
     assert rc == 0
     text = capsys.readouterr().out
     assert "estimate" in text and "published" in text and "N m/rad" in text
+    assert "--bootstrap 6" in text  # points to error bars that include the bias
 
 
 @pytest.mark.parametrize("args, msg", [

@@ -63,13 +63,13 @@ def register(subparsers) -> None:
     p.add_argument("--bootstrap", type=int, default=0, metavar="B",
                    help="parametric bootstrap with B >= 2 replicate logs simulated (exact plant, sensor model) "
                         "from the fit: prints the pipeline's bias and scatter and writes the RMS error "
-                        "sqrt(bias^2 + sd^2) into [stderr] (B more, warm-started fits)")
-    p.add_argument("--workers", type=int, default=1, help="processes for the bootstrap fits (default 1)")
-    p.add_argument("--encoder-ticks", type=int, default=1000,
+                        "sqrt(bias^2 + sd^2) into [stderr] (B more fits, each from the same initial guess)")
+    p.add_argument("--workers", type=int, default=1, metavar="N", help="processes for the bootstrap fits (default 1)")
+    p.add_argument("--encoder-ticks", type=int, default=1000, metavar="N",
                    help="bootstrap sensor model: encoder ticks per revolution (default 1000)")
-    p.add_argument("--force-noise", type=float, default=0.2,
+    p.add_argument("--force-noise", type=float, default=0.2, metavar="N",
                    help="bootstrap sensor model: load-cell noise on the pin forces, std [N] (default 0.2)")
-    p.add_argument("--torque-noise", type=float, default=0.01,
+    p.add_argument("--torque-noise", type=float, default=0.01, metavar="NM",
                    help="bootstrap sensor model: motor-torque noise, std [N m] (default 0.01)")
     p.add_argument("--tdms-map", metavar="TOML", help="channel mapping for TDMS logs (models.tdms)")
     p.add_argument("--json", action="store_true", help="print a machine-readable JSON document on stdout")
@@ -219,6 +219,10 @@ def run(args) -> int:
         if bres is not None:
             print(f"bootstrap: {bres.status} ({bres.wall_time:.1f} s)"
                   + ("" if bres.success else "; [stderr] keeps the Gauss-Newton standard errors"))
+        elif fit.syserr is None:
+            print("note: the standard errors are statistical only (quantised encoders, noisy logged inputs and "
+                  "the regularised friction bias the estimates by more); --bootstrap 6 gives error bars that "
+                  "include that bias")
         for w in fit.warnings:
             print(f"warning: {w}")
         print(f"wrote {out}" + (f" and {args.plot}" if args.plot else ""))
