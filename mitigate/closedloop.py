@@ -53,6 +53,8 @@ class ClosedLoopResult:
     controller_active : (n+1,) bool, the controller was in charge at that sample
     controller_ok : (n+1,) bool, the held action did not come from a fallback
     solve_times : (m,) wall time of each controller call [s]
+    plan_calls : (m,) bool, that call computed a new action (not a zero-order hold between the plans
+        of a multi-rate controller such as the NMPC)
     estimator_times : (n+1,) wall time of each estimator update [s]
     controller_counts, estimator_counts : counts from the base classes
     status : human-readable; success : the plant ran to the end with finite states
@@ -69,6 +71,7 @@ class ClosedLoopResult:
     controller_active: np.ndarray = field(default=None, repr=False)
     controller_ok: np.ndarray = field(default=None, repr=False)
     solve_times: np.ndarray = field(default=None, repr=False)
+    plan_calls: np.ndarray = field(default=None, repr=False)
     estimator_times: np.ndarray = field(default=None, repr=False)
     controller_counts: dict = field(default_factory=dict)
     estimator_counts: dict = field(default_factory=dict)
@@ -149,6 +152,7 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
     ok = np.ones(n + 1, bool)
     est_times = np.full(n + 1, np.nan)
     solve_times: list[float] = []
+    plan_calls: list[bool] = []
     ys: list[dict] = []
     xh: list[np.ndarray] = []
     names: tuple = ()
@@ -174,6 +178,7 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
             if held is None or (k - k_start) % every == 0:
                 held = controller.step(t, est, y)
                 solve_times.append(held.solve_time)
+                plan_calls.append(not str(held.status).startswith("hold"))
             active[k] = True
             ok[k] = held.success
             u = np.array([held.omega_ref, prog[1], held.n2], dtype=float)
@@ -206,7 +211,7 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
     return ClosedLoopResult(
         t=T[:m], x=X[:m], y=Y, xhat=np.array(xh[:m]), xhat_names=tuple(names), action_n2=A_n2[:m],
         action_omega_ref=A_w[:m], u=U[:m], controller_active=active[:m], controller_ok=ok[:m],
-        solve_times=np.array(solve_times), estimator_times=est_times[:m],
+        solve_times=np.array(solve_times), plan_calls=np.array(plan_calls, dtype=bool), estimator_times=est_times[:m],
         controller_counts=controller.counts.as_dict(), estimator_counts=estimator.counts.as_dict(),
         controller=getattr(controller, "name", type(controller).__name__), states=model.states,
         inputs=model.inputs, control_start=float(k_start * dt), status=status, success=success)

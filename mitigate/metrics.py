@@ -95,6 +95,7 @@ METRIC_UNITS = {
     "stuck_fraction": "-", "stuck_fraction_measured": "-", "mean_omega1": "rad/s", "rms_twist12": "rad",
     "std_twist12": "rad", "motor_torque_std": "N m", "friction_work_pin2": "J", "mean_n2": "N",
     "mean_omega_ref": "rad/s", "solve_median_ms": "ms", "solve_p95_ms": "ms", "solve_max_ms": "ms",
+    "plan_median_ms": "ms", "plan_p95_ms": "ms", "plan_max_ms": "ms", "plan_calls": "-",
     "controller_steps": "-", "controller_failures": "-", "controller_fallbacks": "-",
     "estimator_failures": "-", "estimator_fallbacks": "-", "estimator_dropouts": "-",
 }
@@ -134,6 +135,8 @@ def closed_loop_metrics(result, params, *, window: float = 5.0, stuck_speed: flo
     n2 = result.input("n2")[m]
     torque = params.eta * params.KT * result.state("i")[m]
     st = solve_time_stats(result.solve_times)
+    plans = result.plan_calls if result.plan_calls is not None else np.ones(len(result.solve_times), bool)
+    sp = solve_time_stats(np.asarray(result.solve_times)[plans] if len(result.solve_times) else result.solve_times)
     cc, ec = result.controller_counts, result.estimator_counts
     return {
         "sss": severity(w1),
@@ -152,6 +155,10 @@ def closed_loop_metrics(result, params, *, window: float = 5.0, stuck_speed: flo
         "solve_median_ms": 1e3 * st["median"],
         "solve_p95_ms": 1e3 * st["p95"],
         "solve_max_ms": 1e3 * st["max"],
+        "plan_median_ms": 1e3 * sp["median"],
+        "plan_p95_ms": 1e3 * sp["p95"],
+        "plan_max_ms": 1e3 * sp["max"],
+        "plan_calls": int(np.sum(plans)),
         "controller_steps": int(cc.get("steps", 0)),
         "controller_failures": int(cc.get("failures", 0)),
         "controller_fallbacks": int(cc.get("fallbacks_shift", 0) + cc.get("fallbacks_baseline", 0)),

@@ -29,7 +29,7 @@ BAR_METRICS = (
     ("motor_torque_std", "motor torque std [N m]"),
     ("friction_work_pin2", "friction work at pin 2 [J]"),
     ("mean_omega1", "mean R1 speed [rad/s]"),
-    ("solve_median_ms", "median solve time [ms]"),
+    ("plan_median_ms", "median planning-call time [ms]"),
 )
 
 

@@ -42,7 +42,7 @@ __all__ = ["ControllerRun", "RunSummary", "validate_scenario", "output_paths", "
 TABLE_COLUMNS = (
     ("sss", "SSS"), ("sss_final", "SSS last"), ("stuck_fraction", "stuck"), ("mean_omega1", "mean w1"),
     ("rms_twist12", "rms twist"), ("motor_torque_std", "torque std"), ("friction_work_pin2", "W pin2 [J]"),
-    ("solve_median_ms", "solve med [ms]"), ("solve_p95_ms", "p95 [ms]"), ("controller_fallbacks", "fallbacks"),
+    ("plan_median_ms", "plan med [ms]"), ("plan_p95_ms", "plan p95 [ms]"), ("controller_fallbacks", "fallbacks"),
     ("estimator_fallbacks", "est fb"),
 )
 

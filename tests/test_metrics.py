@@ -49,7 +49,8 @@ def _result(omega1, phi12, n2, i, control_start, dt=0.1):
                             xhat_names=("phi12", "phi23", "omega1", "omega2", "omega3", "i", "z"),
                             action_n2=u[:, 2], action_omega_ref=np.full(n, 1.0), u=u,
                             controller_active=t >= control_start, controller_ok=np.ones(n, bool),
-                            solve_times=np.array([0.001, 0.002, 0.003]), estimator_times=np.zeros(n),
+                            solve_times=np.array([0.001, 0.002, 0.003]), plan_calls=np.array([False, True, True]),
+                            estimator_times=np.zeros(n),
                             controller_counts={"steps": 3, "failures": 1, "fallbacks_shift": 2,
                                                "fallbacks_baseline": 1},
                             estimator_counts={"steps": n, "failures": 0, "fallbacks": 0, "dropouts": 4},
@@ -82,6 +83,9 @@ def test_closed_loop_metrics_hand_computed():
     assert m["mean_n2"] == pytest.approx(5.0)
     assert m["solve_median_ms"] == pytest.approx(2.0)
     assert m["solve_max_ms"] == pytest.approx(3.0)
+    # planning calls only (the first call was a hold): 2 and 3 ms
+    assert m["plan_median_ms"] == pytest.approx(2.5) and m["plan_max_ms"] == pytest.approx(3.0)
+    assert m["plan_calls"] == 2
     assert m["controller_fallbacks"] == 3 and m["controller_failures"] == 1
     assert m["estimator_dropouts"] == 4
     assert set(m) == set(M.METRIC_UNITS)
