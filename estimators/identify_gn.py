@@ -41,12 +41,13 @@ _COMPILED: dict = {}
 
 
 def sample_function(model: RigModel, nsub: int, h_all: ca.Function, avg: list[bool], *,
-                    values_only: bool = False) -> ca.Function:
+                    values_only: bool = False, input_jac: bool = False) -> ca.Function:
     """One sample with sensitivities; see the module docstring.
 
     ``h_all(x, u, p)`` stacks the compared outputs; ``avg[i]`` marks outputs returned as
     means over the sample (quadrature) rather than end values.  ``values_only``: only
-    ``(x_next, y)`` (for line searches and simulation).
+    ``(x_next, y)`` (for line searches and simulation).  ``input_jac``: also
+    ``E = dx_next/du`` and ``F = dy/du`` (errors-in-variables fits).
     """
     x = ca.SX.sym("x", model.nx)
     u = ca.SX.sym("u", model.nu)
@@ -81,9 +82,13 @@ def sample_function(model: RigModel, nsub: int, h_all: ca.Function, avg: list[bo
     if values_only:
         return ca.Function(f"{model.name}_id_val_n{nsub}_y{len(avg)}", [x, u, p, dt, eps], [xn, y],
                            ["x", "u", "p", "dt", "eps"], ["x_next", "y"])
-    return ca.Function(f"{model.name}_id_sens_n{nsub}_y{len(avg)}", [x, u, p, dt, eps],
-                       [xn, y, ca.jacobian(xn, x), ca.jacobian(xn, p), ca.jacobian(y, x), ca.jacobian(y, p)],
-                       ["x", "u", "p", "dt", "eps"], ["x_next", "y", "A", "B", "C", "D"])
+    outs = [xn, y, ca.jacobian(xn, x), ca.jacobian(xn, p), ca.jacobian(y, x), ca.jacobian(y, p)]
+    names = ["x_next", "y", "A", "B", "C", "D"]
+    if input_jac:
+        outs += [ca.jacobian(xn, u), ca.jacobian(y, u)]
+        names += ["E", "F"]
+    return ca.Function(f"{model.name}_id_sens_n{nsub}_y{len(avg)}{'_u' if input_jac else ''}",
+                       [x, u, p, dt, eps], outs, ["x", "u", "p", "dt", "eps"], names)
 
 
 def compiled_or_none(fn: ca.Function) -> ca.Function | None:
@@ -105,14 +110,22 @@ def compiled_or_none(fn: ca.Function) -> ca.Function | None:
 class ShootingProblem:
     """Residuals and continuity gaps of a multiple-shooting fit and their sparse Jacobians.
 
-    Decision vector ``w = [theta / th_scale; nodes / x_scale]`` (nodes row-major per node,
-    logs one after another).  Residual order: interval, sample, channel.  Gap order:
-    interval, state.
+    Decision vector ``w = [theta / th_scale; nodes / x_scale; deltas / d_scale]`` (nodes
+    row-major per node, logs one after another).  Residual order: interval, sample, channel,
+    then the priors of the input corrections.  Gap order: interval, state.
+
+    Errors in the variables (``eiv_idx``): the logged inputs of those channels carry noise.
+    Each shooting interval gets a constant correction ``delta`` per channel, added to the
+    logged input, with the prior ``delta ~ N(0, d_scale^2)`` (``d_scale`` = the noise std over
+    sqrt(samples per interval): the error of the interval's mean).  The corrections absorb the
+    slow part of the input noise, which the dynamics do not filter out and which otherwise
+    biases damping and friction.  ``S`` must then come from ``sample_function(...,
+    input_jac=True)``.
     """
 
     def __init__(self, S: ca.Function, nx: int, n_p: int, p_base, free_idx, th_scale, x_scale,
                  U, Ymeas, wgt, starts, dt: float, eps: float, threads: int = 2,
-                 S_val: ca.Function | None = None):
+                 S_val: ca.Function | None = None, eiv_idx=(), eiv_scale=None):
         # U (Nint, M, nu), Ymeas (Nint, M, ny), starts (Nint,) node index of each interval start
         self.nx, self.n_p = nx, n_p
         self.p_base = np.asarray(p_base, float)
@@ -126,7 +139,13 @@ class ShootingProblem:
         self.starts = np.asarray(starts, int)
         self.Nint, self.M, self.ny = Ymeas.shape
         self.n_nodes = int(self.starts.max()) + 2 if self.Nint else 0
-        self.nw = self.nf + nx * self.n_nodes
+        self.eiv_idx = np.asarray(eiv_idx, int)
+        self.ne = len(self.eiv_idx)
+        self.d_scale = np.asarray(eiv_scale if eiv_scale is not None else np.ones(self.ne), float)
+        if self.ne and S.n_out() < 8:
+            raise ValueError("errors in the variables need sample_function(..., input_jac=True)")
+        self.base_d = self.nf + nx * self.n_nodes
+        self.nw = self.base_d + self.Nint * self.ne
         self.dt, self.eps = float(dt), float(eps)
         self.F = S.map(self.Nint, "thread", threads) if threads > 1 else S.map(self.Nint)
         Sv = S_val if S_val is not None else S
@@ -145,6 +164,7 @@ class ShootingProblem:
         for n in range(self.n_nodes):
             blocks.append(nf + nx * n + np.arange(nx))
             if gap_of[n] >= 0:
+                blocks.append(self.base_d + self.ne * gap_of[n] + np.arange(self.ne))
                 blocks.append(self.nw + nx * gap_of[n] + np.arange(nx))
         blocks.append(np.arange(nf))
         blocks.append(self.nw + ng + np.arange(n_extra))
@@ -152,8 +172,12 @@ class ShootingProblem:
 
     def split(self, w):
         theta = w[:self.nf] * self.th_scale
-        nodes = w[self.nf:].reshape(self.n_nodes, self.nx) * self.x_scale
+        nodes = w[self.nf:self.base_d].reshape(self.n_nodes, self.nx) * self.x_scale
         return theta, nodes
+
+    def deltas(self, w):
+        """(Nint, ne) input corrections of the EIV channels [SI]."""
+        return np.asarray(w[self.base_d:], float).reshape(self.Nint, self.ne) * self.d_scale
 
     def _build_patterns(self):
         nf, nx, M, ny, N = self.nf, self.nx, self.M, self.ny, self.Nint
@@ -172,6 +196,15 @@ class ShootingProblem:
                                        np.broadcast_to(grow[..., None], (N, nx, nx)).ravel(), grow.ravel()])
         self._a_cols = np.concatenate([gct.ravel(), gcs.ravel(),
                                        (nf + nx * (self.starts[:, None] + 1) + np.arange(nx)[None, :]).ravel()])
+        ne = self.ne
+        if ne:
+            dcol = self.base_d + ne * np.arange(N)[:, None] + np.arange(ne)[None, :]        # (N, ne)
+            self._jr_rows = np.concatenate([self._jr_rows, np.broadcast_to(rows[..., None], (N, M, ny, ne)).ravel(),
+                                            N * M * ny + np.arange(N * ne)])
+            self._jr_cols = np.concatenate([self._jr_cols, np.broadcast_to(dcol[:, None, None, :], (N, M, ny, ne)).ravel(),
+                                            dcol.ravel()])
+            self._a_rows = np.concatenate([self._a_rows, np.broadcast_to(grow[..., None], (N, nx, ne)).ravel()])
+            self._a_cols = np.concatenate([self._a_cols, np.broadcast_to(dcol[:, None, :], (N, nx, ne)).ravel()])
 
     def evaluate(self, w, jac: bool = True):
         """Return ``r, g, Jr, A, Ypred`` (``Jr``, ``A`` sparse CSC, None if not ``jac``)."""
@@ -181,14 +214,25 @@ class ShootingProblem:
         p[self.free_idx] = theta
         P = np.repeat(p[:, None], N, axis=1)
         X = nodes[self.starts].T.copy()                      # (nx, N)
+        ne = self.ne
+        if ne:
+            wd = np.asarray(w, float)[self.base_d:]
+            delta = wd.reshape(N, ne) * self.d_scale
         Ypred = np.empty((N, M, ny))
         if jac:
             Sx = np.repeat(np.eye(nx)[None], N, axis=0)      # (N, nx, nx)
             Sp = np.zeros((N, nx, nf))
             Jy_s = np.empty((N, M, ny, nx))
             Jy_t = np.empty((N, M, ny, nf))
+            if ne:
+                Sd = np.zeros((N, nx, ne))
+                Jy_d = np.empty((N, M, ny, ne))
         for k in range(M):
-            out = (self.F if jac else self.Fv)(X, self.U[:, k, :].T, P, self.dt, self.eps)
+            Uk = self.U[:, k, :]
+            if ne:
+                Uk = Uk.copy()
+                Uk[:, self.eiv_idx] += delta
+            out = (self.F if jac else self.Fv)(X, Uk.T, P, self.dt, self.eps)
             xn = np.asarray(out[0])
             Ypred[:, k, :] = np.asarray(out[1]).T
             if jac:
@@ -198,20 +242,34 @@ class ShootingProblem:
                 D = np.asarray(out[5]).reshape(ny, N, self.n_p).transpose(1, 0, 2)[:, :, self.free_idx]
                 Jy_s[:, k] = C @ Sx
                 Jy_t[:, k] = C @ Sp + D
+                if ne:
+                    nu = Uk.shape[1]
+                    Ei = np.asarray(out[6]).reshape(nx, N, nu).transpose(1, 0, 2)[:, :, self.eiv_idx]
+                    Fi = np.asarray(out[7]).reshape(ny, N, nu).transpose(1, 0, 2)[:, :, self.eiv_idx]
+                    Jy_d[:, k] = C @ Sd + Fi
+                    Sd = A @ Sd + Ei
                 Sp = A @ Sp + B
                 Sx = A @ Sx
             X = xn
         r = ((Ypred - self.Ymeas) * self.wgt).ravel()
+        if ne:
+            r = np.concatenate([r, wd])                      # priors of the input corrections
         xs = self.x_scale
         g = ((X.T - nodes[self.starts + 1]) / xs).ravel()
         if not jac:
             return r, g, None, None, Ypred
         wq = self.wgt[..., None]
-        vals_r = np.concatenate([(Jy_t * wq * self.th_scale).ravel(), (Jy_s * wq * xs).ravel()])
-        Jr = sp.csc_matrix((vals_r, (self._jr_rows, self._jr_cols)), shape=(N * M * ny, self.nw))
-        vals_a = np.concatenate([(Sp / xs[None, :, None] * self.th_scale).ravel(),
-                                 (Sx / xs[None, :, None] * xs[None, None, :]).ravel(),
-                                 -np.ones(N * nx)])
+        parts_r = [(Jy_t * wq * self.th_scale).ravel(), (Jy_s * wq * xs).ravel()]
+        if ne:
+            parts_r += [(Jy_d * wq * self.d_scale).ravel(), np.ones(N * ne)]
+        Jr = sp.csc_matrix((np.concatenate(parts_r), (self._jr_rows, self._jr_cols)),
+                           shape=(N * M * ny + N * ne, self.nw))
+        parts_a = [(Sp / xs[None, :, None] * self.th_scale).ravel(),
+                   (Sx / xs[None, :, None] * xs[None, None, :]).ravel(),
+                   -np.ones(N * nx)]
+        if ne:
+            parts_a.append((Sd / xs[None, :, None] * self.d_scale).ravel())
+        vals_a = np.concatenate(parts_a)
         A = sp.csc_matrix((vals_a, (self._a_rows, self._a_cols)), shape=(N * nx, self.nw))
         return r, g, Jr, A, Ypred
 

@@ -43,6 +43,7 @@ def test_table_output(disc_csv, tmp_path, capsys):
     text = capsys.readouterr().out
     assert "estimate" in text and "published" in text and "N m/rad" in text
     assert "--bootstrap 6" in text  # points to error bars that include the bias
+    assert "errors in the variables: n1 0.2" in text and "(detected)" in text  # the load-cell noise, found
 
 
 @pytest.mark.parametrize("args, msg", [
@@ -52,6 +53,9 @@ def test_table_output(disc_csv, tmp_path, capsys):
     (["--free", "k", "--input-cutoff", "n2=0.5"], "n2 is not an input of disc"),
     (["--free", "k", "--input-cutoff", "n1=-1"], "must be a frequency > 0 Hz"),
     (["--free", "k", "--bootstrap", "1"], "--bootstrap must be an integer >= 2"),
+    (["--free", "k", "--input-noise", "n1"], "--input-noise must look like CHANNEL=STD"),
+    (["--free", "k", "--input-noise", "n2=0.2"], "--input-noise: n2 is not an input of disc"),
+    (["--free", "k", "--input-noise", "n1=0"], "--input-noise n1: the std must be a number > 0"),
     (["--free", "k", "--bootstrap", "3", "--systematic"], "--bootstrap and --systematic are alternatives"),
     (["--free", "k", "--bootstrap", "3", "--workers", "0"], "--workers must be an integer >= 1"),
     (["--free", "k", "--bootstrap", "3", "--encoder-ticks", "0"], "sensors.ticks_per_rev must be an integer >= 1"),

@@ -118,14 +118,16 @@ def short_log():
 
 
 def test_gn_matches_ipopt_and_compiled_matches_vm(short_log):
-    """The hand-written GN, its uncompiled variant and IPOPT (GN Hessian) reach the same optimum."""
+    """The hand-written GN, its uncompiled variant and IPOPT (GN Hessian) reach the same optimum
+    (the same problem: errors in the variables off, IPOPT does not have them)."""
     fits = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", IdentifiabilityWarning)
         for key, kw in (("gn_c", dict(solver="gn", compile=None)), ("gn_vm", dict(solver="gn", compile=False)),
                         ("ipopt", dict(solver="ipopt"))):
             fits[key] = identify(short_log, "disc", published("disc"),
-                                 IdentifyOptions(free=("k", "mu_k", "mu_s"), eps=0.005, nsub=10, **kw))
+                                 IdentifyOptions(free=("k", "mu_k", "mu_s"), eps=0.005, nsub=10, input_noise="off",
+                                                 **kw))
     for f in fits.values():
         assert f.success, f.status
     ref = fits["ipopt"]
@@ -161,6 +163,40 @@ def test_shooting_jacobians_match_finite_differences(short_log):
         rm, gm, *_ = prob.evaluate(w - e, jac=False)
         np.testing.assert_allclose(Jr[:, j].toarray().ravel(), (rp - rm) / (2 * h), rtol=1e-4, atol=1e-5)
         np.testing.assert_allclose(A[:, j].toarray().ravel(), (gp - gm) / (2 * h), rtol=1e-4, atol=1e-6)
+
+
+def test_eiv_jacobians_match_finite_differences():
+    """Errors in the variables: the input corrections' columns (and their priors) = finite differences."""
+    from estimators.identify import _output_function
+    from estimators.identify_gn import ShootingProblem, sample_function
+
+    m = get_model("disc")
+    outs = ("omega1", "theta1-theta3")
+    S = sample_function(m, 4, _output_function(m, outs), [True, False], input_jac=True)
+    rng = np.random.default_rng(1)
+    nint, M = 3, 5
+    U = np.repeat(np.array([[1.0, 20.0]]), nint * M, axis=0).reshape(nint, M, 2)
+    Y = rng.standard_normal((nint, M, 2))
+    free = [m.param_cls.names().index(n) for n in ("k", "d")]
+    prob = ShootingProblem(S, m.nx, m.n_p, published("disc").vector(), free, np.ones(2), np.ones(2), U, Y,
+                           np.array([2.0, 50.0]), np.arange(nint), 0.01, 0.05, threads=1,
+                           eiv_idx=[1], eiv_scale=[0.3])
+    assert prob.nw == 2 + 2 * (nint + 1) + nint
+    w = np.r_[published("disc").vector(("k", "d")), 0.1 * rng.standard_normal(2 * (nint + 1)) + [0, 0.5] * (nint + 1),
+              rng.standard_normal(nint)]
+    r, g, Jr, A, _ = prob.evaluate(w)
+    assert r.size == nint * M * 2 + nint and np.allclose(r[-nint:], w[-nint:])  # priors = scaled corrections
+    np.testing.assert_allclose(prob.deltas(w).ravel(), 0.3 * w[-nint:])
+    h = 1e-6
+    for j in range(w.size):
+        e = np.zeros(w.size)
+        e[j] = h
+        rp, gp, *_ = prob.evaluate(w + e, jac=False)
+        rm, gm, *_ = prob.evaluate(w - e, jac=False)
+        np.testing.assert_allclose(Jr[:, j].toarray().ravel(), (rp - rm) / (2 * h), rtol=1e-4, atol=1e-5)
+        np.testing.assert_allclose(A[:, j].toarray().ravel(), (gp - gm) / (2 * h), rtol=1e-4, atol=1e-6)
+    # the correction moves the dynamics: a larger normal force changes the predicted speeds
+    assert np.abs(Jr[: nint * M * 2, -nint:]).sum() > 0
 
 
 def test_new_options_validate(short_log):
@@ -215,10 +251,33 @@ def test_noisy_force_input_gets_a_hint(disc_logs):
     a, _ = disc_logs
     m = get_model("disc")
     hints = input_noise_hints([a], m, None)
-    assert len(hints) == 1 and "input n1" in hints[0] and "--input-cutoff n1=0.5" in hints[0]
+    assert len(hints) == 1 and "input n1" in hints[0] and "--input-noise n1=0.2" in hints[0]
     sd = float(hints[0].split("(")[1].split(" N")[0])
     assert 0.15 < sd < 0.25                      # the 0.2 N load-cell noise of the simulator
     assert input_noise_hints([a], m, {"n1": 0.5}) == []
+    assert input_noise_hints([a], m, None, {"n1": 0.2}) == []
     clean = simulate(m, TRUE_DISC, np.array([1.0, 20.0]), 10.0, SimOptions(seed=1),
                      sensors=SensorOptions(force_noise=0.0)).to_log()
     assert input_noise_hints([clean], m, None) == []
+
+
+def test_errors_in_variables_fix_the_damping_bias_of_a_noisy_force():
+    """Disc B (d -20 %), 30 s, load-cell noise x3 (0.6 N) on the logged N1: taking the force as
+    exact puts the damping 53 % off; the default errors-in-variables treatment ('auto': detected
+    noise level) brings it within the 30 % target, and friction within 5 %."""
+    from models.sensors import SensorOptions
+
+    true = published("disc").replace(k=1.285, d=0.0172, mu_k=0.32, mu_s=0.55)
+    log = simulate(get_model("disc"), true, np.array([1.0, 20.0]), 30.0, SimOptions(seed=1),
+                   sensors=SensorOptions(noise_scale=3.0)).to_log()
+    fits = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IdentifiabilityWarning)
+        for mode in ("off", "auto"):
+            fits[mode] = identify(log, "disc", published("disc"),
+                                  IdentifyOptions(free=("k", "d", "mu_k", "mu_s"), eps=0.005, nsub=10, input_noise=mode))
+    err = {k: {n: v / getattr(true, n) - 1 for n, v in zip(f.names, f.estimate)} for k, f in fits.items()}
+    assert fits["off"].input_noise == {} and abs(err["off"]["d"]) > 0.3
+    assert fits["auto"].input_noise["n1"] == pytest.approx(0.6, rel=0.1)   # the detected noise level
+    assert abs(err["auto"]["d"]) < 0.3
+    assert abs(err["auto"]["mu_k"]) < 0.05 and abs(err["auto"]["mu_s"]) < 0.05 and abs(err["auto"]["k"]) < 0.03

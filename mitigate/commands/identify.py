@@ -56,6 +56,10 @@ def register(subparsers) -> None:
     p.add_argument("--input-cutoff", action="append", default=[], metavar="CHANNEL=HZ",
                    help="zero-phase low-pass of a noisy, slowly varying input before fitting, e.g. n1=0.5 "
                         "(repeatable; the model takes logged inputs as exact)")
+    p.add_argument("--input-noise", action="append", default=[], metavar="CHANNEL=STD|auto|off",
+                   help="errors in the variables: treat that logged input as noisy with this std (SI units, "
+                        "e.g. n1=0.2): each shooting interval gets a correction with that prior. Default 'auto': "
+                        "force/torque inputs whose fast part is white noise, with the estimated std; 'off': none")
     p.add_argument("--systematic", action="store_true",
                    help="also estimate a systematic error: refit with the friction regularisation halved "
                         "(eps/2; lead screw: r1 doubled) and take |theta(eps) - theta(eps/2)|; prints extra columns "
@@ -112,6 +116,37 @@ def _plot(fit, path):
     plt.close(fig)
 
 
+def _input_noise(items, model, logs, cutoff) -> tuple[dict, set]:
+    """``--input-noise`` entries -> ({channel: std}, channels detected automatically)."""
+    from estimators.identify import detect_input_noise
+
+    explicit, auto = {}, True
+    for item in items:
+        if item in ("auto", "off"):
+            auto = item == "auto"
+            continue
+        name, sep, val = item.partition("=")
+        name = name.strip()
+        try:
+            std = float(val)
+        except ValueError:
+            sep = ""
+        if not sep or not name:
+            raise ConfigError(f"--input-noise must look like CHANNEL=STD, auto or off (e.g. n1=0.2), got {item!r}")
+        if name not in model.inputs:
+            raise ConfigError(f"--input-noise: {name} is not an input of {model.name} (inputs: {', '.join(model.inputs)})")
+        if not (math.isfinite(std) and std > 0):
+            raise ConfigError(f"--input-noise {name}: the std must be a number > 0, got {val!r}")
+        explicit[name] = std
+    detected = set()
+    if auto:
+        for name, sd in detect_input_noise(logs, model).items():
+            if name not in explicit and name not in cutoff:
+                explicit[name] = sd
+                detected.add(name)
+    return explicit, detected
+
+
 def run(args) -> int:
     from estimators.identify import IdentifyOptions, identify
 
@@ -154,9 +189,11 @@ def run(args) -> int:
     if unknown:
         raise ConfigError(f"--input-cutoff: {', '.join(unknown)} is not an input of {model.name} "
                           f"(inputs: {', '.join(model.inputs)})")
+    input_noise, detected = _input_noise(args.input_noise, model, logs, cutoff)
     options = IdentifyOptions(free=free, eps=args.eps, nsub=args.nsub, shoot_every=args.shoot_every,
                               max_iter=args.max_iter, progress=(not args.json) and sys.stderr.isatty(),
-                              input_cutoff=cutoff or None, systematic=args.systematic)
+                              input_cutoff=cutoff or None, systematic=args.systematic,
+                              input_noise=input_noise or None)
     if not args.json:
         sys.stderr.write(f"identify {model.name}: {len(logs)} log(s), {sum(len(lg.t) for lg in logs)} samples, "
                          f"free {', '.join(free)} ...\n")
@@ -191,6 +228,7 @@ def run(args) -> int:
     if args.json:
         payload = fit.as_dict()
         payload.update({"out": str(out), "plot": args.plot, "logs": list(args.logs),
+                        "input_noise": input_noise, "input_noise_detected": sorted(detected),
                         "published": {n: getattr(pub, n) for n in free},
                         "bootstrap": bres.as_dict() if bres is not None else None})
         emit_json(payload)
@@ -209,6 +247,10 @@ def run(args) -> int:
                     for n, e, s, y, t in zip(fit.names, fit.estimate, fit.stderr, fit.syserr, fit.error)]
             print(format_table(["parameter", "estimate", "std. error", "syst. error", "total error", "published",
                                 "unit"], rows))
+        if input_noise:
+            units = dict(zip(model.inputs, model.input_units))
+            print("errors in the variables: " + ", ".join(
+                f"{k} {v:.3g} {units[k]} std" + (" (detected)" if k in detected else "") for k, v in input_noise.items()))
         print(f"status: {fit.status} ({fit.iterations} iterations, {fit.wall_time:.1f} s); NRMSE: "
               + ", ".join(f"{k} {100 * v:.1f} %" for k, v in fit.nrmse.items()))
         if fit.validation is not None:
