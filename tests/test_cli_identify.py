@@ -44,6 +44,10 @@ def test_table_output(disc_csv, tmp_path, capsys):
     assert "estimate" in text and "published" in text and "N m/rad" in text
     assert "--bootstrap 6" in text  # points to error bars that include the bias
     assert "errors in the variables: n1 0.2" in text and "(detected)" in text  # the load-cell noise, found
+    assert (tmp_path / "f.png").stat().st_size > 10_000        # the measured-vs-fitted PNG, by default
+    rc = main(["identify", str(disc_csv), "--model", "disc", "--free", "k", "--out", str(tmp_path / "g.toml"),
+               "--nsub", "10", "--no-plot"])
+    assert rc == 0 and (tmp_path / "g.toml").exists() and not (tmp_path / "g.png").exists()
 
 
 @pytest.mark.parametrize("args, msg", [

@@ -24,7 +24,7 @@ from models.params import load_params, published
 from models.rigs import MODEL_NAMES, get_model
 
 EPILOG = """examples:
-  mitigate identify out/open_stick_slip.csv --model rig3 --free k1,k2,d1,mu_k,mu_s --out fitted.toml
+  mitigate identify out/open_stick_slip.csv --model rig3 --free k1,k2,d1,mu_k,mu_s --out fitted.toml   # + fitted.png
   mitigate identify run1.csv run2.csv --model disc --free k,d,mu_k,mu_s --holdout 0.2 --plot fit.png --json
   mitigate identify rig.tdms --tdms-map channels.toml --model rig2 --free k,c,Tc --out fitted.toml --force
   mitigate identify run1.csv --model disc --free k,mu_k --systematic --out fitted.toml   # + regularisation error
@@ -45,7 +45,9 @@ def register(subparsers) -> None:
                                                      "its [bounds] are the fitting bounds)")
     p.add_argument("--out", default="fitted.toml", metavar="FILE", help="fitted parameter TOML (default: fitted.toml)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
-    p.add_argument("--plot", metavar="PNG", help="write a PNG of measured vs. fitted outputs")
+    p.add_argument("--plot", metavar="PNG", help="PNG of measured vs. fitted outputs (default: the --out file "
+                                                 "with .png, e.g. fitted.png)")
+    p.add_argument("--no-plot", action="store_true", help="do not write the PNG")
     p.add_argument("--holdout", type=float, default=0.0, metavar="FRACTION",
                    help="fraction of the end of the first log kept out of the fit and predicted with the exact "
                         "stick/slip plant (default 0)")
@@ -173,6 +175,10 @@ def run(args) -> int:
         boot = BootstrapOptions(replicates=args.bootstrap, sensors=sensors, workers=args.workers,
                                 progress=(not args.json) and sys.stderr.isatty())
     out = Path(args.out)
+    if args.no_plot:
+        args.plot = None
+    elif not args.plot:
+        args.plot = str(out.with_suffix(".png"))
     targets = [out] + ([Path(args.plot)] if args.plot else [])
     check_outputs(targets, args.force)
     logs = [_read_log(p, args.tdms_map) for p in args.logs]
