@@ -159,14 +159,9 @@ def leadscrew_case():
             true.replace(K=1.4, c=4e-4, sm=1.1, r1=1.0))
 
 
-def systematic_main():
-    """Coverage of SE and of the total error (SE + regularisation sensitivity) on the benchmark cases."""
-    rows = ["<!-- systematic -->", "## Error bars: statistical SE vs. total error with `systematic=True`", "",
-            f"Command: `python benchmarks/bench_identify.py --systematic{' --quick' if QUICK else ''}` "
-            f"({DUR:g} s logs; default options, eps = 0.005 -> 0.0025 for the refit, nsub doubled or automatic; "
-            f"1-min load average at start {os.getloadavg()[0]:.1f}).  covered: |err| <= 2 x error bar.", "",
-            "| model | true set | noise x | param | err [%] | SE [%] | syserr [%] | |err|/SE | |err|/total | wall [s] (both fits) | refit |",
-            "|---|---|---|---|---|---|---|---|---|---|---|"]
+def coverage_cases():
+    """(model, label, true, noise x, log, free, nsub, initial) of the error-bar coverage benchmarks:
+    disc A/B and rig2 (seed-001 setting), noise x1 and x3."""
     d0 = published("disc")
     cases = []
     for label, true in (("A", d0.replace(k=1.0, d=0.03, mu_k=0.28, mu_s=0.45)),
@@ -178,7 +173,18 @@ def systematic_main():
     for ns in (1.0, 3.0):
         cases.append(("rig2", "seed-001, Ts = 0.30", r2, ns, rig2_log(r2, 2, ns), ("k", "c", "Tc", "Ts"), None,
                       initial_for("rig2")))
-    cases.append(leadscrew_case())
+    return cases
+
+
+def systematic_main():
+    """Coverage of SE and of the total error (SE + regularisation sensitivity) on the benchmark cases."""
+    rows = ["<!-- systematic -->", "## Error bars: statistical SE vs. total error with `systematic=True`", "",
+            f"Command: `python benchmarks/bench_identify.py --systematic{' --quick' if QUICK else ''}` "
+            f"({DUR:g} s logs; default options, eps = 0.005 -> 0.0025 for the refit, nsub doubled or automatic; "
+            f"1-min load average at start {os.getloadavg()[0]:.1f}).  covered: |err| <= 2 x error bar.", "",
+            "| model | true set | noise x | param | err [%] | SE [%] | syserr [%] | |err|/SE | |err|/total | wall [s] (both fits) | refit |",
+            "|---|---|---|---|---|---|---|---|---|---|---|"]
+    cases = coverage_cases() + [leadscrew_case()]
     n_se = n_tot = n_all = 0
     for model, label, true, ns, log, free, nsub, init in cases:
         opts = IdentifyOptions(free=free, eps=0.005, nsub=nsub, systematic=True)
@@ -244,17 +250,7 @@ def bootstrap_main():
             "| model | true set | noise x | param | err [%] | SE [%] | boot. bias [%] | boot. sd [%] "
             "| RMS error [%] | |err|/SE | |err|/RMS | fit [s] | bootstrap [s] | replicates |",
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    d0 = published("disc")
-    cases = [rig3_case()]
-    for label, true in (("A", d0.replace(k=1.0, d=0.03, mu_k=0.28, mu_s=0.45)),
-                        ("B", d0.replace(k=1.285, d=0.0172, mu_k=0.32, mu_s=0.55))):
-        for ns in (1.0, 3.0):
-            cases.append(("disc", label, true, ns, disc_log(true, 1, ns), ("k", "d", "mu_k", "mu_s"), 10,
-                          published("disc")))
-    r2 = published("rig2").replace(Ts=0.30, v_s=1.0)
-    for ns in (1.0, 3.0):
-        cases.append(("rig2", "seed-001, Ts = 0.30", r2, ns, rig2_log(r2, 2, ns), ("k", "c", "Tc", "Ts"), None,
-                      initial_for("rig2")))
+    cases = [rig3_case()] + coverage_cases()
     n_se = n_b = n_all = 0
     for model, label, true, ns, log, free, nsub, init in cases:
         opts = IdentifyOptions(free=free, eps=0.005, nsub=nsub)

@@ -138,6 +138,17 @@ def test_gn_matches_ipopt_and_compiled_matches_vm(short_log):
     assert np.allclose(fits["gn_c"].estimate, fits["gn_vm"].estimate, rtol=1e-8, atol=0)
 
 
+def _assert_jacobians_match_fd(prob, w, Jr, A, h=1e-6):
+    """Every column of the residual and gap Jacobians against central differences."""
+    for j in range(w.size):
+        e = np.zeros(w.size)
+        e[j] = h
+        rp, gp, *_ = prob.evaluate(w + e, jac=False)
+        rm, gm, *_ = prob.evaluate(w - e, jac=False)
+        np.testing.assert_allclose(Jr[:, j].toarray().ravel(), (rp - rm) / (2 * h), rtol=1e-4, atol=1e-5)
+        np.testing.assert_allclose(A[:, j].toarray().ravel(), (gp - gm) / (2 * h), rtol=1e-4, atol=1e-6)
+
+
 def test_shooting_jacobians_match_finite_differences(short_log):
     """Chained per-sample sensitivities = finite differences of residuals and gaps."""
     from estimators.identify import _output_function
@@ -155,14 +166,7 @@ def test_shooting_jacobians_match_finite_differences(short_log):
                            np.array([2.0, 50.0]), np.arange(nint), 0.01, 0.05, threads=1)
     w = np.r_[published("disc").vector(("k", "d", "mu_k")), 0.1 * rng.standard_normal(2 * (nint + 1)) + [0, 0.5] * (nint + 1)]
     r, g, Jr, A, _ = prob.evaluate(w)
-    h = 1e-6
-    for j in range(w.size):
-        e = np.zeros(w.size)
-        e[j] = h
-        rp, gp, *_ = prob.evaluate(w + e, jac=False)
-        rm, gm, *_ = prob.evaluate(w - e, jac=False)
-        np.testing.assert_allclose(Jr[:, j].toarray().ravel(), (rp - rm) / (2 * h), rtol=1e-4, atol=1e-5)
-        np.testing.assert_allclose(A[:, j].toarray().ravel(), (gp - gm) / (2 * h), rtol=1e-4, atol=1e-6)
+    _assert_jacobians_match_fd(prob, w, Jr, A)
 
 
 def test_eiv_jacobians_match_finite_differences():
@@ -187,14 +191,7 @@ def test_eiv_jacobians_match_finite_differences():
     r, g, Jr, A, _ = prob.evaluate(w)
     assert r.size == nint * M * 2 + nint and np.allclose(r[-nint:], w[-nint:])  # priors = scaled corrections
     np.testing.assert_allclose(prob.deltas(w).ravel(), 0.3 * w[-nint:])
-    h = 1e-6
-    for j in range(w.size):
-        e = np.zeros(w.size)
-        e[j] = h
-        rp, gp, *_ = prob.evaluate(w + e, jac=False)
-        rm, gm, *_ = prob.evaluate(w - e, jac=False)
-        np.testing.assert_allclose(Jr[:, j].toarray().ravel(), (rp - rm) / (2 * h), rtol=1e-4, atol=1e-5)
-        np.testing.assert_allclose(A[:, j].toarray().ravel(), (gp - gm) / (2 * h), rtol=1e-4, atol=1e-6)
+    _assert_jacobians_match_fd(prob, w, Jr, A)
     # the correction moves the dynamics: a larger normal force changes the predicted speeds
     assert np.abs(Jr[: nint * M * 2, -nint:]).sum() > 0
 
