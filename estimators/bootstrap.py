@@ -12,11 +12,12 @@ The parametric bootstrap measures those effects instead of assuming them away:
 1. simulate the exact stick/slip plant (:func:`models.simulator.simulate`) with the
    *fitted* parameters, from the fitted initial state, driven by the logged inputs, through
    the sensor model (encoders, load-cell noise) with a fresh seed per replicate;
-2. fit every replicate exactly as the original log was fitted (same options, starting from
-   the fitted parameters; the state nodes are initialised from the replicate itself, as for
-   any log: a replicate driven by a logged motor torque drifts away from the original's
-   trajectory, and warm-starting its nodes from the original fit left rig2's replicates
-   unconverged and biased);
+2. fit every replicate exactly as the original log was fitted: same options, from the same
+   initial guess (``start="initial"``, so the replicates repeat the whole pipeline, local
+   minima included; ``start="fit"`` starts at the fitted values), state nodes initialised
+   from the replicate itself as for any log (a replicate driven by a logged motor torque
+   drifts away from the original's trajectory; warm-starting its nodes from the original fit
+   left rig2's replicates unconverged and biased);
 3. the spread of the replicate estimates is the sampling error of the whole pipeline, and
    their mean offset from the fitted values is its bias at these parameters.
 

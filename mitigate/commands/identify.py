@@ -15,8 +15,6 @@ import sys
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 from mitigate.cliutil import check_outputs, emit_json, format_table, savefig_atomic
 from models.errors import ConfigError
 from models.logs import read_csv
@@ -261,7 +259,7 @@ def run(args) -> int:
               + ", ".join(f"{k} {100 * v:.1f} %" for k, v in fit.nrmse.items()))
         if fit.validation is not None:
             v = fit.validation
-            print(f"hold-out (exact plant): NRMSE " + ", ".join(f"{k} {100 * x:.1f} %" for k, x in v.nrmse.items())
+            print("hold-out (exact plant): NRMSE " + ", ".join(f"{k} {100 * x:.1f} %" for k, x in v.nrmse.items())
                   + f"; stick-slip period {v.period_measured:.3g} s measured vs {v.period_simulated:.3g} s; "
                   f"amplitude {v.amplitude_measured:.3g} vs {v.amplitude_simulated:.3g} rad/s")
         if bres is not None:
