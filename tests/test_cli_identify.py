@@ -63,6 +63,7 @@ def test_table_output(disc_csv, tmp_path, capsys):
     (["--free", "k", "--bootstrap", "3", "--systematic"], "--bootstrap and --systematic are alternatives"),
     (["--free", "k", "--bootstrap", "3", "--workers", "0"], "--workers must be an integer >= 1"),
     (["--free", "k", "--bootstrap", "3", "--encoder-ticks", "0"], "sensors.ticks_per_rev must be an integer >= 1"),
+    (["--free", "k", "--bootstrap", "3", "--force-noise", "-1"], "sensors.force_noise must be a finite number >= 0"),
 ])
 def test_bad_arguments_exit_2_and_write_nothing(disc_csv, tmp_path, capsys, args, msg):
     out = tmp_path / "f.toml"
