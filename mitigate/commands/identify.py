@@ -116,28 +116,36 @@ def _plot(fit, path):
     plt.close(fig)
 
 
+def _channel_values(items, flag: str, form: str, model) -> dict[str, float]:
+    """``CHANNEL=NUMBER`` entries of ``flag`` for inputs of ``model``; one-line ConfigError otherwise."""
+    out = {}
+    for item in items:
+        name, sep, val = item.partition("=")
+        name = name.strip()
+        try:
+            out[name] = float(val)
+        except ValueError:
+            sep = ""
+        if not sep or not name:
+            raise ConfigError(f"{flag} must look like {form}, got {item!r}")
+        if name not in model.inputs:
+            raise ConfigError(f"{flag}: {name} is not an input of {model.name} (inputs: {', '.join(model.inputs)})")
+    return out
+
+
 def _input_noise(items, model, logs, cutoff) -> tuple[dict, set]:
     """``--input-noise`` entries -> ({channel: std}, channels detected automatically)."""
     from estimators.identify import detect_input_noise
 
-    explicit, auto = {}, True
+    auto = True
     for item in items:
         if item in ("auto", "off"):
             auto = item == "auto"
-            continue
-        name, sep, val = item.partition("=")
-        name = name.strip()
-        try:
-            std = float(val)
-        except ValueError:
-            sep = ""
-        if not sep or not name:
-            raise ConfigError(f"--input-noise must look like CHANNEL=STD, auto or off (e.g. n1=0.2), got {item!r}")
-        if name not in model.inputs:
-            raise ConfigError(f"--input-noise: {name} is not an input of {model.name} (inputs: {', '.join(model.inputs)})")
+    explicit = _channel_values([i for i in items if i not in ("auto", "off")], "--input-noise",
+                               "CHANNEL=STD, auto or off (e.g. n1=0.2)", model)
+    for name, std in explicit.items():
         if not (math.isfinite(std) and std > 0):
-            raise ConfigError(f"--input-noise {name}: the std must be a number > 0, got {val!r}")
-        explicit[name] = std
+            raise ConfigError(f"--input-noise {name}: the std must be a number > 0, got {std!r}")
     detected = set()
     if auto:
         for name, sd in detect_input_noise(logs, model).items():
@@ -180,19 +188,7 @@ def run(args) -> int:
     targets = [out] + ([Path(args.plot)] if args.plot else [])
     check_outputs(targets, args.force)
     logs = [_read_log(p, args.tdms_map) for p in args.logs]
-    cutoff = {}
-    for item in args.input_cutoff:
-        name, sep, val = item.partition("=")
-        try:
-            cutoff[name.strip()] = float(val)
-        except ValueError:
-            sep = ""
-        if not sep or not name.strip():
-            raise ConfigError(f"--input-cutoff must look like CHANNEL=HZ (e.g. n1=0.5), got {item!r}")
-    unknown = sorted(set(cutoff) - set(model.inputs))
-    if unknown:
-        raise ConfigError(f"--input-cutoff: {', '.join(unknown)} is not an input of {model.name} "
-                          f"(inputs: {', '.join(model.inputs)})")
+    cutoff = _channel_values(args.input_cutoff, "--input-cutoff", "CHANNEL=HZ (e.g. n1=0.5)", model)
     input_noise, detected = _input_noise(args.input_noise, model, logs, cutoff)
     options = IdentifyOptions(free=free, eps=args.eps, nsub=args.nsub, shoot_every=args.shoot_every,
                               max_iter=args.max_iter, progress=(not args.json) and sys.stderr.isatty(),
