@@ -1,30 +1,18 @@
-"""Rig models: parameter sets, friction laws, CasADi models, discretisation and the plant simulator."""
+"""Rig models: rig files and their builder, parameter sets, friction laws, the plant simulator."""
 
 from models.errors import ConfigError, DataError, SolverFailure
-from models.params import (
-    ParameterSet,
-    Rig3Params,
-    Rig2Params,
-    LeadScrewParams,
-    DiscParams,
-    load_params,
-    published,
-    PARAM_CLASSES,
-)
-from models.rigs import get_model, MODEL_NAMES
+from models.params import ParameterSet, load_params, published
+from models.rig import RigModel, get_model, load_rig, shipped_rigs
 
 __all__ = [
     "ConfigError",
     "DataError",
     "SolverFailure",
     "ParameterSet",
-    "Rig3Params",
-    "Rig2Params",
-    "LeadScrewParams",
-    "DiscParams",
     "load_params",
     "published",
-    "PARAM_CLASSES",
+    "RigModel",
     "get_model",
-    "MODEL_NAMES",
+    "load_rig",
+    "shipped_rigs",
 ]

@@ -1,83 +1,95 @@
-"""Friction laws, as separate composable pieces.
+"""Friction laws and their registry.
 
-Each law gives the *magnitude* of the friction force/torque coefficient as a function of
-the sliding speed ``v_abs >= 0`` (so that the exact, event-capturing plant can use it with
-an explicit sliding direction), and a *regularised* signed version with an explicit
-smoothing parameter (for optimisers, which need smooth models).
+A friction *contact* of a rig file (``[contacts.<name>]``) names a law from :data:`LAWS`
+and gives its parameters.  A law is one Python function of the sliding speed
+``v_abs >= 0`` [rad/s] that returns the *magnitude* of the friction torque [N m]; it must
+work on floats, numpy arrays and CasADi ``SX``/``MX`` alike (use the helpers below, or
+``casadi`` functions, which accept floats too).  Its argument ``scale`` is the contact's
+normal force times its radius, ``N r`` [N m] (1 when the contact gives neither, in which
+case the law's "level" parameters are torques in N m instead of coefficients).
 
-All functions work on floats, numpy arrays and CasADi ``SX``/``MX`` alike.
+Adding a law is one function and one registry line::
 
-References
-----------
-- thesis eq. (3-13): exponential Stribeck law ``mu_k + (mu_s - mu_k) exp(-|w|/v_s)``
-- seed 001 eq. (4): regularised Coulomb ``F_C tanh(v / v_t)``
-- seed 002 eqs. (9.8)/(9.33): ``s_m (mu1 + mu2 exp(-r0|w|) + mu3 |w|) (1 - exp(-r1|w|))``
+    def my_law(v_abs, scale, *, mu_k, c_v):
+        '''mu_k N r + c_v |w|: Coulomb plus viscous.'''
+        return scale * mu_k + c_v * v_abs
+
+    register(FrictionLaw("my_law", my_law, (Param("mu_k", "level"), Param("c_v", "damping")),
+                         doc="Coulomb plus viscous", reference="textbook"))
+
+after which a rig file may say ``law = "my_law"`` with ``mu_k`` and ``c_v`` in the contact.
+
+The exact stick/slip plant (:mod:`models.plant`) uses the law as it is: a body at rest
+stays stuck while the torque on it lies within the law's value at zero speed.  Optimisers
+use a regularised version (:meth:`FrictionLaw.smooth`): ``tanh(v/eps)`` times the law at
+``|v|`` (seed 001 eq. 4), or the law's own regularisation when it has one (seed 002
+eq. 9.33).
+
+Laws shipped
+------------
+``coulomb``      seed 001 eq. (3)-(4): ``mu_k N r``
+``stribeck``     thesis eq. (3-13): ``N r [mu_k + (mu_s - mu_k) exp(-|w|/v_s)]``
+``vahid_araghi`` seed 002 eqs. (9.8), (9.33): ``N r s_m (mu1 + mu2 exp(-r0|w|) + mu3 |w|)``
+``bit_rock``     drill-string bit-rock interaction, velocity weakening then strengthening
+                 (Navarro-Lopez and Cortes, J. Sound Vib. 307, 2007; Navarro-Lopez and
+                 Suarez, IEEE CCA 2004): ``c_b |w| + W R_b [mu_cb + (mu_sb - mu_cb) exp(-|w|/v_b)]``
+``leadscrew``    seed 002 eqs. (9.7), (9.31), (9.33): the lead-screw thread friction with
+                 the lead angle, which is not symmetric in the sliding direction and changes
+                 the effective inertia
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
 import casadi as ca
 import numpy as np
 
+from models.errors import ConfigError
+
 __all__ = [
-    "stribeck_exp",
+    "Param",
+    "FrictionLaw",
+    "LAWS",
+    "register",
+    "get_law",
     "coulomb",
+    "stribeck",
     "vahid_araghi",
+    "bit_rock",
     "smooth_sign",
     "smooth_abs",
-    "regularised",
 ]
 
 
-def _is_symbolic(x) -> bool:
+# ----------------------------------------------------------------------------- math helpers
+def _sym(x) -> bool:
     return isinstance(x, (ca.SX, ca.MX, ca.DM))
 
 
 def _exp(x):
-    return ca.exp(x) if _is_symbolic(x) else np.exp(x)
+    return ca.exp(x) if _sym(x) else np.exp(x)
 
 
 def _tanh(x):
-    return ca.tanh(x) if _is_symbolic(x) else np.tanh(x)
+    return ca.tanh(x) if _sym(x) else np.tanh(x)
 
 
 def _sqrt(x):
-    return ca.sqrt(x) if _is_symbolic(x) else np.sqrt(x)
+    return ca.sqrt(x) if _sym(x) else np.sqrt(x)
 
 
-def stribeck_exp(v_abs, mu_s, mu_k, v_s):
-    """Exponential Stribeck coefficient, thesis eq. (3-13).
-
-    Parameters
-    ----------
-    v_abs : sliding speed magnitude [rad/s], >= 0
-    mu_s, mu_k : static and kinetic coefficients [-] (or torques [N m])
-    v_s : Stribeck decay speed [rad/s]; the thesis' ``e^{-|w|}`` means ``v_s = 1 rad/s``
-
-    Returns
-    -------
-    coefficient at that speed; equals ``mu_s`` at zero speed and tends to ``mu_k``.
-    """
-    return mu_k + (mu_s - mu_k) * _exp(-v_abs / v_s)
+def _abs(x):
+    return ca.fabs(x) if _sym(x) else np.abs(x)
 
 
-def coulomb(v_abs, level):
-    """Coulomb friction magnitude: constant ``level`` at any sliding speed (seed 001 eq. 3)."""
-    return level + 0 * v_abs
-
-
-def vahid_araghi(v_abs, mu1, mu2, mu3, r0, sm=1.0):
-    """Velocity-dependent coefficient of seed 002 eq. (9.8), scaled by ``sm`` as in (9.33).
-
-    The zero-speed smoothing factor ``(1 - exp(-r1|w|))`` of (9.33) is *not* included:
-    it is the law's regularisation and is applied by :func:`regularised` with
-    ``kind="vahid"``.
-    """
-    return sm * (mu1 + mu2 * _exp(-r0 * v_abs) + mu3 * v_abs)
+def _sign(x):
+    return ca.sign(x) if _sym(x) else np.sign(x)
 
 
 def smooth_sign(v, eps):
-    """``tanh(v/eps)``: the regularised sign used by seed 001 eq. (4); ``eps`` [rad/s] > 0."""
+    """``tanh(v/eps)``: the regularised sign of seed 001 eq. (4); ``eps`` [rad/s] > 0."""
     return _tanh(v / eps)
 
 
@@ -86,27 +98,208 @@ def smooth_abs(v, eps):
     return _sqrt(v * v + eps * eps) - eps
 
 
-def regularised(magnitude, v, eps, kind: str = "tanh"):
-    """Signed, regularised friction from a magnitude law.
+# ----------------------------------------------------------------------------- the laws
+def coulomb(v_abs, scale, *, mu_k):
+    """Coulomb friction, seed 001 eq. (3): ``mu_k N r`` at any sliding speed [N m]."""
+    return scale * mu_k + 0 * v_abs
+
+
+def stribeck(v_abs, scale, *, mu_s, mu_k, v_s):
+    """Exponential Stribeck law, thesis eq. (3-13): ``N r [mu_k + (mu_s - mu_k) e^{-|w|/v_s}]``.
+
+    ``v_s`` [rad/s] is the decay speed; the thesis' ``e^{-|w|}`` means ``v_s = 1 rad/s``.
+    """
+    return scale * (mu_k + (mu_s - mu_k) * _exp(-v_abs / v_s))
+
+
+def vahid_araghi(v_abs, scale, *, mu1, mu2, mu3, r0, sm):
+    """Velocity-dependent coefficient of seed 002 eq. (9.8), scaled by ``sm`` as in (9.33).
+
+    The zero-speed factor ``1 - exp(-r1|w|)`` of (9.33) is the law's regularisation and is
+    applied by :meth:`FrictionLaw.smooth` (``smoothing="vahid"``), not here.
+    """
+    return scale * sm * (mu1 + mu2 * _exp(-r0 * v_abs) + mu3 * v_abs)
+
+
+def bit_rock(v_abs, scale, *, mu_sb, mu_cb, v_b, c_b):
+    """Bit-rock torque of the drill-string literature: weakening, then strengthening.
+
+    ``T = c_b |w| + W R_b [mu_cb + (mu_sb - mu_cb) exp(-|w|/v_b)]`` (Navarro-Lopez and
+    Cortes 2007, with ``v_b = nu_f/gamma_b``): the Stribeck part falls from ``mu_sb`` to
+    ``mu_cb`` over the speed ``v_b`` [rad/s], and the viscous part ``c_b`` [N m s/rad] makes
+    the torque rise again at higher speed.  ``scale`` is the weight on bit times the bit
+    radius.
+    """
+    return c_b * v_abs + scale * (mu_cb + (mu_sb - mu_cb) * _exp(-v_abs / v_b))
+
+
+def _leadscrew_xi(mu_signed, lam):
+    t = ca.tan(lam) if _sym(lam) else np.tan(lam)
+    return (mu_signed - t) / (1 + mu_signed * t), t
+
+
+def leadscrew_torque(v_abs, s, N, r, *, mu1, mu2, mu3, r0, sm, lam, m, F0, T0, r1):
+    """Signed thread torque of seed 002 eq. (9.31) on the screw sliding in direction ``s``.
+
+    ``-r_m xi(s mu) (R - F0 s) - T0 s`` with ``xi`` of eq. (9.7) and ``mu`` of (9.8)/(9.33);
+    ``N`` is the axial force R [N] and ``r`` the pitch radius r_m [m].
+    """
+    mu = sm * (mu1 + mu2 * _exp(-r0 * v_abs) + mu3 * v_abs)
+    xi, _ = _leadscrew_xi(s * mu, lam)
+    return -r * xi * (N - F0 * s) - T0 * s
+
+
+def leadscrew_inertia(v_abs, s, N, r, *, mu1, mu2, mu3, r0, sm, lam, m, F0, T0, r1):
+    """Inertia the translating mass adds, ``-tan(lam) xi m r_m^2`` (seed 002 eq. 9.31)."""
+    mu = sm * (mu1 + mu2 * _exp(-r0 * v_abs) + mu3 * v_abs)
+    xi, t = _leadscrew_xi(s * mu, lam)
+    return -t * xi * m * r ** 2
+
+
+def leadscrew_smooth(v, N, r, eps, *, mu1, mu2, mu3, r0, sm, lam, m, F0, T0, r1):
+    """Seed 002's own regularisation (9.33): ``mu`` and the direction are multiplied by
+    ``sign(v)(1 - exp(-r1|v|))``; ``eps`` is not used."""
+    av = _abs(v)
+    soft = _sign(v) * (1 - _exp(-r1 * av))
+    mu_signed = soft * sm * (mu1 + mu2 * _exp(-r0 * av) + mu3 * av)
+    xi, _ = _leadscrew_xi(mu_signed, lam)
+    return -r * xi * (N - F0 * soft) - T0 * soft
+
+
+# ----------------------------------------------------------------------------- registry
+@dataclass(frozen=True)
+class Param:
+    """A parameter of a law: its name, quantity kind (:data:`models.units.DIMENSIONS`, or
+    ``"level"``: dimensionless when the contact has a normal force and a radius, a torque
+    [N m] when it has neither; ``"level_slowness"``: a level per rad/s) and a description."""
+
+    name: str
+    kind: str
+    doc: str = ""
+    lower: float = float("-inf")
+    upper: float = float("inf")
+
+
+@dataclass(frozen=True)
+class FrictionLaw:
+    """One registered law.
 
     Parameters
     ----------
-    magnitude : callable ``v_abs -> magnitude``
-    v : sliding speed [rad/s]
-    eps : smoothing parameter. For ``kind="tanh"`` the transition speed [rad/s]
-        (seed 001's ``v_t``); for ``kind="vahid"`` the rate ``r1`` [s/rad] of
-        seed 002 eq. (9.33), ``sign(v) (1 - exp(-r1|v|))``.
-    kind : "tanh" or "vahid"
-
-    Returns
-    -------
-    friction with the sign of ``v`` (it opposes the caller's sign convention: the
-    caller subtracts it).
+    name : the name a rig file uses (``law = "..."``)
+    magnitude : ``f(v_abs, scale, **params) -> torque magnitude [N m]`` (symmetric laws)
+    params : the law's parameters, in the order they are listed
+    doc, reference : one line each, shown by ``mitigate modal --model ... --json`` and the README
+    directional : ``g(v_abs, s, N, r, **params) -> signed torque`` for laws that are not
+        symmetric in the sliding direction ``s`` = +1/-1 (then ``magnitude`` is unused)
+    inertia : optional ``h(v_abs, s, N, r, **params)``: inertia the contact adds [kg m^2]
+    smooth_fn : optional own regularisation ``(v, N, r, eps, **params) -> signed torque``
+    smoothing_param : the parameter that sets the law's own regularisation (shown to users)
     """
-    if kind == "tanh":
-        return smooth_sign(v, eps) * magnitude(smooth_abs(v, 1e-3 * eps))
-    if kind == "vahid":
-        av = ca.fabs(v) if _is_symbolic(v) else np.abs(v)
-        sgn = ca.sign(v) if _is_symbolic(v) else np.sign(v)
-        return sgn * (1 - _exp(-eps * av)) * magnitude(av)
-    raise ValueError(f"kind must be 'tanh' or 'vahid', got {kind!r}")
+
+    name: str
+    magnitude: Callable[..., Any] | None
+    params: tuple[Param, ...]
+    doc: str = ""
+    reference: str = ""
+    directional: Callable[..., Any] | None = None
+    inertia: Callable[..., Any] | None = None
+    smooth_fn: Callable[..., Any] | None = None
+    smoothing_param: str = ""
+    extras: dict = field(default_factory=dict, compare=False)
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.params)
+
+    def torque(self, v_abs, s, N, r, P: dict):
+        """Signed friction torque on the body sliding in direction ``s`` (+1/-1) at speed
+        ``v_abs >= 0``: it opposes the motion for symmetric laws (``-s`` times the magnitude)."""
+        if self.directional is not None:
+            return self.directional(v_abs, s, N, r, **P)
+        return -s * self.magnitude(v_abs, N * r, **P)
+
+    def static_limits(self, N, r, P: dict):
+        """``(T_plus, T_minus)``: the torques that oppose motion starting in the + and -
+        directions at zero speed (``T_plus <= 0 <= T_minus`` for a dissipative law)."""
+        return self.torque(0 * N, 1.0, N, r, P), self.torque(0 * N, -1.0, N, r, P)
+
+    def added_inertia(self, v_abs, s, N, r, P: dict):
+        if self.inertia is None:
+            return 0.0
+        return self.inertia(v_abs, s, N, r, **P)
+
+    def smooth(self, v, N, r, P: dict, eps: float):
+        """Regularised signed torque at signed speed ``v``.
+
+        Default: blend the two sliding branches with ``sigma = tanh(v/eps)``,
+        ``(1+sigma)/2 T(|v|, +1) + (1-sigma)/2 T(|v|, -1)``; for a symmetric law this is
+        ``-tanh(v/eps) T(|v|)`` (seed 001 eq. 4).  ``|v|`` is itself smoothed at 1e-3 eps.
+        """
+        if self.smooth_fn is not None:
+            return self.smooth_fn(v, N, r, eps, **P)
+        sig = smooth_sign(v, eps)
+        va = smooth_abs(v, 1e-3 * eps)
+        if self.directional is None:
+            return -sig * self.magnitude(va, N * r, **P)
+        return 0.5 * (1 + sig) * self.torque(va, 1.0, N, r, P) + 0.5 * (1 - sig) * self.torque(va, -1.0, N, r, P)
+
+
+LAWS: dict[str, FrictionLaw] = {}
+
+
+def register(law: FrictionLaw) -> FrictionLaw:
+    """Add ``law`` to :data:`LAWS` (its name must be new)."""
+    if not isinstance(law, FrictionLaw):
+        raise TypeError(f"register expects a FrictionLaw, got {type(law).__name__}")
+    if law.name in LAWS:
+        raise ConfigError(f"friction law {law.name!r} is already registered")
+    if law.magnitude is None and law.directional is None:
+        raise ConfigError(f"friction law {law.name!r} needs a magnitude or a directional function")
+    LAWS[law.name] = law
+    return law
+
+
+def get_law(name: str, where: str = "law") -> FrictionLaw:
+    """The registered law ``name``; a one-line ConfigError lists the known ones."""
+    try:
+        return LAWS[name]
+    except (KeyError, TypeError):
+        raise ConfigError(f"{where} must be one of {', '.join(sorted(LAWS))}, got {name!r}") from None
+
+
+_LS_PARAMS = (
+    Param("mu1", "dimensionless", "Coulomb part of the thread friction (seed 002 Table 9.5)"),
+    Param("mu2", "dimensionless", "Stribeck part"),
+    Param("mu3", "slowness", "viscous part [s/rad]"),
+    Param("r0", "slowness", "Stribeck decay rate [s/rad]", 0.0),
+    Param("sm", "dimensionless", "friction scaling of eq. (9.33)", 0.0),
+    Param("lam", "angle", "lead angle", 0.0, 1.5),
+    Param("m", "mass", "mass of the translating parts", 0.0),
+    Param("F0", "force", "slider resistance", 0.0),
+    Param("T0", "torque", "support friction torque", 0.0),
+    Param("r1", "slowness", "zero-speed smoothing rate of eq. (9.33) [s/rad]", 0.0),
+)
+
+register(FrictionLaw("coulomb", coulomb, (Param("mu_k", "level", "kinetic coefficient (or torque)", 0.0),),
+                     doc="constant friction at any sliding speed", reference="seed 001 eqs. (3)-(4)"))
+register(FrictionLaw("stribeck", stribeck,
+                     (Param("mu_s", "level", "static coefficient (or torque)", 0.0),
+                      Param("mu_k", "level", "kinetic coefficient (or torque)", 0.0),
+                      Param("v_s", "speed", "Stribeck decay speed", 0.0)),
+                     doc="exponential decay from static to kinetic friction", reference="thesis eq. (3-13)"))
+register(FrictionLaw("vahid_araghi", vahid_araghi,
+                     (Param("mu1", "level", "Coulomb part"), Param("mu2", "level", "Stribeck part"),
+                      Param("mu3", "level_slowness", "viscous part"), Param("r0", "slowness", "Stribeck decay rate", 0.0),
+                      Param("sm", "dimensionless", "friction scaling", 0.0)),
+                     doc="Coulomb + exponential Stribeck + linear viscous coefficient", reference="seed 002 eqs. (9.8), (9.33)"))
+register(FrictionLaw("bit_rock", bit_rock,
+                     (Param("mu_sb", "level", "static bit-rock coefficient", 0.0),
+                      Param("mu_cb", "level", "Coulomb bit-rock coefficient", 0.0),
+                      Param("v_b", "speed", "decay speed of the weakening branch", 0.0),
+                      Param("c_b", "damping", "viscous (strengthening) coefficient [N m s/rad]", 0.0)),
+                     doc="velocity weakening followed by viscous strengthening (bit-rock interaction)",
+                     reference="Navarro-Lopez & Cortes, J. Sound Vib. 307 (2007)"))
+register(FrictionLaw("leadscrew", None, _LS_PARAMS, doc="lead-screw thread friction (direction-dependent)",
+                     reference="seed 002 eqs. (9.7), (9.31), (9.33)", directional=leadscrew_torque,
+                     inertia=leadscrew_inertia, smooth_fn=leadscrew_smooth, smoothing_param="r1"))

@@ -1,60 +1,44 @@
-"""Frozen, typed parameter sets with SI units, bounds and provenance.
+"""Parameter sets: named, unit-carrying values with bounds and provenance.
 
-Every rig has one parameter-set class.  Each field carries its unit, its physical
-bounds and the place in the seeds where its value comes from.  Sets load from and
-save to TOML, so that a fitted set can replace the published one in every command::
+A rig file (:mod:`models.rig`) declares its parameters; :meth:`models.rig.RigModel.published`
+gives them as a frozen :class:`ParameterSet`.  A set loads from and saves to TOML, so a
+fitted set can replace the published one in every command::
 
-    model = "rig3"           # which class
-    base = "published"       # optional: fill missing fields from the published set
+    model = "rig3"           # a shipped rig's name, or the path of a rig file
+    base = "published"       # optional: fill missing fields from the rig file
 
     [params]
-    k1 = 1.1175              # N m/rad
-    ...
+    k1 = 1.1175              # SI units (N m/rad), or a quantity string "1.1175 N m/rad"
 
-    [bounds]                 # optional: fitting bounds, [lower, upper]
+    [bounds]                 # optional: fitting bounds, [lower, upper] (SI)
     k1 = [0.5, 2.0]
 
     [stderr]                 # optional: written by `mitigate identify`
     k1 = 0.004
 
-References
-----------
-thesis : ``shared/reference/000_*.txt`` (3-disc rig, Tables 3.1-3.5, eqs. 3-1..3-14)
-seed 001 : ``shared/reference/001_*.txt`` (2-DOF motor + disc, Table 1)
-seed 002 : ``shared/reference/002_*.txt`` (lead-screw drive, Tables 9.3-9.5, Figs. 9.21-9.26)
+Values are accessed by name, ``p["k1"]`` or ``p.k1``; :meth:`ParameterSet.vector` gives
+them in the rig's order.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, Mapping
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
 from models.errors import ConfigError
 from models.checks import read_toml
 
-__all__ = [
-    "Spec",
-    "ParameterSet",
-    "Rig3Params",
-    "Rig2Params",
-    "LeadScrewParams",
-    "DiscParams",
-    "PARAM_CLASSES",
-    "load_params",
-    "published",
-    "LEADSCREW_FINE_TUNED",
-]
+__all__ = ["Spec", "ParameterSet", "load_params", "published", "LEADSCREW_FINE_TUNED"]
 
 
 @dataclass(frozen=True)
 class Spec:
-    """Metadata of one parameter: unit, physical bounds and provenance."""
+    """Metadata of one parameter: SI unit, physical bounds, provenance, quantity kind."""
 
     unit: str
     lower: float
@@ -62,79 +46,135 @@ class Spec:
     source: str
     doc: str = ""
     positive: bool = False  # strict lower bound (> lower) instead of >=
+    kind: str = ""
 
 
-def _p(default: float, unit: str, lower: float, upper: float, source: str, doc: str = "",
-       positive: bool = False) -> Any:
-    return field(default=default, metadata={"spec": Spec(unit, lower, upper, source, doc, positive)})
-
-
-@dataclass(frozen=True, kw_only=True)
 class ParameterSet:
-    """Base class: a frozen set of named, unit-carrying floats.
+    """A frozen set of named floats in SI units (see module docstring).
 
-    Subclasses declare fields with :func:`_p`.  Instances validate themselves: every
-    value is finite and within its physical bounds, otherwise :class:`ConfigError`
-    names the field, the expectation and the value received.
+    Parameters
+    ----------
+    model : the rig's name (or rig-file path) the set belongs to
+    specs : ``{name: Spec}`` in the rig's order
+    values : ``{name: value}`` for every name of ``specs``
+    fit_bounds : ``((name, lower, upper), ...)``: fitting bounds that replace the physical ones
+    stderr : ``((name, standard error), ...)``
+
+    Raises
+    ------
+    ConfigError : a value that is not a finite number within its physical bounds
+        (``"params.rig3.k1 must be in [0, 1000] N m/rad, got -1"``).
     """
 
-    model: ClassVar[str] = ""
-    fit_bounds: tuple[tuple[str, float, float], ...] = field(default=(), compare=False, repr=False)
-    stderr: tuple[tuple[str, float], ...] = field(default=(), compare=False, repr=False)
+    __slots__ = ("model", "_specs", "_values", "fit_bounds", "stderr")
 
-    # ------------------------------------------------------------------ structure
-    @classmethod
-    def names(cls) -> tuple[str, ...]:
-        """Parameter names in declaration order (the order of :meth:`vector`)."""
-        return tuple(f.name for f in dataclasses.fields(cls) if "spec" in f.metadata)
-
-    @classmethod
-    def spec(cls, name: str) -> Spec:
-        for f in dataclasses.fields(cls):
-            if f.name == name and "spec" in f.metadata:
-                return f.metadata["spec"]
-        raise ConfigError(
-            f"{cls.model}: unknown parameter {name!r}; expected one of {', '.join(cls.names())}")
-
-    def __post_init__(self) -> None:
-        for name in self.names():
-            value = getattr(self, name)
-            spec = self.spec(name)
-            where = f"params.{self.model}.{name}"
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-                raise ConfigError(f"{where} must be a number [{spec.unit}], got {value!r} ({type(value).__name__})")
-            value = float(value)
-            object.__setattr__(self, name, value)
-            if not math.isfinite(value):
-                raise ConfigError(f"{where} must be finite [{spec.unit}], got {value}")
-            if spec.positive and not value > spec.lower:
-                raise ConfigError(f"{where} must be > {spec.lower:g} {spec.unit}, got {value:g}")
-            if value < spec.lower or value > spec.upper:
-                raise ConfigError(
-                    f"{where} must be in [{spec.lower:g}, {spec.upper:g}] {spec.unit}, got {value:g}")
-        for name, lo, hi in self.fit_bounds:
+    def __init__(self, model: str, specs: Mapping[str, Spec], values: Mapping[str, float], *,
+                 fit_bounds: Iterable[tuple[str, float, float]] = (), stderr: Iterable[tuple[str, float]] = ()):
+        object.__setattr__(self, "model", model)
+        object.__setattr__(self, "_specs", dict(specs))
+        vals = {}
+        for name, spec in self._specs.items():
+            if name not in values:
+                raise ConfigError(f"params.{model}: missing value of {name!r}")
+            vals[name] = self._check(name, spec, values[name])
+        for name in values:
+            if name not in self._specs:
+                raise ConfigError(f"params.{model}.{name}: unknown parameter; expected one of {', '.join(self._specs)}")
+        object.__setattr__(self, "_values", vals)
+        fb = tuple((str(n), float(lo), float(hi)) for n, lo, hi in fit_bounds)
+        for name, lo, hi in fb:
             self.spec(name)
             if not (math.isfinite(lo) and math.isfinite(hi)):
                 raise ConfigError(f"bounds.{name} must be finite, got [{lo}, {hi}]")
             if not lo < hi:
                 raise ConfigError(f"bounds.{name} must be [lower, upper] with lower < upper, got [{lo:g}, {hi:g}]")
+        object.__setattr__(self, "fit_bounds", fb)
+        object.__setattr__(self, "stderr", tuple((str(n), float(s)) for n, s in stderr))
 
-    # ------------------------------------------------------------------ access
+    def _check(self, name: str, spec: Spec, value: Any) -> float:
+        where = f"params.{self.model}.{name}"
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+            raise ConfigError(f"{where} must be a number [{spec.unit}], got {value!r} ({type(value).__name__})")
+        value = float(value)
+        if not math.isfinite(value):
+            raise ConfigError(f"{where} must be finite [{spec.unit}], got {value}")
+        if spec.positive and not value > spec.lower:
+            raise ConfigError(f"{where} must be > {spec.lower:g} {spec.unit}, got {value:g}")
+        if value < spec.lower or value > spec.upper:
+            raise ConfigError(f"{where} must be in [{spec.lower:g}, {spec.upper:g}] {spec.unit}, got {value:g}")
+        return value
+
+    # ------------------------------------------------------------------ immutability, access
+    def __setattr__(self, key, value):
+        raise AttributeError(f"ParameterSet is frozen; use .replace({key}=...)")
+
+    def __getattr__(self, name: str) -> float:
+        try:
+            return self._values[name]
+        except KeyError:
+            raise AttributeError(f"{self.model}: no parameter {name!r}") from None
+
+    def __getitem__(self, name: str) -> float:
+        try:
+            return self._values[name]
+        except KeyError:
+            raise ConfigError(f"{self.model}: unknown parameter {name!r}; expected one of {', '.join(self._specs)}") from None
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._values
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, ParameterSet) and self.model == other.model and self._values == other._values
+
+    def __hash__(self) -> int:
+        return hash((self.model, tuple(self._values.items())))
+
+    def __repr__(self) -> str:
+        body = ", ".join(f"{k}={v:g}" for k, v in list(self._values.items())[:6])
+        more = ", ..." if len(self._values) > 6 else ""
+        return f"ParameterSet({self.model!r}: {body}{more})"
+
+    def __reduce__(self):
+        return (_rebuild, (self.model, self._specs, self._values, self.fit_bounds, self.stderr))
+
+    # ------------------------------------------------------------------ structure
+    def names(self) -> tuple[str, ...]:
+        """Parameter names in the rig's order (the order of :meth:`vector`)."""
+        return tuple(self._specs)
+
+    def spec(self, name: str) -> Spec:
+        try:
+            return self._specs[name]
+        except KeyError:
+            raise ConfigError(f"{self.model}: unknown parameter {name!r}; expected one of {', '.join(self._specs)}") from None
+
+    @property
+    def specs(self) -> dict[str, Spec]:
+        return dict(self._specs)
+
     def as_dict(self) -> dict[str, float]:
-        return {n: getattr(self, n) for n in self.names()}
+        return dict(self._values)
 
-    def vector(self, names: tuple[str, ...] | list[str] | None = None) -> np.ndarray:
+    def vector(self, names: Iterable[str] | None = None) -> np.ndarray:
         """Values as a float array, in :meth:`names` order unless ``names`` is given."""
-        return np.array([getattr(self, n) for n in (names or self.names())], dtype=float)
+        return np.array([self[n] for n in (names if names is not None else self._specs)], dtype=float)
 
     def replace(self, **changes: float) -> "ParameterSet":
-        """A copy with some values changed (validated)."""
+        """A copy with some values changed (validated); bounds and standard errors are kept."""
         for n in changes:
             self.spec(n)
-        return dataclasses.replace(self, **changes)
+        vals = dict(self._values)
+        vals.update(changes)
+        return ParameterSet(self.model, self._specs, vals, fit_bounds=self.fit_bounds, stderr=self.stderr)
 
     def with_vector(self, names, values) -> "ParameterSet":
         return self.replace(**{n: float(v) for n, v in zip(names, values)})
+
+    def with_meta(self, *, fit_bounds=None, stderr=None) -> "ParameterSet":
+        """A copy with other fitting bounds and/or standard errors."""
+        return ParameterSet(self.model, self._specs, self._values,
+                            fit_bounds=self.fit_bounds if fit_bounds is None else fit_bounds,
+                            stderr=self.stderr if stderr is None else stderr)
 
     def bounds(self, name: str) -> tuple[float, float]:
         """Fitting bounds of a parameter: the user's ``[bounds]`` if given, else physical bounds."""
@@ -144,7 +184,7 @@ class ParameterSet:
         spec = self.spec(name)
         lo = spec.lower
         if spec.positive:
-            lo = spec.lower + max(1e-12, 1e-9 * abs(getattr(self, name)))
+            lo = spec.lower + max(1e-12, 1e-9 * abs(self[name]))
         return lo, spec.upper
 
     def stderr_of(self, name: str) -> float | None:
@@ -155,64 +195,74 @@ class ParameterSet:
 
     def table(self) -> list[tuple[str, float, str, str]]:
         """(name, value, unit, source) rows for printing."""
-        return [(n, getattr(self, n), self.spec(n).unit, self.spec(n).source) for n in self.names()]
+        return [(n, self[n], s.unit, s.source) for n, s in self._specs.items()]
 
     # ------------------------------------------------------------------ TOML
-    @classmethod
-    def from_mapping(cls, data: Mapping[str, Any], where: str = "params") -> "ParameterSet":
-        """Build from a TOML-like mapping (see module docstring)."""
+    def from_mapping(self, data: Mapping[str, Any], where: str = "params") -> "ParameterSet":
+        """A set of the same rig built from a TOML-like mapping (module docstring); missing
+        values come from this set when ``base = "published"``."""
+        from models.units import factor
+
         if not isinstance(data, Mapping):
             raise ConfigError(f"{where} must be a table, got {type(data).__name__}")
         allowed = {"model", "base", "params", "bounds", "stderr", "provenance"}
         for key in data:
             if key not in allowed:
                 raise ConfigError(f"{where}.{key}: unknown key; expected one of {', '.join(sorted(allowed))}")
-        model = data.get("model", cls.model)
-        if model != cls.model:
-            raise ConfigError(f"{where}.model must be {cls.model!r}, got {model!r}")
         values = data.get("params", {})
         if not isinstance(values, Mapping):
             raise ConfigError(f"{where}.params must be a table, got {type(values).__name__}")
-        for key in values:
-            if key not in cls.names():
-                raise ConfigError(
-                    f"{where}.params.{key}: unknown parameter for model {cls.model!r}; "
-                    f"expected one of {', '.join(cls.names())}")
         base = data.get("base")
         if base not in (None, "published"):
             raise ConfigError(f"{where}.base must be \"published\" or absent, got {base!r}")
+        out: dict[str, Any] = {}
+        for key, v in values.items():
+            if key not in self._specs:
+                raise ConfigError(f"{where}.params.{key}: unknown parameter for model {self.model!r}; "
+                                  f"expected one of {', '.join(self._specs)}")
+            if isinstance(v, str):
+                from models.rig.spec import _quantity
+                q = _quantity(v)
+                if q is None or not self._specs[key].kind:
+                    raise ConfigError(f"{where}.params.{key} must be a number [{self._specs[key].unit}] or a quantity "
+                                      f"string such as \"1.5 {self._specs[key].unit}\", got {v!r}")
+                v = q[0] * factor(q[1] or "-", self._specs[key].kind, f"{where}.params.{key}")
+            out[key] = v
         if base is None:
-            missing = [n for n in cls.names() if n not in values]
+            missing = [n for n in self._specs if n not in out]
             if missing:
-                raise ConfigError(
-                    f"{where}.params: missing field(s) {', '.join(missing)} for model {cls.model!r} "
-                    f"(give them, or set base = \"published\")")
-        kwargs: dict[str, Any] = dict(values)
+                raise ConfigError(f"{where}.params: missing field(s) {', '.join(missing)} for model {self.model!r} "
+                                  f"(give them, or set base = \"published\")")
+        vals = dict(self._values)
+        vals.update(out)
         bounds = []
         for key, b in dict(data.get("bounds", {})).items():
-            if key not in cls.names():
-                raise ConfigError(f"{where}.bounds.{key}: unknown parameter for model {cls.model!r}")
+            if key not in self._specs:
+                raise ConfigError(f"{where}.bounds.{key}: unknown parameter for model {self.model!r}")
             if not (isinstance(b, list) and len(b) == 2 and all(
                     isinstance(v, (int, float)) and not isinstance(v, bool) for v in b)):
                 raise ConfigError(f"{where}.bounds.{key} must be [lower, upper] numbers, got {b!r}")
             bounds.append((key, float(b[0]), float(b[1])))
         stderr = []
         for key, s in dict(data.get("stderr", {})).items():
-            if key not in cls.names():
-                raise ConfigError(f"{where}.stderr.{key}: unknown parameter for model {cls.model!r}")
+            if key not in self._specs:
+                raise ConfigError(f"{where}.stderr.{key}: unknown parameter for model {self.model!r}")
             if not isinstance(s, (int, float)) or isinstance(s, bool) or not math.isfinite(s) or s < 0:
                 raise ConfigError(f"{where}.stderr.{key} must be a finite number >= 0, got {s!r}")
             stderr.append((key, float(s)))
-        return cls(**kwargs, fit_bounds=tuple(bounds), stderr=tuple(stderr))
+        try:
+            return ParameterSet(self.model, self._specs, vals, fit_bounds=bounds, stderr=stderr)
+        except ConfigError as exc:
+            msg = str(exc)
+            raise ConfigError(msg if msg.startswith(where) else f"{where}: {msg}") from None
 
     def to_toml_string(self, note: str = "") -> str:
         lines = [f'model = "{self.model}"', ""]
         if note:
             lines = [f"# {line}" for line in note.splitlines()] + [""] + lines
         lines.append("[params]")
-        for n in self.names():
-            spec = self.spec(n)
-            lines.append(f"{n} = {getattr(self, n)!r}  # [{spec.unit}] {spec.source}")
+        for n, spec in self._specs.items():
+            lines.append(f"{n} = {self[n]!r}  # [{spec.unit}] {spec.source}")
         if self.fit_bounds:
             lines += ["", "[bounds]"] + [f"{n} = [{lo!r}, {hi!r}]" for n, lo, hi in self.fit_bounds]
         if self.stderr:
@@ -221,103 +271,56 @@ class ParameterSet:
 
     def save(self, path: str | os.PathLike, *, overwrite: bool = False, note: str = "") -> Path:
         """Write the set as TOML, atomically; refuses to replace a file unless ``overwrite``."""
-        path = Path(path)
-        if path.exists() and not overwrite:
-            raise ConfigError(f"{path}: file exists; refusing to overwrite (pass overwrite / --force)")
-        tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-        tmp.write_text(self.to_toml_string(note))
-        os.replace(tmp, path)
-        return path
+        from models.files import atomic_write_text
+
+        return atomic_write_text(path, self.to_toml_string(note), overwrite=overwrite)
 
 
-# --------------------------------------------------------------------------- rigs
-_INF = float("inf")
+def _rebuild(model, specs, values, fit_bounds, stderr):
+    return ParameterSet(model, specs, values, fit_bounds=fit_bounds, stderr=stderr)
 
 
-@dataclass(frozen=True, kw_only=True)
-class Rig3Params(ParameterSet):
-    """The 3-disc drill-string rig of the thesis (R1 far end, R2 middle, R3 motor).
+def published(model) -> ParameterSet:
+    """The published parameter set of a rig (a shipped name such as ``"rig3"``, or a rig-file path)."""
+    from models.rig import get_model
 
-    All mechanical quantities are on the disc side of the 8:1 gearbox except ``Jm``,
-    ``Tf`` and ``Cm``, which are on the motor shaft as printed in Table 3.1.
+    return get_model(model).published()
+
+
+def load_params(path: str | os.PathLike, model=None) -> ParameterSet:
+    """Load a parameter TOML file.
+
+    ``model`` (a rig name, path or model), if given, must match the file's ``model`` key; the
+    file's ``model`` names a shipped rig or a rig file (relative paths are taken from the
+    parameter file's folder).
     """
+    from models.rig import get_model, rig_key
 
-    model: ClassVar[str] = "rig3"
-    J1: float = _p(0.02888, "kg m^2", 0.0, 10.0, "thesis Table 3.2 (eq. 3-1)", "disc R1 inertia", True)
-    J2: float = _p(0.01496, "kg m^2", 0.0, 10.0, "thesis Table 3.2 (eq. 3-1)", "disc R2 inertia", True)
-    Jm: float = _p(0.370e-3, "kg m^2", 0.0, 1.0, "thesis Table 3.1", "motor rotor inertia (motor side); J3 = eta^2 Jm", True)
-    eta: float = _p(8.0, "-", 0.0, 1000.0, "thesis Table 3.1", "gearbox ratio (motor turns eta times faster than R3)", True)
-    k1: float = _p(1.1175, "N m/rad", 0.0, 1e3, "thesis eq. 3-7", "shaft stiffness R1-R2", True)
-    k2: float = _p(0.3659, "N m/rad", 0.0, 1e3, "thesis eq. 3-7", "shaft stiffness R2-R3", True)
-    d1: float = _p(0.02145, "N m s/rad", 0.0, 1e2, "thesis eq. 3-9", "shaft damping R1-R2")
-    d2: float = _p(0.01595, "N m s/rad", 0.0, 1e2, "thesis eq. 3-9", "shaft damping R2-R3")
-    L: float = _p(8.437e-4, "H", 0.0, 1.0, "thesis Table 3.1", "armature inductance", True)
-    R: float = _p(0.33, "ohm", 0.0, 1e3, "thesis Table 3.1", "armature resistance", True)
-    KT: float = _p(0.126, "N m/A", 0.0, 100.0, "thesis Table 3.1", "torque constant", True)
-    KE: float = _p(0.0602, "V s/rad", 0.0, 100.0, "thesis Table 3.1", "back-emf constant")
-    Tf: float = _p(0.1196, "N m", 0.0, 100.0, "thesis Table 3.1", "motor Coulomb friction (motor side)")
-    Cm: float = _p(1.784e-4, "N m s/rad", 0.0, 10.0, "thesis Table 3.1", "motor viscous friction (motor side)")
-    kp: float = _p(2.8, "V s/rad", 0.0, 1e4, "thesis Table 3.1",
-                   "PI proportional gain on the disc-side speed error (ASSUMED units, see README)")
-    ki: float = _p(3.5, "V/rad", 0.0, 1e4, "thesis Table 3.1",
-                   "PI integral gain on the disc-side speed error (ASSUMED units, see README)")
-    mu_s: float = _p(0.5, "-", 0.0, 5.0, "thesis eq. 3-11 (Table 3.5)", "static friction coefficient of the pins")
-    mu_k: float = _p(0.306, "-", 0.0, 5.0, "thesis eq. 3-14", "kinetic friction coefficient of the pins")
-    v_s: float = _p(1.0, "rad/s", 0.0, 1e3, "thesis eq. 3-13 (unit decay speed implied by e^-|w|)",
-                    "Stribeck decay speed", True)
-    r1: float = _p(0.047, "m", 0.0, 1.0, "thesis eq. 3-10", "pin radius on R1", True)
-    r2: float = _p(0.040, "m", 0.0, 1.0, "ASSUMPTION: not printed; same r/R ratio as R1 (0.047/0.095) on D2 = 0.162 m",
-                   "pin radius on R2", True)
-
-    @property
-    def J3(self) -> float:
-        """Motor inertia reflected to the disc side, J3 = eta^2 Jm [kg m^2] (thesis eq. 3-3)."""
-        return self.eta ** 2 * self.Jm
-
-
-@dataclass(frozen=True, kw_only=True)
-class Rig2Params(ParameterSet):
-    """The 2-DOF motor + disc rig of seed 001, eq. (1), disc side of the gearbox.
-
-    Seed 001 uses regularised Coulomb friction (eq. 4): ``Ts == Tc`` reproduces it; a
-    larger ``Ts`` adds a Stribeck drop with decay speed ``v_s`` (composable law).
-    """
-
-    model: ClassVar[str] = "rig2"
-    Jd: float = _p(0.01496, "kg m^2", 0.0, 10.0, "thesis Table 3.2 (disc D2 of the same rig)", "disc inertia", True)
-    Jm: float = _p(0.02368, "kg m^2", 0.0, 10.0, "thesis Table 3.1: eta^2 Jm = 64 x 0.370e-3",
-                   "motor inertia, disc side", True)
-    k: float = _p(0.3482, "N m/rad", 0.0, 1e3, "seed 001 Table 1 (static test)", "shaft stiffness", True)
-    c: float = _p(0.0022, "N m s/rad", 0.0, 1e2, "seed 001 Table 1 (experimental)", "internal (shaft) damping")
-    cd: float = _p(0.0, "N m s/rad", 0.0, 1e2, "seed 001 Table 1", "external damping of the disc")
-    cm: float = _p(0.0, "N m s/rad", 0.0, 1e2, "seed 001 Table 1", "external damping of the motor")
-    Tc: float = _p(0.222, "N m", 0.0, 1e2, "seed 001 Table 1 (PINN; no experimental value printed)",
-                   "kinetic Coulomb friction torque T_C = F_C a")
-    Ts: float = _p(0.222, "N m", 0.0, 1e2, "seed 001 eq. (4): Ts = Tc (pure Coulomb)", "static friction torque")
-    v_s: float = _p(1.0, "rad/s", 0.0, 1e3, "ASSUMPTION (only used when Ts > Tc)", "Stribeck decay speed", True)
-
-
-@dataclass(frozen=True, kw_only=True)
-class LeadScrewParams(ParameterSet):
-    """The 1-DOF lead-screw drive of seed 002, eq. (9.31) with friction (9.33)."""
-
-    model: ClassVar[str] = "leadscrew"
-    I: float = _p(3.12e-6, "kg m^2", 0.0, 1.0, "seed 002 Table 9.3", "lead screw inertia", True)
-    r_m: float = _p(5.183e-3, "m", 0.0, 1.0, "seed 002 Table 9.3 (d_m/2, d_m = 10.366 mm)", "pitch radius", True)
-    lam: float = _p(math.radians(5.57), "rad", 0.0, 1.5, "seed 002 Table 9.3 (5.57 deg)", "lead angle")
-    m: float = _p(3.8, "kg", 0.0, 1e3, "seed 002 Table 9.3", "mass of translating parts")
-    F0: float = _p(0.0, "N", 0.0, 1e3, "seed 002 Table 9.3 (< 2 N, neglected per footnote 8)", "slider resistance")
-    T0: float = _p(0.01, "N m", 0.0, 10.0, "seed 002 Sect. 9.5.2", "lead-screw support friction")
-    K: float = _p(1.65, "N m/rad", 0.0, 1e3, "seed 002 Fig. 9.23 (R = 314.3 N, wG = 40.3 rad/s)",
-                  "overall torsional stiffness", True)
-    c: float = _p(3.04e-4, "N m s/rad", 0.0, 1.0, "seed 002 Fig. 9.23", "support damping")
-    mu1: float = _p(0.218, "-", -5.0, 5.0, "seed 002 Table 9.5", "Coulomb part")
-    mu2: float = _p(2.03e-2, "-", -5.0, 5.0, "seed 002 Table 9.5", "Stribeck part")
-    mu3: float = _p(-4.47e-4, "s/rad", -1.0, 1.0, "seed 002 Table 9.5", "viscous part")
-    r0: float = _p(0.38, "s/rad", 0.0, 1e3, "seed 002 Table 9.4", "Stribeck decay rate")
-    sm: float = _p(1.0, "-", 0.0, 10.0, "seed 002 Fig. 9.30 (close to one)", "friction scaling", True)
-    r1: float = _p(20.0, "s/rad", 0.0, 1e6, "ASSUMPTION: 1/r1 = 0.05 rad/s (Fig. 9.28 values not printed)",
-                   "zero-speed smoothing rate of (9.33)", True)
+    path = Path(path)
+    data = read_toml(path, "parameter file")
+    name = data.get("model")
+    if name is None and model is None:
+        raise ConfigError(f"{path}: missing field 'model' (a rig name or rig file)")
+    if name is not None and not isinstance(name, str):
+        raise ConfigError(f"{path}: model must be a rig name or path, got {name!r}")
+    want = get_model(model) if model is not None else None
+    if name is None:
+        m = want
+    else:
+        cand = Path(name)
+        if name.endswith(".toml") and not cand.is_absolute() and (path.parent / cand).exists():
+            name = str(path.parent / cand)
+        try:
+            m = get_model(name)
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: model: {exc}") from None
+    if want is not None and rig_key(m) != rig_key(want):
+        raise ConfigError(f"{path}: model must be {want.name!r} here, got {m.name!r}")
+    try:
+        return m.published().from_mapping(data, where=str(path))
+    except ConfigError as exc:
+        msg = str(exc)
+        raise ConfigError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
 
 
 #: The six fine-tuned (R [N], omega_G [rad/s], K [N m/rad], c [N m s/rad]) of seed 002 Figs. 9.21-9.26.
@@ -329,51 +332,3 @@ LEADSCREW_FINE_TUNED: tuple[tuple[str, float, float, float, float], ...] = (
     ("Fig. 9.25", 330.8, 37.3, 1.88, 5.79e-4),
     ("Fig. 9.26", 336.7, 27.9, 1.67, 4.00e-4),
 )
-
-
-@dataclass(frozen=True, kw_only=True)
-class DiscParams(ParameterSet):
-    """One disc on a torsional spring whose drive end follows a prescribed speed.
-
-    Defaults are disc R1 of the thesis rig (with R2 as the drive end).
-    """
-
-    model: ClassVar[str] = "disc"
-    J: float = _p(0.02888, "kg m^2", 0.0, 10.0, "thesis Table 3.2 (R1)", "disc inertia", True)
-    k: float = _p(1.1175, "N m/rad", 0.0, 1e3, "thesis eq. 3-7 (k1)", "spring stiffness", True)
-    d: float = _p(0.02145, "N m s/rad", 0.0, 1e2, "thesis eq. 3-9 (d1)", "spring damping")
-    mu_s: float = _p(0.5, "-", 0.0, 5.0, "thesis eq. 3-11", "static friction coefficient")
-    mu_k: float = _p(0.306, "-", 0.0, 5.0, "thesis eq. 3-14", "kinetic friction coefficient")
-    v_s: float = _p(1.0, "rad/s", 0.0, 1e3, "thesis eq. 3-13", "Stribeck decay speed", True)
-    r: float = _p(0.047, "m", 0.0, 1.0, "thesis eq. 3-10", "pin radius", True)
-
-
-PARAM_CLASSES: dict[str, type[ParameterSet]] = {
-    c.model: c for c in (Rig3Params, Rig2Params, LeadScrewParams, DiscParams)
-}
-
-
-def published(model: str) -> ParameterSet:
-    """The published parameter set of a model ("rig3", "rig2", "leadscrew", "disc")."""
-    try:
-        return PARAM_CLASSES[model]()
-    except KeyError:
-        raise ConfigError(f"model must be one of {', '.join(PARAM_CLASSES)}, got {model!r}") from None
-
-
-def load_params(path: str | os.PathLike, model: str | None = None) -> ParameterSet:
-    """Load a parameter TOML file; ``model`` (if given) must match the file's ``model`` key."""
-    path = Path(path)
-    data = read_toml(path, "parameter file")
-    name = data.get("model", model)
-    if name is None:
-        raise ConfigError(f"{path}: missing field 'model' (one of {', '.join(PARAM_CLASSES)})")
-    if name not in PARAM_CLASSES:
-        raise ConfigError(f"{path}: model must be one of {', '.join(PARAM_CLASSES)}, got {name!r}")
-    if model is not None and name != model:
-        raise ConfigError(f"{path}: model must be {model!r} here, got {name!r}")
-    try:
-        return PARAM_CLASSES[name].from_mapping(data, where=str(path))
-    except ConfigError as exc:
-        msg = str(exc)
-        raise ConfigError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None

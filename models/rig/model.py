@@ -1,0 +1,579 @@
+"""The builder: one :class:`RigModel` from any rig description, as named CasADi Functions.
+
+The model is written in *twist coordinates*: a state for the twist of every spring
+(``twist_<connection>`` = angle of ``between[0]`` minus angle of ``between[1]`` [rad]), the
+speed of every body (``omega_<body>`` [rad/s]) and the drive's states (a DC motor's armature
+``current`` [A] and its PI loop's integral ``pi_integral`` [rad]).  No absolute angle is a
+state, so nothing drifts; the plant tracks the angle of one reference node (the drive
+body, or a speed drive) for the encoders.
+
+Equations, for body ``b`` with inertia ``J_b`` (plus ``ratio^2 Jm`` if the DC motor drives it
+and the inertia a contact adds)::
+
+    J_b w_b' = sum over connections c of +-(k_c dz(phi_c) + d_c (w_a - w_b))    (+ on b, - on a)
+             + sum of contact friction torques on b
+             + T_em  (DC motor:  ratio (KT i - Tf tanh(ratio w_b / eps_m) - Cm ratio w_b))
+             + u_drive  (torque drive)
+    phi_c'   = w_a - w_b                      (a speed drive's node turns at its input speed)
+    L i'     = V - R i - KE ratio w_b,  V = sat(G (kp (w_ref - w_b) + ki z)),  z' = w_ref - w_b
+
+with ``G = ratio`` when the PI acts on the motor-side error (``pi_error = "motor"``), ``dz`` the
+backlash dead zone, and ``sat`` the supply-voltage limit and the drive's current limit
+(``v_max``, ``i_max``; see :meth:`RigModel.motor_voltage`).
+
+The rest of the workbench uses the same interface for every rig:
+
+- ``dynamics(x, u, P, Tc, s)``: state derivative for given contact torques ``Tc`` (one per
+  contact body) and sliding directions ``s``;
+- ``contact_torque(i, v_abs, s, x, u, P)``: friction on contact body ``i`` sliding in
+  direction ``s`` at speed ``v_abs``; ``contact_torque_smooth(i, v, x, u, P, eps)``;
+  ``contact_inertia(i, x, u, P, s)``;
+- ``ode(eps)``: the regularised model as a named Function ``xdot = f(x, u, p)``;
+- ``outputs(x, u, P, theta_ref)``: what every sensor reads without noise, quantisation or
+  delay (its gain and offset applied), plus physical quantities (twists, friction torques).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from functools import cached_property
+
+import casadi as ca
+import numpy as np
+
+from models import friction as fr
+from models.errors import ConfigError
+from models.params import ParameterSet, Spec
+from models.rig.spec import NODE_DRIVE, NODE_GROUND, RigSpec, SI_UNITS
+
+__all__ = ["RigModel"]
+
+
+def _sym(x) -> bool:
+    return isinstance(x, (ca.SX, ca.MX, ca.DM))
+
+
+def _val(ref, P, u_named):
+    """The value of a spec reference: a parameter (symbolic or numeric), a constant or an input."""
+    if ref is None:
+        return None
+    if ref.kind == "param":
+        return P[ref.name]
+    if ref.kind == "input":
+        return u_named[ref.name]
+    return ref.value
+
+
+def _dead_zone(phi, half):
+    """``phi - clip(phi, -half, half)``: the twist a spring with backlash ``2 half`` actually feels."""
+    if _sym(phi) or _sym(half):
+        return phi - ca.fmin(ca.fmax(phi, -half), half)
+    return phi - min(max(phi, -half), half)
+
+
+class RigModel:
+    """A rig built from a :class:`models.rig.spec.RigSpec` (see module docstring).
+
+    Attributes
+    ----------
+    name : the rig's name; key : how it was picked (shipped name or resolved file path)
+    states, state_units, inputs, input_units : names and SI units
+    contacts : indices (into ``states``) of the speeds of the bodies that carry friction
+    contact_bodies : those bodies' names; contact_names : the contacts on each of them
+    measured : the log channels the rig's sensors write, then its inputs
+    param_names : the parameter vector's order
+    """
+
+    eps_default: float = 0.05
+
+    def __init__(self, spec: RigSpec, key: str = ""):
+        self.spec = spec
+        self.name = spec.name
+        self.key = key or spec.name
+        self.description = spec.description
+        self._springs = tuple(c for c in spec.connections if c.stiffness is not None)
+        self._bodies = spec.body_names
+        drive = spec.drive
+        self.drive_kind = drive.kind
+        self.drive_body = drive.body
+        twist = tuple(f"twist_{c.name}" for c in self._springs)
+        speeds = tuple(f"omega_{b}" for b in self._bodies)
+        dstates = ("current", "pi_integral") if drive.kind == "dc_motor" else ()
+        self.states = twist + speeds + dstates
+        self.state_units = ("rad",) * len(twist) + ("rad/s",) * len(speeds) + (("A", "rad") if dstates else ())
+        self.inputs = spec.inputs
+        self.input_units = tuple(SI_UNITS[spec.input_kind(n)] for n in self.inputs)
+        self.input_kinds = tuple(spec.input_kind(n) for n in self.inputs)
+        self.param_names = spec.param_names
+        self._n_tw = len(twist)
+        self._speed_index = {b: self._n_tw + j for j, b in enumerate(self._bodies)}
+        # contacts grouped by body (each body with friction is one "contact" of the exact plant)
+        groups: dict[str, list] = {}
+        for c in spec.contacts:
+            groups.setdefault(c.body, []).append(c)
+        self.contact_bodies = tuple(groups)
+        self._contact_groups = tuple(tuple(groups[b]) for b in self.contact_bodies)
+        self.contact_names = tuple(tuple(c.name for c in g) for g in self._contact_groups)
+        self.contacts = tuple(self._speed_index[b] for b in self.contact_bodies)
+        self._laws = {c.name: fr.get_law(c.law) for c in spec.contacts}
+        self._ang_path = self._angle_paths()
+        self.sensors = spec.sensors
+        chans = []
+        for s in spec.sensors:
+            chans.extend(s.channels)
+        self.measured = tuple(dict.fromkeys(tuple(chans) + self.inputs))
+        self.actuators = spec.actuators
+        self.objective_body = spec.extra.get("objective_body") or (self.contact_bodies[0] if self.contact_bodies
+                                                                    else self._bodies[0])
+
+    # ------------------------------------------------------------------ structure
+    def __repr__(self) -> str:
+        return f"RigModel({self.name!r}: {len(self._bodies)} bodies, {len(self.states)} states, inputs {self.inputs})"
+
+    @property
+    def nx(self) -> int:
+        return len(self.states)
+
+    @property
+    def nu(self) -> int:
+        return len(self.inputs)
+
+    @property
+    def n_p(self) -> int:
+        return len(self.param_names)
+
+    @property
+    def bodies(self) -> tuple[str, ...]:
+        return self._bodies
+
+    @property
+    def springs(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self._springs)
+
+    def speed_index(self, body: str) -> int:
+        """Index of ``omega_<body>`` in the state."""
+        try:
+            return self._speed_index[body]
+        except KeyError:
+            raise ConfigError(f"{self.name}: no body {body!r} (bodies: {', '.join(self._bodies)})") from None
+
+    @property
+    def drive_input(self) -> str:
+        return self.spec.drive.input
+
+    @cached_property
+    def _published(self) -> ParameterSet:
+        specs = {p.name: Spec(p.unit, p.lower, p.upper, p.source, p.doc, p.positive, p.kind)
+                 for p in self.spec.parameters}
+        return ParameterSet(self.key, specs, {p.name: p.value for p in self.spec.parameters})
+
+    def published(self) -> ParameterSet:
+        """The parameter set as the rig file gives it."""
+        return self._published
+
+    def check_params(self, params: ParameterSet, what: str = "params") -> ParameterSet:
+        """``params`` if it belongs to this rig (same names), else a one-line ConfigError."""
+        if not isinstance(params, ParameterSet) or params.names() != self.param_names:
+            got = params.model if isinstance(params, ParameterSet) else type(params).__name__
+            raise ConfigError(f"{what} must be a parameter set of rig {self.name!r}, got {got!r}")
+        return params
+
+    def unpack(self, p) -> dict:
+        """Parameter vector -> dict of named (symbolic or numeric) entries."""
+        return {n: p[i] for i, n in enumerate(self.param_names)}
+
+    # ------------------------------------------------------------------ pieces of the dynamics
+    def _u_named(self, u) -> dict:
+        return {n: u[i] for i, n in enumerate(self.inputs)}
+
+    def _node_speed(self, node: str, x, u_named):
+        if node == NODE_GROUND:
+            return 0.0
+        if node == NODE_DRIVE:
+            return u_named[self.spec.drive.input]
+        return x[self._speed_index[node]]
+
+    def connection_torque(self, c, x, u_named, P):
+        """Torque connection ``c`` exerts on ``between[1]`` (minus that on ``between[0]``) [N m]."""
+        T = 0.0
+        wa, wb = self._node_speed(c.a, x, u_named), self._node_speed(c.b, x, u_named)
+        if c.stiffness is not None:
+            phi = x[self._springs.index(c)]
+            if c.backlash is not None:
+                phi = _dead_zone(phi, 0.5 * _val(c.backlash, P, u_named))
+            T = T + _val(c.stiffness, P, u_named) * phi
+        if c.damping is not None:
+            T = T + _val(c.damping, P, u_named) * (wa - wb)
+        return T
+
+    def motor_voltage(self, x, u_named, P):
+        """Armature voltage of the DC motor's PI loop, limited by the supply and the current limit.
+
+        ``V = G (kp e + ki z)`` with ``e = w_ref - w_b`` and ``G`` = 1 (PI on the output-side
+        error) or ``ratio`` (on the motor's).  With ``v_max`` it is clipped to the supply; with
+        ``i_max`` to ``R i_max + KE w_m`` above and ``-R i_max + KE w_m`` below, the voltage that
+        holds the current at its limit in steady state (a current-limited drive).
+        """
+        d = self.spec.drive
+        wb = x[self._speed_index[d.body]]
+        eta = _val(d.param("ratio"), P, u_named)
+        G = eta if d.pi_error == "motor" else 1.0
+        e = u_named[d.input] - wb
+        z = x[self.nx - 1]
+        V = G * (_val(d.param("kp"), P, u_named) * e + _val(d.param("ki"), P, u_named) * z)
+        hi, lo = None, None
+        vmax = d.param("v_max")
+        if vmax is not None:
+            hi, lo = _val(vmax, P, u_named), -_val(vmax, P, u_named)
+        imax = d.param("i_max")
+        if imax is not None:
+            wm = eta * wb
+            Rr, KE, im = _val(d.param("R"), P, u_named), _val(d.param("KE"), P, u_named), _val(imax, P, u_named)
+            ih, il = Rr * im + KE * wm, -Rr * im + KE * wm
+            hi = ih if hi is None else ca.fmin(hi, ih)
+            lo = il if lo is None else ca.fmax(lo, il)
+        Vs = V
+        if hi is not None:
+            Vs = ca.fmin(ca.fmax(V, lo), hi)
+        return V, Vs
+
+    def motor_torque_em(self, x, u_named, P, *, friction: bool = True):
+        """Torque the DC motor's rotor delivers through the gearbox, output side [N m]:
+        ``ratio (KT i - Tf tanh(w_m/eps_m) - Cm w_m)`` (``friction=False``: ``ratio KT i``)."""
+        d = self.spec.drive
+        eta = _val(d.param("ratio"), P, u_named)
+        i = x[self.nx - 2]
+        T = eta * _val(d.param("KT"), P, u_named) * i
+        if friction:
+            wm = eta * x[self._speed_index[d.body]]
+            tanh = ca.tanh if _sym(wm) or _sym(T) else np.tanh
+            T = T - eta * (_val(d.param("Tf"), P, u_named) * tanh(wm / d.eps_motor) + _val(d.param("Cm"), P, u_named) * wm)
+        return T
+
+    def _body_inertia(self, b: str, P, u_named):
+        J = _val(self.spec.body(b).inertia, P, u_named)
+        d = self.spec.drive
+        if d.kind == "dc_motor" and d.body == b:
+            J = J + _val(d.param("ratio"), P, u_named) ** 2 * _val(d.param("Jm"), P, u_named)
+        return J
+
+    def _contact_args(self, c, P, u_named):
+        N = _val(c.normal, P, u_named) if c.normal is not None else 1.0
+        r = _val(c.radius, P, u_named) if c.radius is not None else 1.0
+        LP = {k: _val(ref, P, u_named) for k, ref in c.params}
+        return N, r, LP
+
+    def dynamics(self, x, u, P, Tc, s):
+        """State derivative (list) for contact torques ``Tc`` and sliding directions ``s`` per contact body."""
+        un = self._u_named(u)
+        torque = {b: 0.0 for b in self._bodies}
+        for c in self.spec.connections:
+            T = self.connection_torque(c, x, un, P)
+            if c.b in torque:
+                torque[c.b] = torque[c.b] + T
+            if c.a in torque:
+                torque[c.a] = torque[c.a] - T
+        for i, b in enumerate(self.contact_bodies):
+            torque[b] = torque[b] + Tc[i]
+        d = self.spec.drive
+        if d.kind == "dc_motor":
+            torque[d.body] = torque[d.body] + self.motor_torque_em(x, un, P)
+        elif d.kind == "torque":
+            torque[d.body] = torque[d.body] + un[d.input]
+        out = []
+        for c in self._springs:
+            out.append(self._node_speed(c.a, x, un) - self._node_speed(c.b, x, un))
+        for b in self._bodies:
+            J = self._body_inertia(b, P, un)
+            if b in self.contact_bodies:
+                i = self.contact_bodies.index(b)
+                J = J + self._added_inertia(i, x, un, P, s[i])
+            out.append(torque[b] / J)
+        if d.kind == "dc_motor":
+            eta = _val(d.param("ratio"), P, un)
+            wb = x[self._speed_index[d.body]]
+            V, Vs = self.motor_voltage(x, un, P)
+            e = un[d.input] - wb
+            di = (Vs - _val(d.param("R"), P, un) * x[self.nx - 2] - _val(d.param("KE"), P, un) * eta * wb) \
+                / _val(d.param("L"), P, un)
+            if d.param("v_max") is not None or d.param("i_max") is not None:
+                # anti-windup: the integral stops while the limit holds the voltage against the error
+                sat = ca.logic_and(ca.fabs(V - Vs) > 1e-9, ca.sign(V - Vs) == ca.sign(e))
+                e = ca.if_else(sat, 0, e)
+            out.extend([di, e])
+        return out
+
+    def _added_inertia(self, i, x, un, P, s):
+        J = 0.0
+        v_abs = ca.fabs(x[self.contacts[i]]) if _sym(x) else abs(x[self.contacts[i]])
+        for c in self._contact_groups[i]:
+            law = self._laws[c.name]
+            if law.inertia is not None:
+                N, r, LP = self._contact_args(c, P, un)
+                J = J + law.added_inertia(v_abs, s, N, r, LP)
+        return J
+
+    def contact_torque(self, i, v_abs, s, x, u, P):
+        """Friction torque on contact body ``i`` sliding in direction ``s`` at speed ``v_abs`` [N m]."""
+        un = self._u_named(u)
+        T = 0.0
+        for c in self._contact_groups[i]:
+            N, r, LP = self._contact_args(c, P, un)
+            T = T + self._laws[c.name].torque(v_abs, s, N, r, LP)
+        return T
+
+    def contact_torque_smooth(self, i, v, x, u, P, eps):
+        """Regularised friction torque on contact body ``i`` at signed speed ``v``."""
+        un = self._u_named(u)
+        T = 0.0
+        for c in self._contact_groups[i]:
+            N, r, LP = self._contact_args(c, P, un)
+            T = T + self._laws[c.name].smooth(v, N, r, LP, eps)
+        return T
+
+    def contact_inertia(self, i, x, u, P, s):
+        b = self.contact_bodies[i]
+        un = self._u_named(u)
+        return self._body_inertia(b, P, un) + self._added_inertia(i, x, un, P, s)
+
+    def ref_rate(self, x, u, P):
+        """Speed of the reference node (the drive body, or a speed drive's input) [rad/s]."""
+        un = self._u_named(u)
+        return self._node_speed(self.spec.reference_node, x, un)
+
+    # ------------------------------------------------------------------ angles and outputs
+    def _angle_paths(self) -> dict[str, list[tuple[int, float]]]:
+        """For every node reachable by springs from the reference node: [(twist index, sign)] so
+        that ``theta_node = theta_ref + sum(sign * twist)``."""
+        ref = self.spec.reference_node
+        adj: dict[str, list] = {}
+        for j, c in enumerate(self._springs):
+            adj.setdefault(c.a, []).append((c.b, j, -1.0))   # theta_b = theta_a - phi
+            adj.setdefault(c.b, []).append((c.a, j, +1.0))   # theta_a = theta_b + phi
+        paths = {ref: []}
+        q = deque([ref])
+        while q:
+            n = q.popleft()
+            for m, j, sgn in adj.get(n, []):
+                if m not in paths:
+                    paths[m] = paths[n] + [(j, sgn)]
+                    q.append(m)
+        return paths
+
+    def angle(self, body: str, x, theta_ref):
+        """Absolute angle of ``body`` from the reference angle and the twists [rad]."""
+        th = theta_ref
+        for j, sgn in self._ang_path[body]:
+            th = th + sgn * x[j]
+        return th
+
+    def acceleration(self, x, u, P, body: str, eps: float | None = None):
+        """``omega_<body>'`` of the regularised model (contact friction smoothed with ``eps``)."""
+        eps = self.eps_default if eps is None else eps
+        Tc = [self.contact_torque_smooth(i, x[idx], x, u, P, eps) for i, idx in enumerate(self.contacts)]
+        s = [fr.smooth_sign(x[idx], eps) for idx in self.contacts]
+        return self.dynamics(x, u, P, Tc, s)[self._speed_index[body]]
+
+    def _ideal(self, s, x, u, P, theta_ref, un):
+        """A sensor's ideal reading, before gain and offset."""
+        if s.kind == "encoder":
+            th = theta_ref if s.target == NODE_DRIVE else self.angle(s.target, x, theta_ref)
+            return [th, self._node_speed(s.target, x, un)]
+        if s.kind == "speed":
+            return [self._node_speed(s.target, x, un)]
+        if s.kind == "torque":
+            if s.target == NODE_DRIVE and self.drive_kind == "torque":
+                return [un[self.spec.drive.input]]
+            if s.target == NODE_DRIVE:
+                if s.definition == "electromagnetic":
+                    return [self.motor_torque_em(x, un, P, friction=False)]
+                d = self.spec.drive
+                eta, Jm = _val(d.param("ratio"), P, un), _val(d.param("Jm"), P, un)
+                return [self.motor_torque_em(x, un, P) - eta * (eta - 1) * Jm * self.acceleration(x, u, P, d.body)]
+            c = next(c for c in self.spec.connections if c.name == s.target)
+            return [self.connection_torque(c, x, un, P)]
+        c = next(c for c in self.spec.contacts if c.name == s.target)
+        return [_val(c.normal, P, un)]
+
+    def outputs(self, x, u, P, theta_ref) -> dict:
+        """Noise-free readings of every sensor channel (gain and offset applied), the inputs,
+        and physical quantities: twists (state names), body speeds, friction torques
+        (``friction_<contact>``, regularised), and for a DC motor ``current``, ``voltage``,
+        ``motor_speed`` and ``motor_torque_em``."""
+        un = self._u_named(u)
+        out: dict = {}
+        for s in self.sensors:
+            vals = self._ideal(s, x, u, P, theta_ref, un)
+            if s.offset is not None:
+                vals = [_val(s.gain, P, un) * v + _val(s.offset, P, un) for v in vals]
+            out.update(zip(s.channels, vals))
+        for n in self.inputs:
+            out.setdefault(n, un[n])
+        for j, c in enumerate(self._springs):
+            out[f"twist_{c.name}"] = x[j]
+        for b in self._bodies:
+            out[f"omega_{b}"] = x[self._speed_index[b]]
+        d = self.spec.drive
+        if d.kind == "dc_motor":
+            eta = _val(d.param("ratio"), P, un)
+            out["current"] = x[self.nx - 2]
+            out["voltage"] = self.motor_voltage(x, un, P)[1]
+            out["motor_speed"] = eta * x[self._speed_index[d.body]]
+            out["motor_torque_em"] = self.motor_torque_em(x, un, P, friction=False)
+        return out
+
+    def input_from_measured(self, u_meas, P):
+        """Model inputs from logged ones: a normal force logged through a load cell is corrected
+        for the cell's gain and offset, ``N = (reading - offset) / gain``."""
+        out = [u_meas[i] for i in range(self.nu)]
+        for s in self.sensors:
+            if s.kind in ("load_cell", "torque") and s.channels[0] in self.inputs:
+                j = self.inputs.index(s.channels[0])
+                out[j] = (out[j] - _val(s.offset, P, {})) / _val(s.gain, P, {})
+        return out
+
+    # ------------------------------------------------------------------ CasADi Functions
+    def _syms(self, kind=ca.SX):
+        return kind.sym("x", self.nx), kind.sym("u", self.nu), kind.sym("p", self.n_p)
+
+    def smooth_rhs(self, x, u, p, eps):
+        P = self.unpack(p)
+        Tc = [self.contact_torque_smooth(i, x[idx], x, u, P, eps) for i, idx in enumerate(self.contacts)]
+        s = [fr.smooth_sign(x[idx], eps) for idx in self.contacts]
+        return self.dynamics(x, u, P, Tc, s)
+
+    def ode(self, eps: float | None = None) -> ca.Function:
+        """Regularised model ``xdot = f(x, u, p)``, friction smoothed with ``eps`` [rad/s]
+        (a law with its own regularisation, such as the lead screw's, uses that instead)."""
+        eps = self.eps_default if eps is None else float(eps)
+        if not eps > 0:
+            raise ConfigError(f"eps must be > 0 rad/s, got {eps}")
+        key = ("ode", eps)
+        if key not in self._fcache:
+            x, u, p = self._syms()
+            xdot = ca.vertcat(*self.smooth_rhs(x, u, p, eps))
+            self._fcache[key] = ca.Function(f"{self.name}_ode", [x, u, p], [xdot], ["x", "u", "p"], ["xdot"])
+        return self._fcache[key]
+
+    @cached_property
+    def _fcache(self) -> dict:
+        return {}
+
+    def output_names(self) -> tuple[str, ...]:
+        x, u, p = self._syms()
+        return tuple(self.outputs(x, u, self.unpack(p), ca.SX.sym("th")).keys())
+
+    def meas(self) -> ca.Function:
+        """Noise-free measurement function ``y = h(x, u, p, theta_ref)`` with named outputs."""
+        if "meas" not in self._fcache:
+            x, u, p = self._syms()
+            th = ca.SX.sym("theta_ref")
+            out = self.outputs(x, u, self.unpack(p), th)
+            self._fcache["meas"] = ca.Function(f"{self.name}_meas", [x, u, p, th], [ca.SX(v) for v in out.values()],
+                                               ["x", "u", "p", "theta_ref"], list(out.keys()))
+        return self._fcache["meas"]
+
+    def meas_vector(self, names) -> ca.Function:
+        """``y = h(x, u, p)`` stacking the named outputs that need no absolute angle."""
+        x, u, p = self._syms()
+        out = self.outputs(x, u, self.unpack(p), ca.SX(0))
+        missing = [n for n in names if n not in out]
+        if missing:
+            raise ConfigError(f"{self.name}: unknown output(s) {missing}; expected some of {list(out)}")
+        return ca.Function(f"{self.name}_h", [x, u, p], [ca.vertcat(*[out[n] for n in names])], ["x", "u", "p"], ["y"])
+
+    # ------------------------------------------------------------------ steady sliding
+    def drive_speed_index(self) -> int | None:
+        """Index of the input that sets the sliding speed (a speed set-point or a prescribed
+        speed), or None for a torque drive."""
+        return None if self.drive_kind == "torque" else self.inputs.index(self.spec.drive.input)
+
+    def _steady_solve(self, u, params, speed: float | None, eps: float | None = None, iters: int = 30):
+        """Gauss-Newton on the accelerations and drive rows with every body at one speed.
+
+        Unknowns: the twists, the drive states and, for a torque drive, either the input torque
+        (``speed`` given) or the common speed (``speed`` None).
+        """
+        f = self.ode(eps)
+        pv = np.asarray(params.vector(), float)
+        u = np.asarray(u, float).copy()
+        n_tw, nb = self._n_tw, len(self._bodies)
+        spd_idx = list(range(n_tw, n_tw + nb))
+        other = [j for j in range(self.nx) if j not in spd_idx]
+        torque_drive = self.drive_kind == "torque"
+        ju = self.inputs.index(self.spec.drive.input)
+        solve_speed = torque_drive and speed is None
+        if speed is None:
+            speed = float(u[ju]) if not torque_drive else 1.0
+        z = ca.SX.sym("z", len(other) + 1)
+        x = [None] * self.nx
+        for k, j in enumerate(other):
+            x[j] = z[k]
+        extra = z[len(other)]
+        uu = [ca.SX(float(v)) for v in u]
+        if torque_drive and not solve_speed:
+            uu[ju] = extra
+            w = ca.SX(speed)
+        elif solve_speed:
+            w = extra
+        else:
+            w = ca.SX(speed)
+        for j in spd_idx:
+            x[j] = w
+        xv = ca.vertcat(*x)
+        rows = f(xv, ca.vertcat(*uu), ca.DM(pv))
+        keep = [j for j in range(self.nx) if j >= n_tw]          # accelerations and drive rows
+        r = ca.vertcat(*[rows[j] for j in keep])
+        F = ca.Function("ss", [z], [r, ca.jacobian(r, z)])
+        zv = np.zeros(len(other) + 1)
+        if torque_drive and not solve_speed:
+            zv[-1] = 0.0
+        elif solve_speed:
+            zv[-1] = speed
+        free = np.ones(zv.size, bool)
+        if not torque_drive:
+            free[-1] = False
+        for _ in range(iters):
+            rv, Jv = (np.array(a, float) for a in F(zv))
+            rv = rv.ravel()
+            step = np.linalg.lstsq(Jv[:, free], -rv, rcond=None)[0]
+            zv[free] += step
+            if np.max(np.abs(step)) < 1e-12:
+                break
+        xs = np.empty(self.nx)
+        for k, j in enumerate(other):
+            xs[j] = zv[k]
+        xs[spd_idx] = zv[-1] if solve_speed else speed
+        if torque_drive and not solve_speed:
+            u[ju] = zv[-1]
+        return xs, u
+
+    def sliding_guess(self, u, params) -> np.ndarray:
+        """A state of steady sliding at the drive's speed (every body at that speed), from a
+        Gauss-Newton solve of the force balance; a torque drive slides at the speed its
+        torque sustains."""
+        u = np.asarray(u, float)
+        if self.drive_kind == "torque":
+            return self._steady_solve(u, params, None)[0]
+        return self._steady_solve(u, params, float(u[self.inputs.index(self.spec.drive.input)]))[0]
+
+    def operating_point(self, speed: float, u, params) -> tuple[np.ndarray, np.ndarray]:
+        """``(u, x)`` of steady sliding at ``speed`` [rad/s]: the drive input is set to it
+        (a torque drive's input torque is solved for) and the state solved as in
+        :meth:`sliding_guess`, then polished by Newton on the regularised model."""
+        u = np.asarray(u, float).copy()
+        if self.drive_kind != "torque":
+            u[self.inputs.index(self.spec.drive.input)] = speed
+            return u, self.steady_sliding(u, params)
+        x, u = self._steady_solve(u, params, float(speed))
+        return u, x
+
+    def steady_sliding(self, u, params: ParameterSet, x0=None) -> np.ndarray:
+        """Equilibrium of the regularised model for a constant input (steady sliding)."""
+        f = self.ode()
+        x = ca.SX.sym("x", self.nx)
+        g = f(x, ca.DM(np.asarray(u, float)), ca.DM(params.vector()))
+        solver = ca.rootfinder("ss", "newton", ca.Function("g", [x], [g]), {"abstol": 1e-12})
+        guess = self.sliding_guess(u, params) if x0 is None else x0
+        return np.array(solver(ca.DM(guess))).ravel()
