@@ -47,4 +47,4 @@ def rk4_function(model, dt: float, nsub: int, eps: float | None = None, *, name:
     u = kind.sym("u", model.nu)
     p = kind.sym("p", model.n_p)
     xn = rk4(lambda a, b, c: f(a, b, c), x, u, p, dt, int(nsub))
-    return ca.Function(name or f"{model.name}_rk4", [x, u, p], [xn], ["x", "u", "p"], ["x_next"])
+    return ca.Function(name or f"{model.cname}_rk4", [x, u, p], [xn], ["x", "u", "p"], ["x_next"])

@@ -1,27 +1,28 @@
 """The one log format: CSV with ``name [unit]`` headers.
 
 Everything a rig records, the simulator writes and the estimators read uses this format.
-The header row holds ``name [unit]`` columns from the vocabulary below (disc side of the
-gearbox); any subset a model needs may be present::
+The first row holds ``name [unit]`` columns; ``t [s]`` is required, the other names are the
+channels of the rig file's sensors and inputs (the reference rig: ``theta1..3 [rad]``,
+``omega1..3 [rad/s]``, ``motor_torque [N m]``, ``n1``, ``n2 [N]``, ``omega_ref [rad/s]``), and
+true states written by the simulator (``twist_<connection> [rad]``, ``omega_<body> [rad/s]``)::
 
-    t [s], theta1 [rad], theta2 [rad], theta3 [rad], omega1 [rad/s], omega2 [rad/s],
-    omega3 [rad/s], motor_torque [N m], n1 [N], n2 [N], omega_ref [rad/s],
-    theta_drive [rad], omega_drive [rad/s], axial_force [N]         (lead screw)
-    twist12 [rad], twist23 [rad], twist [rad]                       (truth / estimates)
+    t [s], theta1 [rad], omega1 [rpm], n1 [kN], motor_torque [N mm], ...
 
-Units other than the canonical ones are converted where the conversion is unambiguous
-(``deg``, ``rev``, ``rpm``, ``deg/s``, ``ms``, ``kN``, ``N mm`` ...) and rejected
-otherwise.  Validation: time strictly increasing, no NaN or inf, no gap (a step longer
-than 1.5 times the median step), known names and units; each error is one line naming
-the column and the row (data rows count from 1; the header is line 1 of the file).
-Nothing is silently dropped.  Where only angles are given, speeds are derived by
+Units are converted to SI by :mod:`models.units` (``deg``, ``rev``, ``rpm``, ``ms``, ``kN``,
+``N mm``, ``mN m``, ... case-sensitive: ``mN`` is milli-, ``MN`` mega-newton).  A channel whose
+name follows the vocabulary (``theta*``/``twist*`` angles, ``omega*`` speeds, ``*torque*``
+torques, ``n<k>``/``normal_*``/``*_force`` forces, ``current``, ``voltage``) must have a unit
+of that quantity; any other name takes the quantity of its unit.  Validation: time strictly
+increasing, no NaN or inf, no gap (a step longer than 1.5 times the median step), one
+``name [unit]`` per column; each error is one line naming the column and the row (data rows
+count from 1; the header is line 1 of the file).  A UTF-8 byte-order mark (Excel's CSV) is
+accepted.  Nothing is silently dropped.  Where only angles are given, speeds are derived by
 central differences.
 """
 
 from __future__ import annotations
 
 import csv
-import math
 import os
 import re
 from dataclasses import dataclass, field
@@ -31,110 +32,110 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from models.errors import ConfigError, DataError
+from models.files import atomic_write_text
+from models.rig.spec import SI_UNITS
+from models.units import DIMENSIONS, parse_unit
 
-__all__ = ["CANONICAL_UNITS", "UNIT_FACTORS", "Log", "read_csv", "parse_header", "convert_unit", "atomic_write_text"]
-
-CANONICAL_UNITS: dict[str, str] = {
-    "t": "s",
-    "theta1": "rad", "theta2": "rad", "theta3": "rad",
-    "omega1": "rad/s", "omega2": "rad/s", "omega3": "rad/s",
-    "motor_torque": "N m",
-    "n1": "N", "n2": "N",
-    "omega_ref": "rad/s",
-    "theta_drive": "rad", "omega_drive": "rad/s", "axial_force": "N",
-    "twist12": "rad", "twist23": "rad", "twist": "rad",
-}
-
-#: unit -> (canonical unit, factor to SI)
-UNIT_FACTORS: dict[str, tuple[str, float]] = {
-    "s": ("s", 1.0), "ms": ("s", 1e-3), "min": ("s", 60.0),
-    "rad": ("rad", 1.0), "deg": ("rad", math.pi / 180), "rev": ("rad", 2 * math.pi), "mrad": ("rad", 1e-3),
-    "rad/s": ("rad/s", 1.0), "rpm": ("rad/s", 2 * math.pi / 60), "deg/s": ("rad/s", math.pi / 180),
-    "rev/s": ("rad/s", 2 * math.pi), "hz": ("rad/s", 2 * math.pi),
-    "n m": ("N m", 1.0), "nm": ("N m", 1.0), "n*m": ("N m", 1.0), "n.m": ("N m", 1.0),
-    "n mm": ("N m", 1e-3), "nmm": ("N m", 1e-3), "mn m": ("N m", 1e-3), "kn m": ("N m", 1e3),
-    "n": ("N", 1.0), "kn": ("N", 1e3), "mn": ("N", 1e-3), "kgf": ("N", 9.80665), "lbf": ("N", 4.4482216152605),
-}
-# ambiguous spellings that are refused even though they look like units
-_AMBIGUOUS = {"mn m": "mN m or MN m", "mn": "mN or MN"}
-# the exact-case spellings that resolve an ambiguous lower-case key (milli-newton)
-_EXACT_CASE = {"mN m", "mN", "mN*m", "mN.m"}
+__all__ = ["Log", "read_csv", "parse_header", "channel_kind", "atomic_write_text"]
 
 _HEADER = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*\[([^\]]*)\]\s*$")
 
+# name pattern -> quantity kind (the log vocabulary)
+_VOCAB = (
+    (re.compile(r"^t$"), "time"),
+    (re.compile(r"^(theta|twist)"), "angle"),
+    (re.compile(r"^omega"), "speed"),
+    (re.compile(r"torque"), "torque"),
+    (re.compile(r"^(n\d+|normal_.*|.*_force|weight_on_bit|wob)$"), "force"),
+    (re.compile(r"^current$"), "current"),
+    (re.compile(r"^voltage$"), "voltage"),
+)
+# kinds a free-named channel may take from its unit, in order of preference
+_BY_DIM = ("angle", "speed", "torque", "force", "time", "current", "voltage", "acceleration", "length",
+           "dimensionless")
 
-def convert_unit(name: str, unit: str, where: str) -> float:
-    """Factor that converts ``unit`` to the canonical unit of channel ``name``."""
-    canon = CANONICAL_UNITS[name]
-    key = " ".join(unit.strip().lower().replace("·", " ").split())
-    raw = " ".join(unit.strip().replace("·", " ").split())
-    if key in _AMBIGUOUS and raw not in _EXACT_CASE:
-        raise DataError(f"{where}: unit [{unit}] is ambiguous ({_AMBIGUOUS[key]}); "
-                        f"write it exactly as 'mN m' / 'mN' or convert to [{canon}]")
-    if key in UNIT_FACTORS:
-        target, factor = UNIT_FACTORS[key]
-        if target == canon:
-            return factor
-    raise DataError(f"{where}: unit [{unit}] cannot be converted to [{canon}] for column {name!r}")
+
+def channel_kind(name: str) -> str | None:
+    """The quantity kind the vocabulary gives a channel name, or None for a free name."""
+    for pat, kind in _VOCAB:
+        if pat.search(name):
+            return kind
+    return None
 
 
-def parse_header(cells: list[str], source: str) -> list[tuple[str, float]]:
-    """Header cells -> [(name, factor to SI)]; raises DataError on unknown names/units."""
+def _unit_of(name: str, unit: str | None, where: str) -> tuple[str, float]:
+    """(SI unit, factor) of a channel given in ``unit`` (None: its vocabulary unit, already SI)."""
+    kind = channel_kind(name)
+    if unit is None:
+        if kind is None:
+            raise DataError(f"{where}: unknown channel {name!r}: give its unit (free-named channels need one)")
+        return SI_UNITS[kind], 1.0
+    try:
+        u = parse_unit(unit, where)
+    except ConfigError:
+        want = f" to [{SI_UNITS[kind]}]" if kind else ""
+        raise DataError(f"{where}: unit [{unit}] cannot be converted{want} for column {name!r}") from None
+    if kind is not None:
+        if u.dim != DIMENSIONS[kind]:
+            if kind == "speed" and unit.strip().lower() == "hz":
+                return SI_UNITS[kind], 2 * np.pi
+            raise DataError(f"{where}: unit [{unit}] cannot be converted to [{SI_UNITS[kind]}] for column {name!r}")
+        return SI_UNITS[kind], u.factor
+    for k in _BY_DIM:
+        if DIMENSIONS[k] == u.dim:
+            return SI_UNITS[k], u.factor
+    raise DataError(f"{where}: unit [{unit}] of column {name!r} is not a quantity a log holds "
+                    f"({', '.join(_BY_DIM)})")
+
+
+def parse_header(cells: list[str], source: str) -> list[tuple[str, str, float]]:
+    """Header cells -> [(name, SI unit, factor to SI)]; raises DataError on bad names/units."""
     out, seen = [], set()
     for j, cell in enumerate(cells, start=1):
         m = _HEADER.match(cell)
         if not m:
             raise DataError(f"{source}: header column {j} must look like 'name [unit]', got {cell!r}")
         name, unit = m.group(1), m.group(2)
-        if name not in CANONICAL_UNITS:
-            raise DataError(f"{source}: header column {j}: unknown channel {name!r}; "
-                            f"expected one of {', '.join(CANONICAL_UNITS)}")
         if name in seen:
             raise DataError(f"{source}: header column {j}: channel {name!r} appears twice")
         seen.add(name)
-        out.append((name, convert_unit(name, unit, f"{source}: column {name!r}")))
+        si, f = _unit_of(name, unit, f"{source}: column {name!r}")
+        out.append((name, si, f))
     if "t" not in seen:
         raise DataError(f"{source}: missing required column 't [s]'")
     return out
 
 
-def atomic_write_text(path: str | os.PathLike, text: str, *, overwrite: bool = False) -> Path:
-    """Write a file atomically (temp file + rename); refuse to replace unless ``overwrite``."""
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise ConfigError(f"{path}: file exists; refusing to overwrite (use --force)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
-
-
 @dataclass(frozen=True)
 class Log:
-    """A validated log: time [s] and channels in canonical SI units.
+    """A validated log: time [s] and channels in SI units.
 
     Attributes
     ----------
     t : (n,) sample times [s], strictly increasing
-    channels : name -> (n,) values in the canonical unit of :data:`CANONICAL_UNITS`
+    channels : name -> (n,) values in SI units
     source : where it came from (file name or "simulation")
+    derived : channels computed from others (speeds from angles)
+    units : name -> SI unit (from the vocabulary unless given)
     """
 
     t: np.ndarray
     channels: Mapping[str, np.ndarray]
     source: str = "memory"
     derived: tuple[str, ...] = field(default=())
+    units: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self):
         t = np.asarray(self.t, dtype=float)
         object.__setattr__(self, "t", t)
         chans = {k: np.asarray(v, dtype=float) for k, v in self.channels.items()}
         object.__setattr__(self, "channels", chans)
+        units = {}
+        for k in chans:
+            if not isinstance(k, str) or not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", k):
+                raise DataError(f"{self.source}: channel name {k!r} must be an identifier")
+            units[k] = self.units.get(k) or _unit_of(k, None, self.source)[0]
+        object.__setattr__(self, "units", units)
         validate(t, chans, self.source)
 
     def __contains__(self, name: str) -> bool:
@@ -156,28 +157,45 @@ class Log:
         for n in names:
             self[n]
 
+    def require_kind(self, name: str, kind: str) -> np.ndarray:
+        """``self[name]``, checking that it holds a quantity of ``kind`` (e.g. a force)."""
+        col = self[name]
+        if self.units.get(name) != SI_UNITS[kind]:
+            raise DataError(f"{self.source}: column {name!r} holds [{self.units.get(name)}], expected a "
+                            f"{kind} [{SI_UNITS[kind]}]")
+        return col
+
     def with_speeds(self) -> "Log":
-        """Derive missing speeds from angles (central differences, one-sided at the ends)."""
+        """Derive missing speeds ``omega<X>`` from angles ``theta<X>`` (central differences)."""
         chans = dict(self.channels)
+        units = dict(self.units)
         derived = list(self.derived)
-        for ang, spd in (("theta1", "omega1"), ("theta2", "omega2"), ("theta3", "omega3"),
-                         ("theta_drive", "omega_drive")):
-            if ang in chans and spd not in chans:
-                chans[spd] = np.gradient(chans[ang], self.t)
-                derived.append(spd)
-        return Log(self.t, chans, self.source, tuple(derived))
+        for ang in list(chans):
+            if ang.startswith("theta"):
+                spd = "omega" + ang[len("theta"):]
+                if spd not in chans:
+                    chans[spd] = np.gradient(chans[ang], self.t)
+                    units[spd] = "rad/s"
+                    derived.append(spd)
+        return Log(self.t, chans, self.source, tuple(derived), units)
 
     def slice(self, t0: float, t1: float) -> "Log":
         """The samples with ``t0 <= t < t1``."""
         m = (self.t >= t0) & (self.t < t1)
         if m.sum() < 2:
             raise DataError(f"{self.source}: window [{t0}, {t1}) s holds fewer than 2 samples")
-        return Log(self.t[m], {k: v[m] for k, v in self.channels.items()}, self.source, self.derived)
+        return Log(self.t[m], {k: v[m] for k, v in self.channels.items()}, self.source, self.derived, self.units)
+
+    def with_channels(self, **channels) -> "Log":
+        """A copy with channels added or replaced (vocabulary units)."""
+        ch = dict(self.channels)
+        ch.update(channels)
+        return Log(self.t, ch, self.source, self.derived, {k: v for k, v in self.units.items() if k not in channels})
 
     def to_csv_text(self, precision: int = 9) -> str:
-        names = ["t"] + [n for n in CANONICAL_UNITS if n in self.channels and n != "t"]
-        cols = [self.t] + [self.channels[n] for n in names[1:]]
-        lines = [",".join(f"{n} [{CANONICAL_UNITS[n]}]" for n in names)]
+        names = [n for n in self.channels if n != "t"]
+        cols = [self.t] + [self.channels[n] for n in names]
+        lines = [",".join(["t [s]"] + [f"{n} [{self.units[n]}]" for n in names])]
         fmt = f"{{:.{precision}g}}"
         for row in zip(*cols):
             lines.append(",".join(fmt.format(v) for v in row))
@@ -194,8 +212,6 @@ def validate(t: np.ndarray, chans: Mapping[str, np.ndarray], source: str) -> Non
     if n < 2:
         raise DataError(f"{source}: needs at least 2 samples, got {n}")
     for name, col in [("t", t)] + list(chans.items()):
-        if name not in CANONICAL_UNITS:
-            raise DataError(f"{source}: unknown channel {name!r}; expected one of {', '.join(CANONICAL_UNITS)}")
         if col.shape != (n,):
             raise DataError(f"{source}: column {name!r} has shape {col.shape}, expected ({n},)")
         bad = np.flatnonzero(~np.isfinite(col))
@@ -227,10 +243,12 @@ def read_csv(path: str | os.PathLike, required: Iterable[str] = ()) -> Log:
     path = Path(path)
     src = str(path)
     try:
-        with path.open(newline="") as fh:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.reader(fh))
     except FileNotFoundError:
         raise DataError(f"{src}: log file not found") from None
+    except IsADirectoryError:
+        raise DataError(f"{src}: is a folder, expected a CSV log file") from None
     except (UnicodeDecodeError, csv.Error) as exc:
         raise DataError(f"{src}: not a readable CSV file ({exc})") from None
     rows = [r for r in rows if r and not (len(r) == 1 and not r[0].strip()) and not r[0].lstrip().startswith("#")]
@@ -247,8 +265,10 @@ def read_csv(path: str | os.PathLike, required: Iterable[str] = ()) -> Log:
             except ValueError:
                 raise DataError(f"{src}: column {header[j][0]!r} row {i} (line {i + 1}): "
                                 f"expected a number, got {cell!r}") from None
-    cols = {name: data[:, j] * f for j, (name, f) in enumerate(header)}
+    cols = {name: data[:, j] * f for j, (name, _u, f) in enumerate(header)}
+    units = {name: u for name, u, _f in header}
     t = cols.pop("t")
-    log = Log(t, cols, src).with_speeds()
+    units.pop("t")
+    log = Log(t, cols, src, (), units).with_speeds()
     log.require(required)
     return log

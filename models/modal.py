@@ -1,35 +1,35 @@
-"""Linearised modal analysis of the rigs about steady sliding.
+"""Linearised modal analysis of any rig about steady sliding.
 
-Three questions are answered here:
+Three questions are answered here, for every rig file:
 
-1. *Which torsional modes does the rig have?*  :func:`modes` gives natural
-   frequencies, damping ratios and mode shapes for
+1. *Which torsional modes does the rig have?*  :func:`modes` gives natural frequencies,
+   damping ratios and mode shapes for
 
-   - ``"free"``: the mechanical chain only (J1, J2, J3 = eta^2 Jm, k1, k2, d1, d2; no
-     motor electrics, no friction), i.e. the thesis eq. (3-3) model plus the shaft
-     damping; it has the rigid-body 0 Hz mode of eq. (3-4);
-   - ``"clamped"``: the same chain with the motor end held fixed (theta3 = 0);
-   - ``"closed"``: the full model (rig3: DC motor, PI speed loop, pin friction)
-     linearised at steady sliding (:func:`linearise`).
+   - ``"free"``: the mechanical chain only (the bodies' inertias, the motor's rotor reflected
+     through its gearbox, the springs and dampers; no motor electrics, no friction): the
+     thesis eq. (3-3) model plus the shaft damping, with its rigid-body 0 Hz mode.  A speed
+     drive's node and the frame are held;
+   - ``"clamped"``: the same chain with the drive body held as well;
+   - ``"closed"``: the full model (DC motor, PI speed loop, friction) linearised at steady
+     sliding (:func:`linearise`).
 
-   :func:`compare_measured` sets them against the frequencies the thesis measured
-   (Fig. 3.7: 0, 0.396 and 1.781 Hz).
-2. *Is steady sliding stable?*  :func:`sliding_stability` returns the largest real
-   part of the linearisation; :func:`stability_map` maps it over (N1, speed).  A
-   positive value means the negative slope of the Stribeck law beats the damping
-   and the rig falls into stick-slip from any small disturbance.
-3. *What linear model do controllers/observers see?*  :class:`LinearModel` carries
+   :func:`compare_measured` sets them against the frequencies the rig file gives as
+   measured (``[rig] measured_modes_hz``; the thesis: 0, 0.396 and 1.781 Hz, Fig. 3.7).
+2. *Is steady sliding stable?*  :func:`sliding_stability` returns the largest real part of
+   the linearisation; :func:`stability_map` maps it over (normal force, speed).  A positive
+   value means the falling friction law beats the damping and the rig falls into
+   stick-slip from any small disturbance.
+3. *What linear model do controllers and observers see?*  :class:`LinearModel` carries
    A, B, C, D and a python-control ``StateSpace``.
 
 Regularisation
 --------------
 :func:`linearise` differentiates the regularised model ``model.ode(eps)``.  Its friction
 torque is ``tanh(v/eps) T(|v|)``, whose slope is ``T(|v|) sech^2(v/eps)/eps + tanh(v/eps)
-T'(|v|)``.  At a sliding speed ``|v| >> eps`` the first term vanishes (``sech^2`` is
-below 1e-20 for ``|v| > 25 eps``) and the slope is the Stribeck slope ``T'(|v|)``, i.e.
-the linearisation is physically the sliding one.  **eps must therefore be much smaller
-than the sliding speed**; :func:`linearise` flags operating points with
-``|v| < 10 eps`` in ``status``.
+T'(|v|)``.  At a sliding speed ``|v| >> eps`` the first term vanishes (``sech^2`` is below
+1e-20 for ``|v| > 25 eps``) and the slope is the law's own, i.e. the linearisation is
+physically the sliding one.  **eps must therefore be much smaller than the sliding speed**;
+:func:`linearise` flags operating points with ``|v| < 10 eps`` in ``message``.
 
 References
 ----------
@@ -39,7 +39,7 @@ thesis Ch. 3, eqs. (3-3)-(3-7), (3-9), (3-13), Fig. 3.7.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import casadi as ca
@@ -47,13 +47,15 @@ import numpy as np
 import scipy.linalg
 
 from models.errors import ConfigError
-from models.params import ParameterSet, Rig3Params
-from models.rigs import RigModel, get_model
+from models.params import ParameterSet
+from models.rig import get_model
+from models.rig.model import _val
+from models.rig.spec import NODE_DRIVE, NODE_GROUND
+from models.status import Status
 
 __all__ = [
     "LinearModel",
     "ModalResult",
-    "MEASURED_HZ",
     "VARIANTS",
     "linearise",
     "operating_point",
@@ -62,13 +64,10 @@ __all__ = [
     "compare_measured",
     "sliding_stability",
     "stability_map",
-    "stribeck_onset_n1",
+    "stribeck_onset",
 ]
 
-#: Natural frequencies measured on the 3-disc rig [Hz] (thesis Fig. 3.7, Sect. 3.1.2 and 3.3).
-MEASURED_HZ: tuple[float, float, float] = (0.0, 0.396, 1.781)
-
-#: Modal variants: mechanical chain free / clamped at the motor, or the full closed loop.
+#: Modal variants: mechanical chain free / clamped at the drive, or the full closed loop.
 VARIANTS = ("free", "clamped", "closed")
 
 
@@ -84,7 +83,8 @@ class LinearModel:
     states, inputs, outputs : names
     eps : regularisation of the friction used [rad/s]
     ss : the same system as a python-control ``StateSpace`` (property, built on first use)
-    status : human-readable message; success : True if ``x_op`` is an equilibrium
+    status : Status.OK, or Status.WARNING if ``x_op`` is not an equilibrium or the sliding
+        speed is not >> eps (``message`` says which)
     """
 
     A: np.ndarray
@@ -98,8 +98,12 @@ class LinearModel:
     outputs: tuple[str, ...]
     eps: float
     model: str
-    status: str = "ok"
-    success: bool = True
+    status: Status = Status.OK
+    message: str = "ok"
+
+    @property
+    def success(self) -> bool:
+        return self.status is Status.OK
 
     @cached_property
     def ss(self):
@@ -117,24 +121,23 @@ class LinearModel:
 
 @dataclass(frozen=True)
 class ModalResult:
-    """Modes of one variant of a model.
+    """Modes of one variant of a rig.
 
     Attributes
     ----------
     model, variant : which system
-    freq_hz : (m,) undamped natural frequency |lambda|/(2 pi) of each mode [Hz]
-        (0 for the rigid-body mode)
+    freq_hz : (m,) undamped natural frequency |lambda|/(2 pi) of each mode [Hz] (0 for the
+        rigid-body mode)
     damped_hz : (m,) damped frequency |Im lambda|/(2 pi) [Hz] (0: non-oscillatory)
-    damping : (m,) damping ratio -Re(lambda)/|lambda| (0 for the rigid-body mode;
-        negative: an unstable mode)
+    damping : (m,) damping ratio -Re(lambda)/|lambda| (negative: an unstable mode)
     oscillatory : (m,) bool, complex pair
     shapes : (m, ndof) real mode shapes on ``dof_names``, normalised so the component of
         largest magnitude is +1 (complex eigenvectors rotated to that component)
-    dof_names : the degrees of freedom of ``shapes`` (angles for the mechanical chain,
-        speeds for the closed loop)
+    dof_names : the degrees of freedom of ``shapes`` (body angles for the mechanical chain,
+        body speeds for the closed loop)
     eigenvalues : (n,) all eigenvalues [1/s], sorted by magnitude
-    max_real : largest real part [1/s] (excluding the rigid-body zero pair)
-    status : human-readable message; success : bool
+    max_real : largest real part [1/s] (excluding the rigid-body zero)
+    status : Status; message : detail
     """
 
     model: str
@@ -147,54 +150,63 @@ class ModalResult:
     dof_names: tuple[str, ...]
     eigenvalues: np.ndarray
     max_real: float
-    status: str = "ok"
-    success: bool = True
+    status: Status = Status.OK
+    message: str = "ok"
+
+    @property
+    def success(self) -> bool:
+        return self.status is Status.OK
+
+    def as_dict(self) -> dict:
+        return {"model": self.model, "variant": self.variant, "freq_hz": self.freq_hz.tolist(),
+                "damped_hz": self.damped_hz.tolist(), "damping": self.damping.tolist(),
+                "oscillatory": self.oscillatory.tolist(), "shapes": self.shapes.tolist(),
+                "dof_names": list(self.dof_names), "max_real": self.max_real, "status": self.status.value,
+                "message": self.message}
 
 
 # ----------------------------------------------------------------------------- linearisation
-def operating_point(model: RigModel, params: ParameterSet, *, omega: float | None = None,
+def _params(model, params):
+    return model.published() if params is None else model.check_params(params)
+
+
+def operating_point(model, params: ParameterSet | None = None, *, omega: float | None = None,
                     load: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """Default sliding operating point ``(u, x_op or None)`` of a model.
+    """Default sliding operating point ``(u, x_op or None)`` of a rig.
 
-    Parameters
-    ----------
-    omega : sliding speed [rad/s] (rig3: omega_ref, disc side; disc: omega3;
-        leadscrew: omega_drive; rig2: disc speed).  Defaults: rig3/disc 30 rpm,
-        leadscrew 40.3 rad/s (seed 002 Fig. 9.23), rig2 1 rad/s.
-    load : normal/axial load (rig3/disc: N1 [N], default 20; leadscrew: R [N], default
-        314.3); unused for rig2.
-
-    Returns
-    -------
-    u : input vector; x_op : the equilibrium state when it is known in closed form
-        (rig2, whose pure-Coulomb sliding is a continuum of equilibria), else None.
+    The rig file's ``[rig] operating_point`` gives the inputs (rig3: 30 rpm, N1 = 20 N);
+    ``omega`` [rad/s] replaces the drive's speed and ``load`` [N] the first contact's
+    normal-force input.  A torque drive's operating point is a sliding speed: its input
+    torque and state are solved for and returned (``x_op``), since pure Coulomb friction
+    has a continuum of equilibria.
     """
-    name = model.name
-    if name == "rig3":
-        w = math.pi if omega is None else float(omega)
-        return np.array([w, 20.0 if load is None else float(load), 0.0]), None
-    if name == "disc":
-        w = math.pi if omega is None else float(omega)
-        return np.array([w, 20.0 if load is None else float(load)]), None
-    if name == "leadscrew":
-        w = 40.3 if omega is None else float(omega)
-        return np.array([w, 314.3 if load is None else float(load)]), None
-    if name == "rig2":
-        p = params
-        w = 1.0 if omega is None else float(omega)
-        Tfric = np.sign(w) * (p.Tc + (p.Ts - p.Tc) * math.exp(-abs(w) / p.v_s))
-        tau = Tfric + (p.cd + p.cm) * w
-        x = np.array([-(Tfric + p.cd * w) / p.k, w, w])
-        return np.array([tau]), x
-    raise ConfigError(f"no operating point defined for model {name!r}")
+    model = get_model(model)
+    params = _params(model, params)
+    op = dict(model.spec.extra.get("operating_point", {}))
+    u = np.array([op.get(n, 0.0) for n in model.inputs], float)
+    normals = [j for j, k in enumerate(model.input_kinds) if k == "force"]
+    if load is not None:
+        if not normals:
+            raise ConfigError(f"rig {model.name!r} has no normal-force input for a load")
+        u[normals[0]] = float(load)
+    if model.drive_kind == "torque":
+        speed = float(omega if omega is not None else op.get("speed", 1.0))
+        u2, x = model.operating_point(speed, u, params)
+        return u2, x
+    j = model.inputs.index(model.drive_input)
+    if omega is not None:
+        u[j] = float(omega)
+    elif model.drive_input not in op:
+        u[j] = 1.0
+    return u, None
 
 
 _FUNCS: dict = {}
 
 
-def _functions(model: RigModel, eps: float, outputs: tuple[str, ...]):
+def _functions(model, eps: float, outputs: tuple[str, ...]):
     """(ode, Newton equilibrium solver g(x; u, p), Jacobian Function), cached per model/eps/outputs."""
-    key = (model.name, eps, outputs)
+    key = (id(model), model.key, eps, outputs)
     if key not in _FUNCS:
         f = model.ode(eps)
         x, uu, p = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu), ca.SX.sym("p", model.n_p)
@@ -202,42 +214,33 @@ def _functions(model: RigModel, eps: float, outputs: tuple[str, ...]):
         g = ca.Function("g", [x, ca.vertcat(uu, p)], [xd])
         solver = ca.rootfinder("eq", "newton", g, {"abstol": 1e-12, "max_iter": 100})
         y = model.meas_vector(list(outputs))(x, uu, p)
-        jac = ca.Function(f"{model.name}_lin", [x, uu, p],
+        jac = ca.Function(f"{model.cname}_lin", [x, uu, p],
                           [ca.jacobian(xd, x), ca.jacobian(xd, uu), ca.jacobian(y, x), ca.jacobian(y, uu), xd],
                           ["x", "u", "p"], ["A", "B", "C", "D", "xdot"])
         _FUNCS[key] = (f, solver, jac)
     return _FUNCS[key]
 
 
-def linearise(model: RigModel | str, params: ParameterSet, u, eps: float | None = None,
-              x_op=None, outputs: tuple[str, ...] | None = None) -> LinearModel:
+def linearise(model, params: ParameterSet | None, u, eps: float | None = None, x_op=None,
+              outputs: tuple[str, ...] | None = None) -> LinearModel:
     """Linearise the regularised model about steady sliding.
 
     Parameters
     ----------
-    model : a rig model (or its name)
-    params : its parameter set (published or fitted)
-    u : (nu,) constant input of the operating point (e.g. rig3: omega_ref [rad/s], N1, N2 [N])
+    model : a rig (name, file or model)
+    params : its parameter set (published or fitted; None: published)
+    u : (nu,) constant input of the operating point (rig3: omega_ref [rad/s], N1, N2 [N])
     eps : friction regularisation [rad/s]; must be << the sliding speed (module docstring)
     x_op : (nx,) operating state; default: the equilibrium of ``model.ode(eps)`` at ``u``
-        (Newton from ``model.sliding_guess``)
-    outputs : output names (default: every output of ``model.outputs`` that needs no
+    outputs : output names (default: every sensor channel and state quantity that needs no
         absolute angle)
 
     Returns
     -------
     LinearModel
-        ``success`` is False if ``x_op`` is not an equilibrium (|f| > 1e-8) or the
-        sliding speed is not >> eps.
-
-    References
-    ----------
-    CasADi ``jacobian`` of the named Function ``model.ode(eps)``.
     """
-    model = get_model(model) if isinstance(model, str) else model
-    if not isinstance(params, model.param_cls):
-        raise ConfigError(f"params must be {model.param_cls.__name__} for model {model.name!r}, "
-                          f"got {type(params).__name__}")
+    model = get_model(model)
+    params = _params(model, params)
     u = np.asarray(u, dtype=float).ravel()
     if u.shape != (model.nu,) or not np.all(np.isfinite(u)):
         raise ConfigError(f"u must be {model.nu} finite numbers {model.inputs}, got {u}")
@@ -245,7 +248,8 @@ def linearise(model: RigModel | str, params: ParameterSet, u, eps: float | None 
     if not eps > 0:
         raise ConfigError(f"eps must be > 0 rad/s, got {eps}")
     if outputs is None:
-        outputs = tuple(n for n in model.output_names() if not n.startswith("theta"))
+        angles = {s.channels[0] for s in model.sensors if s.kind == "encoder"}
+        outputs = tuple(n for n in model.output_names() if n not in angles)
     f, solver, jac = _functions(model, eps, tuple(outputs))
     if x_op is None:
         guess = model.sliding_guess(u, params)
@@ -265,31 +269,61 @@ def linearise(model: RigModel | str, params: ParameterSet, u, eps: float | None 
         msgs.append(f"a contact speed {min(speeds):.3g} rad/s is not >> eps = {eps:g} rad/s: "
                     "the regularisation, not the sliding friction, sets the slope")
     return LinearModel(A, B, C, D, x_op, u, tuple(model.states), tuple(model.inputs), tuple(outputs), eps,
-                       model.name, "; ".join(msgs) or "ok", not msgs)
+                       model.name, Status.WARNING if msgs else Status.OK, "; ".join(msgs) or "ok")
 
 
 # ----------------------------------------------------------------------------- mechanical chain
-def chain_matrices(params: Rig3Params, *, clamped: bool = False, damped: bool = True):
-    """Mass, damping and stiffness matrices of the 3-disc chain (thesis eq. 3-3).
+def chain_matrices(model, params: ParameterSet | None = None, *, clamped: bool = False, damped: bool = True):
+    """Mass, damping and stiffness matrices of a rig's mechanical chain (thesis eq. 3-3).
+
+    The degrees of freedom are the bodies' angles; a DC motor's rotor adds ``ratio^2 Jm`` to
+    the body it drives; springs and dampers to the frame or to a speed drive's node hold that
+    end fixed; backlash is ignored (teeth in contact); friction is left out.
 
     Parameters
     ----------
-    params : Rig3Params (J1, J2, Jm, eta, k1, k2, d1, d2 used)
-    clamped : hold the motor end (theta3 = 0): 2 DOF (theta1, theta2)
-    damped : include the shaft damping d1, d2 (eq. 3-3 itself is undamped)
+    model : a rig (name, file or model); params : its parameters (None: published)
+    clamped : hold the drive body as well (a DC motor or torque drive)
+    damped : include the dampers (eq. 3-3 itself is undamped)
 
     Returns
     -------
-    M, Cd, K : (n, n) arrays [kg m^2], [N m s/rad], [N m/rad]; dof names
+    M, Cd, K : (n, n) arrays [kg m^2], [N m s/rad], [N m/rad]; the dof names
     """
-    p = params
-    M = np.diag([p.J1, p.J2, p.eta ** 2 * p.Jm])
-    K = np.array([[p.k1, -p.k1, 0.0], [-p.k1, p.k1 + p.k2, -p.k2], [0.0, -p.k2, p.k2]])
-    d1, d2 = (p.d1, p.d2) if damped else (0.0, 0.0)
-    Cd = np.array([[d1, -d1, 0.0], [-d1, d1 + d2, -d2], [0.0, -d2, d2]])
-    dofs = ("theta1", "theta2", "theta3")
+    model = get_model(model)
+    params = _params(model, params)
+    P = params.as_dict()
+    bodies = list(model.bodies)
+    n = len(bodies)
+    idx = {b: i for i, b in enumerate(bodies)}
+    M = np.zeros((n, n))
+    K = np.zeros((n, n))
+    Cd = np.zeros((n, n))
+    d = model.spec.drive
+    for b in bodies:
+        J = _val(model.spec.body(b).inertia, P, {})
+        if d.kind == "dc_motor" and d.body == b:
+            J += _val(d.param("ratio"), P, {}) ** 2 * _val(d.param("Jm"), P, {})
+        M[idx[b], idx[b]] = J
+    for c in model.spec.connections:
+        for mat, ref in ((K, c.stiffness), (Cd, c.damping if damped else None)):
+            if ref is None:
+                continue
+            v = _val(ref, P, {})
+            ia, ib = idx.get(c.a), idx.get(c.b)
+            for i in (ia, ib):
+                if i is not None:
+                    mat[i, i] += v
+            if ia is not None and ib is not None:
+                mat[ia, ib] -= v
+                mat[ib, ia] -= v
+    dofs = tuple(f"theta_{b}" for b in bodies)
     if clamped:
-        return M[:2, :2], Cd[:2, :2], K[:2, :2], dofs[:2]
+        if model.drive_kind == "speed":
+            return M, Cd, K, dofs
+        keep = [i for i, b in enumerate(bodies) if b != d.body]
+        sel = np.ix_(keep, keep)
+        return M[sel], Cd[sel], K[sel], tuple(dofs[i] for i in keep)
     return M, Cd, K, dofs
 
 
@@ -306,7 +340,7 @@ def _modes_from_A(A: np.ndarray, dof_index: list[int], dof_names, model: str, va
     lam, V = scipy.linalg.eig(A)
     order = np.argsort(np.abs(lam), kind="stable")
     lam, V = lam[order], V[:, order]
-    scale = max(1.0, float(np.max(np.abs(lam))))
+    scale = max(1.0, float(np.max(np.abs(lam)))) if lam.size else 1.0
     rows = []
     seen_zero = False
     for j, l in enumerate(lam):
@@ -333,119 +367,132 @@ def _modes_from_A(A: np.ndarray, dof_index: list[int], dof_names, model: str, va
         model, variant,
         np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
         np.array([r[3] for r in rows], dtype=bool), np.array([r[4] for r in rows]), tuple(dof_names),
-        lam, max_real, "ok" if ok else "non-finite eigenvalues", ok)
+        lam, max_real, Status.OK if ok else Status.FAILED, "ok" if ok else "non-finite eigenvalues")
 
 
-def modes(model: RigModel | str = "rig3", params: ParameterSet | None = None, variant: str = "closed", *,
-          u=None, omega: float | None = None, load: float | None = None, eps: float | None = None,
+def modes(model="rig3", params: ParameterSet | None = None, variant: str = "closed", *, u=None,
+          omega: float | None = None, load: float | None = None, eps: float | None = None,
           damped: bool = True) -> ModalResult:
     """Natural frequencies, damping ratios and mode shapes of one variant.
 
     Parameters
     ----------
-    model : "rig3", "rig2", "leadscrew" or "disc" (or the model object)
+    model : a rig (name, file or model)
     params : parameter set (default: published)
-    variant : "free" | "clamped" (rig3 mechanical chain) or "closed" (any model:
-        linearised at steady sliding; "sliding" is accepted as the same)
-    u : input of the operating point (closed); default from :func:`operating_point`
-        with ``omega`` [rad/s] and ``load`` (N1 [N] or R [N])
+    variant : "free" | "clamped" (mechanical chain) or "closed" (linearised at steady sliding;
+        "sliding" is accepted as the same)
+    u : input of the operating point (closed); default from :func:`operating_point` with
+        ``omega`` [rad/s] and ``load`` [N]
     eps : regularisation for the closed variant [rad/s]
-    damped : include d1, d2 in the mechanical chain (free/clamped)
+    damped : include the dampers in the mechanical chain (free/clamped)
 
     Returns
     -------
     ModalResult
     """
-    model = get_model(model) if isinstance(model, str) else model
-    params = model.published() if params is None else params
+    model = get_model(model)
+    params = _params(model, params)
     if variant == "sliding":
         variant = "closed"
     if variant not in VARIANTS:
         raise ConfigError(f"variant must be one of {', '.join(VARIANTS)}, got {variant!r}")
     if variant in ("free", "clamped"):
-        if model.name != "rig3":
-            raise ConfigError(f"variant {variant!r} is defined for model 'rig3' only, got {model.name!r}")
-        M, Cd, K, dofs = chain_matrices(params, clamped=(variant == "clamped"), damped=damped)
+        M, Cd, K, dofs = chain_matrices(model, params, clamped=(variant == "clamped"), damped=damped)
         A = _second_order_ss(M, Cd, K)
         return _modes_from_A(A, list(range(len(dofs))), dofs, model.name, variant)
+    x_op = None
     if u is None:
         u, x_op = operating_point(model, params, omega=omega, load=load)
-    else:
-        x_op = None
     lin = linearise(model, params, u, eps=eps, x_op=x_op)
-    speed_idx = [i for i, s in enumerate(model.states) if s.startswith("omega")]
+    speed_idx = [i for i, s in enumerate(model.states) if s.startswith("omega_")]
     res = _modes_from_A(lin.A, speed_idx, [model.states[i] for i in speed_idx], model.name, "closed")
     if not lin.success:
-        res = ModalResult(**{**res.__dict__, "status": lin.status, "success": False})
+        res = replace(res, status=lin.status, message=lin.message)
     return res
 
 
-def compare_measured(result: ModalResult, measured=MEASURED_HZ) -> list[tuple[str, float, float, float]]:
-    """Rows ``(label, model_hz, measured_hz, error_percent)`` against the thesis' modes.
+def compare_measured(result: ModalResult, measured=None) -> list[tuple[str, float, float, float]]:
+    """Rows ``(label, model_hz, measured_hz, error_percent)`` against the measured modes.
 
-    The rigid-body row takes the 0 Hz mode if the variant has one (error reported as the
-    absolute value in Hz, since 0 has no relative error), else NaN; the two flexible rows
-    take the two lowest *oscillatory* modes (undamped natural frequency).
+    ``measured`` defaults to the rig file's ``measured_modes_hz`` (the thesis: 0, 0.396,
+    1.781 Hz); a rig without them gives no rows.  The rigid-body row takes the 0 Hz mode if
+    the variant has one (no relative error), the others take the lowest *oscillatory* modes.
     """
+    if measured is None:
+        measured = get_model(result.model).spec.extra.get("measured_modes_hz", ())
     rows = []
-    rigid = [f for f, o in zip(result.freq_hz, result.oscillatory) if f == 0.0]
-    rows.append(("rigid body", rigid[0] if rigid else float("nan"), measured[0], float("nan")))
     osc = [f for f, o in zip(result.freq_hz, result.oscillatory) if o]
-    for k, label in enumerate(("mode 1", "mode 2")):
+    k = 0
+    for mhz in measured:
+        if mhz == 0.0:
+            rigid = [f for f, o in zip(result.freq_hz, result.oscillatory) if f == 0.0]
+            rows.append(("rigid body", rigid[0] if rigid else float("nan"), 0.0, float("nan")))
+            continue
         f = osc[k] if k < len(osc) else float("nan")
-        rows.append((label, f, measured[k + 1], 100.0 * (f - measured[k + 1]) / measured[k + 1]))
+        k += 1
+        rows.append((f"mode {k}", f, mhz, 100.0 * (f - mhz) / mhz))
     return rows
 
 
 # ----------------------------------------------------------------------------- stability of sliding
-def sliding_stability(model: RigModel | str, params: ParameterSet, u, eps: float | None = None,
+def sliding_stability(model, params: ParameterSet | None, u, eps: float | None = None,
                       x_op=None) -> tuple[bool, float]:
     """Is steady sliding at input ``u`` linearly stable?
 
     Returns
     -------
-    stable : bool (largest real part < 0)
-    max_real : largest real part of the eigenvalues [1/s]
+    stable : bool (largest real part < 0, the rigid-body zero of a torque drive excluded)
+    max_real : that largest real part [1/s]
     """
+    model = get_model(model)
+    if x_op is None and model.drive_kind == "torque":
+        x_op = model.sliding_guess(u, _params(model, params))
     lin = linearise(model, params, u, eps=eps, x_op=x_op)
-    mr = float(np.max(np.linalg.eigvals(lin.A).real))
+    ev = np.linalg.eigvals(lin.A)
+    ev = ev[np.abs(ev) > 1e-9 * max(1.0, float(np.max(np.abs(ev))))]
+    mr = float(np.max(ev.real)) if ev.size else 0.0
     return bool(mr < 0.0), mr
 
 
-def stability_map(model: RigModel | str, params: ParameterSet, n1_values, omega_values,
+def stability_map(model, params: ParameterSet | None, load_values, omega_values,
                   eps: float | None = None) -> np.ndarray:
-    """Largest real part [1/s] of the sliding linearisation over (N1, speed).
+    """Largest real part [1/s] of the sliding linearisation over (normal force, speed).
 
     Parameters
     ----------
-    model : "rig3" or "disc" (inputs (speed, N1, ...) with the remaining ones zero)
-    n1_values : (a,) pin force N1 [N]; omega_values : (b,) sliding speed [rad/s]
+    model : a rig with a speed-setting drive and a normal-force input
+    load_values : (a,) the first contact's normal-force input [N]
+    omega_values : (b,) the drive's speed [rad/s]; the other inputs as in the rig's operating point
 
     Returns
     -------
     (a, b) array; > 0 where steady sliding is unstable (stick-slip onset).
     """
-    model = get_model(model) if isinstance(model, str) else model
-    if model.name not in ("rig3", "disc"):
-        raise ConfigError(f"stability_map supports 'rig3' and 'disc', got {model.name!r}")
-    n1_values = np.asarray(n1_values, dtype=float).ravel()
+    model = get_model(model)
+    params = _params(model, params)
+    if model.drive_kind == "torque" or "force" not in model.input_kinds:
+        raise ConfigError(f"stability_map needs a rig with a speed-setting drive and a normal-force input, "
+                          f"got {model.name!r} ({model.drive_kind} drive, inputs {', '.join(model.inputs)})")
+    base, _ = operating_point(model, params)
+    jl = model.input_kinds.index("force")
+    jw = model.inputs.index(model.drive_input)
+    load_values = np.asarray(load_values, dtype=float).ravel()
     omega_values = np.asarray(omega_values, dtype=float).ravel()
-    out = np.empty((n1_values.size, omega_values.size))
-    for a, n1 in enumerate(n1_values):
+    out = np.empty((load_values.size, omega_values.size))
+    for a, n1 in enumerate(load_values):
         for b, w in enumerate(omega_values):
-            u = np.zeros(model.nu)
-            u[0], u[1] = w, n1
+            u = base.copy()
+            u[jw], u[jl] = w, n1
             out[a, b] = sliding_stability(model, params, u, eps=eps)[1]
     return out
 
 
-def stribeck_onset_n1(params, omega: float, damping: float) -> float:
-    """Pin force at which the Stribeck slope cancels a viscous damping (single-DOF estimate).
+def stribeck_onset(mu_s: float, mu_k: float, v_s: float, radius: float, omega: float, damping: float) -> float:
+    """Normal force at which the Stribeck slope cancels a viscous damping (single-DOF estimate).
 
-    The friction torque's slope at sliding speed ``omega`` is
-    ``-N r (mu_s - mu_k) exp(-omega/v_s) / v_s``; steady sliding of one disc on a damped
-    spring loses stability when this negative damping exceeds ``damping`` [N m s/rad]:
+    The friction torque's slope at sliding speed ``omega`` is ``-N r (mu_s - mu_k)
+    exp(-omega/v_s) / v_s``; steady sliding of one disc on a damped spring loses stability when
+    this negative damping exceeds ``damping`` [N m s/rad]:
     ``N* = damping v_s exp(omega/v_s) / (r (mu_s - mu_k))`` [N].
     """
-    r = params.r1 if hasattr(params, "r1") else params.r
-    return damping * params.v_s * math.exp(omega / params.v_s) / (r * (params.mu_s - params.mu_k))
+    return damping * v_s * math.exp(omega / v_s) / (radius * (mu_s - mu_k))

@@ -1,79 +1,60 @@
-"""Sensor models of the rigs: quantised encoders, differentiated speeds, noisy load cells.
+"""Sensor models: what the DAQ records, from the rig file's ``[sensors]``.
 
-Defaults follow the thesis (Sect. 3.1.1): LS Mecapion incremental encoders of 1000
-ticks/rev on R1, R2 and on the motor shaft (which turns ``eta`` = 8 times faster than
-R3), a 10 ms DAQ (cDAQ-9174), speeds by numerical differentiation of the angles, load
-cells on the pins and on the motor torque.  The load-cell noise levels are not printed:
-the defaults are ASSUMPTIONS (0.2 N on the pin forces, 0.01 N m on the motor torque,
-one standard deviation), documented in the README.
+Every sensor of a rig file becomes one or two log channels, sampled at the DAQ period:
 
-All randomness comes from a ``numpy.random.Generator`` seeded by the caller.
+- **encoder** (``theta``, ``omega``): an incremental encoder of ``ticks`` per turn of a shaft
+  that turns ``ratio`` times per turn of its body (the thesis' motor encoder: 1000 ticks on
+  the motor shaft, ratio 8, so 8000 per turn of R3).  It counts whole ticks; with
+  ``zero = "power_on"`` (incremental encoders, the default) it reads 0 at power-on, whatever
+  the twist then.  The speed is the backward difference of the counted angle over one sample,
+  i.e. the mean speed over the previous sample (the first sample reports the true speed).
+- **torque**, **load_cell**, **speed**: ``gain * quantity + offset + noise`` with Gaussian
+  noise of standard deviation ``noise`` (times ``SensorOptions.noise_scale``).  What a torque
+  sensor at a DC motor measures depends on its ``definition`` (README, "What the torque load
+  cell measures"): the reaction of the free-mounted motor and gearbox (the thesis' load cell)
+  or the electromagnetic torque ``ratio KT i``.
+- every channel may arrive ``delay`` whole samples late (a DAQ or bus delay).
+
+The gain and offset of a torque sensor or a load cell are parameters of the rig (named
+``<channel>_gain``, ``<channel>_offset``), so the plant's true values may differ from what a
+controller believes, and identification can fit them.  All randomness comes from a
+``numpy.random.Generator`` seeded by the caller.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
+from models.checks import finite_number
 from models.errors import ConfigError
 
-__all__ = ["SensorOptions", "quantise", "Sensors"]
+__all__ = ["SensorOptions", "Sensors", "quantise", "channel_variance", "channel_std", "FLOOR"]
+
+#: variance floor that keeps noise covariances positive when a channel is ideal
+FLOOR = 1e-12
 
 
 @dataclass(frozen=True, kw_only=True)
 class SensorOptions:
-    """Sensor specification.
+    """Run-time settings applied on top of the rig's sensors (a scenario's ``[sensors]``).
 
     Parameters
     ----------
-    ticks_per_rev : encoder ticks per revolution on R1/R2 (and on the motor shaft)
-    motor_ratio : motor shaft turns per R3 turn (the gearbox ratio); the motor encoder
-        therefore resolves ``2 pi / (ticks_per_rev * motor_ratio)`` rad on the disc side
-    force_noise : pin load-cell noise, standard deviation [N]
-    torque_noise : motor-torque load-cell noise, standard deviation [N m]
-    noise_scale : multiplies both noise levels (e.g. 3 for "triple noise")
-    quantise : apply encoder quantisation
+    noise_scale : multiplies every noise level (e.g. 3 for "triple noise")
+    quantise : count whole encoder ticks (False: ideal angles)
     """
 
-    ticks_per_rev: int = 1000
-    motor_ratio: float = 8.0
-    force_noise: float = 0.2
-    torque_noise: float = 0.01
     noise_scale: float = 1.0
     quantise: bool = True
 
     def __post_init__(self):
-        if int(self.ticks_per_rev) != self.ticks_per_rev or self.ticks_per_rev < 1:
-            raise ConfigError(f"sensors.ticks_per_rev must be an integer >= 1, got {self.ticks_per_rev!r}")
-        for name in ("motor_ratio",):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ConfigError(f"sensors.{name} must be a finite number > 0, got {v!r}")
-        for name in ("force_noise", "torque_noise", "noise_scale"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ConfigError(f"sensors.{name} must be a finite number >= 0, got {v!r}")
-
-    @property
-    def angle_step(self) -> float:
-        """Disc-side encoder resolution on R1/R2 [rad]."""
-        return 2 * math.pi / self.ticks_per_rev
-
-    @property
-    def motor_angle_step(self) -> float:
-        """Disc-side resolution of the motor-shaft encoder [rad]."""
-        return 2 * math.pi / (self.ticks_per_rev * self.motor_ratio)
-
-    def angle_variance(self, motor: bool = False) -> float:
-        """Variance of uniform quantisation error, ``q^2/12`` [rad^2]."""
-        q = self.motor_angle_step if motor else self.angle_step
-        return q * q / 12.0 if self.quantise else 0.0
-
-    def speed_variance(self, dt: float, motor: bool = False) -> float:
-        """Variance of a backward-difference speed from quantised angles, ``2 q^2/12 / dt^2``."""
-        return 2.0 * self.angle_variance(motor) / (dt * dt)
+        finite_number(self.noise_scale, "sensors.noise_scale", nonneg=True)
+        if not isinstance(self.quantise, bool):
+            raise ConfigError(f"sensors.quantise must be true or false, got {self.quantise!r}")
 
 
 def quantise(angle, step):
@@ -81,59 +62,97 @@ def quantise(angle, step):
     return np.floor(np.asarray(angle) / step) * step
 
 
-class Sensors:
-    """Turns true quantities into what the DAQ records, one sample at a time.
+def _encoder_step(s) -> float:
+    return 2 * math.pi / (s.ticks * s.ratio)
 
-    Angles are quantised; speeds are backward differences of the quantised angles over
-    ``dt``; forces and torques get Gaussian noise.  The first sample's speed uses the
-    true speed (no previous angle exists).
+
+def channel_variance(model, channel: str, dt: float, options: SensorOptions = SensorOptions()) -> float:
+    """Noise variance of a log channel of ``model`` [SI unit squared].
+
+    Encoder angles: uniform quantisation, ``q^2/12``; encoder speeds: the backward difference of
+    two such errors, ``2 q^2/12 / dt^2`` (an MA(1) process, treated as white); other channels:
+    ``(noise noise_scale)^2``.  At least :data:`FLOOR`.
+    """
+    for s in model.sensors:
+        if channel not in s.channels:
+            continue
+        if s.kind == "encoder":
+            q2 = _encoder_step(s) ** 2 / 12.0 if options.quantise else 0.0
+            v = q2 if channel == s.channels[0] else 2.0 * q2 / (dt * dt)
+        else:
+            v = (s.noise * options.noise_scale) ** 2
+        return max(float(v), FLOOR)
+    raise ConfigError(f"{model.name}: no sensor writes channel {channel!r} (channels: {', '.join(model.measured)})")
+
+
+def channel_std(model, channel: str, dt: float, options: SensorOptions = SensorOptions()) -> float:
+    """Standard deviation of a channel's noise (see :func:`channel_variance`)."""
+    return math.sqrt(channel_variance(model, channel, dt, options))
+
+
+class Sensors:
+    """Turns noise-free readings (:meth:`models.rig.RigModel.outputs`) into what the DAQ records.
+
+    Parameters
+    ----------
+    model : the rig (its ``sensors``)
+    options : SensorOptions
+    dt : DAQ period [s]
+    rng : the seeded generator of the noise
     """
 
-    ANGLE_CHANNELS = {"theta1": "omega1", "theta2": "omega2", "theta3": "omega3"}
-
-    def __init__(self, options: SensorOptions, dt: float, rng: np.random.Generator):
+    def __init__(self, model, options: SensorOptions, dt: float, rng: np.random.Generator):
+        self.model = model
         self.options = options
         self.dt = float(dt)
         self.rng = rng
+        self.reset()
+
+    def reset(self) -> None:
+        self._zero: dict[str, float] = {}
         self._prev: dict[str, float] = {}
         self._prev_true: dict[str, float] = {}
+        self._queues: dict[str, deque] = {}
 
-    def reset(self):
-        self._prev = {}
-        self._prev_true = {}
+    def _delayed(self, s, name: str, value: float) -> float:
+        if s.delay == 0:
+            return value
+        q = self._queues.get(name)
+        if q is None:
+            q = self._queues[name] = deque([value] * (s.delay + 1), maxlen=s.delay + 1)
+        else:
+            q.append(value)
+        return q[0]
 
-    def measure(self, truth: dict[str, float]) -> dict[str, float]:
+    def measure(self, ideal: dict[str, float]) -> dict[str, float]:
+        """One DAQ sample from the noise-free readings ``ideal`` (channel -> value)."""
         o = self.options
         out: dict[str, float] = {}
-        for ang, spd in self.ANGLE_CHANNELS.items():
-            if ang not in truth:
-                continue
-            step = o.motor_angle_step if ang == "theta3" else o.angle_step
-            true = float(truth[ang])
-            if ang in self._prev and abs(true - self._prev_true[ang]) <= 1e-9:
-                # a body at rest keeps its encoder count: the absolute angle is rebuilt from twist
-                # coordinates, and its ~1e-13 rad round-off must not flip a tick at a boundary
-                val = self._prev[ang]
+        for s in self.model.sensors:
+            if s.kind == "encoder":
+                ang, spd = s.channels
+                true = float(ideal[ang])
+                step = _encoder_step(s)
+                if ang in self._prev and abs(true - self._prev_true[ang]) <= 1e-9:
+                    # a body at rest keeps its count: its angle is rebuilt from twist coordinates, and
+                    # ~1e-13 rad of round-off must not flip a tick at a boundary
+                    val = self._prev[ang]
+                else:
+                    raw = float(quantise(true, step)) if o.quantise else true
+                    if ang not in self._zero:
+                        self._zero[ang] = raw if s.zero == "power_on" else 0.0
+                    val = raw - self._zero[ang]
+                self._prev_true[ang] = true
+                speed = (val - self._prev[ang]) / self.dt if ang in self._prev else float(ideal[spd])
+                self._prev[ang] = val
+                out[ang] = self._delayed(s, ang, val)
+                out[spd] = self._delayed(s, spd, speed)
             else:
-                val = float(quantise(true, step)) if o.quantise else true
-            self._prev_true[ang] = true
-            out[ang] = val
-            if ang in self._prev:
-                out[spd] = (val - self._prev[ang]) / self.dt
-            elif spd in truth:
-                out[spd] = float(truth[spd])
-            self._prev[ang] = val
-        if "theta_drive" in truth:
-            out["theta_drive"] = float(truth["theta_drive"])
-        for name in ("omega1", "omega2", "omega3"):
-            if name in truth and name not in out:
-                out[name] = float(truth[name])
-        sf, st = o.force_noise * o.noise_scale, o.torque_noise * o.noise_scale
-        for name in ("n1", "n2", "axial_force"):
-            if name in truth:
-                out[name] = float(truth[name]) + (sf * self.rng.standard_normal() if sf > 0 else 0.0)
-        if "motor_torque" in truth:
-            out["motor_torque"] = float(truth["motor_torque"]) + (st * self.rng.standard_normal() if st > 0 else 0.0)
-        if "omega_ref" in truth:
-            out["omega_ref"] = float(truth["omega_ref"])
+                ch = s.channels[0]
+                sd = s.noise * o.noise_scale
+                v = float(ideal[ch]) + (sd * self.rng.standard_normal() if sd > 0 else 0.0)
+                out[ch] = self._delayed(s, ch, v)
+        for n in self.model.inputs:
+            if n not in out and n in ideal:
+                out[n] = float(ideal[n])     # commands and prescribed inputs are logged as they are
         return out

@@ -36,6 +36,7 @@ The rest of the workbench uses the same interface for every rig:
 from __future__ import annotations
 
 import math
+import re
 from collections import deque
 from functools import cached_property
 
@@ -90,6 +91,8 @@ class RigModel:
     def __init__(self, spec: RigSpec, key: str = ""):
         self.spec = spec
         self.name = spec.name
+        #: the name as a C identifier (CasADi Function names are compiled)
+        self.cname = re.sub(r"\W", "_", spec.name) if re.match(r"^[A-Za-z_]", spec.name) else "rig_" + re.sub(r"\W", "_", spec.name)
         self.key = key or spec.name
         self.description = spec.description
         self._springs = tuple(c for c in spec.connections if c.stiffness is not None)
@@ -453,7 +456,7 @@ class RigModel:
         if key not in self._fcache:
             x, u, p = self._syms()
             xdot = ca.vertcat(*self.smooth_rhs(x, u, p, eps))
-            self._fcache[key] = ca.Function(f"{self.name}_ode", [x, u, p], [xdot], ["x", "u", "p"], ["xdot"])
+            self._fcache[key] = ca.Function(f"{self.cname}_ode", [x, u, p], [xdot], ["x", "u", "p"], ["xdot"])
         return self._fcache[key]
 
     @cached_property
@@ -470,7 +473,7 @@ class RigModel:
             x, u, p = self._syms()
             th = ca.SX.sym("theta_ref")
             out = self.outputs(x, u, self.unpack(p), th)
-            self._fcache["meas"] = ca.Function(f"{self.name}_meas", [x, u, p, th], [ca.SX(v) for v in out.values()],
+            self._fcache["meas"] = ca.Function(f"{self.cname}_meas", [x, u, p, th], [ca.SX(v) for v in out.values()],
                                                ["x", "u", "p", "theta_ref"], list(out.keys()))
         return self._fcache["meas"]
 
@@ -481,7 +484,7 @@ class RigModel:
         missing = [n for n in names if n not in out]
         if missing:
             raise ConfigError(f"{self.name}: unknown output(s) {missing}; expected some of {list(out)}")
-        return ca.Function(f"{self.name}_h", [x, u, p], [ca.vertcat(*[out[n] for n in names])], ["x", "u", "p"], ["y"])
+        return ca.Function(f"{self.cname}_h", [x, u, p], [ca.vertcat(*[out[n] for n in names])], ["x", "u", "p"], ["y"])
 
     # ------------------------------------------------------------------ steady sliding
     def drive_speed_index(self) -> int | None:

@@ -405,7 +405,8 @@ def parse_rig(data: Mapping[str, Any], path: str = "<rig>") -> RigSpec:
         if k not in allowed:
             raise ConfigError(f"{where}: {k}: unknown section; expected one of {', '.join(sorted(allowed))}")
     rig = _table(data, "rig", ctx, required=True)
-    _check_keys(rig, {"name", "description", "reference", "objective_body"}, "rig", ctx)
+    _check_keys(rig, {"name", "description", "reference", "objective_body", "operating_point",
+                      "measured_modes_hz"}, "rig", ctx)
     name = rig.get("name")
     if not isinstance(name, str) or not name.strip():
         raise ctx.err("rig.name", f"missing field or not a non-empty string (got {name!r})")
@@ -759,8 +760,34 @@ def parse_rig(data: Mapping[str, Any], path: str = "<rig>") -> RigSpec:
     for c in contacts:
         if c.normal is not None and c.normal.kind == "input" and c.normal.name == drive.input:
             raise ctx.err(f"contacts.{c.name}.normal", f"{c.normal.name!r} is the drive's input")
-    extra = {"objective_body": rig.get("objective_body")} if "objective_body" in rig else {}
-    if extra and extra["objective_body"] not in body_names:
-        raise ctx.err("rig.objective_body", f"no body {extra['objective_body']!r} (bodies: {', '.join(body_names)})")
+    extra: dict[str, Any] = {}
+    if "objective_body" in rig:
+        extra["objective_body"] = rig["objective_body"]
+        if extra["objective_body"] not in body_names:
+            raise ctx.err("rig.objective_body", f"no body {extra['objective_body']!r} (bodies: {', '.join(body_names)})")
+    op = rig.get("operating_point", {})
+    if not isinstance(op, Mapping):
+        raise ctx.err("rig.operating_point", "must be a table of input values (and 'speed' for a torque drive)")
+    spec_inputs = [drive.input] + [c.normal.name for c in contacts if c.normal is not None and c.normal.kind == "input"]
+    opv = {}
+    for key, v in op.items():
+        if key == "speed" and kind == "torque":
+            k2 = "speed"
+        elif key in spec_inputs:
+            k2 = "force" if key != drive.input else ("torque" if kind == "torque" else "speed")
+        else:
+            raise ctx.err(f"rig.operating_point.{key}", f"not an input ({', '.join(spec_inputs)})"
+                                                        f"{' or speed' if kind == 'torque' else ''}")
+        r = _value(v, k2, f"rig.operating_point.{key}", ctx)
+        if r.kind != "const":
+            raise ctx.err(f"rig.operating_point.{key}", "must be a value, not a parameter")
+        opv[key] = r.value
+    extra["operating_point"] = opv
+    if "measured_modes_hz" in rig:
+        mm = rig["measured_modes_hz"]
+        if not (isinstance(mm, list) and mm and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                   and math.isfinite(v) and v >= 0 for v in mm)):
+            raise ctx.err("rig.measured_modes_hz", f"must be a list of frequencies >= 0 Hz, got {mm!r}")
+        extra["measured_modes_hz"] = tuple(float(v) for v in mm)
     return RigSpec(name.strip(), desc, tuple(decl.values()), tuple(bodies), tuple(conns), tuple(contacts), drive,
                    tuple(acts), tuple(sensors), str(path), ref_node, extra)

@@ -92,10 +92,10 @@ def hybrid_step_function(model, dt: float, nsub: int) -> ca.Function:
     P = model.unpack(p)
     # one substep as its own Function keeps the graph small; it is called nsub times
     xs, ths = ca.SX.sym("xs", model.nx), ca.SX.sym("ths")
-    sub = ca.Function(f"{model.name}_hybrid_substep", [xs, ths, u, p], list(_substep(model, xs, ths, u, P, dt / nsub)),
+    sub = ca.Function(f"{model.cname}_hybrid_substep", [xs, ths, u, p], list(_substep(model, xs, ths, u, P, dt / nsub)),
                       ["x", "theta_ref", "u", "p"], ["x_next", "theta_ref_next"])
     xk, thk = x, th
     for _ in range(int(nsub)):
         xk, thk = sub(xk, thk, u, p)
-    return ca.Function(f"{model.name}_plant_step", [x, th, u, p], [xk, thk],
+    return ca.Function(f"{model.cname}_plant_step", [x, th, u, p], [xk, thk],
                        ["x", "theta_ref", "u", "p"], ["x_next", "theta_ref_next"])

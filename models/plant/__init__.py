@@ -1,0 +1,7 @@
+"""The plant: the exact stick/slip step (:mod:`models.plant.hybrid`) and the simulator with
+its sensors and actuators (:mod:`models.plant.simulator`)."""
+
+from models.plant.hybrid import hybrid_step_function
+from models.plant.simulator import MAX_SAMPLES, Plant, SimOptions, SimResult, simulate, step_function
+
+__all__ = ["hybrid_step_function", "Plant", "SimOptions", "SimResult", "simulate", "step_function", "MAX_SAMPLES"]
