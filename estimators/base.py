@@ -1,11 +1,20 @@
 """The one interface of every online state estimator.
 
-Every estimator answers ``update(measurement, u, t) -> Estimate``.  The closed loop,
-the scenario runner and a scenario file can therefore swap an EKF for an MHE or for the
-naive finite-difference baseline.  The public :meth:`StateEstimator.update` guards its
-inputs and never raises inside a closed loop: a missing/NaN measurement skips the
-correction (counted), and a failure inside ``_update_impl`` is caught, counted and
-answered by a documented fallback (:meth:`StateEstimator._fallback`).
+Every estimator is built the same way, ``StateEstimator(options, context)``, and answers
+the same call, with its arguments in the order of :meth:`mitigate.controllers.base.Controller.step`::
+
+    estimate = estimator.update(t, measurement, u)
+
+- ``t`` [s]: the time of the DAQ sample;
+- ``measurement``: the DAQ's channels at ``t`` (a dict);
+- ``u``: the model inputs applied over the sample that ended at ``t`` (``model.inputs``
+  order; logged normal forces are corrected for their load cells' gain and offset inside).
+
+The closed loop, the scenario runner and a scenario file can therefore swap an EKF for an
+MHE or for the finite-difference baseline.  The public :meth:`StateEstimator.update` guards
+its inputs and never raises inside a closed loop: a missing or NaN channel skips its
+correction (counted), and a failure inside ``_update_impl`` is counted and answered by a
+documented fallback (:meth:`StateEstimator._fallback`).
 """
 
 from __future__ import annotations
@@ -13,12 +22,16 @@ from __future__ import annotations
 import math
 import time
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
-from typing import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
-__all__ = ["Estimate", "StateEstimator", "EstimatorCounts"]
+from models.params import ParameterSet
+from models.sensors import SensorOptions
+from models.status import Status
+
+__all__ = ["Estimate", "StateEstimator", "EstimatorCounts", "EstimatorContext"]
 
 
 @dataclass(frozen=True)
@@ -30,9 +43,9 @@ class Estimate:
     t : time [s]
     x : (nx,) estimated state, in the order of ``names``
     P : (nx, nx) covariance
-    names : state names (model states, then augmented unknowns)
-    status : human-readable message ("ok", "prediction only: missing omega1", "fallback: ...")
-    success : False when the estimate came from a fallback
+    names : state names (the rig's states, then augmented unknowns)
+    status : Status.OK, or Status.FALLBACK when a fallback produced it
+    message : detail ("prediction only: missing omega1", "fallback: ...")
     corrected : whether a measurement update was applied
     solve_time : wall time of the update [s]
     """
@@ -41,10 +54,14 @@ class Estimate:
     x: np.ndarray
     P: np.ndarray
     names: tuple[str, ...]
-    status: str = "ok"
-    success: bool = True
+    status: Status = Status.OK
+    message: str = "ok"
     corrected: bool = True
     solve_time: float = 0.0
+
+    @property
+    def success(self) -> bool:
+        return self.status is not Status.FALLBACK
 
     def get(self, name: str) -> float:
         return float(self.x[self.names.index(name)])
@@ -52,6 +69,31 @@ class Estimate:
     def std(self, name: str) -> float:
         i = self.names.index(name)
         return float(math.sqrt(max(self.P[i, i], 0.0)))
+
+    def has(self, name: str) -> bool:
+        return name in self.names
+
+
+@dataclass(frozen=True)
+class EstimatorContext:
+    """What every estimator is told.
+
+    Attributes
+    ----------
+    model : the rig (:class:`models.rig.RigModel`) the estimator believes
+    params : its parameters (nominal, or fitted)
+    dt : DAQ period [s]
+    sensors : sensor settings (noise covariances follow from the rig's sensors and these)
+    x0 : initial state guess in ``model.states`` order (None: at rest)
+    where : prefix of error messages
+    """
+
+    model: Any
+    params: ParameterSet
+    dt: float
+    sensors: SensorOptions = SensorOptions()
+    x0: np.ndarray | None = None
+    where: str = "estimator"
 
 
 @dataclass
@@ -70,20 +112,24 @@ class EstimatorCounts:
 class StateEstimator(ABC):
     """Template: :meth:`update` guards, times and counts; subclasses implement ``_update_impl``.
 
-    Subclasses set ``self.names`` and ``self.channels`` (the measurement channels used),
-    and implement ``_update_impl(y, mask, u, t) -> Estimate`` where ``y`` holds the
-    channels in ``self.channels`` order and ``mask`` marks the finite ones.
+    Subclasses set ``kind``, ``options_class``, and in ``__init__`` ``self.names`` and
+    ``self.channels`` (the measurement channels used); ``_update_impl(t, y, mask, u)`` gets
+    the channels in ``self.channels`` order and ``mask`` marking the finite ones.
     """
 
+    kind: ClassVar[str] = "estimator"
+    options_class: ClassVar[type | None] = None
     names: tuple[str, ...] = ()
     channels: tuple[str, ...] = ()
 
-    def __init__(self):
+    def __init__(self, options: Any, context: EstimatorContext):
+        self.options = options
+        self.context = context
         self.counts = EstimatorCounts()
         self.last: Estimate | None = None
 
-    def update(self, measurement: Mapping[str, float], u, t: float) -> Estimate:
-        """Process one DAQ sample: measurement dict, applied input ``u`` over the last sample, time [s]."""
+    def update(self, t: float, measurement: Mapping[str, float], u) -> Estimate:
+        """Process one DAQ sample (module docstring)."""
         t0 = time.perf_counter()
         y = np.array([float(measurement.get(c, np.nan)) if measurement is not None else np.nan
                       for c in self.channels])
@@ -93,25 +139,25 @@ class StateEstimator(ABC):
         u = np.asarray(u, dtype=float).ravel()
         self.counts.steps += 1
         try:
-            est = self._update_impl(y, mask, u, float(t))
+            est = self._update_impl(float(t), y, mask, u)
             if not (np.all(np.isfinite(est.x)) and np.all(np.isfinite(est.P))):
                 raise FloatingPointError("non-finite estimate")
         except Exception as exc:  # never raise inside a closed loop
             self.counts.failures += 1
+            est = self._fallback(float(t), y, mask, u, f"fallback: {type(exc).__name__}: {exc}")
+        if est.status is Status.FALLBACK:
             self.counts.fallbacks += 1
-            est = self._fallback(y, mask, u, float(t), f"fallback: {type(exc).__name__}: {exc}")
-        est = Estimate(est.t, est.x, est.P, est.names, est.status, est.success, est.corrected,
-                       time.perf_counter() - t0)
+        est = replace(est, solve_time=time.perf_counter() - t0)
         self.last = est
         return est
 
     @abstractmethod
-    def _update_impl(self, y: np.ndarray, mask: np.ndarray, u: np.ndarray, t: float) -> Estimate:
+    def _update_impl(self, t: float, y: np.ndarray, mask: np.ndarray, u: np.ndarray) -> Estimate:
         ...
 
-    def _fallback(self, y, mask, u, t, status: str) -> Estimate:
-        """Default fallback: hold the last estimate (inflating nothing)."""
+    def _fallback(self, t, y, mask, u, message: str) -> Estimate:
+        """Default fallback: hold the last estimate."""
         if self.last is None:
             n = len(self.names)
-            return Estimate(t, np.zeros(n), np.eye(n), self.names, status, False, False)
-        return Estimate(t, self.last.x, self.last.P, self.names, status, False, False)
+            return Estimate(t, np.zeros(n), np.eye(n), self.names, Status.FALLBACK, message, False)
+        return Estimate(t, self.last.x, self.last.P, self.names, Status.FALLBACK, message, False)

@@ -36,7 +36,7 @@ from models.files import atomic_write_text
 from models.rig.spec import SI_UNITS
 from models.units import DIMENSIONS, parse_unit
 
-__all__ = ["Log", "read_csv", "parse_header", "channel_kind", "atomic_write_text"]
+__all__ = ["Log", "read_csv", "parse_header", "channel_kind", "convert_unit", "atomic_write_text"]
 
 _HEADER = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*\[([^\]]*)\]\s*$")
 
@@ -86,6 +86,11 @@ def _unit_of(name: str, unit: str | None, where: str) -> tuple[str, float]:
             return SI_UNITS[k], u.factor
     raise DataError(f"{where}: unit [{unit}] of column {name!r} is not a quantity a log holds "
                     f"({', '.join(_BY_DIM)})")
+
+
+def convert_unit(name: str, unit: str, where: str) -> tuple[str, float]:
+    """``(SI unit, factor)`` of channel ``name`` logged in ``unit``; DataError if it does not convert."""
+    return _unit_of(name, unit, where)
 
 
 def parse_header(cells: list[str], source: str) -> list[tuple[str, str, float]]:

@@ -1,7 +1,7 @@
 """LabView TDMS logs, read through npTDMS (an optional extra) into the one log format.
 
 A small TOML mapping names, for each channel of the workbench vocabulary
-(:data:`models.logs.CANONICAL_UNITS`), the TDMS group and channel it comes from and the
+(the rig's sensor and input channels), the TDMS group and channel it comes from and the
 unit it was recorded in; time comes from a time channel or from the waveform increment::
 
     [time]                         # either a channel ...
@@ -31,7 +31,9 @@ import numpy as np
 
 from models.errors import ConfigError, DataError
 from models.checks import read_toml
-from models.logs import CANONICAL_UNITS, Log, convert_unit
+import re
+
+from models.logs import Log, convert_unit
 
 __all__ = ["read_tdms", "load_mapping"]
 
@@ -55,9 +57,8 @@ def load_mapping(path: str | os.PathLike) -> dict:
     if not isinstance(chans, dict) or not chans:
         raise ConfigError(f"{path}: [channels] must map at least one vocabulary name to a TDMS channel")
     for name, spec in chans.items():
-        if name not in CANONICAL_UNITS or name == "t":
-            raise ConfigError(f"{path}: channels.{name}: unknown channel; expected one of "
-                              f"{', '.join(n for n in CANONICAL_UNITS if n != 't')}")
+        if name == "t" or not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", name):
+            raise ConfigError(f"{path}: channels.{name}: expected a log channel name (an identifier other than 't')")
         if not isinstance(spec, dict):
             raise ConfigError(f"{path}: channels.{name} must be a table {{group, channel, unit}}, got {spec!r}")
         for k in ("group", "channel", "unit"):
@@ -121,11 +122,12 @@ def read_tdms(path: str | os.PathLike, mapping_path: str | os.PathLike, required
     if not list(f.groups()):
         raise DataError(f"{src}: not a readable TDMS file (no groups: empty or not TDMS)")
     chans = {}
+    units = {}
     first = None
     for name, spec in mapping["channels"].items():
         ch = _channel(f, spec["group"], spec["channel"], src)
         first = first or ch
-        factor = convert_unit(name, spec["unit"], f"{src}: {spec['group']}/{spec['channel']}")
+        units[name], factor = convert_unit(name, spec["unit"], f"{src}: {spec['group']}/{spec['channel']}")
         chans[name] = np.asarray(ch[:], dtype=float) * factor
     n = len(next(iter(chans.values())))
     for name, v in chans.items():
@@ -134,7 +136,7 @@ def read_tdms(path: str | os.PathLike, mapping_path: str | os.PathLike, required
     tm = mapping["time"]
     if "channel" in tm:
         ch = _channel(f, tm["group"], tm["channel"], src)
-        t = np.asarray(ch[:], dtype=float) * convert_unit("t", tm["unit"], f"{src}: time")
+        t = np.asarray(ch[:], dtype=float) * convert_unit("t", tm["unit"], f"{src}: time")[1]
         if len(t) != n:
             raise DataError(f"{src}: time channel has {len(t)} samples, expected {n}")
     else:
@@ -145,6 +147,6 @@ def read_tdms(path: str | os.PathLike, mapping_path: str | os.PathLike, required
                             f"give time.increment in the mapping or a time channel")
         t0 = float(props.get("wf_start_offset", 0.0))
         t = t0 + np.arange(n) * float(inc)
-    log = Log(t, chans, src).with_speeds()
+    log = Log(t, chans, src, (), units).with_speeds()
     log.require(required)
     return log

@@ -163,7 +163,50 @@ class RigModel:
 
     @property
     def drive_input(self) -> str:
+        """The drive's input: a speed set-point (DC motor), a prescribed speed, or a torque."""
         return self.spec.drive.input
+
+    @property
+    def servo_inputs(self) -> tuple[str, ...]:
+        """Inputs set through a servo (normal forces a controller can modulate)."""
+        return tuple(a.input for a in self.actuators)
+
+    @property
+    def commands(self) -> tuple[str, ...]:
+        """Inputs a controller may set: the drive's input, then every servo's."""
+        return (self.drive_input,) + self.servo_inputs
+
+    def actuator(self, input_name: str):
+        """The actuator spec that sets ``input_name``, or None."""
+        return next((a for a in self.actuators if a.input == input_name), None)
+
+    def contact_of_input(self, input_name: str):
+        """The contact whose normal force is the input ``input_name``, or None."""
+        return next((c for c in self.spec.contacts if c.normal is not None and c.normal.kind == "input"
+                     and c.normal.name == input_name), None)
+
+    def speed_channel(self, body: str) -> str | None:
+        """The log channel that measures ``body``'s speed (an encoder's or a speed sensor's), or None."""
+        for s in self.sensors:
+            if s.target == body and s.kind in ("encoder", "speed"):
+                return s.channels[-1]
+        return None
+
+    def angle_channel(self, body: str) -> str | None:
+        """The encoder channel of ``body``'s angle, or None."""
+        for s in self.sensors:
+            if s.target == body and s.kind == "encoder":
+                return s.channels[0]
+        return None
+
+    def sensor_of(self, channel: str):
+        """The sensor spec that writes ``channel``, or None."""
+        return next((s for s in self.sensors if channel in s.channels), None)
+
+    def channel_body(self, channel: str) -> str | None:
+        """The body (or "drive") an encoder or speed channel belongs to, else None."""
+        s = self.sensor_of(channel)
+        return s.target if s is not None and s.kind in ("encoder", "speed") else None
 
     @cached_property
     def _published(self) -> ParameterSet:
