@@ -1,6 +1,6 @@
 """Benchmark of the online twist estimators (EKF, MHE, FD) on simulated stick-slip.
 
-Plant: exact stick/slip rig3 (``models.simulator``, hybrid, published parameters),
+Plant: exact stick/slip rig3 (``models.plant``, hybrid, published parameters),
 omega_ref = 30 rpm, N1 = 20 N, N2 = 0, 60 s, default sensors (1000-tick encoders, 8x
 motor encoder, backward-difference speeds, 0.01 N m torque noise), seed 7.  The plant
 runs from rest for ``--power-on`` s (default 5 s) until stick-slip is established; the
@@ -42,7 +42,7 @@ from estimators.fd import FiniteDifference
 from estimators.mhe import MHE, MHEOptions
 from models import get_model
 from models.sensors import SensorOptions
-from models.simulator import SimOptions, simulate
+from models.plant import SimOptions, simulate
 
 SPEEDS_TORQUE = ("omega1", "omega2", "omega3", "motor_torque")
 

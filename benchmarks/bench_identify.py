@@ -52,7 +52,7 @@ from models.logs import Log
 from models.params import published
 from models.rigs import get_model
 from models.sensors import SensorOptions
-from models.simulator import Plant, SimOptions, simulate
+from models.plant import Plant, SimOptions, simulate
 
 warnings.simplefilter("ignore")
 QUICK = "--quick" in sys.argv

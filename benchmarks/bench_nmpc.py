@@ -1,6 +1,6 @@
 """NMPC time per plan in closed loop on the stick-slip case (N1 = 20 N, 30 rpm).
 
-The exact stick/slip plant (models.simulator.Plant, hybrid) starts from established
+The exact stick/slip plant (models.plant.Plant, hybrid) starts from established
 stick-slip (10 s from rest, no control), then the NMPC runs on the true state for
 ``--duration`` seconds, planning every OCP interval dt = 0.05 s (every 5th DAQ sample;
 held in between).  Timed: wall time of each plan (``Controller.step`` calls that
@@ -27,7 +27,7 @@ from mitigate.controllers.nmpc import make_nmpc
 from mitigate.metrics import severity
 from models import get_model
 from models.actuators import ServoOptions
-from models.simulator import Plant, SimOptions
+from models.plant import Plant, SimOptions
 
 W0 = np.pi
 DO_MPC_MS = 15.5  # do-mpc's own smaller 3-disc example, ms per step (issue 5)

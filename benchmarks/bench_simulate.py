@@ -2,7 +2,7 @@
 
 Case: N1 = 20 N, omega_ref = 30 rpm, from rest (stick-slip), sensors on.  For each plant
 method (hybrid = exact stick/slip, smooth = regularised RK4, cvodes) the wall time of
-``models.simulator.simulate`` is measured after one warm-up run (which also builds and
+``models.plant.simulate`` is measured after one warm-up run (which also builds and
 caches the CasADi step function); median and p95 over the repeats, real-time factor =
 simulated time / wall time.
 
@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from models import get_model
-from models.simulator import SimOptions, simulate
+from models.plant import SimOptions, simulate
 
 DURATION = 60.0
 

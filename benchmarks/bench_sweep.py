@@ -5,7 +5,7 @@ Measures
   map over the points of a chunk, chunks in 2 worker processes), end to end incl. process start;
 - per-chunk times (50 points) of: compiled / CasADi VM / compiled with ``map(n, "thread", 2)``;
 - per-point baselines on a subset, extrapolated to 2500 points (said so in the table):
-  ``models.simulator.simulate`` (the same exact plant stepped from Python) and a plain loop over
+  ``models.plant.simulate`` (the same exact plant stepped from Python) and a plain loop over
   ``scipy.integrate.solve_ivp`` (LSODA, the regularised model ``model.ode()``, eps = 0.05 rad/s,
   output every 10 ms);
 - the lead-screw step-size check (substep 20 us vs 5 us).
@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from models.rigs import get_model  # noqa: E402
-from models.simulator import SimOptions, simulate  # noqa: E402
+from models.plant import SimOptions, simulate  # noqa: E402
 from mitigate import metrics as mx  # noqa: E402
 from mitigate.scenario import load_scenario  # noqa: E402
 from mitigate.sweep import (batched_step, make_tasks, options_from_scenario, parse_axis, plan_sweep,  # noqa: E402
@@ -114,7 +114,7 @@ def main(argv=None) -> int:
                  sensors=None)
         times.append(time.perf_counter() - tt)
     t_sim = statistics.median(times)
-    rows.append(("per-point loop, models.simulator.simulate (6 pts, extrapolated)", t_sim * npts, t_sim, p95(times), npts))
+    rows.append(("per-point loop, models.plant.simulate (6 pts, extrapolated)", t_sim * npts, t_sim, p95(times), npts))
 
     from scipy.integrate import solve_ivp
     f = model.ode()

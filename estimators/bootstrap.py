@@ -9,7 +9,7 @@ estimates by more than the statistical error bar (BENCHMARKS.md, identification)
 
 The parametric bootstrap measures those effects instead of assuming them away:
 
-1. simulate the exact stick/slip plant (:func:`models.simulator.simulate`) with the
+1. simulate the exact stick/slip plant (:func:`models.plant.simulate`) with the
    *fitted* parameters, from the fitted initial state, driven by the logged inputs, through
    the sensor model (encoders, load-cell noise) with a fresh seed per replicate;
 2. fit every replicate exactly as the original log was fitted: same options, from the same
@@ -54,7 +54,7 @@ from models import get_model
 from models.errors import ConfigError, DataError
 from models.logs import Log
 from models.sensors import SensorOptions
-from models.simulator import SimOptions, simulate
+from models.plant import SimOptions, simulate
 
 __all__ = ["BootstrapOptions", "BootstrapResult", "bootstrap"]
 

@@ -14,7 +14,7 @@ Method
   unmeasured states (twists, current, PI integral) are thus free node variables.
 - Inputs of the model come from the log channels of the same names (rig3: omega_ref, n1,
   n2; rig2: motor_torque; leadscrew: omega_drive, axial_force; disc: omega3, n1).  The
-  sample convention is the simulator's (:meth:`models.simulator.SimResult.to_log`): row
+  sample convention is the simulator's (:meth:`models.plant.SimResult.to_log`): row
   ``k+1`` holds the input applied over ``[t_k, t_{k+1})`` (``input_row="end"``).
 - Outputs compared: the measured channels the model has (speeds, motor torque), each
   divided by its noise level.  A DAQ speed is a backward difference of encoder angles,
@@ -1076,7 +1076,7 @@ def validate_fit(model: RigModel, params: ParameterSet, log: Log, k0: int, x0, o
     ``x0`` is the (fitted) state at sample ``k0``; inputs come from the log.  Speeds
     are sample means (differences of the plant's absolute angles, like the DAQ's).
     """
-    from models.hybrid import hybrid_step_function
+    from models.plant.hybrid import hybrid_step_function
 
     dt = log.dt
     F = hybrid_step_function(model, dt, nsub)

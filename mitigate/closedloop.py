@@ -29,7 +29,7 @@ import numpy as np
 
 from estimators.factory import make_estimator
 from models.rigs import get_model
-from models.simulator import Plant
+from models.plant import Plant
 from models.logs import Log
 from models.errors import ConfigError
 
@@ -114,7 +114,7 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
     estimator : estimators.base.StateEstimator, or None to build ``scenario.estimator``
         with the NOMINAL ``scenario.model_params``
     progress : optional callable ``progress(k_done)`` called every 100 samples
-    plant : optional pre-built plant (tests); default: ``models.simulator.Plant`` with
+    plant : optional pre-built plant (tests); default: ``models.plant.Plant`` with
         ``scenario.plant_params``, sensors, servo and sim options
 
     Returns

@@ -57,7 +57,7 @@ from models.checks import finite_number as _num, read_toml
 from models.params import ParameterSet, load_params, published
 from models.rigs import MODEL_NAMES, get_model
 from models.sensors import SensorOptions
-from models.simulator import SimOptions
+from models.plant import SimOptions
 from mitigate.profiles import Profile, parse_profile
 
 __all__ = ["Scenario", "ControllerSpec", "load_scenario", "parse_scenario"]

@@ -66,7 +66,7 @@ from models.codegen import load_compiled
 import numpy as np
 
 from models.errors import ConfigError
-from models.hybrid import hybrid_step_function
+from models.plant.hybrid import hybrid_step_function
 from models.rigs import get_model
 from mitigate import metrics as mx
 from mitigate.scenario import Scenario
@@ -474,7 +474,7 @@ def _run_chunk_closed_loop(task: ChunkTask) -> dict[str, np.ndarray]:
     from mitigate.controllers.factory import make_controller
     from mitigate.profiles import Profile
     from mitigate.scenario import load_scenario
-    from models.simulator import Plant
+    from models.plant import Plant
 
     path, name, duration = task.controller
     sc0 = load_scenario(path)

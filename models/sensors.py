@@ -32,7 +32,7 @@ import numpy as np
 from models.checks import finite_number
 from models.errors import ConfigError
 
-__all__ = ["SensorOptions", "Sensors", "quantise", "channel_variance", "channel_std", "FLOOR"]
+__all__ = ["SensorOptions", "Sensors", "quantise", "encoder_step", "channel_variance", "channel_std", "FLOOR"]
 
 #: variance floor that keeps noise covariances positive when a channel is ideal
 FLOOR = 1e-12
@@ -62,8 +62,12 @@ def quantise(angle, step):
     return np.floor(np.asarray(angle) / step) * step
 
 
-def _encoder_step(s) -> float:
+def encoder_step(s) -> float:
+    """Resolution of an encoder on its body [rad]: ``2 pi / (ticks ratio)``."""
     return 2 * math.pi / (s.ticks * s.ratio)
+
+
+_encoder_step = encoder_step
 
 
 def channel_variance(model, channel: str, dt: float, options: SensorOptions = SensorOptions()) -> float:

@@ -16,7 +16,7 @@ from estimators.identify import IdentifyOptions, identify
 from models.errors import ConfigError, DataError
 from models.params import published
 from models.rigs import get_model
-from models.simulator import SimOptions, simulate
+from models.plant import SimOptions, simulate
 
 TRUE = published("disc").replace(k=1.0, d=0.03, mu_k=0.28, mu_s=0.45)
 

@@ -9,7 +9,7 @@ import pytest
 from mitigate.cli import main
 from models import get_model
 from models.logs import read_csv
-from models.simulator import SimOptions, simulate
+from models.plant import SimOptions, simulate
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import pytest
 from mitigate.cli import main
 from models.params import load_params, published
 from models.rigs import get_model
-from models.simulator import SimOptions, simulate
+from models.plant import SimOptions, simulate
 
 
 @pytest.fixture(scope="module")

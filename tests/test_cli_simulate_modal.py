@@ -14,7 +14,7 @@ from mitigate.scenario import load_scenario
 from models import get_model
 from models.errors import ConfigError
 from models.logs import read_csv
-from models.simulator import simulate
+from models.plant import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 SCEN = ROOT / "scenarios"

@@ -9,7 +9,7 @@ from mitigate.controllers.base import Action, Controller
 from mitigate.controllers.factory import make_controller
 from mitigate.scenario import parse_scenario
 from models.rigs import get_model
-from models.simulator import Plant
+from models.plant import Plant
 
 
 def _scenario(duration=3.0, start=1.0, every=1, controllers=({"name": "pi", "kind": "pi"},), **extra):

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from models import get_model
-from models.simulator import SimOptions, simulate
+from models.plant import SimOptions, simulate
 
 N, OMEGA = 20.0, math.pi
 

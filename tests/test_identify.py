@@ -10,7 +10,7 @@ from models.errors import ConfigError, DataError
 from models.logs import Log
 from models.params import published
 from models.rigs import get_model
-from models.simulator import SimOptions, simulate
+from models.plant import SimOptions, simulate
 
 # true disc set, off the published one (k -10 %, d +40 %, mu_k -8 %, mu_s -10 %)
 TRUE_DISC = published("disc").replace(k=1.0, d=0.03, mu_k=0.28, mu_s=0.45)

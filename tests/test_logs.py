@@ -71,16 +71,28 @@ def test_wrong_dimension_unit(tmp_path):
         read_csv(write(tmp_path, GOOD.replace("omega1 [rad/s]", "omega1 [N]")))
 
 
-@pytest.mark.parametrize("unit", ["MN m", "mn m"])
-def test_ambiguous_unit(tmp_path, unit):
-    text = "t [s],motor_torque [%s]\n0,1\n0.01,2\n" % unit
-    with pytest.raises(DataError, match=r"ambiguous"):
-        read_csv(write(tmp_path, text))
+def test_units_are_case_sensitive(tmp_path):
+    """mN is milli-, MN mega-newton; a lower-case 'mn' is no unit at all."""
+    text = "t [s],motor_torque [%s]\n0,1\n0.01,2\n"
+    with pytest.raises(DataError, match=r"unit \[mn m\] cannot be converted"):
+        read_csv(write(tmp_path, text % "mn m"))
+    log = read_csv(write(tmp_path, text % "MN m", "b.csv"))
+    np.testing.assert_allclose(log["motor_torque"], [1e6, 2e6])
 
 
-def test_unknown_column(tmp_path):
-    with pytest.raises(DataError, match=r"header column 2: unknown channel 'omega9'"):
-        read_csv(write(tmp_path, GOOD.replace("omega1 [rad/s]", "omega9 [rad/s]")))
+def test_free_channel_names_take_the_quantity_of_their_unit(tmp_path):
+    log = read_csv(write(tmp_path, "t [s],omega9 [rad/s],wob [kN],bit_temp [s]\n0,1,2,3\n0.01,1,2,3\n"))
+    assert log.units == {"omega9": "rad/s", "wob": "N", "bit_temp": "s"}
+    np.testing.assert_allclose(log["wob"], [2000, 2000])
+    with pytest.raises(DataError, match=r"unit \[furlong\] cannot be converted for column 'speed'"):
+        read_csv(write(tmp_path, "t [s],speed [furlong]\n0,1\n0.01,1\n", "b.csv"))
+
+
+def test_excel_byte_order_mark_is_accepted(tmp_path):
+    p = tmp_path / "excel.csv"
+    p.write_bytes(b"\xef\xbb\xbf" + GOOD.encode())
+    log = read_csv(p, required=("omega1",))
+    np.testing.assert_allclose(log["omega1"], [1, 1.1, 1.2, 1.3])
 
 
 def test_header_without_unit(tmp_path):
@@ -154,7 +166,7 @@ def test_roundtrip_and_no_overwrite(tmp_path):
 
 
 def test_log_object_validates():
-    with pytest.raises(DataError, match="unknown channel 'speed'"):
+    with pytest.raises(DataError, match="unknown channel 'speed': give its unit"):
         Log(np.arange(3.0), {"speed": np.zeros(3)})
     with pytest.raises(DataError, match=r"column 'omega1' has shape \(2,\), expected \(3,\)"):
         Log(np.arange(3.0), {"omega1": np.zeros(2)})

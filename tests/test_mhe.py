@@ -11,7 +11,7 @@ from estimators.mhe import MHE, MHEOptions, make_mhe
 from models import get_model
 from models.errors import ConfigError
 from models.sensors import SensorOptions
-from models.simulator import SimOptions, simulate
+from models.plant import SimOptions, simulate
 
 M = get_model("rig3")
 P3 = M.published()

@@ -7,10 +7,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from models.errors import ConfigError
+
 from models import friction as fr
 from models import get_model
 from models.discretise import rk4_function
-from models.simulator import SimOptions, simulate
+from models.plant import SimOptions, simulate
 
 
 # ---------------------------------------------------------------- Jacobians vs finite differences
@@ -41,19 +43,51 @@ def test_casadi_jacobian_matches_finite_differences(name, seed):
 @settings(max_examples=100, deadline=None)
 @given(st.floats(-50, 50), st.floats(0.01, 1.0), st.floats(0.0, 1.0), st.floats(0.01, 10.0), st.floats(1e-3, 1.0))
 def test_regularised_stribeck_is_odd(v, mu_s, frac, v_s, eps):
-    mu_k = frac * mu_s
-    mag = lambda a: fr.stribeck_exp(a, mu_s, mu_k, v_s)  # noqa: E731
-    a, b = fr.regularised(mag, v, eps, "tanh"), fr.regularised(mag, -v, eps, "tanh")
-    assert a == pytest.approx(-b, abs=1e-15)
-    assert a * v >= 0          # dissipative: friction opposes motion (the caller subtracts it)
+    law = fr.get_law("stribeck")
+    P = dict(mu_s=mu_s, mu_k=frac * mu_s, v_s=v_s)
+    a, b = law.smooth(v, 20.0, 0.047, P, eps), law.smooth(-v, 20.0, 0.047, P, eps)
+    assert a == pytest.approx(-b, abs=1e-14)
+    assert a * v <= 0          # dissipative: the torque opposes the motion
 
 
 @settings(max_examples=100, deadline=None)
 @given(st.floats(-100, 100), st.floats(0.0, 0.5), st.floats(0.0, 0.1), st.floats(-1e-3, 0.0),
        st.floats(0.0, 5.0), st.floats(1.0, 100.0))
 def test_vahid_araghi_law_is_odd(v, mu1, mu2, mu3, r0, r1):
-    mag = lambda a: fr.vahid_araghi(a, mu1, mu2, mu3, r0)  # noqa: E731
-    assert fr.regularised(mag, v, r1, "vahid") == pytest.approx(-fr.regularised(mag, -v, r1, "vahid"), abs=1e-15)
+    law = fr.get_law("vahid_araghi")
+    P = dict(mu1=mu1, mu2=mu2, mu3=mu3, r0=r0, sm=1.0)
+    assert law.smooth(v, 300.0, 5e-3, P, 0.05) == pytest.approx(-law.smooth(-v, 300.0, 5e-3, P, 0.05), abs=1e-15)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(0.0, 30.0), st.floats(0.1, 0.8), st.floats(0.0, 1.0), st.floats(0.05, 5.0), st.floats(0.0, 0.5))
+def test_bit_rock_law_weakens_then_strengthens(v, mu_sb, frac, v_b, c_b):
+    """Bit-rock law (Navarro-Lopez & Cortes 2007): T(0) = W R mu_sb; the Stribeck part only falls;
+    with c_b > 0 the torque has a minimum and rises again (velocity strengthening)."""
+    law = fr.get_law("bit_rock")
+    P = dict(mu_sb=mu_sb, mu_cb=frac * mu_sb, v_b=v_b, c_b=c_b)
+    scale = 100.0 * 0.1
+    T = lambda w: law.magnitude(w, scale, **P)  # noqa: E731
+    assert T(0.0) == pytest.approx(scale * mu_sb)
+    assert T(v) >= scale * P["mu_cb"] + c_b * v - 1e-12
+    if c_b > 0 and frac < 1:
+        w_big = 50 * v_b + scale * mu_sb / c_b + 1.0
+        assert T(w_big) > T(v_b) or T(v_b) < T(0.0)
+
+
+def test_registry_adds_a_law_and_rejects_duplicates():
+    def coulomb_viscous(v_abs, scale, *, mu_k, c_v):
+        return scale * mu_k + c_v * v_abs
+    name = "test_coulomb_viscous"
+    fr.LAWS.pop(name, None)
+    law = fr.register(fr.FrictionLaw(name, coulomb_viscous, (fr.Param("mu_k", "level"), fr.Param("c_v", "damping"))))
+    assert fr.get_law(name) is law
+    assert law.torque(2.0, -1.0, 10.0, 0.1, dict(mu_k=0.3, c_v=0.01)) == pytest.approx(0.3 + 0.02)
+    with pytest.raises(ConfigError, match="already registered"):
+        fr.register(law)
+    with pytest.raises(ConfigError, match="must be one of"):
+        fr.get_law("no_such_law")
+    fr.LAWS.pop(name)
 
 
 @settings(max_examples=30, deadline=None)
@@ -61,7 +95,7 @@ def test_vahid_araghi_law_is_odd(v, mu1, mu2, mu3, r0, r1):
 def test_rig3_contact_torque_odd_in_speed(v, n1):
     m = get_model("rig3")
     P = m.published().as_dict()
-    x, u = np.zeros(7), np.array([0.0, n1, n1])
+    x, u = np.zeros(m.nx), np.array([0.0, n1, n1])
     t_pos = m.contact_torque_smooth(0, v, x, u, P, 0.05)
     t_neg = m.contact_torque_smooth(0, -v, x, u, P, 0.05)
     assert float(t_pos) == pytest.approx(-float(t_neg), abs=1e-14)
@@ -80,7 +114,7 @@ def _chain_params(damped: bool):
 
 def _energy(p, x):
     x = np.atleast_2d(x)
-    return 0.5 * (p.J1 * x[:, 2] ** 2 + p.J2 * x[:, 3] ** 2 + p.J3 * x[:, 4] ** 2
+    return 0.5 * (p.J1 * x[:, 2] ** 2 + p.J2 * x[:, 3] ** 2 + p.eta ** 2 * p.Jm * x[:, 4] ** 2
                   + p.k1 * x[:, 0] ** 2 + p.k2 * x[:, 1] ** 2)
 
 

@@ -19,7 +19,7 @@ from mitigate.metrics import severity
 from models import get_model
 from models.actuators import ServoOptions
 from models.errors import ConfigError
-from models.simulator import Plant, SimOptions
+from models.plant import Plant, SimOptions
 
 M = get_model("rig3")
 P = M.published()

@@ -11,7 +11,7 @@ import pytest
 
 from models.errors import ConfigError
 from models.rigs import get_model
-from models.simulator import SimOptions, simulate
+from models.plant import SimOptions, simulate
 from mitigate import metrics as mx
 from mitigate.cli import main
 from mitigate.scenario import load_scenario
@@ -68,7 +68,7 @@ def test_plan_resolves_inputs_params_scales_and_mismatch():
 
 
 def test_batched_chunk_equals_the_simulator_per_point():
-    """Cross-method: the mapped/accumulated step gives the same trajectories as models.simulator."""
+    """Cross-method: the mapped/accumulated step gives the same trajectories as models.plant."""
     sc = load_scenario(RIG3)
     o = options_from_scenario(sc, duration=4.0, settle=2.0, start="rest", chunk=4, block=70, backend="vm")
     plan = plan_sweep(sc, [parse_axis("omega_ref=1.5:6:2"), parse_axis("n1=10:35:2")], o)

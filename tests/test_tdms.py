@@ -74,7 +74,7 @@ def test_nan_in_tdms_rejected_like_csv(tmp_path):
 
 
 @pytest.mark.parametrize("bad, msg", [
-    ("omega9 = { group = \"a\", channel = \"b\", unit = \"rpm\" }", "channels.omega9: unknown channel"),
+    ("t = { group = \"a\", channel = \"b\", unit = \"s\" }", "channels.t: expected a log channel name"),
     ("omega2 = { group = \"a\", channel = \"b\", unit = \"furlong\" }", r"unit \[furlong\] cannot be converted"),
     ("omega2 = \"Encoders/Disc1\"", "must be a table"),
 ])

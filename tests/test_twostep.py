@@ -79,7 +79,7 @@ def test_step2_limit_cycle_recovers_stiffness():
     """
     from estimators.twostep import fit_step2
     from models.rigs import get_model
-    from models.simulator import SimOptions, simulate
+    from models.plant import SimOptions, simulate
 
     true = published("leadscrew")
     sim = simulate(get_model("leadscrew"), true, np.array([40.0, 314.3]), 0.1, SimOptions(dt=2e-4, nsub=10, seed=3))

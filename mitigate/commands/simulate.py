@@ -20,7 +20,7 @@ from mitigate.cliutil import add_common, check_outputs, emit_json, format_table
 from mitigate.scenario import load_scenario
 from models.errors import SolverFailure
 from models.rigs import get_model
-from models.simulator import simulate
+from models.plant import simulate
 
 EPILOG = """examples:
   mitigate simulate scenarios/open_stick_slip.toml --out out/

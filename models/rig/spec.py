@@ -258,7 +258,8 @@ class _Ctx:
         self.inputs: dict[str, str] = {}             # input -> kind
 
     def err(self, field_: str, msg: str) -> ConfigError:
-        return ConfigError(f"{self.where}: {field_}{': ' if not msg.startswith(' ') else ''}{msg}")
+        sep = " " if msg.startswith(("must", "is ", "has ")) else ": "
+        return ConfigError(f"{self.where}: {field_}{sep}{msg}")
 
 
 def _table(data: Mapping, key: str, ctx: _Ctx, required: bool = False) -> Mapping:
@@ -706,11 +707,6 @@ def parse_rig(data: Mapping[str, Any], path: str = "<rig>") -> RigSpec:
                             strict=True)
         for pname in ("Tf", "Cm", "KE", "kp", "ki", "v_max", "i_max"):
             _positive_check(drive.param(pname), f"drive.{pname}", SI_UNITS[DC_MOTOR_FIELDS[pname][0]], ctx, decl)
-    for pd in decl.values():
-        if not pd.lower <= pd.value <= pd.upper or (pd.positive and not pd.value > pd.lower):
-            rel = ">" if pd.positive else ">="
-            raise ctx.err(f"parameters.{pd.name}.value",
-                          f"must be {rel} {pd.lower:g} and <= {pd.upper:g} {pd.unit}, got {pd.value:g}")
     # physical lower bounds for parameters used as inertias, stiffnesses, ...: default [0, inf)
     nonneg = {"inertia", "stiffness", "damping", "length", "mass", "inductance", "resistance", "time", "force_rate",
               "current", "voltage"}
@@ -719,6 +715,11 @@ def parse_rig(data: Mapping[str, Any], path: str = "<rig>") -> RigSpec:
             if pd.value < 0:
                 raise ctx.err(f"parameters.{n}.value", f"must be >= 0 {pd.unit} (a {pd.kind.replace('_', ' ')}), got {pd.value:g}")
             decl[n] = ParamDecl(n, pd.value, pd.kind, pd.unit, 0.0, pd.upper, pd.positive, pd.source, pd.doc)
+    for pd in decl.values():
+        if not pd.lower <= pd.value <= pd.upper or (pd.positive and not pd.value > pd.lower):
+            rel = ">" if pd.positive else ">="
+            raise ctx.err(f"parameters.{pd.name}.value",
+                          f"must be {rel} {pd.lower:g} and <= {pd.upper:g} {pd.unit}, got {pd.value:g}")
     for b in bodies:
         ref = b.inertia
         if ref.kind == "param" and decl[ref.name].value < 0:
