@@ -227,7 +227,8 @@ def read_csv(path: str | os.PathLike, required: Iterable[str] = ()) -> Log:
     path = Path(path)
     src = str(path)
     try:
-        with path.open(newline="") as fh:
+        # utf-8-sig: a CSV exported by Excel starts with a byte-order mark (dropped; plain UTF-8 reads as before)
+        with path.open(newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.reader(fh))
     except FileNotFoundError:
         raise DataError(f"{src}: log file not found") from None
