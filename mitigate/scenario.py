@@ -42,11 +42,14 @@ Schema (all sections but ``[scenario]`` and ``[inputs]`` optional)::
     kind = "pi"
 
 Unknown keys, missing fields, non-finite numbers and wrong types are reported as one
-line naming the field.
+line naming the field.  So is a run too long to hold: at most :data:`MAX_SAMPLES` samples
+(``duration / dt``), and no more than fit in this machine's memory at about
+:data:`BYTES_PER_SAMPLE` per sample and controller.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Mapping
@@ -61,6 +64,12 @@ from models.plant import SimOptions
 from mitigate.profiles import Profile, parse_profile
 
 __all__ = ["Scenario", "ControllerSpec", "load_scenario", "parse_scenario"]
+
+# A run keeps every sample in memory (states, measurements, estimates, actions: about 0.7 kB
+# per sample and controller while it runs, measured on rig3 with the EKF), then hands it back
+# for the logs and plots.  Both limits are checked before anything is allocated or run.
+MAX_SAMPLES = 10_000_000
+BYTES_PER_SAMPLE = 2048     # per sample and controller run, with room for the logs and plots
 
 _SECTIONS = {"scenario", "plant", "mismatch", "sensors", "servo", "inputs", "control", "estimator", "controllers",
              "sweep"}
@@ -134,6 +143,38 @@ def _options(cls, tab: Mapping, where: str, extra: Mapping | None = None):
         raise ConfigError(f"{where}: {exc}") from None
 
 
+def _memory_bytes() -> int | None:
+    """This machine's physical memory, or its cgroup's limit if lower (None: unknown)."""
+    total = None
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        pass
+    for f in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            limit = int(Path(f).read_text().split()[0])
+        except (OSError, ValueError, IndexError):   # absent, or "max" (no limit)
+            continue
+        if limit > 0:
+            total = limit if total is None else min(total, limit)
+    return total if total and total > 0 else None
+
+
+def _check_size(duration: float, dt: float, runs: int, where: str) -> None:
+    """One-line ConfigError if ``duration / dt`` samples cannot be run (count, then memory)."""
+    samples = duration / dt
+    shown = f"{samples:,.0f}" if samples < 1e15 else f"{samples:.3g}"
+    head = f"{where}: scenario.duration / scenario.dt = {duration:g} s / {dt:g} s = {shown} samples"
+    if samples > MAX_SAMPLES:
+        raise ConfigError(f"{head}; the limit is {MAX_SAMPLES:,} samples (shorten the duration or raise dt)")
+    need, have = samples * runs * BYTES_PER_SAMPLE, _memory_bytes()
+    if have is not None and need > have:
+        fit = int(have // (runs * BYTES_PER_SAMPLE))
+        raise ConfigError(f"{head}; the limit is {fit:,} samples here: {runs} controller run(s) need about "
+                          f"{need / 2**30:.1f} GiB ({BYTES_PER_SAMPLE} bytes per sample each), this machine has "
+                          f"{have / 2**30:.1f} GiB of memory")
+
+
 def parse_scenario(data: Mapping[str, Any], path: str = "<scenario>") -> Scenario:
     """Validate a scenario mapping (as read from TOML)."""
     where = Path(path).name if path else "scenario"
@@ -152,6 +193,8 @@ def parse_scenario(data: Mapping[str, Any], path: str = "<scenario>") -> Scenari
     model = get_model(model_name)
     duration = _num(sc["duration"], f"{where}: scenario.duration", positive=True)
     dt = _num(sc.get("dt", 0.01), f"{where}: scenario.dt", positive=True)
+    ctrls_raw = data.get("controllers", [])
+    _check_size(duration, dt, max(1, len(ctrls_raw) if isinstance(ctrls_raw, list) else 1), where)
     seed = sc.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise ConfigError(f"{where}: scenario.seed must be an integer, got {seed!r}")
@@ -208,7 +251,6 @@ def parse_scenario(data: Mapping[str, Any], path: str = "<scenario>") -> Scenari
         raise ConfigError(f"{where}: estimator.kind must be a string, got {est.get('kind')!r}")
     est.setdefault("kind", "ekf")
 
-    ctrls_raw = data.get("controllers", [])
     if not isinstance(ctrls_raw, list):
         raise ConfigError(f"{where}: controllers must be an array of tables ([[controllers]]), got {type(ctrls_raw).__name__}")
     ctrls = []

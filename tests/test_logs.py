@@ -119,6 +119,16 @@ def test_empty_and_missing_file(tmp_path):
         read_csv(tmp_path / "nope.csv")
 
 
+def test_excel_csv_with_byte_order_mark(tmp_path):
+    """Excel's "CSV UTF-8" export starts with a byte-order mark and ends lines with CRLF."""
+    p = tmp_path / "excel.csv"
+    p.write_bytes(b"\xef\xbb\xbf" + GOOD.replace("\n", "\r\n").encode("utf-8"))
+    log = read_csv(p, required=("omega1", "n1"))
+    np.testing.assert_allclose(log.t, [0, 0.01, 0.02, 0.03])
+    np.testing.assert_allclose(log["n1"], [20, 20, 20, 20])
+    assert "t" not in log.channels and not any("\ufeff" in c for c in log.channels)
+
+
 def test_too_short(tmp_path):
     with pytest.raises(DataError, match="at least 2 samples"):
         read_csv(write(tmp_path, "t [s],omega1 [rad/s]\n0,1\n"))

@@ -36,6 +36,10 @@ from models.rigs import get_model
 __all__ = ["NMPCOptions", "NMPCWeights", "NMPCController", "make_nmpc"]
 
 _SOLVERS = ("rti", "sqp", "ipopt")
+# The OCP, its build and each QP grow with the horizon.  N = 500 plans 25 s ahead at dt = 0.05 s
+# (a stick-slip cycle is about 2 s) and builds in about 3 s (N = 20: 0.2 s; without compile);
+# N = 100000 would take about 9 minutes to build before the first sample.
+MAX_HORIZON = 500
 _QP = ("hpipm", "qrqp", "osqp")
 
 
@@ -116,6 +120,9 @@ class NMPCOptions:
         w = self.where
         if isinstance(self.horizon, bool) or not isinstance(self.horizon, int) or self.horizon < 2:
             raise ConfigError(f"{w}.horizon must be an integer >= 2, got {self.horizon!r}")
+        if self.horizon > MAX_HORIZON:
+            raise ConfigError(f"{w}.horizon must be <= {MAX_HORIZON} (OCP intervals; the OCP and each QP grow "
+                              f"with it), got {self.horizon}")
         _num(self.dt, f"{w}.dt [s]", positive=True)
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) or self.substeps < 0:
             raise ConfigError(f"{w}.substeps must be an integer >= 0 (0 = automatic), got {self.substeps!r}")
