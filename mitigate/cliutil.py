@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import enum
 import json
 import math
 import os
@@ -49,6 +50,8 @@ def to_jsonable(obj: Any) -> Any:
         return int(obj)
     if isinstance(obj, Path):
         return str(obj)
+    if isinstance(obj, enum.Enum):
+        return obj.value
     return obj
 
 
@@ -72,17 +75,12 @@ def format_table(headers: list[str], rows: list[list[Any]], floatfmt: str = "{:.
 
 
 def savefig_atomic(fig, path: os.PathLike | str, **kw) -> Path:
-    """Save a matplotlib figure as PNG via a temporary file and rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
-    try:
-        fig.savefig(tmp, dpi=kw.pop("dpi", 110), **kw)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+    """Save a matplotlib figure as PNG atomically (:func:`models.files.atomic_path`)."""
+    from models.files import atomic_path
+
+    with atomic_path(path, overwrite=True) as tmp:
+        fig.savefig(tmp, dpi=kw.pop("dpi", 110), format="png", **kw)
+    return Path(path)
 
 
 def finish_figure(fig, path: os.PathLike | str, title: str | None = None, dpi: int = 110) -> Path:

@@ -1,73 +1,72 @@
-"""The closed loop: plant simulator, sensors, estimator and controller at the DAQ rate.
+"""The closed loop: plant, sensors, estimator and controller at the DAQ rate, on any rig.
 
 One sample ``k`` (time ``t_k = k dt``)::
 
-    y_k    = DAQ measurement at t_k (sensor models: quantised encoders, noisy load cells)
-    xhat_k = estimator.update(y_k, u over [t_{k-1}, t_k], t_k)
-    a_k    = controller.step(t_k, xhat_k, y_k)   if t_k >= control_start and every
-             ``control_every`` samples from there, else the held action; before
-             control_start the baseline (a): programmed set-point, programmed N2
-    u_k    = [a_k.omega_ref, N1 programme(t_k), a_k.n2]  held over [t_k, t_{k+1}]
-    plant  <- one exact stick/slip step (servo lag on N2, parameter mismatch)
+    y_k    = DAQ measurement at t_k (the plant's sensors: counted encoders, noisy load cells, delays)
+    xhat_k = estimator.update(t_k, y_k, u over [t_{k-1}, t_k])
+    a_k    = controller.step(t_k, y_k, xhat_k)   from control.start, every control.every samples,
+             held in between; before control.start the programme alone
+    u_k    = the programme at t_k, with the inputs the action sets replaced    held over [t_k, t_{k+1}]
+    plant  <- one exact stick/slip step (servos on the inputs they set, the true parameters,
+              the plant's own structure)
 
-Controllers and estimators see only measurements, estimates and the nominal
-``scenario.model_params``; the true state and the true (mismatched) parameters stay in
-the plant.  The input given to the estimator is the commanded set-point with the
-MEASURED pin forces (load cells), because the servo output is not known exactly.
-A failing controller or estimator is handled by their base classes (counted
-fallbacks); a failing plant step ends the run with ``success = False`` and the
-samples so far.
+Controllers and estimators see only measurements, estimates and the NOMINAL model and
+parameters (``scenario.model``, ``scenario.model_params``); the true state, the true parameters
+and the plant's structure stay in the plant.  The estimator's input is the commanded drive
+input with the MEASURED normal forces where a load cell measures them (a servo's output is not
+known exactly).  A failing controller or estimator is handled by their base classes (counted
+fallbacks).  A run whose plant leaves its physical bounds -- a non-finite state, or a body
+faster than ``scenario.max_speed`` -- ends there as ``Status.DIVERGED`` with the reason; the
+samples so far are returned.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from estimators.factory import make_estimator
-from models.rigs import get_model
-from models.plant import Plant
-from models.logs import Log
 from models.errors import ConfigError
+from models.logs import Log
+from models.plant import Plant
+from models.status import Status
 
-__all__ = ["ClosedLoopResult", "run_closed_loop", "baseline_input"]
-
-MEAS_CHANNELS = ("theta1", "theta2", "theta3", "omega1", "omega2", "omega3", "motor_torque", "n1", "n2", "omega_ref")
+__all__ = ["ClosedLoopResult", "run_closed_loop", "model_twists"]
 
 
 @dataclass(frozen=True)
 class ClosedLoopResult:
-    """One closed-loop run; time on axis 0 (``n + 1`` samples unless the plant failed).
+    """One closed-loop run; time on axis 0 (``n + 1`` samples unless the run ended early).
 
     Attributes
     ----------
-    t : (n+1,) times [s]
-    x : (n+1, nx) TRUE plant states (rig3 order: phi12, phi23, omega1..3, i, z)
-    y : measured channels, each (n+1,) (what the DAQ recorded)
-    xhat : (n+1, nxe) state estimates; ``xhat_names`` their names
-    action_n2, action_omega_ref : (n+1,) controller commands held over [t_k, t_{k+1}] [N], [rad/s]
-    u : (n+1, nu) inputs applied to the plant (servo output for n2; last row repeated)
-    controller_active : (n+1,) bool, the controller was in charge at that sample
-    controller_ok : (n+1,) bool, the held action did not come from a fallback
-    solve_times : (m,) wall time of each controller call [s]
-    plan_calls : (m,) bool, that call computed a new action (not a zero-order hold between the plans
-        of a multi-rate controller such as the NMPC)
-    estimator_times : (n+1,) wall time of each estimator update [s]
+    t : (m,) times [s]
+    x : (m, nx_plant) TRUE plant states (names in ``states``)
+    twists : ``{twist_<spring>: (m,)}`` the true twists of the MODEL's springs (angle
+        differences, also when the plant splits a shaft into elements) [rad]
+    y : measured channels, each (m,) (what the DAQ recorded)
+    xhat : (m, nxe) state estimates; ``xhat_names`` their names
+    u : (m, nu) inputs applied to the plant (servo outputs; names in ``inputs``)
+    commands : ``{input: (m,)}`` what the loop sent for each input (programme or controller)
+    controller_active : (m,) bool, the controller was in charge
+    controller_ok : (m,) bool, the held action did not come from a fallback
+    solve_times : (c,) wall time of each controller call [s]; plan_calls : (c,) bool, the call
+        planned (not a hold between the plans of a multi-rate controller)
+    estimator_times : (m,) wall time of each estimator update [s]
     controller_counts, estimator_counts : counts from the base classes
-    status : human-readable; success : the plant ran to the end with finite states
+    observability : the estimator's observability report (or None)
+    status : Status.OK, or Status.DIVERGED / FAILED; message : the reason
     """
 
     t: np.ndarray
     x: np.ndarray
+    twists: dict = field(repr=False)
     y: dict = field(repr=False)
     xhat: np.ndarray = field(repr=False)
     xhat_names: tuple = ()
-    action_n2: np.ndarray = field(default=None, repr=False)
-    action_omega_ref: np.ndarray = field(default=None, repr=False)
     u: np.ndarray = field(default=None, repr=False)
+    commands: dict = field(default_factory=dict, repr=False)
     controller_active: np.ndarray = field(default=None, repr=False)
     controller_ok: np.ndarray = field(default=None, repr=False)
     solve_times: np.ndarray = field(default=None, repr=False)
@@ -76,32 +75,61 @@ class ClosedLoopResult:
     controller_counts: dict = field(default_factory=dict)
     estimator_counts: dict = field(default_factory=dict)
     controller: str = ""
+    model: str = ""
+    objective_body: str = ""
     states: tuple = ()
     inputs: tuple = ()
     control_start: float = 0.0
-    status: str = "ok"
-    success: bool = True
+    observability: object = None
+    status: Status = Status.OK
+    message: str = "ok"
+
+    @property
+    def success(self) -> bool:
+        return self.status.success
 
     def state(self, name: str) -> np.ndarray:
-        """True state trajectory by name."""
-        return self.x[:, self.states.index(name)]
+        """True plant state trajectory by name (e.g. ``"omega_R1"``)."""
+        try:
+            return self.x[:, self.states.index(name)]
+        except ValueError:
+            raise ConfigError(f"no plant state {name!r}; states: {', '.join(self.states)}") from None
 
     def input(self, name: str) -> np.ndarray:
         """Applied input trajectory by name."""
         return self.u[:, self.inputs.index(name)]
 
+    def estimate(self, name: str) -> np.ndarray:
+        """Estimated state trajectory by name."""
+        return self.xhat[:, self.xhat_names.index(name)]
+
+    @property
+    def objective_speed(self) -> np.ndarray:
+        """True speed of the body whose stick-slip is suppressed [rad/s]."""
+        return self.state(f"omega_{self.objective_body}")
+
     def to_log(self) -> Log:
-        """Measured channels plus the TRUE twists (``twist12``, ``twist23``) as a CSV log."""
-        chans = {c: self.y[c] for c in MEAS_CHANNELS if c in self.y}
-        chans["omega_ref"] = self.action_omega_ref
-        chans["twist12"] = self.state("phi12")
-        chans["twist23"] = self.state("phi23")
+        """Measured channels, the commands sent, plus the TRUE twists and speeds, as a log."""
+        chans = dict(self.y)
+        chans.update(self.commands)
+        chans.update(self.twists)
+        for j, n in enumerate(self.states):
+            if n.startswith("omega_"):
+                chans[n] = self.x[:, j]
         return Log(self.t, chans, f"closed loop: {self.controller}")
 
 
-def baseline_input(scenario, t: float) -> np.ndarray:
-    """Baseline (a) input at ``t``: the programme (set-point, N1, N2 = programme, normally 0)."""
-    return np.asarray(scenario.input_vector(t), dtype=float)
+def model_twists(model, plant_model) -> np.ndarray:
+    """``(n_plant_states, n_model_springs)`` matrix ``S`` with ``twists = x_plant @ S``: the true
+    twist of each MODEL spring.  A plant that splits a shaft section ``c`` into elements
+    (``[structure] shaft_elements``) names them ``c``, ``c_1``, ...: their twists add up."""
+    springs = [c.name for c in model.spec.connections if c.stiffness is not None]
+    S = np.zeros((plant_model.nx, len(springs)))
+    for j, c in enumerate(springs):
+        for i, st in enumerate(plant_model.states):
+            if st == f"twist_{c}" or (st.startswith(f"twist_{c}_") and st[len(f"twist_{c}_"):].isdigit()):
+                S[i, j] = 1.0
+    return S
 
 
 def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plant=None) -> ClosedLoopResult:
@@ -109,45 +137,49 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
 
     Parameters
     ----------
-    scenario : mitigate.scenario.Scenario (model "rig3")
-    controller : mitigate.controllers.base.Controller
-    estimator : estimators.base.StateEstimator, or None to build ``scenario.estimator``
-        with the NOMINAL ``scenario.model_params``
+    scenario : mitigate.scenario.Scenario
+    controller : a :class:`mitigate.controllers.base.Controller`
+    estimator : a :class:`estimators.base.StateEstimator`, or None to build ``scenario.estimator``
+        with the NOMINAL model and parameters
     progress : optional callable ``progress(k_done)`` called every 100 samples
-    plant : optional pre-built plant (tests); default: ``models.plant.Plant`` with
-        ``scenario.plant_params``, sensors, servo and sim options
+    plant : optional pre-built plant; default: ``models.plant.Plant`` of ``scenario.plant_model``
+        with ``scenario.plant_params``, its sensors, servos, options and drift
 
     Returns
     -------
     ClosedLoopResult
     """
-    if scenario.model != "rig3":
-        raise ConfigError(f"{scenario.path or 'scenario'}: scenario.model must be 'rig3' for a closed loop, "
-                          f"got {scenario.model!r}")
-    model = get_model("rig3")
+    model, pm = scenario.model, scenario.plant_model
     dt = scenario.dt
-    n = int(round(scenario.duration / dt))
+    n = scenario.samples
     if n < 1:
-        raise ConfigError(f"scenario.duration must be at least one sample ({dt} s), got {scenario.duration}")
-    u0 = baseline_input(scenario, 0.0)
+        raise ConfigError(f"{scenario.where}: scenario.duration must be at least one sample ({dt} s), "
+                          f"got {scenario.duration}")
+    u0 = scenario.programme(0.0)
     if plant is None:
-        plant = Plant(model, scenario.plant_params, scenario.sim, sensors=scenario.sensors, servo=scenario.servo,
-                      u0=u0)
+        plant = Plant(pm, scenario.plant_params, scenario.sim, sensors=scenario.sensors, u0=u0,
+                      drift=scenario.drift)
     if estimator is None:
+        from estimators.base import EstimatorContext
+        from estimators.factory import make_estimator
         # the estimator's initial guess comes from the NOMINAL model, never from the plant
-        x0 = (model.steady_sliding(u0, scenario.model_params) if scenario.sim.start == "sliding"
-              else np.zeros(model.nx))
-        estimator = make_estimator(scenario.estimator, scenario.model_params, scenario.sensors, dt, x0=x0,
-                                   where=f"{scenario.path or 'scenario'}: estimator")
+        x0 = model.steady_sliding(u0, scenario.model_params) if scenario.sim.start == "sliding" else np.zeros(model.nx)
+        estimator = make_estimator(scenario.estimator, EstimatorContext(
+            model, scenario.model_params, dt, scenario.sensors, x0, f"{scenario.where}: estimator"))
     controller.reset()
     k_start = int(math.ceil(scenario.control_start / dt - 1e-9))
     every = scenario.control_every
+    twist_map = model_twists(model, pm)
+    twist_names = tuple(f"twist_{c.name}" for c in model.spec.connections if c.stiffness is not None)
+    speed_idx = np.array([pm.speed_index(b) for b in pm.bodies])
+    measured_inputs = [j for j, name in enumerate(model.inputs) if name in model.measured
+                       and model.sensor_of(name) is not None and model.sensor_of(name).kind != "encoder"]
 
     T = np.arange(n + 1) * dt
-    X = np.full((n + 1, model.nx), np.nan)
-    U = np.full((n + 1, model.nu), np.nan)
-    A_n2 = np.full(n + 1, np.nan)
-    A_w = np.full(n + 1, np.nan)
+    X = np.full((n + 1, pm.nx), np.nan)
+    TW = np.full((n + 1, len(twist_names)), np.nan)
+    U = np.full((n + 1, pm.nu), np.nan)
+    CMD = np.full((n + 1, model.nu), np.nan)
     active = np.zeros(n + 1, bool)
     ok = np.ones(n + 1, bool)
     est_times = np.full(n + 1, np.nan)
@@ -160,58 +192,73 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
     y = plant.measure()
     u_prev = u0.copy()
     held = None
-    status, success = "ok", True
+    status, message = Status.OK, "ok"
     last = n
     X[0] = plant.x
+    TW[0] = plant.x @ twist_map
     for k in range(n + 1):
         t = T[k]
         ys.append(y)
-        # estimator input over the last sample: commanded set-point, measured pin forces
-        u_est = np.array([u_prev[0], y.get("n1", u_prev[1]), y.get("n2", u_prev[2])], dtype=float)
-        est = estimator.update(y, u_est, t)
+        u_est = u_prev.copy()
+        for j in measured_inputs:
+            v = y.get(model.inputs[j], np.nan)
+            if np.isfinite(v):
+                u_est[j] = v
+        est = estimator.update(t, y, u_est)
         names = est.names
         xh.append(np.asarray(est.x, dtype=float))
         est_times[k] = est.solve_time
-        prog = baseline_input(scenario, t)
+        u = scenario.programme(t)
         if k >= k_start:
-            controller.set_nominal(prog[0])
             if held is None or (k - k_start) % every == 0:
-                held = controller.step(t, est, y)
+                held = controller.step(t, y, est)
                 solve_times.append(held.solve_time)
-                plan_calls.append(not str(held.status).startswith("hold"))
+                plan_calls.append(held.status is not Status.HOLD)
             active[k] = True
             ok[k] = held.success
-            u = np.array([held.omega_ref, prog[1], held.n2], dtype=float)
-        else:
-            u = prog
-        A_w[k], A_n2[k] = u[0], u[2]
+            for name, v in held.u.items():
+                u[model.inputs.index(name)] = v
+        CMD[k] = u
         if k == n:
             U[k] = U[k - 1] if k > 0 else u
             break
         try:
             y = plant.step(u)
             xk = np.asarray(plant.x, dtype=float)
-            if not np.all(np.isfinite(xk)):
-                raise FloatingPointError("non-finite plant state")
-        except Exception as exc:  # the plant is the one thing that may end a run
-            status, success, last = f"plant failed at t = {T[k + 1]:.3f} s: {type(exc).__name__}: {exc}", False, k
+        except Exception as exc:  # noqa: BLE001 - the plant is the one thing that may end a run
+            status, message, last = Status.FAILED, f"plant step failed at t = {T[k + 1]:.3f} s: " \
+                                                   f"{type(exc).__name__}: {exc}", k
             U[k] = u
             break
         U[k] = plant.u_applied
         X[k + 1] = xk
+        TW[k + 1] = xk @ twist_map
         u_prev = u
+        if not np.all(np.isfinite(xk)):
+            status, message, last = Status.DIVERGED, f"diverged at t = {T[k + 1]:.3f} s: non-finite plant state", k + 1
+            break
+        fast = np.abs(xk[speed_idx])
+        if np.any(fast > scenario.max_speed):
+            b = pm.bodies[int(np.argmax(fast))]
+            status, message, last = Status.DIVERGED, (
+                f"diverged at t = {T[k + 1]:.3f} s: |omega_{b}| = {float(np.max(fast)):.3g} rad/s exceeds "
+                f"plant.max_speed = {scenario.max_speed:g} rad/s"), k + 1
+            break
         if progress is not None and (k + 1) % 100 == 0:
             progress(k + 1)
     m = last + 1
-    keys = [c for c in MEAS_CHANNELS if c in ys[0] or c in ys[-1]]
+    keys = list(dict.fromkeys(k for d in ys[:m] for k in d))
     Y = {c: np.array([d.get(c, np.nan) for d in ys[:m]]) for c in keys}
-    Y["omega_ref"] = A_w[:m].copy()
-    if success and controller.counts.failures:
-        status = f"ok ({controller.counts.failures} controller failure(s) answered by fallback)"
+    commands = {name: CMD[:m, j] for j, name in enumerate(model.inputs) if name in model.commands}
+    if status is Status.OK and controller.counts.failures:
+        message = f"ok ({controller.counts.failures} controller failure(s) answered by the fallback)"
+    xhat = np.array(xh[:m]) if xh else np.zeros((0, 0))
     return ClosedLoopResult(
-        t=T[:m], x=X[:m], y=Y, xhat=np.array(xh[:m]), xhat_names=tuple(names), action_n2=A_n2[:m],
-        action_omega_ref=A_w[:m], u=U[:m], controller_active=active[:m], controller_ok=ok[:m],
-        solve_times=np.array(solve_times), plan_calls=np.array(plan_calls, dtype=bool), estimator_times=est_times[:m],
-        controller_counts=controller.counts.as_dict(), estimator_counts=estimator.counts.as_dict(),
-        controller=getattr(controller, "name", type(controller).__name__), states=model.states,
-        inputs=model.inputs, control_start=float(k_start * dt), status=status, success=success)
+        t=T[:m], x=X[:m], twists={nm: TW[:m, j] for j, nm in enumerate(twist_names)}, y=Y, xhat=xhat,
+        xhat_names=tuple(names), u=U[:m], commands=commands, controller_active=active[:m], controller_ok=ok[:m],
+        solve_times=np.array(solve_times), plan_calls=np.array(plan_calls, dtype=bool),
+        estimator_times=est_times[:m], controller_counts=controller.counts.as_dict(),
+        estimator_counts=estimator.counts.as_dict(), controller=getattr(controller, "name", type(controller).__name__),
+        model=model.name, objective_body=model.objective_body, states=pm.states, inputs=pm.inputs,
+        control_start=float(k_start * dt), observability=getattr(estimator, "observability", None),
+        status=status, message=message)

@@ -1,8 +1,8 @@
 """Comparison plots of a scenario run: overlaid time histories, phase portraits, metric bars.
 
-Per-controller time histories use :func:`mitigate.timeplots.plot_time_histories`; this
-module draws the plots that put the controllers side by side.  All plots use the TRUE
-plant trajectories (what the rig did), not the measurements.
+All plots use the TRUE plant trajectories (what the rig did), not the measurements: the speed
+of the body whose stick-slip is suppressed (rig3: R1), the twist of the spring next to it,
+the inputs the controllers set (servo forces as applied, the drive's set-point as sent).
 """
 
 from __future__ import annotations
@@ -18,34 +18,53 @@ import numpy as np  # noqa: E402
 
 from mitigate.cliutil import finish_figure  # noqa: E402
 
-__all__ = ["plot_comparison", "plot_phase_portraits", "plot_metric_bars", "BAR_METRICS"]
+__all__ = ["plot_comparison", "plot_phase_portraits", "plot_metric_bars", "BAR_METRICS", "objective_twist"]
 
 #: (metric key, axis label) of the bar chart
 BAR_METRICS = (
     ("sss", "severity SSS [-]"),
     ("sss_final", "SSS, last window [-]"),
+    ("time_to_suppress", "time to suppress [s]"),
     ("stuck_fraction", "fraction of time stuck [-]"),
-    ("rms_twist12", "RMS twist R1-R2 [rad]"),
-    ("motor_torque_std", "motor torque std [N m]"),
-    ("friction_work_pin2", "friction work at pin 2 [J]"),
-    ("mean_omega1", "mean R1 speed [rad/s]"),
+    ("speed_error_rms", "speed error RMS [rad/s]"),
+    ("pin_work", "friction work at servo pins [J]"),
+    ("drive_energy", "drive energy [J]"),
     ("plan_median_ms", "median planning-call time [ms]"),
 )
 
 
-def plot_comparison(results: Mapping[str, object], title: str, path: str | os.PathLike, dpi: int = 110):
-    """R1 speed, twist R1-R2, applied N2 and set-point of every controller over time (true states)."""
-    fig, axes = plt.subplots(4, 1, sharex=True, figsize=(11, 10))
+def objective_twist(model) -> str | None:
+    """Name of the twist of the first spring that touches the objective body (None if none)."""
+    for c in model.spec.connections:
+        if c.stiffness is not None and model.objective_body in (c.a, c.b):
+            return f"twist_{c.name}"
+    return None
+
+
+def plot_comparison(sc, results: Mapping[str, object], title: str, path: str | os.PathLike, dpi: int = 110):
+    """The objective body's speed, its twist and every commanded input of every controller over time."""
+    m = sc.model
+    tw = objective_twist(m)
+    cmds = list(m.commands)
+    rows = 1 + (tw is not None) + len(cmds)
+    fig, axes = plt.subplots(rows, 1, sharex=True, figsize=(11, 2.4 * rows + 0.8), squeeze=False)
+    axes = axes[:, 0]
     for name, r in results.items():
-        axes[0].plot(r.t, r.state("omega1"), lw=0.8, label=name)
-        axes[1].plot(r.t, r.state("phi12"), lw=0.8, label=name)
-        axes[2].plot(r.t, r.input("n2"), lw=0.8, label=name)
-        axes[3].plot(r.t, r.action_omega_ref, lw=1.0, label=name)
-    labels = ("R1 speed omega1 [rad/s]", "twist theta1-theta2 [rad]", "applied pin force N2 [N]",
-              "set-point omega_ref [rad/s]")
+        k = 0
+        axes[k].plot(r.t, r.objective_speed, lw=0.8, label=name)
+        if tw is not None:
+            k += 1
+            axes[k].plot(r.t, r.twists[tw], lw=0.8, label=name)
+        for c in cmds:
+            k += 1
+            v = r.input(c) if c in m.servo_inputs else r.commands[c]
+            axes[k].plot(r.t, v, lw=0.9, label=name)
+    labels = [f"speed of {m.objective_body} [rad/s]"] + ([f"{tw} [rad]"] if tw else []) + \
+        [f"{c} [{m.input_units[m.inputs.index(c)]}]" + (" (applied)" if c in m.servo_inputs else " (sent)")
+         for c in cmds]
     starts = {float(r.control_start) for r in results.values()}
     for ax, lab in zip(axes, labels):
-        ax.set_ylabel(lab)
+        ax.set_ylabel(lab, fontsize=9)
         ax.grid(True, alpha=0.3)
         for s in starts:
             ax.axvline(s, color="k", ls=":", lw=1.0)
@@ -55,19 +74,22 @@ def plot_comparison(results: Mapping[str, object], title: str, path: str | os.Pa
     return finish_figure(fig, path, title, dpi=dpi)
 
 
-def plot_phase_portraits(results: Mapping[str, object], title: str, path: str | os.PathLike, dpi: int = 110):
-    """omega1 against twist12 (true), before (grey) and after (colour) the control start, one panel each."""
+def plot_phase_portraits(sc, results: Mapping[str, object], title: str, path: str | os.PathLike, dpi: int = 110):
+    """Objective body speed against its twist (true), before (grey) and after (colour) the control start."""
+    tw = objective_twist(sc.model)
     n = max(1, len(results))
     cols = min(n, 3)
     rows = int(np.ceil(n / cols))
     fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 4.0 * rows), squeeze=False)
     for ax, (name, r) in zip(axes.ravel(), results.items()):
         on = r.t >= r.control_start
-        ax.plot(r.state("phi12")[~on], r.state("omega1")[~on], color="0.7", lw=0.6, label="before control")
-        ax.plot(r.state("phi12")[on], r.state("omega1")[on], color="tab:blue", lw=0.8, label="after control start")
+        x = r.twists[tw] if tw else r.t
+        w = r.objective_speed
+        ax.plot(x[~on], w[~on], color="0.7", lw=0.6, label="before control")
+        ax.plot(x[on], w[on], color="tab:blue", lw=0.8, label="after control start")
         ax.set_title(name)
-        ax.set_xlabel("twist theta1-theta2 [rad]")
-        ax.set_ylabel("R1 speed omega1 [rad/s]")
+        ax.set_xlabel(f"{tw} [rad]" if tw else "time [s]")
+        ax.set_ylabel(f"speed of {sc.model.objective_body} [rad/s]")
         ax.grid(True, alpha=0.3)
         ax.legend(loc="upper left", fontsize=7)
     for ax in axes.ravel()[len(results):]:
@@ -77,7 +99,7 @@ def plot_phase_portraits(results: Mapping[str, object], title: str, path: str | 
 
 def plot_metric_bars(metrics: Mapping[str, Mapping[str, float]], title: str, path: str | os.PathLike,
                      keys: Sequence[tuple[str, str]] = BAR_METRICS, dpi: int = 110):
-    """One bar panel per metric, one bar per controller (NaN metrics are left empty)."""
+    """One bar panel per metric, one bar per controller (NaN and inf are drawn as empty)."""
     names = list(metrics)
     cols = 4
     rows = int(np.ceil(len(keys) / cols))
@@ -90,7 +112,6 @@ def plot_metric_bars(metrics: Mapping[str, Mapping[str, float]], title: str, pat
         ax.set_xticks(range(len(names)))
         ax.set_xticklabels(names, rotation=30, ha="right", fontsize=8)
         ax.set_title(label, fontsize=9)
-        ax.set_ylabel(label.split("[")[-1].rstrip("]") if "[" in label else "")
         ax.grid(True, axis="y", alpha=0.3)
     for ax in axes.ravel()[len(keys):]:
         ax.set_visible(False)

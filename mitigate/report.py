@@ -1,8 +1,9 @@
 """``report.md`` of a scenario run: the table, the plots, and what the numbers say.
 
-The text is generated from the measured metrics only.  The section on the NMPC lists,
-metric by metric, every controller that did better than it, and the facts that bear on
-why (solve time against the control period, fallbacks, estimator and model used).
+The text is generated from the measured metrics only.  For each model-based controller (the
+NMPC) it lists, metric by metric, every controller that did better, and the facts that bear on
+why (solve time against the control period, fallbacks, the estimator and its observability,
+the plant's mismatch and structure).
 """
 
 from __future__ import annotations
@@ -10,19 +11,18 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from models.files import atomic_write_text
 from mitigate.metrics import METRIC_UNITS
-from models.logs import atomic_write_text
 
 __all__ = ["write_report", "render_report", "LOWER_IS_BETTER"]
 
 #: metrics where lower is better, compared in the NMPC section
-LOWER_IS_BETTER = ("sss", "sss_final", "stuck_fraction", "rms_twist12", "std_twist12", "motor_torque_std",
-                   "friction_work_pin2")
+LOWER_IS_BETTER = ("sss", "sss_final", "sss_moving_mean", "time_to_suppress", "stuck_fraction", "speed_error_rms",
+                   "pin_work")
 
-_TABLE = ("sss", "sss_window_mean", "sss_final", "stuck_fraction", "stuck_fraction_measured", "mean_omega1",
-          "rms_twist12", "std_twist12", "motor_torque_std", "friction_work_pin2", "mean_n2", "mean_omega_ref",
-          "plan_median_ms", "plan_p95_ms", "plan_max_ms", "solve_median_ms", "solve_p95_ms", "solve_max_ms",
-          "controller_fallbacks", "controller_failures",
+_TABLE = ("sss", "sss_final", "sss_moving_mean", "time_to_suppress", "stuck_fraction", "stuck_fraction_measured",
+          "mean_speed", "speed_error_rms", "rms_twist", "pin_work", "mean_pin_force", "drive_energy",
+          "plan_median_ms", "plan_p95_ms", "solve_max_ms", "controller_fallbacks", "controller_failures",
           "estimator_fallbacks", "estimator_dropouts")
 
 
@@ -30,10 +30,10 @@ def _fmt(v) -> str:
     if isinstance(v, (int,)) and not isinstance(v, bool):
         return str(v)
     v = float(v)
-    return "-" if not math.isfinite(v) else f"{v:.4g}"
+    return "-" if math.isnan(v) else ("inf" if math.isinf(v) else f"{v:.4g}")
 
 
-def _nmpc_section(sc, runs) -> list[str]:
+def _model_section(sc, runs) -> list[str]:
     nm = [r for r in runs if r.kind == "nmpc"]
     lines = ["## Where the NMPC does not win, and why", ""]
     if not nm:
@@ -58,7 +58,7 @@ def _nmpc_section(sc, runs) -> list[str]:
                  f"(p95), and any call at most {_fmt(m['solve_max_ms'])} ms, against a DAQ period of "
                  f"{1e3 * sc.dt:.3g} ms and a control period of {1e3 * period:.3g} ms"
                  + (" (the p95 EXCEEDS the DAQ period: on the rig it would not keep up)"
-                    if m["solve_p95_ms"] > 1e3 * sc.dt else " (it keeps up)")]
+                    if m["plan_p95_ms"] > 1e3 * sc.dt else " (it keeps up)")]
         if m["controller_fallbacks"]:
             facts.append(f"it fell back {m['controller_fallbacks']} times out of {m['controller_steps']} steps "
                          f"({m['controller_failures']} outright failures)")
@@ -66,42 +66,54 @@ def _nmpc_section(sc, runs) -> list[str]:
             facts.append(f"its estimator fell back {m['estimator_fallbacks']} times")
         lines.append("Facts that bear on it: " + "; ".join(facts) + ".")
     est = sc.estimator.get("kind", "ekf")
+    diff = []
+    if sc.mismatch:
+        diff.append("parameters " + ", ".join(f"{k} x{v:g}" for k, v in sc.mismatch.items()))
+    if sc.structure:
+        diff.append("structure " + ", ".join(sorted(sc.structure)))
     lines += ["",
               "Why a model-based controller can lose here: (1) it predicts with the regularised (tanh) friction "
               "model, while the plant has exact stick, so its prediction is poorest exactly around stick; "
-              f"(2) it sees the `{est}` estimate built from quantised encoders (1 tick per 10 ms = 0.63 rad/s "
-              "on R1), never the true twist"
-              + (f", and the plant differs from its model ({', '.join(f'{k} x{v:g}' for k, v in sc.mismatch.items())})"
-                 if sc.mismatch else "")
-              + "; (3) N2 passes through a lagged, rate-limited servo; (4) the stick-slip here is a limit cycle "
-              "coexisting with a linearly stable sliding state, so the cheap laws only have to push the rig "
-              "once onto the sliding branch, which a speed raise or a one-sided brake does without any model. "
-              "Which of these matters in this run is not separated by this report; the metrics above are "
-              "what was measured.", ""]
+              f"(2) it sees the `{est}` estimate built from quantised encoders, never the true twist"
+              + (f"; (3) the plant differs from its model ({'; '.join(diff)})" if diff else "")
+              + "; (4) a servo's force passes through a lagged, rate-limited actuator; (5) where stick-slip is a "
+              "limit cycle beside a stable sliding state, a cheap law only has to push the rig once onto the "
+              "sliding branch. Which of these matters in this run is not separated by this report; the metrics "
+              "above are what was measured.", ""]
     return lines
 
 
-def render_report(sc, summary, files) -> str:
+def render_report(sc, result, files, slug_names) -> str:
     """The markdown text (relative links to the files in the same folder)."""
-    runs = summary.runs
+    runs = result.runs
     rel = {k: Path(v).name for k, v in files.items()}
     period = sc.dt * sc.control_every
+    body = sc.model.objective_body
     L = [f"# Scenario `{sc.name}`", "", sc.description or "", "",
-         f"- scenario file: `{sc.path}`",
+         f"- rig: `{sc.model.name}` ({sc.model.description}); scenario file: `{sc.path or '(built in Python)'}`",
          f"- duration {sc.duration:g} s, DAQ period {1e3 * sc.dt:g} ms, controllers run every "
          f"{sc.control_every} sample(s) ({1e3 * period:g} ms), switched on at t = {sc.control_start:g} s "
-         "(baseline PI before)",
-         f"- plant: `{sc.sim.method}` stepping, start from {sc.sim.start}, "
-         f"mismatch {dict(sc.mismatch) if sc.mismatch else 'none'}; sensors noise scale {sc.sensors.noise_scale:g}",
-         f"- estimator: `{sc.estimator.get('kind', 'ekf')}` (controllers see only measurements and estimates)",
-         f"- status: {summary.status}; wall time {summary.elapsed:.1f} s", "",
-         "## Metrics (after the control start)", "",
-         "All physical metrics come from the TRUE plant states and applied inputs (what the rig did): "
-         "severity SSS = (max - min)/(2 mean) of the R1 speed, overall and over 5 s windows (`sss_final`: the "
-         "last window, i.e. what is left after transients), fraction of time R1 is stuck (true speed, exactly 0 "
-         "in stick; `stuck_fraction_measured` uses the quantised measured speed with a half-tick threshold of "
-         "0.31 rad/s), RMS and std of the twist R1-R2, std of the motor torque eta KT i, and the friction work "
-         "at pin 2 (sum of mu(|w2|) N2 r2 |w2| dt). Solve times are wall times of the controller calls.", ""]
+         "(the programme alone before)",
+         f"- plant: `{sc.sim.method}` stepping ({sc.sim.nsub} substeps), start from {sc.sim.start}; "
+         f"parameter mismatch {dict(sc.mismatch) if sc.mismatch else 'none'}; structure "
+         f"{dict(sc.structure) if sc.structure else 'as the model'}; sensor noise x{sc.sensors.noise_scale:g}",
+         f"- estimator: `{sc.estimator.get('kind', 'ekf')}` (controllers see only measurements and estimates)"]
+    obs = next((r.result.observability for r in runs if getattr(r.result, "observability", None) is not None), None)
+    if obs is not None:
+        L.append(f"- observability of the estimator's model: {getattr(obs, 'message', obs)}")
+    for note in sc.messages:
+        L.append(f"- note: {note}")
+    L += [f"- status: {result.status.value}" + (f" ({result.message})" if result.message != "ok" else "")
+          + f"; wall time {result.elapsed:.1f} s", "",
+          "## Metrics (after the control start)", "",
+          f"All physical metrics come from the TRUE plant states and applied inputs (what the rig did), for "
+          f"`{body}`, the body whose stick-slip is suppressed: severity SSS = (max - min)/(2 mean) of its speed "
+          "after the control start (`sss_final`: over the last 5 s), the drilling convention over a moving 3 s "
+          "window (`sss_moving_mean`), the time from the control start until the moving severity stays below "
+          "0.1 (`time_to_suppress`, inf: never), the fraction of time it is stuck (true speed, exactly 0 in "
+          "stick; `stuck_fraction_measured` from the quantised measured speed with a half-tick threshold), the "
+          "RMS error of its speed against the programme, the friction work at the servo pins (`pin_work`) and "
+          "the drive's electrical energy. Solve times are wall times of the controller calls.", ""]
     hdr = ["controller", "kind"] + [f"{k} [{METRIC_UNITS[k]}]" for k in _TABLE]
     L.append("| " + " | ".join(hdr) + " |")
     L.append("|" + "---|" * len(hdr))
@@ -112,21 +124,18 @@ def render_report(sc, summary, files) -> str:
           f"![controllers compared]({rel['comparison_png']})", "",
           f"![phase portraits]({rel['phase_png']})", "",
           f"![metrics]({rel['metrics_png']})", ""]
-    from mitigate.runner import slugs
-    for s, r in zip(slugs([r.name for r in runs]), runs):
+    for s, r in zip(slug_names, runs):
         L.append(f"- {r.name}: [time histories]({rel['timeseries_' + s]}), [CSV log]({rel['log_' + s]}) "
-                 f"({r.status})")
+                 f"({r.status.value}{': ' + r.message if r.message != 'ok' else ''})")
     L.append("")
     if any(r.kind == "brake" for r in runs):
         L += ["## Tuning of the brake", "",
-              "The brake gains of the scenario suite come from a grid search over gain_overspeed x gain_relative "
-              "x filter_tau on `scenarios/stick_slip_30rpm.toml` (`python benchmarks/brake_tuning.py`, results in "
-              "`benchmarks/results/brake_tuning.md`); the criterion is the overall severity after the control "
-              "start, with the friction work at pin 2 as tie-breaker.", ""]
-    L += _nmpc_section(sc, runs)
+              "The brake gains of the scenario suite come from a grid search on `scenarios/stick_slip_30rpm.toml` "
+              "(`python benchmarks/brake_tuning.py`, results in `benchmarks/results/brake_tuning.md`).", ""]
+    L += _model_section(sc, runs)
     return "\n".join(L) + "\n"
 
 
-def write_report(sc, summary, files, path) -> Path:
+def write_report(sc, result, files, slug_names, path) -> Path:
     """Write ``report.md`` atomically (the caller has checked for existing outputs)."""
-    return atomic_write_text(path, render_report(sc, summary, files), overwrite=True)
+    return atomic_write_text(path, render_report(sc, result, files, slug_names), overwrite=True)

@@ -1,69 +1,84 @@
-"""Scenario files: declarative TOML describing a plant, its inputs and the controllers to compare.
+"""Scenarios: a rig, its input programme, the plant it runs against, and the controllers to compare.
 
-Schema (all sections but ``[scenario]`` and ``[inputs]`` optional)::
+A scenario is a TOML file (``scenarios/*.toml``) or, from Python, :func:`make_scenario` with the
+same fields as keyword arguments.  Schema (only ``[scenario]`` and ``[inputs]`` are required)::
 
     [scenario]
-    name = "stick-slip-30rpm"        # used for output names
+    name = "stick_slip_30rpm"        # output names
     description = "..."
-    model = "rig3"                   # rig3 | rig2 | leadscrew | disc ("run" needs rig3)
+    model = "rig3"                   # a shipped rig, or a rig file (relative to this file)
     duration = 60.0                  # [s]
     dt = 0.01                        # [s] DAQ period
     seed = 1                         # sensor noise and random profiles
 
     [plant]
-    params = "published"             # or a parameter TOML path (relative to this file)
+    params = "published"             # or a parameter TOML (e.g. one written by `mitigate identify`)
     method = "hybrid"                # hybrid (exact stick) | smooth | cvodes
-    nsub = 10                        # substeps per sample
+    nsub = 10                        # substeps per sample (raised automatically for stiff plants)
     start = "rest"                   # rest | sliding
+    max_speed = 100.0                # [rad/s] a body faster than this ends the run as diverged
 
-    [mismatch]                       # plant = model x factor (the controller keeps the nominal)
-    k1 = 1.2
+    [mismatch]                       # plant parameter = model parameter x factor
+    mu_k = 1.2
 
-    [sensors]                        # models.sensors.SensorOptions fields
-    noise_scale = 1.0
+    [structure]                      # the plant differs from the model in structure (README)
+    torque_definition = "electromagnetic"
+    sensor_offsets = { motor_torque = 0.05 }
+    sensor_gains = { n1 = 1.05 }
+    pi_error = "motor"
+    delay = 1                        # DAQ delay [samples]: every channel, or { omega1 = 1 }
+    backlash = { gap = "0.5 deg", stiffness = "200 N m/rad", inertia = "1e-3 kg m^2" }
+    shaft_elements = { count = 3, inertia = "2e-4 kg m^2" }
+    friction = { law = "bit_rock", mu_sb = 0.5, mu_cb = 0.306, v_b = 1.0, c_b = 0.005 }
+    drift = { mu_k = 0.002 }         # relative change per second (wear)
 
-    [servo]                          # models.actuators.ServoOptions fields
-    n_max = 40.0
+    [sensors]                        # noise_scale, quantise
+    [actuators.servo2]               # override a servo of the rig: n_min, n_max, rate_max, tau
 
     [inputs]                         # one profile per model input (mitigate.profiles)
-    omega_ref = { kind = "constant", value = 30, unit = "rpm" }
-    n1 = { kind = "constant", value = 20 }
-    n2 = 0.0
+    omega_ref = "30 rpm"
+    n1 = { kind = "steps", times = [0, 20, 40], values = [15, 25, 20] }
 
     [control]
-    start = 20.0                     # [s] controllers act from here; before, baseline (a)
-    every = 1                        # controller runs every k DAQ samples
+    start = 20.0                     # [s] controllers act from here; before, the programme alone
+    every = 1                        # a controller runs every k DAQ samples
 
     [estimator]
-    kind = "ekf"                     # ekf | mhe | fd; other keys are the estimator's options
+    kind = "ekf"                     # ekf | mhe | fd, and their options
 
-    [[controllers]]                  # compared one by one; other keys are the controller's options
-    name = "PI only"
-    kind = "pi"
+    [[controllers]]                  # compared side by side; the other keys are the controller's options
+    name = "NMPC"
+    kind = "nmpc"                    # pi | brake | supervisor | nmpc | softspeed | ztorque | doskil | module:Class
 
-Unknown keys, missing fields, non-finite numbers and wrong types are reported as one
-line naming the field.  So is a run too long to hold: at most :data:`MAX_SAMPLES` samples
-(``duration / dt``), and no more than fit in this machine's memory at about
-:data:`BYTES_PER_SAMPLE` per sample and controller.
+Every error is one line naming the field.  So is a run too long to hold: at most
+:data:`MAX_SAMPLES` samples (``duration / dt``), and no more than fit in this machine's memory
+at about :data:`BYTES_PER_SAMPLE` per sample and controller.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import os
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from models.actuators import ServoOptions
-from models.errors import ConfigError
+import numpy as np
+
 from models.checks import finite_number as _num, read_toml
-from models.params import ParameterSet, load_params, published
-from models.rigs import MODEL_NAMES, get_model
-from models.sensors import SensorOptions
+from models.errors import ConfigError
+from models.params import ParameterSet, load_params
 from models.plant import SimOptions
+from models.rig import RigModel, get_model
+from models.rig import variants
+from models.rig.spec import _quantity
+from models.sensors import SensorOptions
+from models.units import factor as unit_factor
 from mitigate.profiles import Profile, parse_profile
 
-__all__ = ["Scenario", "ControllerSpec", "load_scenario", "parse_scenario"]
+__all__ = ["Scenario", "ControllerSpec", "load_scenario", "parse_scenario", "make_scenario", "MAX_SAMPLES",
+           "BYTES_PER_SAMPLE"]
 
 # A run keeps every sample in memory (states, measurements, estimates, actions: about 0.7 kB
 # per sample and controller while it runs, measured on rig3 with the EKF), then hands it back
@@ -71,8 +86,8 @@ __all__ = ["Scenario", "ControllerSpec", "load_scenario", "parse_scenario"]
 MAX_SAMPLES = 10_000_000
 BYTES_PER_SAMPLE = 2048     # per sample and controller run, with room for the logs and plots
 
-_SECTIONS = {"scenario", "plant", "mismatch", "sensors", "servo", "inputs", "control", "estimator", "controllers",
-             "sweep"}
+_SECTIONS = {"scenario", "plant", "mismatch", "structure", "sensors", "actuators", "inputs", "control", "estimator",
+             "controllers", "sweep"}
 
 
 @dataclass(frozen=True)
@@ -86,41 +101,70 @@ class ControllerSpec:
 
 @dataclass(frozen=True)
 class Scenario:
-    """A validated scenario (see module docstring)."""
+    """A validated scenario (see module docstring).
+
+    Attributes
+    ----------
+    model, model_params : the rig and parameters the controllers and estimators believe
+    plant_model, plant_params : the rig that is simulated (structurally different if
+        ``[structure]`` says so) and its true parameters (mismatch and sensor calibration applied)
+    inputs : ``{input: Profile}`` for every model input (SI units)
+    sim, sensors : plant simulator and sensor settings
+    drift : ``{parameter: relative rate [1/s]}`` of the plant (wear)
+    messages : notes made while building it (e.g. substeps raised for a stiff plant)
+    """
 
     name: str
-    description: str
-    model: str
+    model: RigModel
+    model_params: ParameterSet
+    plant_model: RigModel
+    plant_params: ParameterSet
     duration: float
     dt: float
     seed: int
-    plant_params: ParameterSet          # the true plant (mismatch applied)
-    model_params: ParameterSet          # what controllers and estimators believe
-    mismatch: Mapping[str, float]
-    sim: SimOptions
-    sensors: SensorOptions
-    servo: ServoOptions
     inputs: Mapping[str, Profile]
+    sim: SimOptions
+    sensors: SensorOptions = SensorOptions()
+    description: str = ""
     control_start: float = 0.0
     control_every: int = 1
     estimator: Mapping[str, Any] = field(default_factory=lambda: {"kind": "ekf"})
     controllers: tuple[ControllerSpec, ...] = ()
+    mismatch: Mapping[str, float] = field(default_factory=dict)
+    structure: Mapping[str, Any] = field(default_factory=dict)
+    drift: Mapping[str, float] = field(default_factory=dict)
+    max_speed: float = 100.0
     sweep: Mapping[str, Any] = field(default_factory=dict)
     path: str = ""
+    messages: tuple[str, ...] = ()
 
-    def input_vector(self, t: float):
-        """Programmed input at time ``t`` in model input order."""
-        return [self.inputs[n](t) for n in get_model(self.model).inputs]
+    @property
+    def where(self) -> str:
+        return Path(self.path).name if self.path else self.name
+
+    @property
+    def samples(self) -> int:
+        return int(round(self.duration / self.dt))
+
+    def programme(self, t: float) -> np.ndarray:
+        """Scheduled inputs at ``t`` [s], in ``model.inputs`` order (SI)."""
+        return np.array([self.inputs[n](t) for n in self.model.inputs], dtype=float)
+
+    input_vector = programme
+
+    def nominal_speed(self, t: float = 0.0) -> float:
+        """The programmed drive input at ``t`` (a speed set-point or prescribed speed) [rad/s]."""
+        return float(self.inputs[self.model.drive_input](t))
 
     def replace(self, **changes) -> "Scenario":
-        import dataclasses
         return dataclasses.replace(self, **changes)
 
 
+# ----------------------------------------------------------------------------- helpers
 def _table(data: Mapping, key: str, where: str) -> Mapping:
     v = data.get(key, {})
     if not isinstance(v, Mapping):
-        raise ConfigError(f"{where}.{key} must be a table, got {type(v).__name__}")
+        raise ConfigError(f"{where}: {key} must be a table, got {type(v).__name__}")
     return v
 
 
@@ -128,19 +172,6 @@ def _check_keys(tab: Mapping, allowed, where: str):
     for k in tab:
         if k not in allowed:
             raise ConfigError(f"{where}.{k}: unknown key; expected one of {', '.join(sorted(allowed))}")
-
-
-def _options(cls, tab: Mapping, where: str, extra: Mapping | None = None):
-    names = {f.name for f in fields(cls)}
-    _check_keys(tab, names, where)
-    kw = dict(extra or {})
-    kw.update(tab)
-    try:
-        return cls(**kw)
-    except ConfigError as exc:
-        raise ConfigError(f"{where}: {exc}") from None
-    except TypeError as exc:
-        raise ConfigError(f"{where}: {exc}") from None
 
 
 def _memory_bytes() -> int | None:
@@ -175,10 +206,133 @@ def _check_size(duration: float, dt: float, runs: int, where: str) -> None:
                           f"{have / 2**30:.1f} GiB of memory")
 
 
-def parse_scenario(data: Mapping[str, Any], path: str = "<scenario>") -> Scenario:
-    """Validate a scenario mapping (as read from TOML)."""
+def _si(v: Any, kind: str, where: str) -> float:
+    """A number (SI) or a quantity string converted to SI."""
+    if isinstance(v, str):
+        q = _quantity(v)
+        if q is None:
+            raise ConfigError(f"{where} must be a number or a quantity such as \"1.5 N m\", got {v!r}")
+        return q[0] * unit_factor(q[1] or "-", kind, where)
+    return _num(v, where)
+
+
+def _resolve_model(name: Any, path: str, where: str) -> RigModel:
+    if not isinstance(name, str):
+        raise ConfigError(f"{where}: scenario.model must be a rig name or a rig file path, got {name!r}")
+    if name.endswith(".toml") and path and not Path(name).is_absolute():
+        cand = Path(path).parent / name
+        if cand.exists():
+            name = str(cand)
+    try:
+        return get_model(name)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: scenario.model: {exc}") from None
+
+
+def _apply_structure(model: RigModel, params: ParameterSet, st: Mapping, where: str
+                     ) -> tuple[RigModel, ParameterSet, dict, list[str]]:
+    """The plant's rig and parameters under ``[structure]``, its drift, and notes."""
+    allowed = {"torque_definition", "sensor_offsets", "sensor_gains", "pi_error", "delay", "backlash",
+               "shaft_elements", "friction", "drift"}
+    _check_keys(st, allowed, f"{where}: structure")
+    spec = model.spec
+    w = f"{where}: structure"
+    try:
+        if "torque_definition" in st:
+            spec = variants.with_torque_definition(spec, st["torque_definition"])
+        if "pi_error" in st:
+            spec = variants.with_pi_error(spec, st["pi_error"])
+        if "delay" in st:
+            spec = variants.with_delay(spec, st["delay"])
+        if "shaft_elements" in st:
+            s = st["shaft_elements"]
+            if not isinstance(s, Mapping) or "count" not in s or "inertia" not in s:
+                raise ConfigError(f"{w}.shaft_elements must be a table {{count, inertia}}, got {s!r}")
+            _check_keys(s, {"count", "inertia"}, f"{w}.shaft_elements")
+            spec = variants.with_shaft_elements(spec, s["count"], _si(s["inertia"], "inertia", f"{w}.shaft_elements.inertia"))
+        if "backlash" in st:
+            b = st["backlash"]
+            if not isinstance(b, Mapping):
+                raise ConfigError(f"{w}.backlash must be a table {{gap, stiffness, inertia, damping}}, got {b!r}")
+            _check_keys(b, {"gap", "stiffness", "inertia", "damping"}, f"{w}.backlash")
+            spec = variants.with_backlash(
+                spec, _si(b.get("gap", "0.5 deg"), "angle", f"{w}.backlash.gap"),
+                _si(b.get("stiffness", "200 N m/rad"), "stiffness", f"{w}.backlash.stiffness"),
+                _si(b.get("inertia", "1e-3 kg m^2"), "inertia", f"{w}.backlash.inertia"),
+                _si(b.get("damping", "0.02 N m s/rad"), "damping", f"{w}.backlash.damping"))
+        if "friction" in st:
+            fr = st["friction"]
+            if not isinstance(fr, Mapping) or "law" not in fr:
+                raise ConfigError(f"{w}.friction must be a table with a law, got {fr!r}")
+            spec = variants.with_friction_law(spec, fr["law"], {k: v for k, v in fr.items() if k != "law"})
+    except ConfigError as exc:
+        msg = str(exc)
+        raise ConfigError(msg if msg.startswith(where) else f"{where}: {msg}") from None
+    plant = RigModel(spec, model.key) if spec is not model.spec else model
+    base = plant.published()
+    vals = {n: (params[n] if n in params else base[n]) for n in plant.param_names}
+    for what, kind_of in (("sensor_offsets", "offset"), ("sensor_gains", "gain")):
+        tab = st.get(what, {})
+        if not isinstance(tab, Mapping):
+            raise ConfigError(f"{w}.{what} must be a table {{channel = value}}, got {tab!r}")
+        for ch, v in tab.items():
+            s = next((s for s in plant.sensors if ch in s.channels and s.kind in ("torque", "load_cell", "speed")), None)
+            ref = getattr(s, kind_of, None) if s is not None else None
+            if ref is None or ref.kind != "param":
+                raise ConfigError(f"{w}.{what}.{ch}: no torque sensor, load cell or speed sensor with a calibration "
+                                  f"parameter writes channel {ch!r} on rig {model.name!r}")
+            kind = "dimensionless" if kind_of == "gain" else {"torque": "torque", "load_cell": "force",
+                                                               "speed": "speed"}[s.kind]
+            vals[ref.name] = _si(v, kind, f"{w}.{what}.{ch}")
+    try:
+        pparams = base.__class__(base.model, base.specs, vals)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: structure: {exc}") from None
+    drift = {}
+    dr = st.get("drift", {})
+    if not isinstance(dr, Mapping):
+        raise ConfigError(f"{w}.drift must be a table {{parameter = relative rate per second}}, got {dr!r}")
+    for k, v in dr.items():
+        if k not in plant.param_names:
+            raise ConfigError(f"{w}.drift.{k}: not a parameter of rig {model.name!r}")
+        drift[k] = _num(v, f"{w}.drift.{k} [1/s]")
+    return plant, pparams, drift, []
+
+
+def _stiff_nsub(plant: RigModel, params: ParameterSet, u0: np.ndarray, dt: float, nsub: int) -> tuple[int, str]:
+    """Substeps that keep the plant's RK4 stable, ``dt |lambda|max / nsub <= 2.5`` with lambda
+    the eigenvalues of the plant's linearisation at sliding (contacts slipping)."""
+    from models.modal import linearise
+    try:
+        w = max(abs(float(u0[plant.inputs.index(plant.drive_input)])), 1.0) if plant.drive_kind != "torque" else 1.0
+        u = u0.copy()
+        if plant.drive_kind != "torque":
+            u[plant.inputs.index(plant.drive_input)] = w
+            x = plant.sliding_guess(u, params)
+        else:
+            u, x = plant.operating_point(w, u, params)
+        lam = float(np.max(np.abs(np.linalg.eigvals(linearise(plant, params, u, x_op=x).A))))
+    except Exception as exc:  # noqa: BLE001 - a failed estimate keeps the user's choice
+        return nsub, f"plant.nsub kept at {nsub}: the plant's fastest mode could not be estimated ({exc})"
+    need = int(math.ceil(dt * lam / 2.5))
+    if need > nsub:
+        return need, f"plant.nsub raised from {nsub} to {need}: the plant's fastest mode is {lam:.0f} 1/s"
+    return nsub, ""
+
+
+# ----------------------------------------------------------------------------- parsing
+def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel | None = None) -> Scenario:
+    """Validate a scenario mapping (as read from TOML) into a :class:`Scenario`.
+
+    ``path`` is the file it came from (relative rig, parameter and log files are found from it);
+    ``model`` replaces ``scenario.model`` (a rig built in Python).
+    """
     where = Path(path).name if path else "scenario"
-    _check_keys(data, _SECTIONS, where)
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where}: a scenario must be a table")
+    for k in data:
+        if k not in _SECTIONS:
+            raise ConfigError(f"{where}: {k}: unknown section; expected one of {', '.join(sorted(_SECTIONS))}")
     sc = _table(data, "scenario", where)
     _check_keys(sc, {"name", "description", "model", "duration", "dt", "seed"}, f"{where}: scenario")
     for req in ("name", "duration"):
@@ -187,12 +341,9 @@ def parse_scenario(data: Mapping[str, Any], path: str = "<scenario>") -> Scenari
     name = sc["name"]
     if not isinstance(name, str) or not name.strip():
         raise ConfigError(f"{where}: scenario.name must be a non-empty string, got {name!r}")
-    model_name = sc.get("model", "rig3")
-    if model_name not in MODEL_NAMES:
-        raise ConfigError(f"{where}: scenario.model must be one of {', '.join(MODEL_NAMES)}, got {model_name!r}")
-    model = get_model(model_name)
-    duration = _num(sc["duration"], f"{where}: scenario.duration", positive=True)
-    dt = _num(sc.get("dt", 0.01), f"{where}: scenario.dt", positive=True)
+    model = model if model is not None else _resolve_model(sc.get("model", "rig3"), path, where)
+    duration = _num(sc["duration"], f"{where}: scenario.duration", positive=True, unit="s")
+    dt = _num(sc.get("dt", 0.01), f"{where}: scenario.dt", positive=True, unit="s")
     ctrls_raw = data.get("controllers", [])
     _check_size(duration, dt, max(1, len(ctrls_raw) if isinstance(ctrls_raw, list) else 1), where)
     seed = sc.get("seed", 0)
@@ -200,48 +351,81 @@ def parse_scenario(data: Mapping[str, Any], path: str = "<scenario>") -> Scenari
         raise ConfigError(f"{where}: scenario.seed must be an integer, got {seed!r}")
 
     plant = _table(data, "plant", where)
-    _check_keys(plant, {"params", "method", "nsub", "start"}, f"{where}: plant")
+    _check_keys(plant, {"params", "method", "nsub", "start", "max_speed"}, f"{where}: plant")
     ptxt = plant.get("params", "published")
     if not isinstance(ptxt, str):
         raise ConfigError(f"{where}: plant.params must be \"published\" or a file path, got {ptxt!r}")
     if ptxt == "published":
-        nominal = published(model_name)
+        nominal = model.published()
     else:
         ppath = Path(ptxt)
-        if not ppath.is_absolute() and path and path != "<scenario>":
+        if not ppath.is_absolute() and path:
             ppath = Path(path).parent / ppath
-        nominal = load_params(ppath, model_name)
+        nominal = load_params(ppath, model)
     mism = _table(data, "mismatch", where)
     factors = {}
     for k, v in mism.items():
         if k not in nominal.names():
-            raise ConfigError(f"{where}: mismatch.{k}: unknown parameter for model {model_name!r}")
+            raise ConfigError(f"{where}: mismatch.{k}: unknown parameter of rig {model.name!r}")
         factors[k] = _num(v, f"{where}: mismatch.{k}", positive=True)
     try:
-        plant_params = nominal.replace(**{k: getattr(nominal, k) * f for k, f in factors.items()})
+        true = nominal.replace(**{k: nominal[k] * f for k, f in factors.items()})
     except ConfigError as exc:
         raise ConfigError(f"{where}: mismatch: {exc}") from None
-    sim = _options(SimOptions, {k: v for k, v in plant.items() if k != "params"}, f"{where}: plant",
-                   {"dt": dt, "seed": seed})
-    sensors = _options(SensorOptions, _table(data, "sensors", where), f"{where}: sensors",
-                       {"motor_ratio": getattr(nominal, "eta", 8.0)})
-    servo = _options(ServoOptions, _table(data, "servo", where), f"{where}: servo")
+    structure = dict(_table(data, "structure", where))
+    plant_model, plant_params, drift, notes = _apply_structure(model, true, structure, where)
+    sim_kw = {k: v for k, v in plant.items() if k not in ("params", "max_speed")}
+    try:
+        sim = SimOptions(**{"dt": dt, "seed": seed, **sim_kw})
+    except (ConfigError, TypeError) as exc:
+        raise ConfigError(f"{where}: plant: {exc}") from None
+    max_speed = _num(plant.get("max_speed", 100.0), f"{where}: plant.max_speed", positive=True, unit="rad/s")
+    sensors_tab = _table(data, "sensors", where)
+    _check_keys(sensors_tab, {"noise_scale", "quantise"}, f"{where}: sensors")
+    try:
+        sensors = SensorOptions(**sensors_tab)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+    # servo overrides apply to the model and the plant alike (the controller knows its servo)
+    acts = _table(data, "actuators", where)
+    for aname, tab in acts.items():
+        if not isinstance(tab, Mapping):
+            raise ConfigError(f"{where}: actuators.{aname} must be a table, got {tab!r}")
+        spec_a = next((a for a in model.spec.actuators if a.name == aname), None)
+        if spec_a is None:
+            raise ConfigError(f"{where}: actuators.{aname}: rig {model.name!r} has no such actuator "
+                              f"({', '.join(a.name for a in model.spec.actuators) or 'none'})")
+        _check_keys(tab, {"n_min", "n_max", "rate_max", "tau"}, f"{where}: actuators.{aname}")
+        kinds = {"n_min": "force", "n_max": "force", "rate_max": "force_rate", "tau": "time"}
+        ch = {k: _si(v, kinds[k], f"{where}: actuators.{aname}.{k}") for k, v in tab.items()}
+        new_a = dataclasses.replace(spec_a, **ch)
+        if new_a.n_min < 0 or not new_a.n_max > new_a.n_min or not new_a.rate_max > 0 or new_a.tau < 0:
+            raise ConfigError(f"{where}: actuators.{aname}: need 0 <= n_min < n_max, rate_max > 0 and tau >= 0, "
+                              f"got n_min={new_a.n_min:g}, n_max={new_a.n_max:g}, rate_max={new_a.rate_max:g}, "
+                              f"tau={new_a.tau:g}")
+
+        def _swap(m: RigModel) -> RigModel:
+            return RigModel(m.spec.with_changes(actuators=tuple(new_a if a.name == aname else a
+                                                                for a in m.spec.actuators)), m.key)
+        model, plant_model = _swap(model), _swap(plant_model)
 
     inp = _table(data, "inputs", where)
     _check_keys(inp, set(model.inputs), f"{where}: inputs")
     inputs = {}
-    for n in model.inputs:
+    base = Path(path).parent if path else None
+    for n, kind in zip(model.inputs, model.input_kinds):
         if n not in inp:
-            if n == "n2":
+            if n in model.servo_inputs:
                 inputs[n] = Profile("constant", (0.0,), (0.0,))
                 continue
-            raise ConfigError(f"{where}: inputs.{n}: missing field (inputs of {model_name}: {', '.join(model.inputs)})")
-        inputs[n] = parse_profile(inp[n], f"{where}: inputs.{n}", duration,
-                                  nonnegative=n in ("n1", "n2", "axial_force"))
+            raise ConfigError(f"{where}: inputs.{n}: missing field (inputs of {model.name}: {', '.join(model.inputs)})")
+        inputs[n] = parse_profile(inp[n], f"{where}: inputs.{n}", duration, quantity=kind,
+                                  nonnegative=(kind == "force"), base=base)
 
     ctl = _table(data, "control", where)
     _check_keys(ctl, {"start", "every"}, f"{where}: control")
-    cstart = _num(ctl.get("start", 0.0), f"{where}: control.start", nonneg=True)
+    cstart = _num(ctl.get("start", 0.0), f"{where}: control.start", nonneg=True, unit="s")
     every = ctl.get("every", 1)
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
         raise ConfigError(f"{where}: control.every must be an integer >= 1, got {every!r}")
@@ -252,9 +436,9 @@ def parse_scenario(data: Mapping[str, Any], path: str = "<scenario>") -> Scenari
     est.setdefault("kind", "ekf")
 
     if not isinstance(ctrls_raw, list):
-        raise ConfigError(f"{where}: controllers must be an array of tables ([[controllers]]), got {type(ctrls_raw).__name__}")
-    ctrls = []
-    seen = set()
+        raise ConfigError(f"{where}: controllers must be an array of tables ([[controllers]]), "
+                          f"got {type(ctrls_raw).__name__}")
+    ctrls, seen = [], set()
     for i, c in enumerate(ctrls_raw):
         cw = f"{where}: controllers[{i}]"
         if not isinstance(c, Mapping):
@@ -267,13 +451,63 @@ def parse_scenario(data: Mapping[str, Any], path: str = "<scenario>") -> Scenari
         seen.add(c["name"])
         ctrls.append(ControllerSpec(c["name"], c["kind"], {k: v for k, v in c.items() if k not in ("name", "kind")}))
     sweep = dict(_table(data, "sweep", where))
-    return Scenario(name=name.strip(), description=str(sc.get("description", "")), model=model_name,
-                    duration=duration, dt=dt, seed=seed, plant_params=plant_params, model_params=nominal,
-                    mismatch=factors, sim=sim, sensors=sensors, servo=servo, inputs=inputs,
-                    control_start=cstart, control_every=every, estimator=est, controllers=tuple(ctrls),
-                    sweep=sweep, path=str(path))
+    u0 = np.array([inputs[n](0.0) for n in model.inputs])
+    nsub, note = _stiff_nsub(plant_model, plant_params, u0, dt, sim.nsub) if structure else (sim.nsub, "")
+    if note:
+        sim = dataclasses.replace(sim, nsub=nsub)
+        notes.append(note)
+    return Scenario(name=name.strip(), model=model, model_params=nominal, plant_model=plant_model,
+                    plant_params=plant_params, duration=duration, dt=dt, seed=seed, inputs=inputs, sim=sim,
+                    sensors=sensors, description=str(sc.get("description", "")), control_start=cstart,
+                    control_every=every, estimator=est, controllers=tuple(ctrls), mismatch=factors,
+                    structure=structure, drift=drift, max_speed=max_speed, sweep=sweep, path=str(path or ""),
+                    messages=tuple(notes))
 
 
 def load_scenario(path) -> Scenario:
     """Read and validate a scenario TOML file."""
     return parse_scenario(read_toml(path, "scenario file"), str(path))
+
+
+def make_scenario(*, name: str = "scenario", model: str | RigModel = "rig3", duration: float = 60.0,
+                  inputs: Mapping[str, Any] | None = None, controllers=(), estimator: str | Mapping = "ekf",
+                  control_start: float = 0.0, dt: float = 0.01, seed: int = 0, **sections) -> Scenario:
+    """Build a scenario from Python with the TOML file's fields as keyword arguments.
+
+    Parameters
+    ----------
+    name, model, duration, dt, seed : the ``[scenario]`` fields (``model`` may be a RigModel)
+    inputs : ``{input: profile}`` (a number, a quantity such as ``"30 rpm"``, or a profile table);
+        default: the rig file's operating point
+    controllers : ``[{"name": ..., "kind": ..., **options}, ...]`` or kind strings
+    estimator : a kind (``"ekf"``) or an ``[estimator]`` table
+    control_start : [s]
+    **sections : any other section as a mapping: ``plant``, ``mismatch``, ``structure``,
+        ``sensors``, ``actuators``, ``control``, ``sweep``
+
+    Example
+    -------
+    >>> sc = make_scenario(name="demo", duration=30, inputs={"omega_ref": "30 rpm", "n1": 20},
+    ...                    controllers=["pi", {"name": "NMPC", "kind": "nmpc"}], control_start=10)
+    """
+    m = get_model(model)
+    if inputs is None:
+        op = m.spec.extra.get("operating_point", {})
+        inputs = {n: op[n] for n in m.inputs if n in op}
+    ctrls = []
+    for c in controllers:
+        ctrls.append({"name": c, "kind": c} if isinstance(c, str) else dict(c))
+    data: dict[str, Any] = {
+        "scenario": {"name": name, "duration": duration, "dt": dt, "seed": seed},
+        "inputs": dict(inputs),
+        "estimator": {"kind": estimator} if isinstance(estimator, str) else dict(estimator),
+        "controllers": ctrls,
+    }
+    control = dict(sections.pop("control", {}))
+    control.setdefault("start", control_start)
+    data["control"] = control
+    for k, v in sections.items():
+        if k not in _SECTIONS:
+            raise ConfigError(f"make_scenario: unknown section {k!r}; expected one of {', '.join(sorted(_SECTIONS))}")
+        data[k] = v
+    return parse_scenario(data, model=m)

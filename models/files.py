@@ -15,11 +15,12 @@ from models.errors import ConfigError
 __all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_path", "refuse_overwrite"]
 
 
-def refuse_overwrite(path: str | os.PathLike, overwrite: bool) -> Path:
-    """``Path(path)``; a ConfigError if it exists and ``overwrite`` is False."""
+def refuse_overwrite(path: str | os.PathLike, overwrite: bool, arg: str = "overwrite") -> Path:
+    """``Path(path)``; a ConfigError if it exists and ``overwrite`` is False (the message names
+    the caller's argument ``arg``; the CLI translates it to its ``--force`` flag)."""
     path = Path(path)
     if path.exists() and not overwrite:
-        raise ConfigError(f"{path}: file exists; refusing to overwrite (pass overwrite=True)")
+        raise ConfigError(f"{path}: file exists; refusing to overwrite (pass {arg}=True)")
     return path
 
 

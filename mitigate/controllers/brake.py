@@ -1,18 +1,19 @@
-"""Baseline (b): a semi-active R2 brake -- pin force from simple speed feedback.
+"""Baseline: a semi-active brake -- a servo pin's force from simple speed feedback.
 
-The law (all speeds disc side, [rad/s])::
+The law (speeds [rad/s], output side)::
 
-    N2 = clip( gain_overspeed * max(0, w2 - omega_ref - deadband)
-             + gain_relative  * max(0, w2 - w3      - deadband), 0, n_max )
+    N = clip( gain_overspeed * max(0, w_b - w_ref - deadband)
+            + gain_relative  * max(0, w_b - w_d   - deadband), 0, n_max )
 
-It brakes R2 only when it overspeeds (it is pulled ahead by the R1 release at the end
-of a stick phase) or runs faster than the motor side.  A brake can only remove energy,
-so it acts as a one-sided damper on the torsional mode that drives the limit cycle.
-Speeds come from the state estimate (if one is given and ``use_estimate``) or from
-the DAQ measurement, low-pass filtered with time constant ``filter_tau`` because the
-differentiated encoder speeds are quantised (one tick per 10 ms = 0.63 rad/s).
-The gains of the scenario suite come from a grid search on the stick-slip scenario
-(see ``benchmarks/brake_tuning.py`` and the report).
+``w_b`` is the speed of the body whose pin the servo presses (rig3: R2), ``w_ref`` the
+programmed drive speed and ``w_d`` the drive body's speed (rig3: R3).  It brakes the body only
+when it overspeeds (pulled ahead by the release at the end of a stick phase) or runs faster
+than the drive.  A brake can only remove energy, so it acts as a one-sided damper on the
+torsional mode that drives the limit cycle.  Speeds come from the state estimate (when one is
+given and ``use_estimate``) or from the measured channels, low-pass filtered with
+``filter_tau`` (a differentiated encoder speed is quantised: one tick per 10 ms is 0.63 rad/s
+on a 1000-tick encoder).  The shipped gains come from a grid search on the stick-slip
+scenario (``benchmarks/brake_tuning.py``).
 """
 
 from __future__ import annotations
@@ -22,9 +23,10 @@ from dataclasses import dataclass
 from typing import Mapping
 
 from mitigate.controllers._opts import check_bool, check_number
-from mitigate.controllers.base import Action, Controller
+from mitigate.controllers.base import Action, Controller, ControlContext
+from models.errors import ConfigError
 
-__all__ = ["BrakeOptions", "BrakeController"]
+__all__ = ["BrakeOptions", "BrakeController", "body_speed"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -33,14 +35,16 @@ class BrakeOptions:
 
     Parameters
     ----------
-    gain_overspeed : pin force per rad/s of R2 overspeed above the set-point [N s/rad]
-    gain_relative : pin force per rad/s of R2 running faster than R3 [N s/rad]
+    input : the servo input it commands (default: the rig's first servo, rig3 ``n2``)
+    gain_overspeed : pin force per rad/s of overspeed above the programmed speed [N s/rad]
+    gain_relative : pin force per rad/s of running faster than the drive body [N s/rad]
     deadband : speed error ignored [rad/s]
     n_max : largest commanded pin force [N]
     filter_tau : first-order low-pass time constant on the speeds [s] (0: none)
     use_estimate : take speeds from the state estimate when one is available
     """
 
+    input: str = ""
     gain_overspeed: float = 20.0
     gain_relative: float = 0.0
     deadband: float = 0.0
@@ -49,6 +53,8 @@ class BrakeOptions:
     use_estimate: bool = True
 
     def __post_init__(self):
+        if not isinstance(self.input, str):
+            raise ConfigError(f"input must be a servo input name, got {self.input!r}")
         check_number(self, "gain_overspeed", lo=0.0, unit="N s/rad")
         check_number(self, "gain_relative", lo=0.0, unit="N s/rad")
         check_number(self, "deadband", lo=0.0, unit="rad/s")
@@ -57,43 +63,61 @@ class BrakeOptions:
         check_bool(self, "use_estimate")
 
 
-def speeds(estimate, measurement: Mapping[str, float], use_estimate: bool) -> tuple[float, float, float]:
-    """(omega1, omega2, omega3) [rad/s] from the estimate if usable, else from the measurement."""
-    if use_estimate and estimate is not None and all(n in estimate.names for n in ("omega1", "omega2", "omega3")):
-        return estimate.get("omega1"), estimate.get("omega2"), estimate.get("omega3")
-    return (float(measurement["omega1"]), float(measurement["omega2"]), float(measurement["omega3"]))
+def body_speed(model, body: str, estimate, measurement: Mapping[str, float], use_estimate: bool) -> float:
+    """Speed of ``body`` [rad/s] from the estimate if usable, else from its measured channel."""
+    name = f"omega_{body}"
+    if use_estimate and estimate is not None and name in estimate.names:
+        return estimate.get(name)
+    ch = model.speed_channel(body)
+    return float(measurement[ch])
 
 
 class BrakeController(Controller):
-    """Semi-active R2 brake (see module docstring)."""
+    """Semi-active servo-pin brake (see module docstring)."""
 
-    name = "brake"
+    kind = "brake"
+    options_class = BrakeOptions
 
-    def __init__(self, options: BrakeOptions, omega_nominal: float, dt: float):
-        super().__init__(omega_nominal)
-        self.options = options
-        self.dt = float(dt)
-        self._w = None
-        self._t = None
+    def __init__(self, options: BrakeOptions, context: ControlContext):
+        super().__init__(options, context)
+        m = context.model
+        if not m.servo_inputs:
+            raise ConfigError(f"{context.where}: a brake needs a servo pin; rig {m.name!r} has no actuator")
+        self.input = options.input or m.servo_inputs[0]
+        context.require_input(self.input, "the servo input")
+        if self.input not in m.servo_inputs:
+            raise ConfigError(f"{context.where}.input must be a servo input ({', '.join(m.servo_inputs)}), "
+                              f"got {self.input!r}")
+        self.body = m.contact_of_input(self.input).body
+        self.drive_body = m.drive_body or None
+        need = [m.speed_channel(self.body)] + ([m.speed_channel(self.drive_body)] if options.gain_relative > 0 else [])
+        if None in need:
+            raise ConfigError(f"{context.where}: the brake needs the speeds of {self.body!r}"
+                              f"{' and ' + repr(self.drive_body) if options.gain_relative > 0 else ''}, "
+                              f"which rig {m.name!r} does not measure")
+        self.reset()
 
     def reset(self) -> None:
         self._w = None
         self._t = None
 
-    def _filtered(self, t: float, w: tuple[float, float, float]) -> tuple[float, ...]:
+    def _filtered(self, t: float, w: tuple[float, float]) -> tuple[float, ...]:
         tau = self.options.filter_tau
         if self._w is None or tau <= 0:
             self._w = tuple(w)
         else:
-            h = max(t - self._t, self.dt) if self._t is not None else self.dt
+            h = max(t - self._t, self.context.period) if self._t is not None else self.context.period
             a = 1.0 - math.exp(-h / tau)
             self._w = tuple(f + a * (x - f) for f, x in zip(self._w, w))
         self._t = t
         return self._w
 
-    def _step_impl(self, t: float, estimate, measurement: Mapping[str, float]) -> Action:
-        o = self.options
-        _, w2, w3 = self._filtered(t, speeds(estimate, measurement, o.use_estimate))
-        n2 = (o.gain_overspeed * max(0.0, w2 - self.omega_nominal - o.deadband)
-              + o.gain_relative * max(0.0, w2 - w3 - o.deadband))
-        return Action(min(max(n2, 0.0), o.n_max), self.omega_nominal, "ok")
+    def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
+        o, m = self.options, self.context.model
+        wb = body_speed(m, self.body, estimate, measurement, o.use_estimate)
+        wd = body_speed(m, self.drive_body, estimate, measurement, o.use_estimate) if o.gain_relative > 0 else 0.0
+        wb, wd = self._filtered(t, (wb, wd))
+        w_ref = self.context.scheduled(t, m.drive_input)
+        n = (o.gain_overspeed * max(0.0, wb - w_ref - o.deadband)
+             + o.gain_relative * max(0.0, wb - wd - o.deadband))
+        return Action({self.input: min(max(n, 0.0), o.n_max)})

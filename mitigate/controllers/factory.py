@@ -1,27 +1,79 @@
 """Build a controller from a scenario's ``[[controllers]]`` entry.
 
-Kinds: ``pi`` (baseline (a)), ``brake`` (semi-active R2 brake), ``supervisor``
-(speed-raise supervisor), ``nmpc`` (:mod:`mitigate.controllers.nmpc`).  Options are the
-entry's other keys; they are validated by frozen option dataclasses and a bad one is
-reported as one line naming ``controllers[i].<field>``.
+``kind`` is a built-in name (:data:`CONTROLLER_KINDS`), an entry point of the group
+``stickslip.controllers`` (a package that registers its own controllers), or
+``"module:Class"``: any importable :class:`mitigate.controllers.base.Controller` subclass
+(loaded with :mod:`importlib`, never ``eval``).  The entry's other keys are the controller's
+options: validated by its ``options_class`` (a frozen dataclass) when it has one, else
+passed as a dict.  Every error is one line naming ``controllers[i].<field>``.
 """
 
 from __future__ import annotations
 
-from dataclasses import fields
-from pathlib import Path
+import importlib
+import re
+from dataclasses import fields, is_dataclass
 from typing import Any, Mapping
 
-from mitigate.controllers.base import Controller
+from mitigate.controllers.base import ControlContext, Controller
 from models.errors import ConfigError
 
-__all__ = ["make_controller", "CONTROLLER_KINDS", "parse_options"]
+__all__ = ["make_controller", "controller_class", "CONTROLLER_KINDS", "parse_options", "context_for"]
 
-CONTROLLER_KINDS = ("pi", "brake", "supervisor", "nmpc")
+#: built-in kinds -> "module:Class"
+CONTROLLER_KINDS: dict[str, str] = {
+    "pi": "mitigate.controllers.pi:PIOnly",
+    "brake": "mitigate.controllers.brake:BrakeController",
+    "supervisor": "mitigate.controllers.supervisor:SpeedSupervisor",
+    "nmpc": "mitigate.controllers.nmpc:NMPC",
+    "softspeed": "mitigate.controllers.softspeed:SoftSpeed",
+    "ztorque": "mitigate.controllers.ztorque:ZTorque",
+    "doskil": "mitigate.controllers.doskil:DOSKIL",
+}
+ENTRY_POINT_GROUP = "stickslip.controllers"
+_REF = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
+
+
+def _load(ref: str, where: str) -> type:
+    mod_name, _, cls_name = ref.partition(":")
+    try:
+        mod = importlib.import_module(mod_name)
+    except ModuleNotFoundError as exc:
+        if exc.name and mod_name.startswith(exc.name):
+            raise ConfigError(f"{where}.kind: module {mod_name!r} not found (is it installed or on PYTHONPATH?)") from None
+        raise
+    cls = getattr(mod, cls_name, None)
+    if cls is None:
+        raise ConfigError(f"{where}.kind: module {mod_name!r} has no {cls_name!r}")
+    if not (isinstance(cls, type) and issubclass(cls, Controller)):
+        raise ConfigError(f"{where}.kind: {ref!r} is not a Controller subclass "
+                          f"(mitigate.controllers.base.Controller)")
+    return cls
+
+
+def controller_class(kind: str, where: str = "controller") -> type:
+    """The Controller subclass of a kind (built-in, entry point or ``module:Class``)."""
+    if not isinstance(kind, str) or not kind:
+        raise ConfigError(f"{where}.kind must be a controller kind, got {kind!r}")
+    if kind in CONTROLLER_KINDS:
+        return _load(CONTROLLER_KINDS[kind], where)
+    if _REF.match(kind):
+        return _load(kind, where)
+    from importlib.metadata import entry_points
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        if ep.name == kind:
+            cls = ep.load()
+            if not (isinstance(cls, type) and issubclass(cls, Controller)):
+                raise ConfigError(f"{where}.kind: entry point {kind!r} is not a Controller subclass")
+            return cls
+    raise ConfigError(f"{where}.kind must be one of {', '.join(CONTROLLER_KINDS)}, a registered "
+                      f"'{ENTRY_POINT_GROUP}' entry point or 'module:Class', got {kind!r}")
 
 
 def parse_options(cls, options: Mapping[str, Any], where: str):
     """``cls(**options)`` with one-line errors naming ``where.<field>``."""
+    if hasattr(cls, "from_mapping"):
+        return cls.from_mapping(options, where)
     names = [f.name for f in fields(cls)]
     for k in options:
         if k not in names:
@@ -29,45 +81,35 @@ def parse_options(cls, options: Mapping[str, Any], where: str):
     try:
         return cls(**options)
     except ConfigError as exc:
-        raise ConfigError(f"{where}.{exc}") from None
+        msg = str(exc)
+        raise ConfigError(msg if msg.startswith(where) else f"{where}.{msg}") from None
     except TypeError as exc:
         raise ConfigError(f"{where}: {exc}") from None
 
 
-def make_controller(spec, scenario, index: int) -> Controller:
-    """The controller of ``scenario.controllers[index]`` (``spec``), ready for :func:`closedloop.run_closed_loop`.
+def context_for(scenario, index: int | None = None) -> ControlContext:
+    """The :class:`ControlContext` of a scenario (the nominal model, never the plant)."""
+    where = f"{scenario.where}: controllers[{index}]" if index is not None else f"{scenario.where}: controller"
+    return ControlContext(model=scenario.model, params=scenario.model_params, dt=scenario.dt,
+                          period=scenario.dt * scenario.control_every, programme=scenario.programme,
+                          sensors=scenario.sensors, where=where)
 
-    Parameters
-    ----------
-    spec : mitigate.scenario.ControllerSpec
-    scenario : mitigate.scenario.Scenario (its ``model_params`` are what the controller believes)
-    index : position in ``[[controllers]]`` (for error messages)
+
+def make_controller(spec, scenario, index: int | None = None) -> Controller:
+    """The controller of a ``[[controllers]]`` entry (``spec``: a ControllerSpec), built the
+    one way every controller is built: ``cls(options, context)``.
 
     Raises
     ------
-    ConfigError : unknown kind or bad option (one line naming ``controllers[i].<field>``).
+    ConfigError : unknown kind, bad option, or a channel/input the rig lacks (one line).
     """
-    src = Path(scenario.path).name if scenario.path else "scenario"
-    where = f"{src}: controllers[{index}]"
-    omega0 = float(scenario.inputs["omega_ref"](0.0)) if "omega_ref" in scenario.inputs else 0.0
-    dt_c = scenario.dt * scenario.control_every
-    opts = dict(spec.options)
-    if spec.kind == "pi":
-        from mitigate.controllers.pi import PIOnly, PIOptions
-        return PIOnly(parse_options(PIOptions, opts, where), omega0)
-    if spec.kind == "brake":
-        from mitigate.controllers.brake import BrakeController, BrakeOptions
-        return BrakeController(parse_options(BrakeOptions, opts, where), omega0, dt_c)
-    if spec.kind == "supervisor":
-        from mitigate.controllers.supervisor import SpeedSupervisor, SupervisorOptions
-        return SpeedSupervisor(parse_options(SupervisorOptions, opts, where), omega0, dt_c)
-    if spec.kind == "nmpc":
-        try:
-            from mitigate.controllers.nmpc import make_nmpc
-        except ModuleNotFoundError as exc:
-            if exc.name == "mitigate.controllers.nmpc":
-                raise ConfigError(f"{where}.kind: 'nmpc' is not available in this installation") from None
-            raise
-        # the NMPC re-plans on its own OCP grid (options.dt) and is given the DAQ period
-        return make_nmpc(opts, scenario.model_params, scenario.dt, omega0, scenario.servo, where)
-    raise ConfigError(f"{where}.kind must be one of {', '.join(CONTROLLER_KINDS)}, got {spec.kind!r}")
+    context = context_for(scenario, index)
+    cls = controller_class(spec.kind, context.where)
+    oc = getattr(cls, "options_class", None)
+    opts = parse_options(oc, dict(spec.options), context.where) if oc is not None and is_dataclass(oc) \
+        else dict(spec.options)
+    try:
+        return cls(opts, context)
+    except ConfigError as exc:
+        msg = str(exc)
+        raise ConfigError(msg if msg.startswith(context.where) else f"{context.where}: {msg}") from None

@@ -1,4 +1,9 @@
-"""Baseline (a): the rig as it runs today -- the PI speed loop on the programmed set-point, no pin force."""
+"""Baseline: the rig as it runs without a stick-slip controller -- the programme alone.
+
+The drive's own loop (the DC motor's PI speed loop, part of the rig model) follows the
+programmed set-point and no servo pin is pressed (beyond the programme).  It is the
+reference every other law is compared with.
+"""
 
 from __future__ import annotations
 
@@ -12,22 +17,14 @@ __all__ = ["PIOptions", "PIOnly"]
 
 @dataclass(frozen=True, kw_only=True)
 class PIOptions:
-    """No options: the motor's own PI loop (inside the plant model) does all the work."""
+    """No options: the drive's own PI loop (inside the plant model) does all the work."""
 
 
 class PIOnly(Controller):
-    """Constant set-point (the speed programme), ``N2 = 0``.
+    """The programme, unchanged (``Action(u={})``)."""
 
-    The PI speed loop itself is part of the rig model (states ``i``, ``z``); this
-    controller only forwards the programme, so it is the reference every other law is
-    compared with.
-    """
+    kind = "pi"
+    options_class = PIOptions
 
-    name = "pi"
-
-    def __init__(self, options: PIOptions, omega_nominal: float):
-        super().__init__(omega_nominal)
-        self.options = options
-
-    def _step_impl(self, t: float, estimate, measurement: Mapping[str, float]) -> Action:
-        return Action(0.0, self.omega_nominal, "ok")
+    def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
+        return Action({})

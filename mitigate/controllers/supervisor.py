@@ -1,7 +1,7 @@
-"""Baseline (c): a speed-raise supervisor in the style of SoftSpeed / SoftTorque.
+"""Baseline: a speed-raise supervisor -- the driller's rule of thumb, automated.
 
-Industrial stick-slip supervisors raise the rotary speed when stick-slip is detected
-and bring it back when it has stopped.  On this rig the idea is sound physics: at
+Raise the rotary speed when stick-slip is detected and bring it back once it has stopped
+(the industry's tuned speed loops, SoftSpeed and Z-Torque, are separate controllers).  On this rig the idea is sound physics: at
 N1 = 20 N the stick-slip limit cycle coexists with a linearly stable steady sliding
 (bistability); above roughly 45-50 rpm the limit cycle no longer exists, so a raise
 followed by a slow return lands the rig on the stable sliding branch at the nominal
@@ -28,7 +28,7 @@ from typing import Mapping
 import numpy as np
 
 from mitigate.controllers._opts import check_number
-from mitigate.controllers.base import Action, Controller
+from mitigate.controllers.base import Action, Controller, ControlContext
 from models.errors import ConfigError
 
 __all__ = ["SupervisorOptions", "SpeedSupervisor"]
@@ -77,14 +77,24 @@ class SupervisorOptions:
 
 
 class SpeedSupervisor(Controller):
-    """Raise the speed while stick-slip is detected, lower it back when it has stopped."""
+    """Raise the speed while stick-slip is detected, lower it back when it has stopped.
 
-    name = "supervisor"
+    It watches the measured speed of the rig's objective body (rig3: R1, channel omega1) and
+    offsets the drive's set-point above the programme.
+    """
 
-    def __init__(self, options: SupervisorOptions, omega_nominal: float, dt: float):
-        super().__init__(omega_nominal)
-        self.options = options
-        self.dt = float(dt)
+    kind = "supervisor"
+    options_class = SupervisorOptions
+
+    def __init__(self, options: SupervisorOptions, context: ControlContext):
+        super().__init__(options, context)
+        m = context.model
+        context.require_input(m.drive_input, "the drive's set-point")
+        self.channel = m.speed_channel(m.objective_body)
+        if self.channel is None:
+            raise ConfigError(f"{context.where}: the supervisor needs the speed of {m.objective_body!r}, which rig "
+                              f"{m.name!r} does not measure")
+        self.dt = context.period
         self.reset()
 
     def reset(self) -> None:
@@ -101,9 +111,9 @@ class SpeedSupervisor(Controller):
         m = abs(float(np.mean(w)))
         return float(np.max(w) - np.min(w)) / (2 * m) if m > 0 else float("inf")
 
-    def _step_impl(self, t: float, estimate, measurement: Mapping[str, float]) -> Action:
+    def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
         o = self.options
-        w1 = float(measurement["omega1"])
+        w1 = float(measurement[self.channel])
         h = self.dt if self._t is None else max(t - self._t, 0.0)
         self._t = t
         if np.isfinite(w1):
@@ -117,4 +127,5 @@ class SpeedSupervisor(Controller):
             self.offset = min(o.raise_max, self.offset + o.rate_up * h)
         elif self.mode == "lower":
             self.offset = max(0.0, self.offset - o.rate_down * h)
-        return Action(0.0, self.omega_nominal + self.offset, f"{self.mode} (+{self.offset:.3g} rad/s)")
+        w_ref = self.context.scheduled(t, self.context.model.drive_input)
+        return Action({self.context.model.drive_input: w_ref + self.offset}, message=f"{self.mode} (+{self.offset:.3g} rad/s)")

@@ -131,6 +131,10 @@ class RigModel:
                                                                     else self._bodies[0])
 
     # ------------------------------------------------------------------ structure
+    def __reduce__(self):
+        # CasADi Functions are rebuilt on demand: a model pickles as its spec (worker processes)
+        return (RigModel, (self.spec, self.key))
+
     def __repr__(self) -> str:
         return f"RigModel({self.name!r}: {len(self._bodies)} bodies, {len(self.states)} states, inputs {self.inputs})"
 
