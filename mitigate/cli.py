@@ -52,6 +52,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: the library speaks of its own arguments; the CLI names its flags
+_WORDS = (("(pass force=True)", "(use --force)"), ("(pass overwrite=True)", "(use --force)"),
+          ("jobs must be", "--jobs must be"), ("workers must be", "--workers must be"))
+
+
+def cli_words(message: str) -> str:
+    """A library message with its argument names replaced by the CLI's flags."""
+    for a, b in _WORDS:
+        message = message.replace(a, b)
+    return message
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -61,7 +73,7 @@ def main(argv=None) -> int:
     try:
         return int(args.func(args) or 0)
     except (ConfigError, DataError, SolverFailure) as exc:
-        sys.stderr.write(f"mitigate {args.command}: error: {exc}\n")
+        sys.stderr.write(f"mitigate {args.command}: error: {cli_words(str(exc))}\n")
         return 2
     except KeyboardInterrupt:
         sys.stderr.write(f"mitigate {args.command}: interrupted\n")

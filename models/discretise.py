@@ -31,7 +31,7 @@ def rk4_function(model, dt: float, nsub: int, eps: float | None = None, *, name:
 
     Parameters
     ----------
-    model : models.rigs.RigModel
+    model : models.rig.RigModel
     dt : sample period [s], > 0
     nsub : substeps per sample, >= 1
     eps : friction regularisation [rad/s] (model default if None)

@@ -39,10 +39,17 @@ def atomic_path(path: str | os.PathLike, *, overwrite: bool = False):
             tmp.unlink()
 
 
-def atomic_write_text(path: str | os.PathLike, text: str, *, overwrite: bool = False) -> Path:
-    """Write ``text`` to ``path`` atomically; refuse to replace a file unless ``overwrite``."""
+def atomic_write_text(path: str | os.PathLike, text: str, *, overwrite: bool = False, durable: bool = False) -> Path:
+    """Write ``text`` to ``path`` atomically; refuse to replace a file unless ``overwrite``.
+
+    ``durable``: flush the data to disk before the rename (a file that survives a crash or a
+    ``kill -9`` whole or not at all, e.g. a sweep's chunks)."""
     with atomic_path(path, overwrite=overwrite) as tmp:
-        tmp.write_text(text)
+        with open(tmp, "w", newline="") as fh:
+            fh.write(text)
+            if durable:
+                fh.flush()
+                os.fsync(fh.fileno())
     return Path(path)
 
 

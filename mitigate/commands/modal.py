@@ -10,19 +10,21 @@ import numpy as np
 
 from mitigate.cliutil import add_common, check_outputs, emit_json, format_table, savefig_atomic
 from models.errors import ConfigError
-from models.modal import MEASURED_HZ, VARIANTS, compare_measured, modes, stability_map
+from models.modal import VARIANTS, compare_measured, modes, stability_map
 from models.params import load_params
-from models.rigs import MODEL_NAMES, get_model
+from models.rig import get_model, shipped_rigs
 
 EPILOG = """examples:
   mitigate modal --out out/                      # rig3, all variants, published parameters
-  mitigate modal --variant closed --n1 20 --omega 3.1416 --json
+  mitigate modal --variant closed --load 20 --omega 3.1416 --json
   mitigate modal --params fitted.toml --variant free --out out/ --force
-  mitigate modal --model disc --variant closed --n1 20
+  mitigate modal --model models/rigs/four_disc.toml --json
+  mitigate modal --model disc --variant closed --load 20
 
 Variants: free = mechanical chain (thesis eq. 3-3 + shaft damping, rigid-body 0 Hz mode);
-clamped = motor end held fixed; closed = full model with DC motor + PI loop and pin
-friction, linearised at steady sliding at --omega [rad/s] with N1 = --n1 [N].
+clamped = the drive body held as well; closed = full model with the drive (DC motor + PI
+loop) and friction, linearised at steady sliding at --omega [rad/s] with the first contact's
+normal force = --load [N] (defaults: the rig file's operating point; rig3: 30 rpm, N1 = 20 N).
 """
 
 
@@ -33,12 +35,15 @@ def register(subparsers) -> None:
                     "mode shapes and of the stability of steady sliding over (N1, speed).",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--params", metavar="FILE", help="parameter TOML (published or fitted); default: published")
-    p.add_argument("--model", default="rig3", choices=MODEL_NAMES, help="model (default: rig3)")
+    p.add_argument("--model", default="rig3", metavar="RIG",
+                   help=f"a shipped rig ({', '.join(shipped_rigs())}) or a rig file path (default: rig3)")
     p.add_argument("--variant", default="all", choices=(*VARIANTS, "all"), help="variant (default: all)")
-    p.add_argument("--n1", type=float, default=None, help="pin force N1 [N] of the sliding point (default 20)")
+    p.add_argument("--load", type=float, default=None, metavar="N",
+                   help="normal force of the first contact's input [N] at the sliding point (rig3: N1; default: the "
+                        "rig file's operating point)")
     p.add_argument("--omega", type=float, default=None,
-                   help="sliding speed [rad/s, disc side] (default: 30 rpm = 3.1416 for rig3/disc)")
-    p.add_argument("--no-map", action="store_true", help="skip the stability map PNG (rig3/disc)")
+                   help="sliding speed [rad/s, output side] (default: the rig file's operating point; rig3 30 rpm)")
+    p.add_argument("--no-map", action="store_true", help="skip the stability map PNG")
     add_common(p)
     p.set_defaults(func=run)
 
@@ -53,12 +58,12 @@ def _plot_shapes(results, path, title):
     for ax, r in zip(axes[0], results):
         x = np.arange(len(r.dof_names))
         for f, z, osc, s in zip(r.freq_hz, r.damping, r.oscillatory, r.shapes):
-            if r.model == "rig3" and f > 20:  # electrical / PI mode: its shape is not torsional
+            if f > 20 and r.variant == "closed":  # electrical / PI mode: its shape is not torsional
                 continue
             label = "rigid body (0 Hz)" if f == 0 else f"{f:.3f} Hz, zeta {z:.3f}" + ("" if osc else " (real)")
             ax.plot(x, s, marker="o", label=label)
         ax.axhline(0, color="k", lw=0.6)
-        ax.set_xticks(x, [d.replace("theta", "angle R").replace("omega", "speed R") for d in r.dof_names])
+        ax.set_xticks(x, [d.replace("theta_", "").replace("omega_", "") for d in r.dof_names], fontsize=8)
         ax.set_ylabel("normalised amplitude [-]")
         ax.set_title(f"{r.model}: {r.variant}")
         ax.grid(True, alpha=0.3)
@@ -71,7 +76,7 @@ def _plot_shapes(results, path, title):
         plt.close(fig)
 
 
-def _plot_map(n1, om, M, path, title):
+def _plot_map(n1, om, M, path, title, load_name):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -82,8 +87,8 @@ def _plot_map(n1, om, M, path, title):
     pc = ax.pcolormesh(om * 60 / (2 * math.pi), n1, M, cmap="RdBu_r", vmin=-lim, vmax=lim, shading="nearest")
     ax.contour(om * 60 / (2 * math.pi), n1, M, levels=[0.0], colors="k", linewidths=1.5)
     fig.colorbar(pc, ax=ax, label="largest real part of eigenvalues [1/s]")
-    ax.set_xlabel("sliding speed [rpm, disc side]")
-    ax.set_ylabel("N1 [N]")
+    ax.set_xlabel("sliding speed [rpm, output side]")
+    ax.set_ylabel(f"{load_name} [N]")
     ax.set_title(title + "\n(red, above/left of the black zero line: steady sliding unstable -> stick-slip)")
     fig.tight_layout()
     try:
@@ -94,37 +99,33 @@ def _plot_map(n1, om, M, path, title):
 
 def run(args) -> int:
     model = get_model(args.model)
-    params = load_params(args.params, args.model) if args.params else model.published()
+    params = load_params(args.params, model) if args.params else model.published()
     variants = list(VARIANTS) if args.variant == "all" else [args.variant]
-    if model.name != "rig3":
-        if args.variant in ("free", "clamped"):
-            raise ConfigError(f"--variant {args.variant} is defined for --model rig3 only, got --model {model.name}")
-        variants = ["closed"]
-    for name, v in (("--n1", args.n1), ("--omega", args.omega)):
+    for name, v in (("--load", args.load), ("--omega", args.omega)):
         if v is not None and not math.isfinite(v):
             raise ConfigError(f"{name} must be a finite number, got {v}")
-    if args.n1 is not None and args.n1 < 0:
-        raise ConfigError(f"--n1 must be >= 0 N, got {args.n1}")
+    if args.load is not None and args.load < 0:
+        raise ConfigError(f"--load must be >= 0 N, got {args.load}")
     out = Path(args.out)
-    shapes_png = out / f"modal_{model.name}.png"
-    do_map = (not args.no_map) and model.name in ("rig3", "disc")
-    map_png = out / f"stability_map_{model.name}.png"
+    shapes_png = out / f"modal_{model.cname}.png"
+    loads = [n for n, k in zip(model.inputs, model.input_kinds) if k == "force"]
+    do_map = (not args.no_map) and model.drive_kind != "torque" and bool(loads)
+    map_png = out / f"stability_map_{model.cname}.png"
     check_outputs([shapes_png] + ([map_png] if do_map else []), args.force)
 
-    results = [modes(model, params, v, omega=args.omega, load=args.n1) for v in variants]
-    payload = {"model": model.name, "params": args.params or "published", "measured_hz": list(MEASURED_HZ),
-               "variants": {}}
+    results = [modes(model, params, v, omega=args.omega, load=args.load) for v in variants]
+    measured = model.spec.extra.get("measured_modes_hz", ())
+    payload = {"model": model.name, "rig": model.key, "params": args.params or "published",
+               "measured_hz": list(measured), "variants": {}}
     lines = []
     for r in results:
-        cmp = compare_measured(r) if model.name == "rig3" else []
+        cmp = compare_measured(r)
         payload["variants"][r.variant] = {
-            "freq_hz": r.freq_hz, "damped_hz": r.damped_hz, "damping": r.damping, "oscillatory": r.oscillatory,
-            "shapes": r.shapes, "dof_names": r.dof_names, "max_real": r.max_real,
-            "stable": bool(r.max_real < 0), "status": r.status, "success": r.success,
+            **r.as_dict(), "stable": bool(r.max_real < 0),
             "comparison": [{"mode": c[0], "model_hz": c[1], "measured_hz": c[2], "error_percent": c[3]} for c in cmp],
         }
         lines.append(f"\n{model.name} / {r.variant}: all modes (max real part {r.max_real:+.4g} 1/s, "
-                     f"{'stable' if r.max_real < 0 else 'UNSTABLE'}; {r.status})")
+                     f"{'stable' if r.max_real < 0 else 'UNSTABLE'}; {r.message})")
         lines.append(format_table(["f_n [Hz]", "f_d [Hz]", "zeta [-]", "kind", "shape on " + ",".join(r.dof_names)],
                                   [[f, fd, z, "oscillatory" if o else ("rigid" if f == 0 else "real"),
                                     "[" + ", ".join(f"{v:+.3f}" for v in s) + "]"]
@@ -137,17 +138,20 @@ def run(args) -> int:
     _plot_shapes(results, shapes_png, f"Mode shapes of {model.name} ({args.params or 'published parameters'})")
     payload["png"] = str(shapes_png)
     if do_map:
-        n1 = np.linspace(0.0, 40.0, 21)
-        om = np.linspace(0.5, 6.0, 23)  # >= 10 eps: the regularisation does not set the slope
+        from models.modal import operating_point
+        u_op, _ = operating_point(model, params)
+        w_op = float(u_op[model.inputs.index(model.drive_input)]) or 1.0
+        n_op = float(u_op[model.inputs.index(loads[0])]) or 20.0
+        n1 = np.linspace(0.0, 2.0 * n_op, 21)
+        om = np.linspace(0.15 * w_op, 2.0 * w_op, 23)   # >= 10 eps: the regularisation does not set the slope
         M = stability_map(model, params, n1, om)
-        _plot_map(n1, om, M, map_png, f"Stability of steady sliding, {model.name}")
-        payload["stability_map"] = {"png": str(map_png), "n1": n1, "omega": om, "max_real": M}
+        _plot_map(n1, om, M, map_png, f"Stability of steady sliding, {model.name}", loads[0])
+        payload["stability_map"] = {"png": str(map_png), "load": loads[0], "values": n1, "omega": om, "max_real": M}
     if args.json:
         emit_json(payload)
     else:
         print(f"modal analysis of {model.name} ({args.params or 'published parameters'})"
-              + (f"; measured (thesis Fig. 3.7): {', '.join(f'{f:g}' for f in MEASURED_HZ)} Hz"
-                 if model.name == "rig3" else ""))
+              + (f"; measured: {', '.join(f'{f:g}' for f in measured)} Hz" if measured else ""))
         print("\n".join(lines))
         print(f"\nwrote {shapes_png}" + (f" and {map_png}" if do_map else ""))
     return 0

@@ -19,12 +19,12 @@ from mitigate import metrics
 from mitigate.cliutil import add_common, check_outputs, emit_json, format_table
 from mitigate.scenario import load_scenario
 from models.errors import SolverFailure
-from models.rigs import get_model
 from models.plant import simulate
 
 EPILOG = """examples:
   mitigate simulate scenarios/open_stick_slip.toml --out out/
-  mitigate simulate scenarios/open_steady.toml --out out/ --ideal --truth-twist --json
+  mitigate simulate scenarios/open_steady.toml --out out/ --ideal --truth --json
+  mitigate simulate scenarios/four_disc_stick_slip.toml --out out/four
 """
 
 
@@ -32,21 +32,22 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "simulate", help="simulate a scenario's input programme open loop (CSV log + PNG)",
         description="Simulate a scenario open loop (its [[controllers]] are ignored): write <name>.csv in the "
-                    "log format and <name>.png, print stuck fraction, severity and mean speed of R1.",
+                    "log format and <name>.png, print the stuck fraction, severity and mean speed of the rig's "
+                    "objective body (rig3: R1).",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scenario", help="scenario TOML file")
     add_common(p)
     p.add_argument("--ideal", action="store_true",
                    help="record ideal measurements (no encoder quantisation, no load-cell noise)")
-    p.add_argument("--truth-twist", action="store_true",
-                   help="also write the true twists (twist12/twist23 or twist) as columns")
+    p.add_argument("--truth", action="store_true",
+                   help="also write the true twists and body speeds (twist_<connection>, omega_<body>) as columns")
     p.add_argument("--no-plot", action="store_true", help="do not write the PNG")
     p.set_defaults(func=run)
 
 
-def summarise(t: np.ndarray, omega1_true: np.ndarray, omega1_meas: np.ndarray | None = None) -> dict:
-    """Run summary from R1's true speed (exact zeros in stick for the hybrid plant)."""
-    w = np.asarray(omega1_true, dtype=float)
+def summarise(t: np.ndarray, omega_true: np.ndarray, omega_meas: np.ndarray | None = None) -> dict:
+    """Run summary from a body's true speed (exact zeros in stick for the hybrid plant)."""
+    w = np.asarray(omega_true, dtype=float)
     stuck = np.abs(w) <= 1e-9
     out = {
         "stuck_fraction_true": float(np.mean(stuck)),
@@ -56,50 +57,51 @@ def summarise(t: np.ndarray, omega1_true: np.ndarray, omega1_meas: np.ndarray | 
         "max_speed": float(np.max(w)),
         "min_speed": float(np.min(w)),
     }
-    if omega1_meas is not None:
-        out["stuck_fraction_measured"] = metrics.stuck_fraction(omega1_meas)
+    if omega_meas is not None:
+        out["stuck_fraction_measured"] = metrics.stuck_fraction(omega_meas)
     return out
 
 
 def run(args) -> int:
     sc = load_scenario(args.scenario)
-    model = get_model(sc.model)
+    model = sc.plant_model
     out = Path(args.out)
     csv_path, png_path = out / f"{sc.name}.csv", out / f"{sc.name}.png"
     targets = [csv_path] + ([] if args.no_plot else [png_path])
     check_outputs(targets, args.force)
-    servo = sc.servo if "n2" in model.inputs else None
-    n = int(round(sc.duration / sc.dt))
-    progress = (not args.json) and sys.stderr.isatty() and n > 2000
-    res = simulate(model, sc.plant_params, sc.input_vector, sc.duration, sc.sim,
-                   sensors=None if args.ideal else sc.sensors, servo=servo, progress=progress)
+    progress = (not args.json) and sys.stderr.isatty() and sc.samples > 2000
+    res = simulate(model, sc.plant_params, sc.programme, sc.duration, sc.sim,
+                   sensors=None if args.ideal else sc.sensors, drift=sc.drift, progress=progress)
     if not res.success:
-        raise SolverFailure(f"simulation of {sc.name!r} failed: {res.status}")
-    log = res.to_log(measured=True, include_truth_twist=args.truth_twist)
+        raise SolverFailure(f"simulation of {sc.name!r} failed: {res.message}")
+    log = res.to_log(measured=True, include_truth=args.truth)
     out.mkdir(parents=True, exist_ok=True)
     log.write_csv(csv_path, overwrite=args.force)
+    body = sc.model.objective_body
     if not args.no_plot:
-        from mitigate.timeplots import plot_time_histories
+        from mitigate.timeplots import plot_log
 
-        chans = {k: v for k, v in res.truth.items() if k.startswith(("omega", "twist"))}
-        chans.update({k: v for k, v in res.y.items() if k in ("motor_torque", "n1", "n2", "axial_force")})
-        chans.update({k: res.u[:, j] for j, k in enumerate(model.inputs) if k in ("omega_ref", "omega_drive")})
-        plot_time_histories(res.t, chans, f"{sc.name}: open loop ({model.name}, {sc.sim.method}; true speeds, "
-                            f"shaded: R1 stuck)", png_path)
-    summary = summarise(res.t, res.truth["omega1"], res.y.get("omega1"))
-    payload = {"scenario": sc.name, "model": model.name, "method": sc.sim.method, "duration": sc.duration,
-               "dt": sc.dt, "csv": str(csv_path), "png": None if args.no_plot else str(png_path), **summary,
-               "status": res.status, "success": res.success}
+        truth = {n: res.x[:, j] for j, n in enumerate(res.states)}
+        plot_log(sc.model, res.t, res.y, f"{sc.name}: open loop ({model.name}, {sc.sim.method}; shaded: {body} stuck)",
+                 png_path, truth=truth)
+    ch = sc.model.speed_channel(body)
+    summary = summarise(res.t, res.state(f"omega_{body}"), res.y.get(ch) if ch else None)
+    payload = {"scenario": sc.name, "model": model.name, "body": body, "method": sc.sim.method,
+               "duration": sc.duration, "dt": sc.dt, "csv": str(csv_path), "png": None if args.no_plot else str(png_path),
+               **summary, "status": res.status.value, "message": res.message}
     if args.json:
         emit_json(payload)
     else:
-        rows = [["stuck fraction of R1 (true speed == 0)", summary["stuck_fraction_true"], "-"],
-                ["stuck fraction of R1 (measured |w| <= 0.05)", summary.get("stuck_fraction_measured", np.nan), "-"],
+        rows = [[f"stuck fraction of {body} (true speed == 0)", summary["stuck_fraction_true"], "-"],
+                [f"stuck fraction of {body} (measured |w| <= 0.05)", summary.get("stuck_fraction_measured", np.nan),
+                 "-"],
                 ["severity (max - min)/(2 mean)", summary["severity"], "-"],
                 ["severity, second half (after start-up)", summary["severity_second_half"], "-"],
-                ["mean speed of R1", summary["mean_speed"], "rad/s"],
-                ["max speed of R1", summary["max_speed"], "rad/s"]]
+                [f"mean speed of {body}", summary["mean_speed"], "rad/s"],
+                [f"max speed of {body}", summary["max_speed"], "rad/s"]]
         print(f"{sc.name}: {model.name}, {sc.duration:g} s at dt = {sc.dt:g} s, method {sc.sim.method}")
+        for note in sc.messages:
+            print(f"note: {note}")
         print(format_table(["quantity", "value", "unit"], rows))
         print(f"wrote {csv_path}" + ("" if args.no_plot else f" and {png_path}"))
     return 0

@@ -11,9 +11,9 @@ from mitigate.cliutil import add_common, emit_json, format_table
 
 EPILOG = """\
 axes: --vary name=start:stop:count (count linearly spaced values, both ends included); name is
-  a model input (n1, omega_ref, axial_force, omega_drive: the profile becomes a constant),
-  a plant parameter (k1, d1, c, K: replaced), <param>_scale (K_scale: multiplies the plant
-  value) or mismatch.<param> (replaces the mismatch factor on the nominal value).
+  an input of the rig (n1, omega_ref, axial_force, omega_drive: the profile becomes a constant),
+  a plant parameter (k1, d1, c, K, motor_torque_offset: replaced), <param>_scale (K_scale:
+  multiplies the plant value) or mismatch.<param> (replaces the mismatch factor on the nominal value).
   Without --vary the scenario's [sweep] vary list is used.
 
 The sweep folder (--out) holds manifest.json, chunks/*.csv (one per finished chunk,
@@ -36,7 +36,7 @@ def register(sub) -> None:
     p.add_argument("--vary", action="append", default=None, metavar="NAME=START:STOP:COUNT",
                    help="a sweep axis (repeatable; the first is the horizontal axis of the maps)")
     p.add_argument("--controller", default=None, metavar="NAME",
-                   help="closed loop with this [[controllers]] entry (needs mitigate.closedloop)")
+                   help="closed loop with this [[controllers]] entry of the scenario")
     p.add_argument("--start", choices=("rest", "sliding", "both"), default=None,
                    help="initial state of each run (default: sweep.start of the scenario, else rest)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -59,11 +59,10 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from models.rigs import get_model
-    from mitigate.maps import plot_maps
     from mitigate.scenario import load_scenario
-    from mitigate.sweep import connect_scheduler, options_from_scenario, parse_axis, plan_sweep, run_sweep
-    from mitigate.sweepstore import SweepStore
+    from mitigate.sweep import (SweepStore, axis_units, connect_scheduler, options_from_scenario, parse_axis,
+                                plan_sweep, run_sweep)
+    from mitigate.sweep.maps import plot_maps
 
     sc = load_scenario(args.scenario)
     if args.workers is not None and args.workers < 1:
@@ -73,34 +72,30 @@ def run(args) -> int:
     vary = args.vary if args.vary else sc.sweep.get("vary", [])
     if not isinstance(vary, list) or not all(isinstance(v, str) for v in vary):
         raise ConfigError(f"sweep.vary must be a list of 'name=start:stop:count' strings, got {vary!r}")
-    axes = [parse_axis(v) for v in vary]
-    plan = plan_sweep(sc, axes, opts)
-    controller = None
+    try:
+        axes = [parse_axis(v) for v in vary]
+        plan = plan_sweep(sc, axes, opts)
+    except ConfigError as exc:
+        raise ConfigError(str(exc).replace("axis ", "--vary ", 1).replace("axes:", "--vary:", 1)) from None
     if args.controller is not None:
         names = [c.name for c in sc.controllers]
         if args.controller not in names:
             raise ConfigError(f"--controller must be one of the scenario's [[controllers]] names {names}, "
                               f"got {args.controller!r}")
-        try:
-            import mitigate.closedloop  # noqa: F401
-        except ImportError:
-            raise ConfigError("--controller needs mitigate/closedloop.py (closed-loop runner), "
-                              "which is not in this checkout; open-loop sweeps work without it") from None
-        controller = args.controller
     out = Path(args.out) if args.out else Path("out") / f"sweep-{sc.name}"
     t0 = time.perf_counter()
     client = connect_scheduler(args.scheduler, args.scheduler_timeout) if args.scheduler else None   # before any file is written
     try:
         store = SweepStore(out, plan.definition(args.controller), force=args.force)
-        res = run_sweep(plan, store, workers=args.workers, client=client, controller=controller,
+        res = run_sweep(plan, store, workers=args.workers, client=client, controller=args.controller,
                         progress=not (args.no_progress or args.json), stability=not args.no_stability)
     finally:
         if client is not None:
             client.close()
-    model = get_model(sc.model)
+    model = sc.plant_model
     amp_unit = model.state_units[model.states.index(opts.amplitude_of)]
     files = plot_maps(res, out, title=f"{sc.name} ({opts.amplitude_of} amplitude)", amp_unit=amp_unit,
-                      threshold=opts.threshold)
+                      threshold=opts.threshold, units=axis_units(sc))
     elapsed = time.perf_counter() - t0
     summary = []
     for start, maps in res.maps.items():
@@ -111,12 +106,12 @@ def run(args) -> int:
         emit_json({"scenario": sc.name, "out": str(out), "hash": store.hash, "points": plan.n_points,
                    "axes": [a.spec() for a in plan.axes], "starts": list(opts.starts),
                    "chunks_computed": res.computed, "chunks_reused": res.reused, "elapsed_s": elapsed,
-                   "status": res.status, "success": res.success,
+                   "status": res.status.value, "message": res.message,
                    "limit_cycle_points": {r[0]: int(r[2]) for r in summary},
                    "files": [str(out / "results.csv")] + [str(f) for f in files]})
     else:
         print(f"sweep {sc.name}: {plan.n_points} points x {len(opts.starts)} start(s), "
               f"{res.computed} chunk(s) computed, {res.reused} reused, {elapsed:.1f} s -> {out}")
         print(format_table(["start", "points", "limit cycles", f"max amplitude [{amp_unit}]", "max severity"], summary))
-        print(f"status: {res.status}")
+        print(f"status: {res.message}")
     return 0 if res.success else 1

@@ -77,7 +77,7 @@ def hybrid_step_function(model, dt: float, nsub: int) -> ca.Function:
 
     Parameters
     ----------
-    model : models.rigs.RigModel
+    model : models.rig.RigModel
     dt : sample period [s]
     nsub : substeps per sample; switching times are resolved to ``dt/nsub``
     """

@@ -572,10 +572,7 @@ class RigModel:
         for j in spd_idx:
             x[j] = w
         xv = ca.vertcat(*x)
-        rows = f(xv, ca.vertcat(*uu), ca.DM(pv))
         keep = [j for j in range(self.nx) if j >= n_tw]          # accelerations and drive rows
-        r = ca.vertcat(*[rows[j] for j in keep])
-        F = ca.Function("ss", [z], [r, ca.jacobian(r, z)])
         zv = np.zeros(len(other) + 1)
         if torque_drive and not solve_speed:
             zv[-1] = 0.0
@@ -584,13 +581,26 @@ class RigModel:
         free = np.ones(zv.size, bool)
         if not torque_drive:
             free[-1] = False
-        for _ in range(iters):
-            rv, Jv = (np.array(a, float) for a in F(zv))
-            rv = rv.ravel()
-            step = np.linalg.lstsq(Jv[:, free], -rv, rcond=None)[0]
-            zv[free] += step
-            if np.max(np.abs(step)) < 1e-12:
-                break
+        # a drive's voltage and current limits are flat outside their range: solve without them
+        # first (they bind only in transients), then polish with them
+        limits = [self.param_names.index(r.name) for r in (self.spec.drive.param("v_max"), self.spec.drive.param("i_max"))
+                  if r is not None and r.kind == "param"]
+        pvs = [pv]
+        if limits:
+            loose = pv.copy()
+            loose[limits] = 1e9
+            pvs = [loose, pv]
+        p_s = ca.SX.sym("pp", self.n_p)
+        r_p = ca.vertcat(*[f(xv, ca.vertcat(*uu), p_s)[j] for j in keep])
+        F = ca.Function("ss", [z, p_s], [r_p, ca.jacobian(r_p, z)])
+        for pcur in pvs:
+            for _ in range(iters):
+                rv, Jv = (np.array(a, float) for a in F(zv, pcur))
+                rv = rv.ravel()
+                step = np.linalg.lstsq(Jv[:, free], -rv, rcond=None)[0]
+                zv[free] += step
+                if np.max(np.abs(step)) < 1e-12:
+                    break
         xs = np.empty(self.nx)
         for k, j in enumerate(other):
             xs[j] = zv[k]

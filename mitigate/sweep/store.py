@@ -26,6 +26,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from models.errors import ConfigError, DataError
+from models.files import atomic_write_text
 
 __all__ = ["SweepStore", "definition_hash"]
 
@@ -34,15 +35,6 @@ def definition_hash(definition: Mapping[str, Any]) -> str:
     """SHA-256 (first 16 hex digits) of the canonical JSON of a sweep definition."""
     text = json.dumps(definition, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "w", newline="") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
 
 
 class SweepStore:
@@ -80,7 +72,8 @@ class SweepStore:
             shutil.rmtree(self.chunk_dir, ignore_errors=True)
         self.chunk_dir.mkdir(parents=True, exist_ok=True)
         if not self.resumed:
-            _atomic_write(man, json.dumps({"hash": self.hash, "definition": self.definition}, indent=2, default=str))
+            atomic_write_text(man, json.dumps({"hash": self.hash, "definition": self.definition}, indent=2, default=str),
+                              overwrite=True, durable=True)
 
     def chunk_path(self, key: str) -> Path:
         return self.chunk_dir / f"{key}.csv"
@@ -97,7 +90,7 @@ class SweepStore:
         for r in rows:
             lines.append(",".join(repr(float(v)) if not isinstance(v, str) else v for v in r))
         path = self.chunk_path(key)
-        _atomic_write(path, "\n".join(lines) + "\n")
+        atomic_write_text(path, "\n".join(lines) + "\n", overwrite=True, durable=True)
         return path
 
     def read_chunk(self, key: str) -> dict[str, np.ndarray]:
@@ -119,5 +112,5 @@ class SweepStore:
         for r in zip(*[np.asarray(columns[n]).tolist() for n in names]):
             lines.append(",".join(repr(float(v)) for v in r))
         path = self.root / "results.csv"
-        _atomic_write(path, "\n".join(lines) + "\n")
+        atomic_write_text(path, "\n".join(lines) + "\n", overwrite=True, durable=True)
         return path

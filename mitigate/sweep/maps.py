@@ -27,8 +27,7 @@ LABELS = {
     "frequency": "dominant frequency [Hz]",
 }
 
-_UNITS = {"n1": "N", "n2": "N", "omega_ref": "rad/s", "omega_drive": "rad/s", "axial_force": "N",
-          "c": "N m s/rad", "K": "N m/rad", "k1": "N m/rad", "k2": "N m/rad", "d1": "N m s/rad", "d2": "N m s/rad"}
+_UNITS: dict = {}   # name -> SI unit, set by plot_maps from the scenario
 
 
 def _label(name: str) -> str:
@@ -44,8 +43,11 @@ def _plt():
     return plt
 
 
-def plot_maps(result, out_dir, *, title: str, amp_unit: str, threshold: float, prefix: str = "map") -> list[Path]:
+def plot_maps(result, out_dir, *, title: str, amp_unit: str, threshold: float, prefix: str = "map",
+              units: dict | None = None) -> list[Path]:
     """Write the PNG maps of a :class:`mitigate.sweep.SweepResult`; returns the paths."""
+    _UNITS.clear()
+    _UNITS.update(units or {})
     out_dir = Path(out_dir)
     axes = result.axes
     files = []

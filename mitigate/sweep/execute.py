@@ -1,0 +1,224 @@
+"""Running a sweep: chunks in local processes or on a Dask cluster, resumable, assembled into maps."""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from models.errors import ConfigError
+from models.status import Status
+from mitigate.sweep.chunks import METRICS, ChunkTask, run_chunk
+from mitigate.sweep.plan import Axis, SweepPlan
+from mitigate.sweep.store import SweepStore
+
+__all__ = ["make_tasks", "run_sweep", "assemble", "SweepResult", "connect_scheduler", "stability_subgrid",
+           "stability_indices"]
+
+
+def make_tasks(plan: SweepPlan, controller: str | None = None) -> list[ChunkTask]:
+    """All chunks of a plan, for each start mode; keys like ``rest_00003``.
+
+    ``controller``: name of a ``[[controllers]]`` entry for closed-loop points.
+    """
+    o = plan.options
+    if controller is not None:
+        sc = plan.scenario
+        names = [c.name for c in sc.controllers]
+        if controller not in names:
+            raise ConfigError(f"controller must be one of the scenario's [[controllers]] names {names}, "
+                              f"got {controller!r}")
+        controller = (sc, names.index(controller), o.duration)
+    model = plan.scenario.plant_model
+    tasks = []
+    for start in o.starts:
+        for c, lo in enumerate(range(0, plan.n_points, o.chunk)):
+            idx = np.arange(lo, min(lo + o.chunk, plan.n_points))
+            tasks.append(ChunkTask(key=f"{start}_{c:05d}", indices=idx, model=model, start=start,
+                                   dt=o.dt, nsub=o.nsub, block=o.block, settle_steps=o.settle_steps, U=plan.U,
+                                   u_cols=plan.u_cols, u_vals=plan.u_vals[idx], P=plan.P[idx],
+                                   speed_index=model.states.index(o.speed),
+                                   amp_index=model.states.index(o.amplitude_of), threshold=o.threshold,
+                                   stuck_threshold=o.stuck_threshold, backend=o.backend, controller=controller,
+                                   perturbation=o.perturbation))
+    if model.drive_kind != "torque" and "force" in model.input_kinds:
+        idx = stability_indices(plan)
+        for c, lo in enumerate(range(0, len(idx), o.chunk)):
+            ii = idx[lo:lo + o.chunk]
+            tasks.append(ChunkTask(key=f"stability_{c:05d}", indices=ii, model=model, start="sliding",
+                                   dt=o.dt, nsub=o.nsub, block=o.block, settle_steps=o.settle_steps, U=plan.U[:1],
+                                   u_cols=plan.u_cols, u_vals=plan.u_vals[ii], P=plan.P[ii], speed_index=0,
+                                   amp_index=0, threshold=o.threshold, stuck_threshold=o.stuck_threshold,
+                                   kind="stability", params=plan.scenario.plant_params))
+    return tasks
+
+
+def connect_scheduler(address: str, timeout: float = 10.0):
+    """A ``distributed.Client`` for the Dask scheduler at ``address`` (imports Dask only here)."""
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ConfigError("a Dask scheduler needs dask.distributed (pip install 'stickslip-workbench[dask]')") from None
+    try:
+        return Client(address, timeout=timeout)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise ConfigError(f"scheduler {address}: cannot connect ({type(exc).__name__}: {exc})") from None
+
+
+def stability_subgrid(plan: SweepPlan) -> tuple[np.ndarray, ...]:
+    """Per axis, the indices of the values at which the sliding stability is computed."""
+    S = plan.options.stability_points
+    return tuple(np.unique(np.round(np.linspace(0, a.count - 1, min(a.count, S))).astype(int)) for a in plan.axes)
+
+
+def stability_indices(plan: SweepPlan) -> np.ndarray:
+    """Flat point indices of the stability sub-grid."""
+    shape = tuple(a.count for a in plan.axes)
+    sub = stability_subgrid(plan)
+    mesh = np.meshgrid(*sub, indexing="ij")
+    return np.ravel_multi_index(tuple(m.ravel() for m in mesh), shape)
+
+
+@dataclass(frozen=True)
+class SweepResult:
+    """All points of a sweep.
+
+    Attributes
+    ----------
+    axes : the axes; grid : (n_points, n_axes)
+    maps : {start: {metric: (count_1, ..., count_k) array}} (axis order as given)
+    stability : max real part [1/s] of the sliding linearisation per point (n_points,; NaN off the
+        stability sub-grid :func:`stability_subgrid`), or None
+    computed, reused : numbers of chunks computed now and found on disk
+    status : Status.OK, or Status.WARNING when some points failed (``message`` says how many)
+    """
+
+    axes: tuple[Axis, ...]
+    grid: np.ndarray
+    maps: dict
+    stability: np.ndarray | None
+    computed: int
+    reused: int
+    elapsed: float
+    status: Status = Status.OK
+    message: str = "ok"
+    files: dict = field(default_factory=dict)
+    stability_subgrid: tuple = ()
+
+    @property
+    def success(self) -> bool:
+        return self.status is Status.OK
+
+
+def _init_worker():
+    # one CasADi thread per process; the process pool is the parallelism
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+def _local_executor(workers: int):
+    import concurrent.futures as cf
+    import multiprocessing as mp
+    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_init_worker)
+
+
+def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None, scheduler: str | None = None,
+              client=None, controller=None, progress: bool = True, on_chunk: Callable[[str], None] | None = None,
+              stability: bool = True) -> SweepResult:
+    """Run the pending chunks of ``plan`` into ``store`` and assemble the maps.
+
+    Parameters
+    ----------
+    workers : local worker processes (default: CPU count); 1 runs in this process
+    scheduler : address of a Dask scheduler (``tcp://host:port``); chunks are sent there
+    client : an existing ``distributed.Client`` (tests); overrides ``scheduler``
+    stability : also compute the linear stability of steady sliding per point (``models.modal``)
+    """
+    t0 = time.perf_counter()
+    tasks = make_tasks(plan, controller)
+    if not stability:
+        tasks = [t for t in tasks if t.kind != "stability"]
+    done = store.done()
+    pending = [t for t in tasks if t.key not in done]
+    reused = len(tasks) - len(pending)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=sum(len(t.indices) for t in tasks), unit="pt", desc=f"sweep {plan.scenario.name}",
+                   initial=sum(len(t.indices) for t in tasks if t.key in done))
+
+    def finish(task, res):
+        store.write_chunk(task.key, res)
+        if bar is not None:
+            bar.update(len(task.indices))
+        if on_chunk is not None:
+            on_chunk(task.key)
+
+    if pending:
+        if client is not None or scheduler:
+            own = client is None
+            if own:
+                client = connect_scheduler(scheduler)
+            try:
+                from distributed import as_completed
+                futs = {client.submit(run_chunk, t, pure=False, key=f"sweep-{store.hash}-{t.key}"): t for t in pending}
+                for fut in as_completed(futs):
+                    finish(futs[fut], fut.result())
+            finally:
+                if own:
+                    client.close()
+        else:
+            workers = workers or os.cpu_count() or 1
+            if workers <= 1 or len(pending) == 1:
+                for t in pending:
+                    finish(t, run_chunk(t))
+            else:
+                import concurrent.futures as cf
+                with _local_executor(min(workers, len(pending))) as ex:
+                    futs = {ex.submit(run_chunk, t): t for t in pending}
+                    try:
+                        for fut in cf.as_completed(futs):
+                            finish(futs[fut], fut.result())
+                    except BaseException:
+                        for f in futs:
+                            f.cancel()
+                        raise
+    if bar is not None:
+        bar.close()
+    result = assemble(plan, store, tasks)
+    return SweepResult(plan.axes, plan.grid, result[0], result[1], len(pending), reused,
+                       time.perf_counter() - t0, result[2], result[3], stability_subgrid=stability_subgrid(plan))
+
+
+def assemble(plan: SweepPlan, store: SweepStore, tasks):
+    """Read all chunks of a finished sweep into maps and write ``results.csv``."""
+    shape = tuple(a.count for a in plan.axes)
+    maps = {}
+    cols: dict[str, np.ndarray] = {a.name: plan.grid[:, i] for i, a in enumerate(plan.axes)}
+    for start in plan.options.starts:
+        arr = {m: np.full(plan.n_points, np.nan) for m in METRICS}
+        for t in tasks:
+            if t.start != start or t.kind != "simulate":
+                continue
+            d = store.read_chunk(t.key)
+            idx = d["index"].astype(int)
+            for m in METRICS:
+                arr[m][idx] = d[m]
+        maps[start] = {m: v.reshape(shape) for m, v in arr.items()}
+        for m in METRICS:
+            cols[f"{m}_{start}"] = arr[m]
+    stab = None
+    stab_tasks = [t for t in tasks if t.kind == "stability"]
+    if stab_tasks:
+        stab = np.full(plan.n_points, np.nan)
+        for t in stab_tasks:
+            d = store.read_chunk(t.key)
+            stab[d["index"].astype(int)] = d["max_real"]
+    if stab is not None:
+        cols["sliding_max_real"] = stab
+    bad = int(sum(np.sum(maps[s]["ok"] == 0) for s in maps))
+    store.write_results(cols)
+    message = "ok" if bad == 0 else f"{bad} point run(s) failed (non-finite state or no steady sliding)"
+    return maps, stab, Status.OK if bad == 0 else Status.WARNING, message

@@ -1,0 +1,243 @@
+"""Sweep plans: axes, options and the grid resolved to per-point inputs and parameters.
+
+See :mod:`mitigate.sweep` for what a sweep is and the names an axis may have.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from models.errors import ConfigError
+
+__all__ = ["Axis", "parse_axis", "SweepOptions", "options_from_scenario", "SweepPlan", "plan_sweep"]
+
+_SWEEP_KEYS = {"vary", "start", "settle", "speed", "amplitude_of", "threshold", "stuck_threshold", "chunk", "block",
+               "duration", "dt", "nsub", "stability_points", "perturbation"}
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One sweep axis: ``count`` linearly spaced values of ``name`` from ``start`` to ``stop``."""
+
+    name: str
+    start: float
+    stop: float
+    count: int
+
+    @property
+    def values(self) -> np.ndarray:
+        return np.linspace(self.start, self.stop, self.count)
+
+    def spec(self) -> str:
+        return f"{self.name}={self.start:g}:{self.stop:g}:{self.count}"
+
+
+def parse_axis(text: str) -> Axis:
+    """Parse ``name=start:stop:count`` (e.g. ``n1=5:40:50``)."""
+    if not isinstance(text, str) or "=" not in text:
+        raise ConfigError(f"axis must be name=start:stop:count (e.g. n1=5:40:50), got {text!r}")
+    name, rng = text.split("=", 1)
+    name = name.strip()
+    parts = rng.split(":")
+    if not name or len(parts) != 3:
+        raise ConfigError(f"axis must be name=start:stop:count (e.g. n1=5:40:50), got {text!r}")
+    try:
+        start, stop = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise ConfigError(f"axis {name}: start and stop must be numbers, got {parts[0]!r}, {parts[1]!r}") from None
+    try:
+        count = int(parts[2])
+    except ValueError:
+        raise ConfigError(f"axis {name}: count must be an integer >= 1, got {parts[2]!r}") from None
+    if not (math.isfinite(start) and math.isfinite(stop)):
+        raise ConfigError(f"axis {name}: start and stop must be finite, got {start}, {stop}")
+    if count < 1 or (count == 1 and start != stop):
+        raise ConfigError(f"axis {name}: count must be >= 2 (or 1 with start == stop), got {count}")
+    return Axis(name, start, stop, count)
+
+
+# ----------------------------------------------------------------------------- options
+@dataclass(frozen=True, kw_only=True)
+class SweepOptions:
+    """How each point is simulated and reduced (see module docstring for the meaning)."""
+
+    start: str = "rest"
+    duration: float = 30.0
+    dt: float = 0.01
+    nsub: int = 10
+    settle: float | None = None
+    speed: str = ""
+    amplitude_of: str = ""
+    threshold: float = 0.05
+    stuck_threshold: float = 1e-6
+    chunk: int = 50
+    block: int = 200
+    stability_points: int = 20
+    perturbation: float = 0.01
+    backend: str = "compiled"
+
+    def __post_init__(self):
+        if self.start not in ("rest", "sliding", "both"):
+            raise ConfigError(f"sweep.start must be rest, sliding or both, got {self.start!r}")
+        for n in ("duration", "dt"):
+            v = getattr(self, n)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"sweep.{n} must be a finite number > 0 s, got {v!r}")
+        for n in ("nsub", "chunk", "block", "stability_points"):
+            v = getattr(self, n)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ConfigError(f"sweep.{n} must be an integer >= 1, got {v!r}")
+        if self.settle is not None and not (isinstance(self.settle, (int, float)) and 0 <= self.settle < self.duration):
+            raise ConfigError(f"sweep.settle must be in [0, duration={self.duration}) s, got {self.settle!r}")
+        for n in ("threshold", "stuck_threshold", "perturbation"):
+            v = getattr(self, n)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
+                raise ConfigError(f"sweep.{n} must be a finite number >= 0, got {v!r}")
+        if self.backend not in ("compiled", "vm"):
+            raise ConfigError(f"sweep backend must be 'compiled' or 'vm', got {self.backend!r}")
+        if int(round(self.duration / self.dt)) < 4:
+            raise ConfigError(f"sweep.duration must span at least 4 samples of dt={self.dt} s, got {self.duration}")
+
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.duration / self.dt))
+
+    @property
+    def settle_steps(self) -> int:
+        s = 0.5 * self.duration if self.settle is None else self.settle
+        return min(int(round(s / self.dt)), self.n_steps - 3)
+
+    @property
+    def starts(self) -> tuple[str, ...]:
+        return ("rest", "sliding") if self.start == "both" else (self.start,)
+
+
+def options_from_scenario(sc: Scenario, **overrides) -> SweepOptions:
+    """Sweep options from a scenario's ``[sweep]`` table, scenario timing and keyword overrides."""
+    tab = dict(sc.sweep)
+    for k in tab:
+        if k not in _SWEEP_KEYS:
+            raise ConfigError(f"{sc.where}: sweep.{k}: unknown key; expected one of {', '.join(sorted(_SWEEP_KEYS))}")
+    # the leadscrew's amplitude is that of its twist (seed 002 Figs. 9.31-9.33 plot the angle's amplitude)
+    speed = f"omega_{sc.plant_model.objective_body}"
+    amp = speed if sc.plant_model.name != "leadscrew" else sc.plant_model.states[0]
+    kw = dict(start=tab.get("start", "rest"), duration=tab.get("duration", sc.duration), dt=tab.get("dt", sc.dt),
+              nsub=tab.get("nsub", sc.sim.nsub), settle=tab.get("settle"), speed=tab.get("speed", speed),
+              amplitude_of=tab.get("amplitude_of", amp), threshold=tab.get("threshold", 0.05),
+              stuck_threshold=tab.get("stuck_threshold", 1e-6), chunk=tab.get("chunk", 50), block=tab.get("block", 200),
+              stability_points=tab.get("stability_points", 20), perturbation=tab.get("perturbation", 0.01))
+    if overrides.get("duration") is not None and overrides.get("settle") is None:
+        kw["settle"] = None   # a new duration without a new settle time: discard its first half
+    kw.update({k: v for k, v in overrides.items() if v is not None})
+    try:
+        opts = SweepOptions(**kw)
+    except ConfigError as exc:
+        raise ConfigError(f"{sc.where}: {exc}") from None
+    model = sc.plant_model
+    for n in ("speed", "amplitude_of"):
+        if getattr(opts, n) not in model.states:
+            raise ConfigError(f"{sc.where}: sweep.{n} must be a state of {model.name} ({', '.join(model.states)}), "
+                              f"got {getattr(opts, n)!r}")
+    return opts
+
+
+@dataclass(frozen=True)
+class SweepPlan:
+    """The grid of a sweep resolved to per-point plant inputs and parameters.
+
+    Attributes
+    ----------
+    axes : the axes (the grid is their Cartesian product, first axis slowest)
+    grid : (n_points, n_axes) axis values per point
+    U : (n_steps, nu) programmed input of the scenario (time on axis 0)
+    u_cols : indices of the inputs set by axes; u_vals : (n_points, len(u_cols)) their constants
+    P : (n_points, n_p) plant parameter vectors
+    """
+
+    scenario: Scenario
+    options: SweepOptions
+    axes: tuple[Axis, ...]
+    grid: np.ndarray
+    U: np.ndarray
+    u_cols: tuple[int, ...]
+    u_vals: np.ndarray
+    P: np.ndarray
+
+    @property
+    def n_points(self) -> int:
+        return self.grid.shape[0]
+
+    def point_input(self, j: int, k: int = 0) -> np.ndarray:
+        """Input of point ``j`` at step ``k``."""
+        u = self.U[k].copy()
+        u[list(self.u_cols)] = self.u_vals[j]
+        return u
+
+    def point_params(self, j: int):
+        base = self.scenario.plant_params
+        return base.with_vector(base.names(), self.P[j])
+
+    def definition(self, controller: str | None = None) -> dict[str, Any]:
+        """JSON-able definition used for the store's hash (resume only with the same one)."""
+        sc = self.scenario
+        return {"scenario": sc.name, "model": sc.model.name, "rig": sc.model.key, "scenario_file": sc.path,
+                "scenario_digest": hashlib.sha256(Path(sc.path).read_bytes()).hexdigest()[:16]
+                if sc.path and Path(sc.path).is_file() else "",
+                "axes": [a.spec() for a in self.axes],
+                "options": {k: getattr(self.options, k) for k in self.options.__dataclass_fields__ if k != "backend"},
+                "controller": controller}
+
+
+def plan_sweep(sc: Scenario, axes: list[Axis] | tuple[Axis, ...], options: SweepOptions) -> SweepPlan:
+    """Resolve axes against a scenario (see module docstring for the names)."""
+    if not axes:
+        raise ConfigError("a sweep needs at least one axis (sweep.vary in the scenario, or axes)")
+    names = [a.name for a in axes]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"axes: each name at most once, got {names}")
+    model = sc.plant_model
+    pnames = sc.plant_params.names()
+    for a in axes:
+        n = a.name
+        ok = (n in model.inputs or n in pnames or (n.endswith("_scale") and n[:-6] in pnames)
+              or (n.startswith("mismatch.") and n[9:] in pnames))
+        if not ok:
+            raise ConfigError(f"axis {n}: unknown name for rig {model.name}; expected an input "
+                              f"({', '.join(model.inputs)}), a parameter ({', '.join(pnames)}), <param>_scale "
+                              f"or mismatch.<param>")
+    mesh = np.meshgrid(*[a.values for a in axes], indexing="ij")
+    grid = np.stack([m.ravel() for m in mesh], axis=1)
+    n = options.n_steps
+    U = np.array([sc.programme(k * options.dt) for k in range(n)], dtype=float).reshape(n, model.nu)
+    u_cols = tuple(model.inputs.index(a.name) for a in axes if a.name in model.inputs)
+    u_axes = [i for i, a in enumerate(axes) if a.name in model.inputs]
+    u_vals = grid[:, u_axes]
+    base = sc.plant_params
+    nominal = sc.model_params
+    P = np.empty((grid.shape[0], len(pnames)))
+    for j in range(grid.shape[0]):
+        ch = {}
+        for i, a in enumerate(axes):
+            v = float(grid[j, i])
+            if a.name in pnames:
+                ch[a.name] = v
+            elif a.name.endswith("_scale") and a.name[:-6] in pnames:
+                ch[a.name[:-6]] = base[a.name[:-6]] * v
+            elif a.name.startswith("mismatch."):
+                ch[a.name[9:]] = nominal[a.name[9:]] * v
+        try:
+            P[j] = base.replace(**ch).vector() if ch else base.vector()
+        except (ConfigError, TypeError, ValueError) as exc:
+            raise ConfigError(f"axes: point {dict(zip(names, grid[j]))} gives invalid parameters ({exc})") from None
+    for i, a in enumerate(axes):
+        if a.name in model.inputs and model.input_kinds[model.inputs.index(a.name)] == "force" and np.any(grid[:, i] < 0):
+            raise ConfigError(f"axis {a.name}: a normal force must be >= 0 N, got start {a.start}, stop {a.stop}")
+    return SweepPlan(sc, options, tuple(axes), grid, U, u_cols, u_vals, P)
+
+
