@@ -581,6 +581,12 @@ class RigModel:
         free = np.ones(zv.size, bool)
         if not torque_drive:
             free[-1] = False
+        # a spring with backlash carries torque only outside its dead zone: start there, on the side
+        # that drives the load forward
+        Pn = dict(zip(self.param_names, pv))
+        for j, c in enumerate(self._springs):
+            if c.backlash is not None:
+                zv[other.index(j)] = np.sign(speed or 1.0) * float(_val(c.backlash, Pn, {}))
         # a drive's voltage and current limits are flat outside their range: solve without them
         # first (they bind only in transients), then polish with them
         limits = [self.param_names.index(r.name) for r in (self.spec.drive.param("v_max"), self.spec.drive.param("i_max"))
