@@ -1,0 +1,103 @@
+"""D-OSKIL: normal-force modulation from the speed difference along the string.
+
+Canudas de Wit, Rubio and Corchero (IEEE TCST 16(6), 2008) use the weight on bit as a second
+control input: the bit-rock torque is proportional to it, so raising it while the bit runs
+ahead of the top and lowering it while the bit lags turns the falling (velocity-weakening)
+friction that drives stick-slip into an effective damper on the torsional mode.  The law
+here::
+
+    N = clip(N_prog + k_n (w_b - w_top), n_min, n_max)
+
+``w_b`` is the speed of the body whose contact the servo presses (rig3: the R2 pin; a
+drill-string rig file: the bit, through its weight on bit), ``w_top`` the drive's speed,
+``N_prog`` the programmed force (rig3: 0 N, so the pin only ever brakes; a drill string: the
+nominal weight on bit, modulated around it).  Speeds are the measured channels, low-passed.
+
+Default gain from the rig: the force's friction ``r mu_k k_n`` acts on the relative speed like a
+damper; it is set to the string's impedance, ``k_n = Z / (r mu_k)`` (:mod:`mitigate.controllers.tuning`;
+rig3: 0.110 / (0.040 x 0.306) = 9.0 N s/rad).  ``mu_k`` is the contact law's kinetic level
+(``mu_k``, ``mu_cb`` or ``mu1``), ``r`` its radius.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+from mitigate.controllers._opts import check_number
+from mitigate.controllers.base import Action, Controller, ControlContext
+from mitigate.controllers.tuning import drive_speed_channel, first_order, np_clip, tuning_for
+from models.errors import ConfigError
+from models.rig.model import _val
+
+__all__ = ["DOSKILOptions", "DOSKIL"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class DOSKILOptions:
+    """D-OSKIL options (scenario keys of ``kind = "doskil"``); 0 means "derive from the rig".
+
+    Parameters
+    ----------
+    input : the servo input it modulates (default: the rig's first servo)
+    gain : ``k_n`` [N s/rad] (0: ``Z / (r mu_k)``)
+    n_min, n_max : force range [N] (n_max 0: the servo's range)
+    tau : low-pass of the measured speeds [s]
+    """
+
+    input: str = ""
+    gain: float = 0.0
+    n_min: float = 0.0
+    n_max: float = 0.0
+    tau: float = 0.03
+
+    def __post_init__(self):
+        if not isinstance(self.input, str):
+            raise ConfigError(f"input must be a servo input name, got {self.input!r}")
+        for n, u in (("gain", "N s/rad"), ("n_min", "N"), ("n_max", "N"), ("tau", "s")):
+            check_number(self, n, lo=0.0, unit=u)
+
+
+class DOSKIL(Controller):
+    """D-OSKIL normal-force modulation (module docstring)."""
+
+    kind = "doskil"
+    options_class = DOSKILOptions
+
+    def __init__(self, options: DOSKILOptions, context: ControlContext):
+        super().__init__(options, context)
+        m, P = context.model, context.params.as_dict()
+        if not m.servo_inputs:
+            raise ConfigError(f"{context.where}: D-OSKIL needs a servo on a contact's normal force; rig {m.name!r} "
+                              f"has no actuator")
+        self.input = options.input or m.servo_inputs[0]
+        if self.input not in m.servo_inputs:
+            raise ConfigError(f"{context.where}.input must be a servo input ({', '.join(m.servo_inputs)}), "
+                              f"got {self.input!r}")
+        c = m.contact_of_input(self.input)
+        self.body_ch = m.speed_channel(c.body)
+        if self.body_ch is None:
+            raise ConfigError(f"{context.where}: needs the speed of {c.body!r}, which rig {m.name!r} does not measure")
+        self.top_ch = drive_speed_channel(context)
+        lp = dict(c.params)
+        level = next((lp[n] for n in ("mu_k", "mu_cb", "mu1") if n in lp), None)
+        if options.gain > 0:
+            self.gain = options.gain
+        else:
+            if level is None or c.radius is None:
+                raise ConfigError(f"{context.where}.gain: cannot derive it for contact {c.name!r} (law {c.law!r}); "
+                                  f"give gain [N s/rad]")
+            self.gain = tuning_for(m, context.params).Z / (_val(c.radius, P, {}) * _val(level, P, {}))
+        a = m.actuator(self.input)
+        self.n_min = max(options.n_min, a.n_min)
+        self.n_max = options.n_max or a.n_max
+        self.reset()
+
+    def reset(self) -> None:
+        self._d = None
+
+    def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
+        d = float(measurement[self.body_ch]) - float(measurement[self.top_ch])
+        self._d = d if self._d is None else first_order(self._d, d, self.context.period, self.options.tau)
+        n = self.context.scheduled(t, self.input) + self.gain * self._d
+        return Action({self.input: np_clip(n, self.n_min, self.n_max)})

@@ -1,0 +1,206 @@
+"""Tuning of the drilling industry's stick-slip controllers from a rig file.
+
+The industry's laws are written for a drill string, a wave guide whose characteristic
+impedance is ``Z = J_p sqrt(G rho)`` (polar moment of area ``J_p``, shear modulus ``G``, density
+``rho``).  A lab rig is lumped: its discs carry almost all the inertia.  The lumped analogue
+follows from the same quantity written with the pipe's totals: for a uniform shaft of length
+``L``, stiffness ``k = G J_p / L`` and inertia ``J = rho J_p L``, so ``Z = sqrt(k J)``.  For a rig
+file, :func:`string_impedance` takes
+
+- ``k``: the series stiffness of the springs on the path from the drive to the body whose
+  stick-slip is suppressed (rig3: ``1/(1/k1 + 1/k2) = 0.276 N m/rad``), and
+- ``J``: the inertia of the bodies on that path beyond the drive (rig3: ``J1 + J2 = 0.0438 kg m^2``),
+
+so ``Z = 0.110 N m s/rad`` for rig3.  A damper of ``Z`` at the drive absorbs a torsional wave
+instead of reflecting it (reflection coefficient ``(Z - c)/(Z + c)``); for one lumped mass on a
+spring with a damper ``c`` at its far end, ``c = sqrt(k J)`` is also the damper that damps the
+mode most.
+
+The stick-slip frequency is near the lowest torsional mode of the chain with its drive held
+(:func:`stick_slip_frequency`, from :func:`models.modal.modes` ``"clamped"``; rig3: 0.428 Hz,
+its stick-slip cycle at 30 rpm and 20 N is ~2.3 s, 0.44 Hz).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from models.errors import ConfigError
+from models.rig.model import _val
+
+__all__ = ["DriveTuning", "string_impedance", "stick_slip_frequency", "drive_inertia", "tuning_for"]
+
+
+def _path(model, start: str, end: str) -> list:
+    """Springs on the path from node ``start`` to node ``end`` (breadth-first over the spring tree)."""
+    adj: dict[str, list] = {}
+    for c in model.spec.connections:
+        if c.stiffness is None:
+            continue
+        adj.setdefault(c.a, []).append((c.b, c))
+        adj.setdefault(c.b, []).append((c.a, c))
+    prev = {start: None}
+    queue = [start]
+    while queue:
+        n = queue.pop(0)
+        for m, c in adj.get(n, []):
+            if m not in prev:
+                prev[m] = (n, c)
+                queue.append(m)
+    if end not in prev:
+        raise ConfigError(f"rig {model.name!r}: no spring path from {start!r} to {end!r}")
+    out = []
+    n = end
+    while prev[n] is not None:
+        n, c = prev[n]
+        out.append(c)
+    return out[::-1]
+
+
+def drive_inertia(model, params) -> float:
+    """The drive body's total inertia (a DC motor's ``ratio^2 Jm`` included) [kg m^2]; 0 for a speed drive."""
+    if model.drive_kind == "speed":
+        return 0.0
+    P = params.as_dict()
+    d = model.spec.drive
+    J = _val(model.spec.body(d.body).inertia, P, {})
+    if d.kind == "dc_motor":
+        J += _val(d.param("ratio"), P, {}) ** 2 * _val(d.param("Jm"), P, {})
+    return float(J)
+
+
+def string_impedance(model, params, body: str | None = None) -> tuple[float, float, float]:
+    """``(Z, k, J)``: the lumped characteristic impedance ``sqrt(k J)`` [N m s/rad] of the string from
+    the drive to ``body`` (default: the rig's objective body), its series stiffness [N m/rad] and
+    its inertia [kg m^2] (module docstring)."""
+    body = body or model.objective_body
+    start = model.spec.reference_node
+    springs = _path(model, start, body)
+    if not springs:
+        raise ConfigError(f"rig {model.name!r}: the objective body {body!r} is the drive itself")
+    P = params.as_dict()
+    k = 1.0 / sum(1.0 / _val(c.stiffness, P, {}) for c in springs)
+    nodes = {x for c in springs for x in (c.a, c.b)} - {start, "drive", "ground"}
+    J = sum(_val(model.spec.body(b).inertia, P, {}) for b in nodes)
+    return math.sqrt(k * J), k, J
+
+
+def stick_slip_frequency(model, params) -> float:
+    """The lowest torsional mode of the chain with the drive held [Hz] (the stick-slip band)."""
+    from models.modal import modes
+    r = modes(model, params, "clamped", damped=True)
+    osc = [f for f, o in zip(r.freq_hz, r.oscillatory) if o and f > 0]
+    if not osc:
+        raise ConfigError(f"rig {model.name!r} has no torsional mode with its drive held")
+    return float(osc[0])
+
+
+@dataclass(frozen=True)
+class DriveTuning:
+    """What the industry's tuning rules need, derived from a rig (see module docstring).
+
+    Z [N m s/rad], k_string [N m/rad], J_string [kg m^2], J_drive [kg m^2], f_ss [Hz]
+    """
+
+    Z: float
+    k_string: float
+    J_string: float
+    J_drive: float
+    f_ss: float
+
+    @property
+    def period(self) -> float:
+        """Stick-slip period ``1/f_ss`` [s]."""
+        return 1.0 / self.f_ss
+
+
+def tuning_for(model, params, body: str | None = None) -> DriveTuning:
+    """The :class:`DriveTuning` of a rig and its (nominal) parameters."""
+    Z, k, J = string_impedance(model, params, body)
+    return DriveTuning(Z, k, J, drive_inertia(model, params), stick_slip_frequency(model, params))
+
+
+def first_order(prev: float, x: float, dt: float, tau: float) -> float:
+    """One step of a first-order low-pass with time constant ``tau`` [s] (``tau = 0``: pass through)."""
+    if tau <= 0:
+        return x
+    a = 1.0 - math.exp(-dt / tau)
+    return prev + a * (x - prev)
+
+
+def drive_speed_channel(context) -> str:
+    """The measured channel of the drive's speed (a DC motor's or torque drive's body, or a speed
+    drive's encoder), or a one-line ConfigError."""
+    m = context.model
+    ch = m.speed_channel(m.drive_body) if m.drive_kind != "speed" else m.speed_channel("drive")
+    if ch is None:
+        raise ConfigError(f"{context.where}: needs the drive's speed, which rig {m.name!r} does not measure "
+                          f"(add an encoder or speed sensor on {m.drive_body or 'the drive'!r})")
+    return ch
+
+
+def drive_torque_channel(context) -> str:
+    """The measured channel of the torque at the drive, or a one-line ConfigError."""
+    m = context.model
+    for s in m.sensors:
+        if s.kind == "torque" and s.target == "drive":
+            return s.channels[0]
+    raise ConfigError(f"{context.where}: needs the torque at the drive (a torque sensor with at = \"drive\"), "
+                      f"which rig {m.name!r} does not have")
+
+
+def np_clip(x, lo, hi):
+    return float(np.clip(x, lo, hi))
+
+
+class PipeTorque:
+    """The torque the string loads the drive with, from the measured drive torque and speed.
+
+    ``T_pipe = T_measured - J_inertial * dw/dt`` where the inertial term depends on what the
+    torque sensor reads (README, "What the torque load cell measures"): the reaction load cell
+    of a free-mounted gear motor reads ``T_pipe + ratio Jm w'``; the electromagnetic torque
+    ``ratio KT i`` reads ``T_pipe + ratio^2 Jm w' + ratio (Tf + Cm ratio w)`` (the motor's own
+    friction, taken from the nominal parameters); a torque drive's applied torque reads
+    ``T_pipe + J_drive w'``.  The acceleration is the backward difference of the measured drive
+    speed, low-passed with ``tau_acc`` [s]; the result is low-passed with ``tau`` [s].
+    """
+
+    def __init__(self, context, tau: float = 0.02, tau_acc: float = 0.03):
+        m, P = context.model, context.params.as_dict()
+        self.speed_ch = drive_speed_channel(context)
+        self.torque_ch = drive_torque_channel(context)
+        self.dt = context.period
+        self.tau, self.tau_acc = tau, tau_acc
+        self.friction = None
+        if m.drive_kind == "dc_motor":
+            d = m.spec.drive
+            eta, Jm = _val(d.param("ratio"), P, {}), _val(d.param("Jm"), P, {})
+            sensor = m.sensor_of(self.torque_ch)
+            if sensor.definition == "electromagnetic":
+                self.J = eta ** 2 * Jm + _val(m.spec.body(d.body).inertia, P, {})
+                Tf, Cm, eps = _val(d.param("Tf"), P, {}), _val(d.param("Cm"), P, {}), d.eps_motor
+                self.friction = lambda w: eta * (Tf * math.tanh(eta * w / eps) + Cm * eta * w)  # noqa: E731
+            else:
+                self.J = eta * Jm
+        else:
+            self.J = drive_inertia(m, context.params)
+        self.reset()
+
+    def reset(self) -> None:
+        self._w = None
+        self._acc = 0.0
+        self.value = None
+
+    def update(self, measurement) -> float:
+        """The new estimate [N m] from one DAQ sample (measured drive speed and torque)."""
+        w = float(measurement[self.speed_ch])
+        T = float(measurement[self.torque_ch])
+        if self._w is not None:
+            self._acc = first_order(self._acc, (w - self._w) / self.dt, self.dt, self.tau_acc)
+        self._w = w
+        est = T - self.J * self._acc - (self.friction(w) if self.friction else 0.0)
+        self.value = est if self.value is None else first_order(self.value, est, self.dt, self.tau)
+        return self.value
