@@ -21,7 +21,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from models.errors import ConfigError, DataError, SolverFailure
 
-COMMANDS = ("simulate", "modal", "identify", "estimate", "run", "sweep")
+COMMANDS = ("simulate", "modal", "identify", "estimate", "run", "sweep", "benchmark")
 
 
 class _Parser(argparse.ArgumentParser):

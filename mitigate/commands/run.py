@@ -6,17 +6,20 @@ import argparse
 import sys
 
 from mitigate.cliutil import add_common, emit_json, format_table
+from models.errors import ConfigError
 
 EPILOG = """\
 Runs every [[controllers]] entry of the scenario against the same plant (exact stick/slip,
-sensors, servo, mismatch), each in its own process, and writes to DIR: a terminal table,
-metrics.csv, metrics.json, log_<controller>.csv (measured channels + true twists),
-timeseries_<controller>.png, comparison.png, phase.png, metrics.png and report.md.
+its sensors and servos, parameter mismatch and [structure]), each in its own process, and
+writes to DIR: a terminal table, metrics.csv, metrics.json, log_<controller>.csv (measured
+channels, commands, true twists and speeds), timeseries_<controller>.png, comparison.png,
+phase.png, metrics.png and report.md.
 Nothing is run or written if the scenario is invalid or an output exists (use --force).
 
 Example:
   mitigate run scenarios/stick_slip_30rpm.toml --out out/
   mitigate run scenarios/mismatch_20pct.toml --out out/mismatch --jobs 2 --json
+  mitigate run scenarios/realistic.toml --out out/realistic
 """
 
 
@@ -32,12 +35,18 @@ def register(sub) -> None:
 def run(args) -> int:
     from mitigate.runner import TABLE_COLUMNS, run_scenario
 
-    summary = run_scenario(args.scenario, args.out, force=args.force, jobs=args.jobs, progress=not args.json)
+    if isinstance(args.jobs, int) and args.jobs < 1:
+        raise ConfigError(f"--jobs must be an integer >= 1, got {args.jobs}")
+    res = run_scenario(args.scenario, args.out, force=args.force, jobs=args.jobs, progress=not args.json)
     if args.json:
-        emit_json(summary.as_dict())
+        emit_json(res.as_dict())
     else:
-        rows = [[r.name, r.kind] + [r.metrics[k] for k, _ in TABLE_COLUMNS] + [r.status] for r in summary.runs]
+        for note in res.scenario.messages:
+            print(f"note: {note}")
+        obs = next((r.result.observability for r in res.runs if getattr(r.result, "observability", None)), None)
+        if obs is not None:
+            print(f"observability: {getattr(obs, 'message', obs)}")
+        rows = [[r.name, r.kind] + [r.metrics[k] for k, _ in TABLE_COLUMNS] + [r.status.value] for r in res.runs]
         print(format_table(["controller", "kind"] + [h for _, h in TABLE_COLUMNS] + ["status"], rows))
-        print(f"\n{summary.status}; {summary.elapsed:.1f} s; outputs in {summary.out} (report: "
-              f"{summary.files['report']})")
-    return 0 if summary.success else 1
+        print(f"\n{res.message}; {res.elapsed:.1f} s; outputs in {args.out} (report: {res.files['report']})")
+    return 0 if res.success else 1
