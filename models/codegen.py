@@ -24,7 +24,7 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
-__all__ = ["cache_dir", "compiler", "compile_cached", "load_compiled", "CtypesFunction"]
+__all__ = ["cache_dir", "compiler", "compile_cached", "load_compiled", "compiled_or_none", "CtypesFunction"]
 
 
 def cache_dir() -> Path:
@@ -89,6 +89,15 @@ def load_compiled(functions: ca.Function | Sequence[ca.Function], opt: str = "-O
     fns = [functions] if isinstance(functions, ca.Function) else list(functions)
     so = compile_cached(fns, opt, tag)
     return {fn.name(): ca.external(fn.name(), str(so)) for fn in fns}
+
+
+def compiled_or_none(fn: ca.Function, opt: str = "-O2", tag: str | None = None) -> ca.Function | None:
+    """``fn`` compiled with gcc and loaded (cached on disk), or None when there is no compiler or the
+    build fails: the one compile-with-fallback of the workbench (callers keep ``fn`` then)."""
+    try:
+        return load_compiled(fn, opt, tag)[fn.name()]
+    except (RuntimeError, OSError):
+        return None
 
 
 class CtypesFunction:

@@ -14,7 +14,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from models.codegen import load_compiled
+from models.codegen import compiled_or_none
 from models.plant.hybrid import hybrid_step_function
 from mitigate import metrics as mx
 
@@ -25,14 +25,6 @@ METRICS = ("amplitude", "severity", "stuck_fraction", "frequency", "mean_speed",
 
 
 _FN_CACHE: dict = {}
-
-
-def _compiled(F: ca.Function) -> ca.Function | None:
-    """``F`` compiled to a shared library (cached on disk, :mod:`models.codegen`); None without gcc."""
-    try:
-        return load_compiled(F)[F.name()]
-    except RuntimeError:
-        return None
 
 
 def _model_key(model) -> str:
@@ -50,7 +42,7 @@ def batched_step(model, dt: float, nsub: int, block: int, n_points: int, backend
     if F is None:
         F = hybrid_step_function(model, dt, nsub)
         if backend == "compiled":
-            F = _compiled(F) or F
+            F = compiled_or_none(F) or F
         _FN_CACHE[key] = F
     gkey = key + (int(block), int(n_points))
     G = _FN_CACHE.get(gkey)
