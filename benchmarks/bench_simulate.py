@@ -36,7 +36,7 @@ def bench(method: str, repeats: int) -> dict:
         t0 = time.perf_counter()
         r = simulate(m, p, u, DURATION, opts)
         times.append(time.perf_counter() - t0)
-    stuck = float(np.mean(r.truth["omega1"] == 0.0))
+    stuck = float(np.mean(r.state("omega_R1") == 0.0))
     return {"method": method, "median": float(np.median(times)), "p95": float(np.percentile(times, 95)),
             "stuck": stuck}
 
