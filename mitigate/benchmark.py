@@ -103,6 +103,7 @@ def load_suite(path, *, extra_controllers=(), only=None) -> Suite:
     if not isinstance(files, list) or not files or not all(isinstance(f, str) for f in files):
         raise ConfigError(f"{where}: suite.scenarios must be a list of scenario files, got {files!r}")
     ctrls = _controller_specs(data.get("controllers"), where)
+    n_suite = len(ctrls)
     for c in extra_controllers:
         spec = c if isinstance(c, ControllerSpec) else ControllerSpec(c["name"], c["kind"],
                                                                       {k: v for k, v in c.items()
@@ -110,6 +111,17 @@ def load_suite(path, *, extra_controllers=(), only=None) -> Suite:
         if spec.name in [x.name for x in ctrls]:
             raise ConfigError(f"controller name {spec.name!r} is already in the suite")
         ctrls.append(spec)
+    # a wrong kind or option is an error of the suite, found before anything runs; only what a
+    # scenario's rig lacks (a servo, a channel) makes a controller "not applicable" there
+    from dataclasses import is_dataclass
+
+    from mitigate.controllers.factory import controller_class, parse_options
+    for i, c in enumerate(ctrls):
+        cw = f"{where}: controllers[{i}]" if i < n_suite else f"controller {c.name!r}"
+        cls = controller_class(c.kind, cw)
+        oc = getattr(cls, "options_class", None)
+        if oc is not None and is_dataclass(oc):
+            parse_options(oc, dict(c.options), cw)
     raw_ctrls = [{"name": c.name, "kind": c.kind, **c.options} for c in ctrls]
     scenarios = []
     for f in files:
