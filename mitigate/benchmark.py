@@ -16,10 +16,11 @@ is reported as not applicable there, not as a failure.
 
 The ranking: in each scenario the controllers are ranked by the severity after the control start
 (``sss``; ties by ``time_to_suppress``); a run that diverged or failed ranks last.  The table gives,
-per controller, the mean rank, the fraction of scenarios where its severity is the lowest, the
-mean severity, the mean severity over the last 5 s, the mean fraction of time stuck, the median time
-to suppress, the mean speed error, the mean pin work and drive energy, the number of failed runs
-and controller fallbacks, and the 95th percentile of its planning-call times.
+per controller, the mean rank, the fraction of scenarios where its severity is the lowest, then over
+the runs that did not fail: the mean severity, the mean severity over the last 5 s, the mean
+fraction of time stuck, the median time to suppress, the mean speed error, the mean pin work and
+drive energy; and over every run: the number of failed runs and controller fallbacks, and the 95th
+percentile of its planning-call times.
 """
 
 from __future__ import annotations
@@ -239,8 +240,11 @@ def run_benchmark(suite: Suite, *, jobs: int = 2, progress: bool = False) -> Ben
             continue
         row["mean_rank"] = float(np.mean([ranks[(s, c.name)] for s, _ in mine]))
         row["lowest_fraction"] = float(np.mean([ranks[(s, c.name)] == 1 for s, _ in mine]))
+        ran = [(s, v) for s, v in mine if not v["failed"]]
         for key, _h, _u, agg in RANK_COLUMNS[2:]:
-            vals = np.array([float(v.get(key, np.nan)) for _, v in mine], float)
+            # counts and worst times over every run; the physical metrics over the runs that finished
+            # (a diverged run's partial record is counted in "failed runs" and ranked last instead)
+            vals = np.array([float(v.get(key, np.nan)) for _, v in (mine if agg in ("sum", "max") else ran)], float)
             fin = vals[np.isfinite(vals)]
             if agg == "sum":
                 row[key] = float(np.nansum(vals))
