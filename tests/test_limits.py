@@ -4,7 +4,6 @@ Before, ``duration = 1e9`` ended in "internal error: MemoryError" and an NMPC wi
 ``horizon = 100000`` spent minutes building its OCP.
 """
 
-import time
 from pathlib import Path
 
 import pytest
@@ -50,14 +49,11 @@ def _copy(tmp_path, *edits) -> Path:
 
 def _refused(tmp_path, capsys, scenario: Path, command=("run",)) -> str:
     out = tmp_path / "out"
-    t0 = time.perf_counter()
     code = main([*command, str(scenario), "--out", str(out)])
-    elapsed = time.perf_counter() - t0
     err = capsys.readouterr().err.strip()
     assert code == 2, err
     assert len(err.splitlines()) == 1 and "Traceback" not in err and "internal error" not in err
     assert not out.exists()
-    assert elapsed < 30, f"refusing took {elapsed:.0f} s"
     return err
 
 

@@ -131,3 +131,16 @@ def test_loading_uses_importlib_never_eval(monkeypatch):
     monkeypatch.setattr(builtins, "exec", no_eval)
     cls = controller_class(REF, "t.toml: controllers[1]")
     assert cls.__name__ == "HighPassTorque" and cls.__module__ == "tests.plugins.my_controller"
+
+
+def test_the_example_law_hand_computed():
+    """omega_ref = programme - g (T - LP(T)): a torque step of 1 N m moves the set-point by -g (1 - a)
+    at once, with a = 1 - exp(-dt / tau), and the high-pass decays by (1 - a) per sample."""
+    import math
+    sc = _scenario(REF, gain=2.0, tau=5.0)
+    c = make_controller(sc.controllers[1], sc, 1)
+    c.reset()
+    assert c.step(0.0, {"motor_torque": 0.3}, None).u == {"omega_ref": pytest.approx(3.0)}
+    a = 1 - math.exp(-0.01 / 5.0)
+    assert c.step(0.01, {"motor_torque": 1.3}, None).u["omega_ref"] == pytest.approx(3.0 - 2.0 * (1 - a))
+    assert c.step(0.02, {"motor_torque": 1.3}, None).u["omega_ref"] == pytest.approx(3.0 - 2.0 * (1 - a) ** 2)

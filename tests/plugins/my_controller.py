@@ -32,9 +32,10 @@ class HighPassTorque(Controller):
 
     kind = "high_pass_torque"
     options_class = HighPassTorqueOptions
+    slow = None              # the low-passed torque [N m]; the high-pass is torque - slow
 
-    def reset(self):
-        self.slow = None     # the low-passed torque; the high-pass is torque - slow
+    def reset(self):         # called before every run
+        self.slow = None
 
     def _step_impl(self, t, measurement, estimate):
         torque = measurement["motor_torque"]
