@@ -148,6 +148,16 @@ def test_a_brake_needs_a_servo():
         make_controller(sc.controllers[0], sc, 0)
 
 
+def test_the_supervisor_refuses_a_torque_drive():
+    """Its offset is a speed: added to rig2's motor torque it would be a unit error."""
+    sc = parse_scenario({"scenario": {"name": "t", "duration": 1.0, "model": "rig2"},
+                         "inputs": {"motor_torque": 0.0}, "estimator": {"kind": "fd"},
+                         "controllers": [{"name": "s", "kind": "supervisor"}]}, "t.toml")
+    with pytest.raises(ConfigError, match=r"^t\.toml: controllers\[0\]: the supervisor raises a speed set-point; "
+                                          r"rig 'rig2' has a torque drive \('motor_torque' \[N m\]\)"):
+        make_controller(sc.controllers[0], sc, 0)
+
+
 def test_a_failure_in_the_law_is_a_counted_fallback():
     sc = _scenario()
     c = BrakeController(BrakeOptions(), context_for(sc))
