@@ -16,10 +16,11 @@ is reported as not applicable there, not as a failure.
 
 The ranking: in each scenario the controllers are ranked by the severity after the control start
 (``sss``; ties by ``time_to_suppress``); a run that diverged or failed ranks last.  The table gives,
-per controller, the mean rank, the fraction of scenarios where its severity is the lowest, the
-mean severity, the mean severity over the last 5 s, the mean fraction of time stuck, the median time
-to suppress, the mean speed error, the mean pin work and drive energy, the number of failed runs
-and controller fallbacks, and the 95th percentile of its planning-call times.
+per controller, the mean rank, the fraction of scenarios where its severity is the lowest, then over
+the runs that did not fail: the mean severity, the mean severity over the last 5 s, the mean
+fraction of time stuck, the median time to suppress, the mean speed error, the mean pin work and
+drive energy; and over every run: the number of failed runs and controller fallbacks, and the 95th
+percentile of its planning-call times.
 """
 
 from __future__ import annotations
@@ -103,6 +104,7 @@ def load_suite(path, *, extra_controllers=(), only=None) -> Suite:
     if not isinstance(files, list) or not files or not all(isinstance(f, str) for f in files):
         raise ConfigError(f"{where}: suite.scenarios must be a list of scenario files, got {files!r}")
     ctrls = _controller_specs(data.get("controllers"), where)
+    n_suite = len(ctrls)
     for c in extra_controllers:
         spec = c if isinstance(c, ControllerSpec) else ControllerSpec(c["name"], c["kind"],
                                                                       {k: v for k, v in c.items()
@@ -110,6 +112,17 @@ def load_suite(path, *, extra_controllers=(), only=None) -> Suite:
         if spec.name in [x.name for x in ctrls]:
             raise ConfigError(f"controller name {spec.name!r} is already in the suite")
         ctrls.append(spec)
+    # a wrong kind or option is an error of the suite, found before anything runs; only what a
+    # scenario's rig lacks (a servo, a channel) makes a controller "not applicable" there
+    from dataclasses import is_dataclass
+
+    from mitigate.controllers.factory import controller_class, parse_options
+    for i, c in enumerate(ctrls):
+        cw = f"{where}: controllers[{i}]" if i < n_suite else f"controller {c.name!r}"
+        cls = controller_class(c.kind, cw)
+        oc = getattr(cls, "options_class", None)
+        if oc is not None and is_dataclass(oc):
+            parse_options(oc, dict(c.options), cw)
     raw_ctrls = [{"name": c.name, "kind": c.kind, **c.options} for c in ctrls]
     scenarios = []
     for f in files:
@@ -227,8 +240,11 @@ def run_benchmark(suite: Suite, *, jobs: int = 2, progress: bool = False) -> Ben
             continue
         row["mean_rank"] = float(np.mean([ranks[(s, c.name)] for s, _ in mine]))
         row["lowest_fraction"] = float(np.mean([ranks[(s, c.name)] == 1 for s, _ in mine]))
+        ran = [(s, v) for s, v in mine if not v["failed"]]
         for key, _h, _u, agg in RANK_COLUMNS[2:]:
-            vals = np.array([float(v.get(key, np.nan)) for _, v in mine], float)
+            # counts and worst times over every run; the physical metrics over the runs that finished
+            # (a diverged run's partial record is counted in "failed runs" and ranked last instead)
+            vals = np.array([float(v.get(key, np.nan)) for _, v in (mine if agg in ("sum", "max") else ran)], float)
             fin = vals[np.isfinite(vals)]
             if agg == "sum":
                 row[key] = float(np.nansum(vals))

@@ -247,6 +247,12 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
         if progress is not None and (k + 1) % 100 == 0:
             progress(k + 1)
     m = last + 1
+    if status is Status.DIVERGED:
+        # the diverged sample is kept: what the DAQ read there, the inputs held over the step that led
+        # to it, no estimate (every array has the same m rows)
+        ys.append(y)
+        xh.append(np.full(len(xh[-1]), np.nan))
+        U[last], CMD[last] = U[last - 1], CMD[last - 1]
     keys = list(dict.fromkeys(k for d in ys[:m] for k in d))
     Y = {c: np.array([d.get(c, np.nan) for d in ys[:m]]) for c in keys}
     commands = {name: CMD[:m, j] for j, name in enumerate(model.inputs) if name in model.commands}

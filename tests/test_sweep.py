@@ -9,15 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from models.errors import ConfigError
-from models.rigs import get_model
-from models.plant import SimOptions, simulate
+import mitigate.cli as cli
 from mitigate import metrics as mx
-from mitigate.cli import main
 from mitigate.scenario import load_scenario
-from mitigate.sweep import (Axis, make_tasks, options_from_scenario, parse_axis, plan_sweep, run_chunk,
-                            run_sweep)
-from mitigate.sweepstore import SweepStore
+from mitigate.sweep import (Axis, SweepStore, make_tasks, options_from_scenario, parse_axis, plan_sweep, run_chunk,
+                            run_sweep, sweep)
+from models import get_model
+from models.errors import ConfigError
+from models.plant import SimOptions, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 RIG3 = ROOT / "scenarios" / "sweep_rig3.toml"
@@ -27,6 +26,13 @@ LEAD = ROOT / "scenarios" / "sweep_leadscrew.toml"
 @pytest.fixture(autouse=True)
 def _cache(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("STICKSLIP_CACHE", str(tmp_path_factory.getbasetemp() / "cc_cache"))
+
+
+@pytest.fixture
+def main(monkeypatch):
+    """``mitigate.cli.main`` with only ``sweep`` registered (other commands are migrated elsewhere)."""
+    monkeypatch.setattr(cli, "COMMANDS", ("sweep",))
+    return cli.main
 
 
 def test_parse_axis():
@@ -78,7 +84,7 @@ def test_batched_chunk_equals_the_simulator_per_point():
     for j in range(plan.n_points):
         r = simulate(m, plan.point_params(j), plan.point_input(j), o.duration,
                      SimOptions(dt=o.dt, nsub=o.nsub), sensors=None)
-        w = r.x[o.settle_steps + 1:, m.states.index("omega1")]
+        w = r.x[o.settle_steps + 1:, m.states.index("omega_R1")]
         assert res["amplitude"][j] == pytest.approx(mx.amplitude(w), rel=1e-9, abs=1e-12)
         assert res["severity"][j] == pytest.approx(mx.severity(w), rel=1e-9, abs=1e-12)
         assert res["stuck_fraction"][j] == pytest.approx(mx.stuck_fraction(w, o.stuck_threshold))
@@ -131,7 +137,7 @@ def test_rig3_sliding_start_agrees_with_linear_stability(tmp_path):
     assert res["stuck_fraction"][0] > 0.05 and res["stuck_fraction"][1] == 0.0
 
 
-def test_cli_maps_json_and_refusal(tmp_path, capsys):
+def test_cli_maps_json_and_refusal(main, tmp_path, capsys):
     out = tmp_path / "sw"
     argv = ["sweep", str(RIG3), "--vary", "omega_ref=1:6:3", "--vary", "n1=10:35:3", "--duration", "2",
             "--workers", "1", "--backend", "vm", "--out", str(out), "--json", "--chunk", "5", "--no-stability"]
@@ -176,3 +182,27 @@ def test_closed_loop_pi_only_equals_open_loop():
     assert not np.allclose(brake["amplitude"], open_["amplitude"], rtol=1e-3)   # the brake acts from t = 10 s
     with pytest.raises(ConfigError, match="controllers"):
         make_tasks(plan, "nope")
+
+
+def test_python_entry_point_resumes_and_sweeps_a_structured_plant(tmp_path):
+    """``mitigate.sweep.sweep`` from Python: maps, files, resuming; on a scenario whose plant differs
+    in structure (shaft elements) the plant's own states are simulated."""
+    from mitigate.scenario import make_scenario
+    kw = dict(duration=2.0, settle=1.0, start="rest", workers=1, backend="vm", stability=False, chunk=2)
+    res = sweep(RIG3, ["omega_ref=2:4:2", "n1=10:30:2"], out=tmp_path / "a", **kw)
+    assert res.success and res.computed == 2 and res.reused == 0
+    assert res.maps["rest"]["amplitude"].shape == (2, 2)
+    assert {"results", "map_amplitude_rest"} <= set(res.files) and res.files["results"].is_file()
+    again = sweep(RIG3, ["omega_ref=2:4:2", "n1=10:30:2"], out=tmp_path / "a", **kw)
+    assert (again.computed, again.reused) == (0, 2)
+    np.testing.assert_array_equal(again.maps["rest"]["amplitude"], res.maps["rest"]["amplitude"])
+    sc = make_scenario(name="elements", duration=2.0, inputs={"omega_ref": 3.0, "n1": 20.0}, estimator="fd",
+                       structure={"shaft_elements": {"count": 2, "inertia": 1e-3}})
+    r2 = sweep(sc, ["n1=10:30:2"], out=tmp_path / "b", maps=False, **kw)
+    assert r2.success and r2.maps["rest"]["ok"].tolist() == [1.0, 1.0]
+    # the elements' inertia and modes change the response: not the nominal plant's numbers
+    nominal = sweep(sc.replace(plant_model=sc.model, plant_params=sc.model_params, structure={}), ["n1=10:30:2"],
+                    out=tmp_path / "c", maps=False, **kw)
+    assert not np.allclose(r2.maps["rest"]["amplitude"], nominal.maps["rest"]["amplitude"], rtol=1e-6)
+    with pytest.raises(ConfigError, match="axes must be"):
+        sweep(RIG3, [3], out=tmp_path / "d", **kw)

@@ -18,11 +18,20 @@ ROOT = Path(__file__).resolve().parents[1]
 RIG3 = ROOT / "scenarios" / "sweep_rig3.toml"
 
 
+# ``mitigate sweep`` with only the sweep command registered (the others are migrated in other branches)
+CLI = "import sys; import mitigate.cli as cli; cli.COMMANDS = ('sweep',); sys.exit(cli.main(sys.argv[1:]))"
+
+
 def _cmd(out: Path) -> list[str]:
     # 16 points, one point per chunk, from rest only: 16 chunks of ~0.1 s each
-    return [sys.executable, "-m", "mitigate.cli", "sweep", str(RIG3), "--vary", "omega_ref=1:6:4",
+    return [sys.executable, "-c", CLI, "sweep", str(RIG3), "--vary", "omega_ref=1:6:4",
             "--vary", "n1=10:35:4", "--start", "rest", "--duration", "40", "--chunk", "1", "--workers", "1",
             "--backend", "vm", "--no-stability", "--no-progress", "--json", "--out", str(out)]
+
+
+def _chunks(folder: Path) -> list[Path]:
+    """Finished chunk files (a write in flight is a hidden temp file ``.<key>.csv.tmp<pid>.csv``)."""
+    return [p for p in folder.glob("*.csv") if not p.name.startswith(".")]
 
 
 def _read(path: Path) -> np.ndarray:
@@ -37,13 +46,13 @@ def test_sigkill_then_resume(tmp_path):
     chunks = killed / "chunks"
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
-        if chunks.is_dir() and len(list(chunks.glob("*.csv"))) >= 3:
+        if chunks.is_dir() and len(_chunks(chunks)) >= 3:
             break
         time.sleep(0.005)
     assert proc.poll() is None, "the sweep finished before it could be killed; make it longer"
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
-    before = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in chunks.glob("*.csv")}
+    before = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in _chunks(chunks)}
     assert 3 <= len(before) < 16
     assert not (killed / "results.csv").exists()
     # temp files of an interrupted write are never taken for chunks
@@ -54,7 +63,7 @@ def test_sigkill_then_resume(tmp_path):
     doc = json.loads(res.stdout)
     assert doc["chunks_reused"] == len(before)
     assert doc["chunks_computed"] == 16 - len(before)
-    after = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in chunks.glob("*.csv")}
+    after = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in _chunks(chunks)}
     for name, st in before.items():
         assert after[name] == st, f"chunk {name} was rewritten"
 

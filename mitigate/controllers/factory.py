@@ -34,14 +34,20 @@ ENTRY_POINT_GROUP = "stickslip.controllers"
 _REF = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 
 
+def _one_line(exc: BaseException) -> str:
+    return " ".join(f"{type(exc).__name__}: {exc}".split())
+
+
 def _load(ref: str, where: str) -> type:
     mod_name, _, cls_name = ref.partition(":")
     try:
         mod = importlib.import_module(mod_name)
     except ModuleNotFoundError as exc:
-        if exc.name and mod_name.startswith(exc.name):
+        if exc.name and (mod_name == exc.name or mod_name.startswith(exc.name + ".")):
             raise ConfigError(f"{where}.kind: module {mod_name!r} not found (is it installed or on PYTHONPATH?)") from None
-        raise
+        raise ConfigError(f"{where}.kind: module {mod_name!r} could not be imported: {_one_line(exc)}") from None
+    except Exception as exc:  # noqa: BLE001 - a user's module may fail in any way; say so on one line
+        raise ConfigError(f"{where}.kind: module {mod_name!r} could not be imported: {_one_line(exc)}") from None
     cls = getattr(mod, cls_name, None)
     if cls is None:
         raise ConfigError(f"{where}.kind: module {mod_name!r} has no {cls_name!r}")
@@ -62,7 +68,10 @@ def controller_class(kind: str, where: str = "controller") -> type:
     from importlib.metadata import entry_points
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         if ep.name == kind:
-            cls = ep.load()
+            try:
+                cls = ep.load()
+            except Exception as exc:  # noqa: BLE001 - as for module:Class
+                raise ConfigError(f"{where}.kind: entry point {kind!r} could not be loaded: {_one_line(exc)}") from None
             if not (isinstance(cls, type) and issubclass(cls, Controller)):
                 raise ConfigError(f"{where}.kind: entry point {kind!r} is not a Controller subclass")
             return cls

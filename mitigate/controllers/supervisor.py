@@ -90,6 +90,10 @@ class SpeedSupervisor(Controller):
         super().__init__(options, context)
         m = context.model
         context.require_input(m.drive_input, "the drive's set-point")
+        if m.drive_kind == "torque":
+            # its offset is a speed [rad/s]: added to a torque input it would be a unit error
+            raise ConfigError(f"{context.where}: the supervisor raises a speed set-point; rig {m.name!r} has a torque "
+                              f"drive ({m.drive_input!r} [N m]): use softspeed or ztorque there")
         self.channel = m.speed_channel(m.objective_body)
         if self.channel is None:
             raise ConfigError(f"{context.where}: the supervisor needs the speed of {m.objective_body!r}, which rig "

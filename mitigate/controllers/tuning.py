@@ -165,7 +165,9 @@ class PipeTorque:
     ``ratio KT i`` reads ``T_pipe + ratio^2 Jm w' + ratio (Tf + Cm ratio w)`` (the motor's own
     friction, taken from the nominal parameters); a torque drive's applied torque reads
     ``T_pipe + J_drive w'``.  The acceleration is the backward difference of the measured drive
-    speed, low-passed with ``tau_acc`` [s]; the result is low-passed with ``tau`` [s].
+    speed, low-passed with ``tau_acc`` [s], and the torque passes the same low-pass (matched filters:
+    the part of the torque that accelerates the drive cancels exactly, also the command of a torque
+    drive, whose torque channel logs it); the result is low-passed with ``tau`` [s].
     """
 
     def __init__(self, context, tau: float = 0.02, tau_acc: float = 0.03):
@@ -192,6 +194,7 @@ class PipeTorque:
     def reset(self) -> None:
         self._w = None
         self._acc = 0.0
+        self._T = 0.0
         self.value = None
 
     def update(self, measurement) -> float:
@@ -200,7 +203,12 @@ class PipeTorque:
         T = float(measurement[self.torque_ch])
         if self._w is not None:
             self._acc = first_order(self._acc, (w - self._w) / self.dt, self.dt, self.tau_acc)
+            # the torque through the SAME filter as the acceleration: LP(T) - J LP(w') = LP(T - J w'),
+            # so what drives the drive's own inertia (on a torque drive: the command itself) cancels
+            self._T = first_order(self._T, T, self.dt, self.tau_acc)
+        else:
+            self._T = T
         self._w = w
-        est = T - self.J * self._acc - (self.friction(w) if self.friction else 0.0)
+        est = self._T - self.J * self._acc - (self.friction(w) if self.friction else 0.0)
         self.value = est if self.value is None else first_order(self.value, est, self.dt, self.tau)
         return self.value
