@@ -101,7 +101,7 @@ def context_for(scenario, index: int | None = None) -> ControlContext:
     where = f"{scenario.where}: controllers[{index}]" if index is not None else f"{scenario.where}: controller"
     return ControlContext(model=scenario.model, params=scenario.model_params, dt=scenario.dt,
                           period=scenario.dt * scenario.control_every, programme=scenario.programme,
-                          sensors=scenario.sensors, where=where)
+                          sensors=scenario.sensors, where=where, schedule=dict(scenario.inputs))
 
 
 def make_controller(spec, scenario, index: int | None = None) -> Controller:
