@@ -45,7 +45,7 @@ class DOSKILOptions:
     gain : ``k_n`` [N s/rad] (0: ``gain_factor Z / (r mu_k)``)
     gain_factor : multiplies the derived gain [-] (2: the sweep's compromise between severity and pin wear)
     n_min, n_max : force range [N] (n_max 0: the servo's range)
-    tau : low-pass of the measured speeds [s]
+    tau : low-pass of the measured speeds [s] (0: 1/80 of the rig's stick-slip period; rig3 29 ms)
     """
 
     input: str = ""
@@ -53,7 +53,7 @@ class DOSKILOptions:
     gain_factor: float = 2.0
     n_min: float = 0.0
     n_max: float = 0.0
-    tau: float = 0.03
+    tau: float = 0.0
 
     def __post_init__(self):
         if not isinstance(self.input, str):
@@ -93,6 +93,7 @@ class DOSKIL(Controller):
                 raise ConfigError(f"{context.where}.gain: cannot derive it for contact {c.name!r} (law {c.law!r}); "
                                   f"give gain [N s/rad]")
             self.gain = options.gain_factor * tuning_for(m, context.params).Z / (_val(c.radius, P, {}) * _val(level, P, {}))
+        self.tau = options.tau or tuning_for(m, context.params).period / 80.0
         a = m.actuator(self.input)
         self.n_min = max(options.n_min, a.n_min)
         self.n_max = options.n_max or a.n_max
@@ -103,6 +104,6 @@ class DOSKIL(Controller):
 
     def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
         d = float(measurement[self.body_ch]) - float(measurement[self.top_ch])
-        self._d = d if self._d is None else first_order(self._d, d, self.context.period, self.options.tau)
+        self._d = d if self._d is None else first_order(self._d, d, self.context.period, self.tau)
         n = self.context.scheduled(t, self.input) + self.gain * self._d
         return Action({self.input: np_clip(n, self.n_min, self.n_max)})
