@@ -1,0 +1,210 @@
+"""Options of the NMPC: what it may set (``inputs``), whose stick-slip it suppresses (``body``),
+its cost weights, limits and solver.
+
+Both dataclasses are frozen and keyword-only and validate themselves; everything that needs
+the rig (does it have that input, that body?) is checked when the controller is built
+(:class:`mitigate.controllers.nmpc.controller.NMPC`), with the same one-line errors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+from typing import Mapping
+
+from models.checks import finite_number
+from models.errors import ConfigError
+
+__all__ = ["NMPCOptions", "NMPCWeights", "MAX_HORIZON", "INPUT_MODES", "SOLVERS"]
+
+SOLVERS = ("rti", "sqp", "ipopt")
+QP_SOLVERS = ("hpipm", "qrqp", "osqp")
+#: ``inputs`` keywords: every command the rig offers, its servo inputs only, its drive only
+INPUT_MODES = ("both", "pin", "motor")
+# The OCP, its build and each QP grow with the horizon.  N = 500 plans 25 s ahead at dt = 0.05 s
+# (a stick-slip cycle is about 2 s) and builds in about 3 s (N = 20: 0.2 s; without compile);
+# N = 100000 would take about 9 minutes to build before the first sample.
+MAX_HORIZON = 500
+
+
+@dataclass(frozen=True, kw_only=True)
+class NMPCWeights:
+    """Dimensionless weights of the NMPC cost; None takes the default for the inputs the NMPC
+    sets (:meth:`resolve`).  Speeds are scaled by the nominal speed, forces by the servo's
+    ``n_max``, a torque set-point by ``setpoint_band``.
+
+    speed : objective body's speed - nominal speed (its stick-slip, and the mean speed)
+    rel : relative speed across every spring connection (the torsional modes)
+    ref : drive set-point - the programme's (stay near the programme)
+    force : quadratic servo force; force_linear : linear servo force (friction work and wear at
+        the pin; a linear cost leaves the force at exactly 0 when it does not pay)
+    d_ref : set-point change per OCP interval; d_force : servo activity, (command - servo force)
+        = tau x the servo's rate
+    terminal : factor on the terminal speed residuals
+    """
+
+    speed: float | None = None
+    rel: float | None = None
+    ref: float | None = None
+    force: float | None = None
+    force_linear: float | None = None
+    d_ref: float | None = None
+    d_force: float | None = None
+    terminal: float | None = None
+    where: str = "nmpc.weights"
+
+    #: defaults when the NMPC sets a servo force (alone or with the drive's set-point)
+    WITH_SERVO = dict(speed=1.0, rel=0.3, ref=0.2, force=0.2, force_linear=0.01, d_ref=0.3, d_force=0.3,
+                      terminal=3.0)
+    #: defaults when it sets the drive's set-point only (tuned on the 30 rpm stick-slip case,
+    #: benchmarks/results/nmpc.md: the set-point is the only lever, so it may move more)
+    DRIVE_ONLY = dict(speed=1.0, rel=0.3, ref=0.2, force=0.2, force_linear=0.01, d_ref=0.3, d_force=0.3,
+                      terminal=3.0)
+
+    def __post_init__(self):
+        for f in fields(self):
+            if f.name == "where":
+                continue
+            v = getattr(self, f.name)
+            if v is None:
+                continue
+            finite_number(v, f"{self.where}.{f.name}", nonneg=True)
+            if f.name in ("d_ref", "d_force") and not v > 0:
+                raise ConfigError(f"{self.where}.{f.name} must be > 0 (it keeps the QP positive definite), got {v!r}")
+
+    def resolve(self, drive_only: bool) -> "NMPCWeights":
+        """Every weight set: the given ones, the defaults (:attr:`DRIVE_ONLY` or :attr:`WITH_SERVO`) for the rest."""
+        base = self.DRIVE_ONLY if drive_only else self.WITH_SERVO
+        return replace(self, **{k: (base[k] if getattr(self, k) is None else float(getattr(self, k))) for k in base})
+
+    def as_tuple(self) -> tuple[float, ...]:
+        """(speed, rel, ref, force, force_linear, d_ref, d_force, terminal); all must be set."""
+        vals = tuple(getattr(self, k) for k in self.WITH_SERVO)
+        if any(v is None for v in vals):
+            raise ConfigError(f"{self.where}: unresolved weights (call resolve())")
+        return vals
+
+    @classmethod
+    def from_mapping(cls, table: Mapping, where: str) -> "NMPCWeights":
+        if not isinstance(table, Mapping):
+            raise ConfigError(f"{where} must be a table, got {type(table).__name__}")
+        known = [f.name for f in fields(cls) if f.name != "where"]
+        bad = sorted(set(table) - set(known))
+        if bad:
+            raise ConfigError(f"{where}: unknown weight(s) {bad}; expected some of {known}")
+        return cls(**dict(table), where=where)
+
+
+def _int(v, where: str, lo: int, hi: int | None = None, what: str = "") -> None:
+    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+        raise ConfigError(f"{where} must be an integer >= {lo}{what}, got {v!r}")
+    if hi is not None and v > hi:
+        raise ConfigError(f"{where} must be <= {hi} (OCP intervals; the OCP and each QP grow with it), got {v}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class NMPCOptions:
+    """NMPC options (a scenario's ``[[controllers]]`` keys with ``kind = "nmpc"``).
+
+    Parameters
+    ----------
+    horizon : OCP intervals N (2 .. :data:`MAX_HORIZON`)
+    dt : OCP interval [s] (>= the DAQ period); the NMPC re-plans every ``dt``
+    substeps : RK4 substeps per interval (0: the fewest that keep RK4 stable, ``|h lambda| <= 2.5``)
+    eps : friction regularisation of the prediction model [rad/s]
+    inputs : what the NMPC sets: "both" (the drive's set-point and every servo input), "pin"
+        (the servo inputs only; the set-point follows the programme), "motor" (the drive's
+        set-point only; no servo force), or a list of input names from the rig's ``commands``.
+        Inputs it does not set are held over the horizon at their measured value (a normal
+        force from its load cell) or, for the drive, at the programme's
+    body : the body whose stick-slip the cost suppresses (None: the rig's ``objective_body``)
+    speed : nominal speed of that body [rad/s] (None: the programme's drive speed; a torque
+        drive: the rig's ``operating_point.speed``)
+    weights : :class:`NMPCWeights` (unset weights take the defaults for ``inputs``)
+    setpoint_band : the drive's set-point stays within the programme's +- this [rad/s, or N m
+        for a torque drive] (a speed set-point never changes sign)
+    setpoint_rate : rate limit of the set-point [rad/s^2, or N m/s]
+    solver : "rti" (one Gauss-Newton QP per plan), "sqp" (Gauss-Newton to convergence), "ipopt"
+        (exact Hessian; the reference)
+    compile : compile the stage function with gcc (cached on disk) for rti/sqp
+    qp_solver : "hpipm" (called directly), "qrqp" or "osqp" (CasADi ``conic``)
+    qp_tol : QP tolerance.  hpipm ("speed_abs" mode) at 1e-7 moves the first input by < 3e-3
+        rad/s and < 0.04 N against an exact active-set solve (tests/test_nmpc.py), in about 4
+        interior-point iterations; "sqp" uses min(qp_tol, sqp_tol / 10)
+    sqp_max_iter : Gauss-Newton iterations of "sqp"
+    model_servo : predict each servo's first-order lag (tau of the rig's actuator); without it
+        the servo force is the previous command and the rate limit acts per interval
+    prepare_ahead : RTI preparation/feedback split: linearise at the shifted plan in the first
+        call after a plan (a held sample), so a planning call only embeds the state and solves the QP
+    use_load_estimate : scale a contact's friction in the prediction by the estimate's
+        ``load:<contact>`` state when it has one (the EKF's disturbance model)
+    """
+
+    horizon: int = 20
+    dt: float = 0.05
+    substeps: int = 0
+    eps: float = 0.05
+    inputs: str | tuple[str, ...] = "both"
+    body: str | None = None
+    speed: float | None = None
+    weights: NMPCWeights = NMPCWeights()
+    setpoint_band: float = 3.0
+    setpoint_rate: float = 20.0
+    solver: str = "rti"
+    compile: bool = True
+    qp_solver: str = "hpipm"
+    qp_tol: float = 1e-7
+    sqp_max_iter: int = 20
+    model_servo: bool = True
+    prepare_ahead: bool = True
+    use_load_estimate: bool = True
+    where: str = "nmpc"
+
+    def __post_init__(self):
+        w = self.where
+        _int(self.horizon, f"{w}.horizon", 2, MAX_HORIZON)
+        finite_number(self.dt, f"{w}.dt", positive=True, unit="s")
+        _int(self.substeps, f"{w}.substeps", 0, what=" (0 = automatic)")
+        finite_number(self.eps, f"{w}.eps", positive=True, unit="rad/s")
+        inp = self.inputs
+        if isinstance(inp, str):
+            if inp not in INPUT_MODES:
+                raise ConfigError(f"{w}.inputs must be one of {', '.join(INPUT_MODES)} or a list of input names, "
+                                  f"got {inp!r}")
+        elif isinstance(inp, (list, tuple)):
+            if not inp or not all(isinstance(n, str) and n for n in inp) or len(set(inp)) != len(inp):
+                raise ConfigError(f"{w}.inputs must be a non-empty list of distinct input names, got {list(inp)!r}")
+            object.__setattr__(self, "inputs", tuple(inp))
+        else:
+            raise ConfigError(f"{w}.inputs must be one of {', '.join(INPUT_MODES)} or a list of input names, "
+                              f"got {inp!r}")
+        if self.body is not None and (not isinstance(self.body, str) or not self.body):
+            raise ConfigError(f"{w}.body must be a body name, got {self.body!r}")
+        if self.speed is not None:
+            finite_number(self.speed, f"{w}.speed", unit="rad/s")
+        if not isinstance(self.weights, NMPCWeights):
+            raise ConfigError(f"{w}.weights must be a table of weights, got {type(self.weights).__name__}")
+        finite_number(self.setpoint_band, f"{w}.setpoint_band", nonneg=True)
+        finite_number(self.setpoint_rate, f"{w}.setpoint_rate", positive=True)
+        if self.solver not in SOLVERS:
+            raise ConfigError(f"{w}.solver must be one of {', '.join(SOLVERS)}, got {self.solver!r}")
+        if self.qp_solver not in QP_SOLVERS:
+            raise ConfigError(f"{w}.qp_solver must be one of {', '.join(QP_SOLVERS)}, got {self.qp_solver!r}")
+        finite_number(self.qp_tol, f"{w}.qp_tol", positive=True)
+        _int(self.sqp_max_iter, f"{w}.sqp_max_iter", 1)
+        for name in ("compile", "model_servo", "prepare_ahead", "use_load_estimate"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"{w}.{name} must be true or false, got {getattr(self, name)!r}")
+
+    @classmethod
+    def from_mapping(cls, options: Mapping, where: str = "nmpc") -> "NMPCOptions":
+        """Validate a raw scenario table (unknown keys are errors naming ``where``)."""
+        if not isinstance(options, Mapping):
+            raise ConfigError(f"{where} must be a table, got {type(options).__name__}")
+        known = [f.name for f in fields(cls) if f.name != "where"]
+        opts = dict(options)
+        unknown = sorted(set(opts) - set(known))
+        if unknown:
+            raise ConfigError(f"{where}: unknown NMPC option(s) {unknown}; expected some of {known}")
+        if "weights" in opts:
+            opts["weights"] = NMPCWeights.from_mapping(opts["weights"], f"{where}.weights")
+        return cls(**opts, where=where)
