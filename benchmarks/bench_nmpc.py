@@ -33,6 +33,7 @@ import numpy as np
 from estimators.base import Estimate
 from mitigate.controllers.base import ControlContext
 from mitigate.controllers.nmpc import NMPC, NMPCOptions, NMPCWeights
+from mitigate.controllers.nmpc.options import WEIGHT_NAMES
 from mitigate.metrics import friction_work, severity
 from models import get_model
 from models.plant import Plant, SimOptions
@@ -63,7 +64,7 @@ def stick_slip_start(mismatch: bool = False):
 
 
 def run(solver: str, horizon: int, duration: float, inputs: str, extra: dict, weights: dict | None = None,
-        mismatch: bool = False) -> dict:
+        mismatch: bool = False, state_noise: float = 0.0) -> dict:
     m = get_model("rig3")
     p = m.published()
     pp = plant_params(mismatch)
@@ -78,9 +79,13 @@ def run(solver: str, horizon: int, duration: float, inputs: str, extra: dict, we
     plant = Plant(m, pp, SimOptions(seed=0), sensors=None, x0=x0, u0=u_prog)
     plans, prep, allc, w1, w2, n2, wref = [], [], [], [], [], [], []
     after_plan = False
+    rng = np.random.default_rng(1)
+    speeds = [m.speed_index(b) for b in m.bodies]
     for k in range(int(round(duration / DT))):
         t = t0 + k * DT
-        a = c.step(t, plant.measure(), Estimate(t, plant.x.copy(), None, m.states))
+        x = plant.x.copy()
+        x[speeds] += state_noise * rng.standard_normal(len(speeds))   # a stand-in for an estimator's error
+        a = c.step(t, plant.measure(), Estimate(t, x, None, m.states))
         if a.status is not Status.HOLD:
             plans.append(a.solve_time)
             after_plan = True
@@ -105,7 +110,7 @@ def run(solver: str, horizon: int, duration: float, inputs: str, extra: dict, we
     return dict(settle=settle, solver=solver, N=horizon, inputs=inputs, median=np.median(tf), p95=np.percentile(tf, 95),
                 max=tf.max(), prep_median=np.median(tp), prep_p95=np.percentile(tp, 95), call_max=busy.max(),
                 per_sample=busy.mean(), plans=len(tf), failures=c.counts.failures, nsub=c.nsub, build=t_build,
-                sev=severity(w1), sev_final=severity(w1[-int(2.0 / DT):]), mean_w1=float(np.mean(w1)),
+                sev=severity(w1), sev_final=severity(w1[-int(2.0 / DT):]), mean_final=float(np.mean(w1[-int(2.0 / DT):])),
                 work=friction_work(np.array(w2), np.array(n2), p["r2"], p["mu_s"], p["mu_k"], p["v_s"], DT),
                 wref_lo=min(wref), wref_hi=max(wref), weights=c.weights)
 
@@ -129,6 +134,8 @@ def main(argv=None) -> int:
     ap.add_argument("--weights", nargs="*", metavar="NAME=VALUE", help="NMPC weights (others: the defaults)")
     ap.add_argument("--mismatch", action="store_true",
                     help="plant mu_k x1.2, k1 x0.8, J1 x1.2 (the NMPC keeps the nominal model)")
+    ap.add_argument("--state-noise", type=float, default=0.0, metavar="STD",
+                    help="white noise [rad/s] on the speeds of the state handed to the NMPC (seeded)")
     ap.add_argument("--no-prepare", action="store_true", help="RTI without the preparation/feedback split")
     ap.add_argument("--out", default="")
     ap.add_argument("--append", action="store_true", help="append the table to --out instead of replacing it")
@@ -139,27 +146,27 @@ def main(argv=None) -> int:
             for s in args.solvers:
                 r = run(s, N, args.duration, inp, {"eps": args.eps, "prepare_ahead": not args.no_prepare,
                                                    "qp_solver": args.qp_solver}, _kv(args.weights),
-                      args.mismatch)
+                      args.mismatch, args.state_noise)
                 rows.append(r)
                 print(f"{s:5s} N={N:3d} {inp:5s} plan median {r['median']:6.2f} ms p95 {r['p95']:6.2f}  prep median "
                       f"{r['prep_median']:6.2f} p95 {r['prep_p95']:6.2f}  fail {r['failures']}  sev {r['sev']:.3f} "
-                      f"final {r['sev_final']:.4f}  settle {r['settle']:.2f} s  sp {r['wref_lo']:.2f}..{r['wref_hi']:.2f}  work {r['work']:.2f} J  build {r['build']:.1f} s", flush=True)
+                      f"final {r['sev_final']:.4f} mean {r['mean_final']:.3f}  settle {r['settle']:.2f} s  sp {r['wref_lo']:.2f}..{r['wref_hi']:.2f}  work {r['work']:.2f} J  build {r['build']:.1f} s", flush=True)
     head = ("| solver | N | inputs | plan call median [ms] | p95 [ms] | max [ms] | prep call median / p95 [ms] "
             "| max of any call [ms] | mean per DAQ sample [ms] | do-mpc 15.5 ms / plan median | plans | failures "
-            "| severity R1 (controlled / last 2 s) | settled [s] | friction work pin 2 [J] | set-point range [rad/s] |\n|"
-            + "---|" * 16 + "\n")
+            "| severity R1 (controlled / last 2 s) | mean R1 speed, last 2 s [rad/s] | settled [s] | friction work pin 2 [J] | set-point range [rad/s] |\n|"
+            + "---|" * 17 + "\n")
     body = "".join(
         f"| {r['solver']} | {r['N']} | {r['inputs']} | {r['median']:.2f} | {r['p95']:.2f} | {r['max']:.2f} "
         f"| {r['prep_median']:.2f} / {r['prep_p95']:.2f} | {r['call_max']:.2f} | {r['per_sample']:.2f} "
         f"| {DO_MPC_MS / r['median']:.1f}x | {r['plans']} | {r['failures']} | {r['sev']:.3f} / {r['sev_final']:.4f} "
-        f"| {r['settle']:.2f} | {r['work']:.2f} | {r['wref_lo']:.2f} .. {r['wref_hi']:.2f} |\n" for r in rows)
+        f"| {r['mean_final']:.3f} | {r['settle']:.2f} | {r['work']:.2f} | {r['wref_lo']:.2f} .. {r['wref_hi']:.2f} |\n" for r in rows)
     cmd = "python " + " ".join([os.path.relpath(__file__)] + (argv if argv is not None else sys.argv[1:]))
     wts = {r["inputs"]: r["weights"] for r in rows}
     info = (f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; "
             f"dt_ocp = 0.05 s, RK4 substeps {rows[0]['nsub']} (eps = {args.eps} rad/s), QP {args.qp_solver}, "
             f"{args.duration} s closed loop per case; preparation/feedback split "
-            f"{'off' if args.no_prepare else 'on'}; plant {'mismatched (mu_k x1.2, k1 x0.8, J1 x1.2)' if args.mismatch else 'nominal'}; weights "
-            + "; ".join(f"{k}: " + ", ".join(f"{n}={getattr(w, n):g}" for n in NMPCWeights.WITH_SERVO)
+            f"{'off' if args.no_prepare else 'on'}; state noise {args.state_noise} rad/s on the speeds; plant {'mismatched (mu_k x1.2, k1 x0.8, J1 x1.2)' if args.mismatch else 'nominal'}; weights "
+            + "; ".join(f"{k}: " + ", ".join(f"{n}={getattr(w, n):g}" for n in WEIGHT_NAMES)
                         for k, w in wts.items())
             + f"; load average at the end {os.getloadavg()[0]:.1f} (shared machine)\n")
     table = head + body

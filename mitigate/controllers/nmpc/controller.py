@@ -30,8 +30,8 @@ from typing import Mapping
 import numpy as np
 
 from mitigate.controllers.base import Action, ControlContext, Controller
-from mitigate.controllers.nmpc.ocp import OCPSolver, OCPSpec, rk4_substeps_needed, WEIGHT_NAMES
-from mitigate.controllers.nmpc.options import NMPCOptions
+from mitigate.controllers.nmpc.ocp import OCPSolver, OCPSpec, rk4_substeps_needed
+from mitigate.controllers.nmpc.options import MAX_SUBSTEPS, NMPCOptions
 from models.actuators import Servo
 from models.errors import ConfigError, SolverFailure
 from models.status import Status
@@ -127,9 +127,12 @@ class NMPC(Controller):
         nom0 = self._nominal(0.0, u0)
         w_s = max(abs(nom0), 1.0)
         taus = tuple(float(a.tau) if o.model_servo else 0.0 for a in acts)
-        weights = o.weights.resolve(drive_only=not self.servos)
-        self.weights = weights
+        self.weights = weights = o.weights
         self.nsub = o.substeps or self._substeps(u0, nom0, taus)
+        if self.nsub > MAX_SUBSTEPS:
+            raise ConfigError(f"{where}.substeps: rig {m.name!r} needs {self.nsub} RK4 substeps per {o.dt} s interval "
+                              f"to be stable (stiff friction or springs); the limit is {MAX_SUBSTEPS}: shorten dt, or "
+                              f"widen eps where the friction law uses it")
         self.spec = OCPSpec(horizon=o.horizon, dt=o.dt, nsub=self.nsub, eps=o.eps, body=self.body,
                             inputs=self.inputs, taus=taus, speed_scale=w_s,
                             setpoint_scale=(o.setpoint_band if self._torque_drive else w_s) or 1.0,
@@ -268,8 +271,8 @@ class NMPC(Controller):
                 q, self._prep_q = self._prep_q, None
                 try:
                     self.ocp.prepare(q)
-                except Exception:  # noqa: BLE001 - the next plan linearises itself
-                    self.ocp.shift(0)
+                except Exception:  # noqa: BLE001 - the next plan starts afresh
+                    self.ocp.reset()
             a = self._action
             return Action(a.u, Status.HOLD, f"hold: {a.status.value}: {a.message}" if a.message else "hold")
         steps = 1 if self._t_solve is None else max(1, int(round((t - self._t_solve) / o.dt)))

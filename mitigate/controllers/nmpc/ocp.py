@@ -63,13 +63,12 @@ from models.codegen import CtypesFunction, compile_cached
 from models.discretise import rk4
 from models.errors import ConfigError, SolverFailure
 from models.status import Status
+from mitigate.controllers.nmpc.options import WEIGHT_NAMES
 from mitigate.controllers.nmpc.qp import make_qp
 
 __all__ = ["OCPSpec", "OCPLayout", "OCPSolver", "OCPResult", "stage_functions", "prediction_rhs",
            "rk4_substeps_needed"]
 
-#: weights in q, in this order
-WEIGHT_NAMES = ("speed", "rel", "ref", "force", "force_linear", "d_ref", "d_force", "terminal")
 
 
 @dataclass(frozen=True, kw_only=True)

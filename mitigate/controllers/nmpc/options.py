@@ -8,13 +8,13 @@ the rig (does it have that input, that body?) is checked when the controller is 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from typing import Mapping
 
 from models.checks import finite_number
 from models.errors import ConfigError
 
-__all__ = ["NMPCOptions", "NMPCWeights", "MAX_HORIZON", "INPUT_MODES", "SOLVERS"]
+__all__ = ["NMPCOptions", "NMPCWeights", "MAX_HORIZON", "MAX_SUBSTEPS", "INPUT_MODES", "SOLVERS", "WEIGHT_NAMES"]
 
 SOLVERS = ("rti", "sqp", "ipopt")
 QP_SOLVERS = ("hpipm", "qrqp", "osqp")
@@ -24,13 +24,17 @@ INPUT_MODES = ("both", "pin", "motor")
 # (a stick-slip cycle is about 2 s) and builds in about 3 s (N = 20: 0.2 s; without compile);
 # N = 100000 would take about 9 minutes to build before the first sample.
 MAX_HORIZON = 500
+#: RK4 substeps per interval beyond which the stage function is too big to build and to evaluate in
+#: real time (rig3 at dt = 0.05 s and eps = 0.05 rad/s needs 22; the lead screw at 0.05 s would need 38013)
+MAX_SUBSTEPS = 200
+#: the cost weights, in the order the OCP's parameter vector holds them
+WEIGHT_NAMES = ("speed", "rel", "ref", "force", "force_linear", "d_ref", "d_force", "terminal")
 
 
 @dataclass(frozen=True, kw_only=True)
 class NMPCWeights:
-    """Dimensionless weights of the NMPC cost; None takes the default for the inputs the NMPC
-    sets (:meth:`resolve`).  Speeds are scaled by the nominal speed, forces by the servo's
-    ``n_max``, a torque set-point by ``setpoint_band``.
+    """Dimensionless weights of the NMPC cost.  Speeds are scaled by the nominal speed, forces by
+    the servo's ``n_max``, a torque set-point by ``setpoint_band``.
 
     speed : objective body's speed - nominal speed (its stick-slip, and the mean speed)
     rel : relative speed across every spring connection (the torsional modes)
@@ -40,57 +44,42 @@ class NMPCWeights:
     d_ref : set-point change per OCP interval; d_force : servo activity, (command - servo force)
         = tau x the servo's rate
     terminal : factor on the terminal speed residuals
+
+    The same defaults serve the motor-only NMPC (``inputs = "motor"``): on the 30 rpm stick-slip
+    case they were within a few percent of the best of 13 weight sets with the true state, with
+    0.3 rad/s of noise on it and with a 20 % model mismatch; lowering ``ref`` or ``d_ref`` settled
+    no faster and passed more noise to the set-point, raising ``d_ref`` to 1 halved the noise but
+    doubled the settling time (benchmarks/results/nmpc.md).
     """
 
-    speed: float | None = None
-    rel: float | None = None
-    ref: float | None = None
-    force: float | None = None
-    force_linear: float | None = None
-    d_ref: float | None = None
-    d_force: float | None = None
-    terminal: float | None = None
+    speed: float = 1.0
+    rel: float = 0.3
+    ref: float = 0.2
+    force: float = 0.2
+    force_linear: float = 0.01
+    d_ref: float = 0.3
+    d_force: float = 0.3
+    terminal: float = 3.0
     where: str = "nmpc.weights"
 
-    #: defaults when the NMPC sets a servo force (alone or with the drive's set-point)
-    WITH_SERVO = dict(speed=1.0, rel=0.3, ref=0.2, force=0.2, force_linear=0.01, d_ref=0.3, d_force=0.3,
-                      terminal=3.0)
-    #: defaults when it sets the drive's set-point only (tuned on the 30 rpm stick-slip case,
-    #: benchmarks/results/nmpc.md: the set-point is the only lever, so it may move more)
-    DRIVE_ONLY = dict(speed=1.0, rel=0.3, ref=0.2, force=0.2, force_linear=0.01, d_ref=0.3, d_force=0.3,
-                      terminal=3.0)
-
     def __post_init__(self):
-        for f in fields(self):
-            if f.name == "where":
-                continue
-            v = getattr(self, f.name)
-            if v is None:
-                continue
-            finite_number(v, f"{self.where}.{f.name}", nonneg=True)
-            if f.name in ("d_ref", "d_force") and not v > 0:
-                raise ConfigError(f"{self.where}.{f.name} must be > 0 (it keeps the QP positive definite), got {v!r}")
-
-    def resolve(self, drive_only: bool) -> "NMPCWeights":
-        """Every weight set: the given ones, the defaults (:attr:`DRIVE_ONLY` or :attr:`WITH_SERVO`) for the rest."""
-        base = self.DRIVE_ONLY if drive_only else self.WITH_SERVO
-        return replace(self, **{k: (base[k] if getattr(self, k) is None else float(getattr(self, k))) for k in base})
+        for name in WEIGHT_NAMES:
+            v = finite_number(getattr(self, name), f"{self.where}.{name}", nonneg=True)
+            if name in ("d_ref", "d_force") and not v > 0:
+                raise ConfigError(f"{self.where}.{name} must be > 0 (it keeps the QP positive definite), got {v!r}")
+            object.__setattr__(self, name, v)
 
     def as_tuple(self) -> tuple[float, ...]:
-        """(speed, rel, ref, force, force_linear, d_ref, d_force, terminal); all must be set."""
-        vals = tuple(getattr(self, k) for k in self.WITH_SERVO)
-        if any(v is None for v in vals):
-            raise ConfigError(f"{self.where}: unresolved weights (call resolve())")
-        return vals
+        """The weights in :data:`WEIGHT_NAMES` order."""
+        return tuple(getattr(self, k) for k in WEIGHT_NAMES)
 
     @classmethod
     def from_mapping(cls, table: Mapping, where: str) -> "NMPCWeights":
         if not isinstance(table, Mapping):
             raise ConfigError(f"{where} must be a table, got {type(table).__name__}")
-        known = [f.name for f in fields(cls) if f.name != "where"]
-        bad = sorted(set(table) - set(known))
+        bad = sorted(set(table) - set(WEIGHT_NAMES))
         if bad:
-            raise ConfigError(f"{where}: unknown weight(s) {bad}; expected some of {known}")
+            raise ConfigError(f"{where}: unknown weight(s) {bad}; expected some of {list(WEIGHT_NAMES)}")
         return cls(**dict(table), where=where)
 
 
@@ -109,7 +98,8 @@ class NMPCOptions:
     ----------
     horizon : OCP intervals N (2 .. :data:`MAX_HORIZON`)
     dt : OCP interval [s] (>= the DAQ period); the NMPC re-plans every ``dt``
-    substeps : RK4 substeps per interval (0: the fewest that keep RK4 stable, ``|h lambda| <= 2.5``)
+    substeps : RK4 substeps per interval (0: the fewest that keep RK4 stable, ``|h lambda| <= 2.5``;
+        at most :data:`MAX_SUBSTEPS`)
     eps : friction regularisation of the prediction model [rad/s]
     inputs : what the NMPC sets: "both" (the drive's set-point and every servo input), "pin"
         (the servo inputs only; the set-point follows the programme), "motor" (the drive's
@@ -119,7 +109,7 @@ class NMPCOptions:
     body : the body whose stick-slip the cost suppresses (None: the rig's ``objective_body``)
     speed : nominal speed of that body [rad/s] (None: the programme's drive speed; a torque
         drive: the rig's ``operating_point.speed``)
-    weights : :class:`NMPCWeights` (unset weights take the defaults for ``inputs``)
+    weights : :class:`NMPCWeights`
     setpoint_band : the drive's set-point stays within the programme's +- this [rad/s, or N m
         for a torque drive] (a speed set-point never changes sign)
     setpoint_rate : rate limit of the set-point [rad/s^2, or N m/s]
@@ -164,6 +154,8 @@ class NMPCOptions:
         _int(self.horizon, f"{w}.horizon", 2, MAX_HORIZON)
         finite_number(self.dt, f"{w}.dt", positive=True, unit="s")
         _int(self.substeps, f"{w}.substeps", 0, what=" (0 = automatic)")
+        if self.substeps > MAX_SUBSTEPS:
+            raise ConfigError(f"{w}.substeps must be <= {MAX_SUBSTEPS}, got {self.substeps}")
         finite_number(self.eps, f"{w}.eps", positive=True, unit="rad/s")
         inp = self.inputs
         if isinstance(inp, str):
