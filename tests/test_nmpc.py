@@ -334,9 +334,9 @@ def test_estimate_of_another_rig_is_a_failure_not_a_wrong_plan():
 # ----------------------------------------------------------------------------- closed loop, rig3
 @pytest.fixture(scope="module")
 def variants(stick_slip_start):
-    """8 s without control and with the NMPC on both inputs, the pin only and the motor only."""
+    """5 s without control and with the NMPC on both inputs, the pin only and the motor only."""
     x0, t0 = stick_slip_start
-    n = 800
+    n = 500
     free = Plant(M, P, SimOptions(seed=0), sensors=None, x0=x0, u0=U0)
     out = {"free": np.array([free.step(U0) and free.x[2] for _ in range(n)])}
     for inputs in ("both", "pin", "motor"):
@@ -348,13 +348,14 @@ def variants(stick_slip_start):
 
 
 def test_stick_slip_of_r1_suppressed(variants):
-    tail = slice(-300, None)  # last 3 s
+    tail = slice(-250, None)  # last 2.5 s (a stick-slip cycle takes about 2 s)
     s_free = severity(variants["free"][tail])
     assert s_free > 0.8       # established stick-slip without control
-    for inputs, limit in (("both", 0.02), ("motor", 0.02), ("pin", 0.1)):
+    # the pin alone cannot move the set-point: the drive's PI loop brings the mean speed back slowly
+    for inputs, limit, mean_tol in (("both", 0.02, 0.02), ("motor", 0.02, 0.02), ("pin", 0.1, 0.1)):
         r = variants[inputs]
         assert severity(r["w1"][tail]) < limit * s_free, inputs
-        assert abs(np.mean(r["w1"][tail]) - W0) < 0.05 * W0, inputs   # and the mean speed is kept
+        assert abs(np.mean(r["w1"][tail]) - W0) < mean_tol * W0, inputs
         assert r["c"].counts.failures == 0
 
 
