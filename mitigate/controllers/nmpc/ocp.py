@@ -325,7 +325,8 @@ class OCPResult:
     u : (N, m) the commanded inputs' values over the plan (``inputs`` order: set-point, servo commands)
     xa : (N+1, nxa) predicted augmented states (``states`` order)
     inputs, states : names of the columns
-    cost : objective at the linearisation point (rti) or at the solution
+    cost : objective at the last linearisation point (rti, sqp: one step before the solution) or at
+        the solution (ipopt)
     iterations : Gauss-Newton iterations (rti: 1); qp_iterations : of the last QP
     status : Status.OK, or Status.NOT_CONVERGED ("sqp" hit its iteration limit)
     message : detail; solve_time : wall time [s]
@@ -646,8 +647,6 @@ class OCPSolver:
         else:
             if self.solver == "sqp":
                 status, msg = Status.NOT_CONVERGED, f"sqp: {nmax} iterations, last step {step:.2g}"
-        if self.solver == "sqp":
-            self._linearise(q)  # the cost at the solution
         return X, V, self._cost, it, self.qp.iterations, status, msg
 
     # ------------------------------------------------------------------ IPOPT
@@ -668,7 +667,7 @@ class OCPSolver:
         self._ipopt = ca.nlpsol(f"{self.model.cname}_nmpc_ipopt", "ipopt",
                                 {"x": w, "p": q, "f": obj, "g": ca.vec(ca.vertcat(gaps, rows))},
                                 {"print_time": False, "error_on_fail": False,
-                                 "ipopt": {"print_level": 0, "sb": "yes", "max_iter": 200, "tol": 1e-10,
+                                 "ipopt": {"print_level": 0, "sb": "yes", "max_iter": 200, "tol": 1e-8,
                                            "warm_start_init_point": "yes"}})
 
     def _solve_ipopt(self, xa0, q, bnd):

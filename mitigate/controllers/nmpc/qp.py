@@ -149,12 +149,12 @@ class HpipmQP(StageQP):
     ----------
     tol : tolerance on the stationarity, equality, inequality and complementarity residuals
     iter_max : interior-point iterations
-    mode : hpipm's preset: "speed_abs" (default), "speed", "balance" or "robust".  On the QPs of
-        the rig3 NMPC (N = 50, 157 QPs along a closed loop out of stick-slip) "speed_abs" at
-        tol 1e-7 took 4.2 iterations and 0.43 ms (median), and its first move was within
-        2e-4 rad/s and 1e-3 N of an exact active-set solution at the 95th percentile (5e-3
-        rad/s and 6e-3 N at most); "speed" at 1e-5 took 4.3 iterations and 0.55 ms with
-        errors up to 1.2e-2 rad/s and 5e-2 N (benchmarks/results/nmpc.md)
+    mode : hpipm's preset: "speed_abs" (default), "speed", "balance" or "robust".  On the 80 QPs of
+        a rig3 closed loop out of stick-slip (N = 50) "speed_abs" at tol 1e-7 took 4.4 iterations
+        and 0.43 ms (median) and its first move was within 2e-4 rad/s and 1e-3 N of an exact
+        active-set solution at the 95th percentile; "speed" at 1e-5 (the CasADi-era setting)
+        took as many iterations and 0.56 ms with errors 2.6e-4 rad/s and 1.9e-3 N
+        (``benchmarks/bench_nmpc.py --qp-study``, benchmarks/results/nmpc.md)
     """
 
     def __init__(self, N, nx, nu, idxbx, idxbu, C, D, *, tol: float = 1e-7, iter_max: int = 100,
