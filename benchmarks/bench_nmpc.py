@@ -116,7 +116,7 @@ def run(solver: str, horizon: int, duration: float, inputs: str, extra: dict, we
                 max=tf.max(), prep_median=np.median(tp), prep_p95=np.percentile(tp, 95), call_max=busy.max(),
                 per_sample=busy.mean(), plans=len(tf), failures=c.counts.failures, nsub=c.nsub, build=t_build,
                 sev=severity(w1), sev_final=severity(w1[-int(2.0 / DT):]), mean_final=float(np.mean(w1[-int(2.0 / DT):])),
-                work=friction_work(np.array(w2), np.array(n2), p["r2"], p["mu_s"], p["mu_k"], p["v_s"], DT),
+                work=friction_work(np.array(w2), np.array(n2), pp["r2"], pp["mu_s"], pp["mu_k"], pp["v_s"], DT),
                 wref_lo=min(wref), wref_hi=max(wref), weights=c.weights)
 
 
@@ -228,23 +228,28 @@ def main(argv=None) -> int:
                 rows.append(r)
                 print(f"{s:5s} N={N:3d} {inp:5s} plan median {r['median']:6.2f} ms p95 {r['p95']:6.2f}  prep median "
                       f"{r['prep_median']:6.2f} p95 {r['prep_p95']:6.2f}  fail {r['failures']}  sev {r['sev']:.3f} "
-                      f"final {r['sev_final']:.4f} mean {r['mean_final']:.3f}  settle {_settled(r['settle'])}  sp {r['wref_lo']:.2f}..{r['wref_hi']:.2f}  work {r['work']:.2f} J  build {r['build']:.1f} s", flush=True)
+                      f"final {r['sev_final']:.4f} mean {r['mean_final']:.3f}  settle {_settled(r['settle'])}  "
+                      f"sp {r['wref_lo']:.2f}..{r['wref_hi']:.2f}  work {r['work']:.2f} J  build {r['build']:.1f} s",
+                      flush=True)
     head = ("| solver | N | inputs | plan call median [ms] | p95 [ms] | max [ms] | prep call median / p95 [ms] "
             "| max of any call [ms] | mean per DAQ sample [ms] | do-mpc 15.5 ms / plan median | plans | failures "
-            "| severity R1 (controlled / last 2 s) | mean R1 speed, last 2 s [rad/s] | settled [s] | friction work pin 2 [J] | set-point range [rad/s] |\n|"
+            "| severity R1 (controlled / last 2 s) | mean R1 speed, last 2 s [rad/s] | settled [s] "
+            "| friction work pin 2 [J] | set-point range [rad/s] |\n|"
             + "---|" * 17 + "\n")
     body = "".join(
         f"| {r['solver']} | {r['N']} | {r['inputs']} | {r['median']:.2f} | {r['p95']:.2f} | {r['max']:.2f} "
         f"| {r['prep_median']:.2f} / {r['prep_p95']:.2f} | {r['call_max']:.2f} | {r['per_sample']:.2f} "
         f"| {DO_MPC_MS / r['median']:.1f}x | {r['plans']} | {r['failures']} | {r['sev']:.3f} / {r['sev_final']:.4f} "
-        f"| {r['mean_final']:.3f} | {_settled(r['settle'])} | {r['work']:.2f} | {r['wref_lo']:.2f} .. {r['wref_hi']:.2f} |\n" for r in rows)
+        f"| {r['mean_final']:.3f} | {_settled(r['settle'])} | {r['work']:.2f} "
+        f"| {r['wref_lo']:.2f} .. {r['wref_hi']:.2f} |\n" for r in rows)
     cmd = "python " + " ".join([os.path.relpath(__file__)] + (argv if argv is not None else sys.argv[1:]))
     w = rows[0]["weights"]
     info = (f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; "
             f"dt_ocp = 0.05 s, RK4 substeps {rows[0]['nsub']} (eps = {args.eps} rad/s), QP {args.qp_solver}, "
             f"{args.duration} s closed loop per case; preparation/feedback split "
             f"{'off' if args.no_prepare else 'on'}; state noise {args.state_noise} rad/s on the speeds; "
-            f"load:pin1 {'absent' if args.load_factor is None else args.load_factor}; plant {'mismatched (mu_k x1.2, k1 x0.8, J1 x1.2)' if args.mismatch else 'nominal'}; weights "
+            f"load:pin1 {'absent' if args.load_factor is None else args.load_factor}; "
+            f"plant {'mismatched (mu_k x1.2, k1 x0.8, J1 x1.2)' if args.mismatch else 'nominal'}; weights "
             + ", ".join(f"{n}={getattr(w, n):g}" for n in WEIGHT_NAMES)
             + f"; load average at the end {os.getloadavg()[0]:.1f} (shared machine)\n")
     table = head + body

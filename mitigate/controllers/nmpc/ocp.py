@@ -33,7 +33,7 @@ with ``w_s`` = max(|w_nom|, 1 rad/s), ``sp_s`` = ``w_s`` (speed set-point) or th
 drive) and ``f_j`` the servo's ``n_max``, so every weight is dimensionless.  Gauss-Newton gives
 a positive semi-definite Hessian at no extra cost.
 
-Per-stage parameters ``q`` (:meth:`OCPSpec.q`): the held inputs (``model.inputs`` order; the
+Per-stage parameters ``q`` (:meth:`OCPLayout.q_template`, :meth:`OCPLayout.set_q`): the held inputs (``model.inputs`` order; the
 drive entry is the programme's set-point), the nominal speed, the scales, the weights, one
 friction factor per contact body (the disturbance model: 1 = as the rig file says) and the rig's
 parameter vector.  Only the structure (N, dt, nsub, eps, inputs, lags, body) enters the
@@ -53,7 +53,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from functools import cached_property
 
 import casadi as ca
 import numpy as np
@@ -68,7 +67,6 @@ from mitigate.controllers.nmpc.qp import make_qp
 
 __all__ = ["OCPSpec", "OCPLayout", "OCPSolver", "OCPResult", "stage_functions", "prediction_rhs",
            "rk4_substeps_needed"]
-
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -130,7 +128,6 @@ class OCPLayout:
         self.i_wprev = nx + ns if self.drive else None
         self.nxa = nx + ns + (1 if self.drive else 0)
         self.nv = len(spec.inputs)
-        self.j_dw = 0 if self.drive else None
         self.j_cmd = np.arange(1 if self.drive else 0, self.nv)
         self.u_drive = model.inputs.index(drive)
         self.u_servo = tuple(model.inputs.index(n) for n in self.servos)
@@ -416,7 +413,6 @@ class OCPSolver:
         self.V: np.ndarray | None = None
         self._lam = None
         self._prepared = False
-        self._q_lin = None
         self._lim_key, self._lim = None, None
         self.last_bounds = None
         self.compiled = bool(compile and solver != "ipopt")
@@ -464,7 +460,7 @@ class OCPSolver:
         L = self.layout
         X, V = self.X, self.V
         X[:-s] = X[s:].copy()
-        X[-s:] = X[-1 - s] if s < self.N + 1 else X[-1]
+        X[-s:] = X[-s - 1]          # the old last state (s <= N)
         tail = V[-1].copy()
         if L.drive:
             tail[0] = 0.0
@@ -498,7 +494,6 @@ class OCPSolver:
         qp.Q[N] = out[9]
         qp.q[N] = out[10]
         self._cost = float(out[8][0] + out[11][0])
-        self._q_lin = q
 
     def prepare(self, q) -> None:
         """RTI preparation phase: shift the plan by one interval and linearise there now, so the
@@ -700,7 +695,3 @@ class OCPSolver:
         V = Z[:, L.nxa:].copy()
         it = int(st.get("iter_count", 0))
         return X, V, float(sol["f"]), it, 0, Status.OK, f"ipopt: {st['return_status']} in {it} iterations"
-
-    @cached_property
-    def nq(self) -> int:
-        return self.layout.nq
