@@ -10,9 +10,9 @@ form hpipm solves natively::
          lbu_k <= u_k[idxbu] <= ubu_k                           k = 0 .. N-1
          lg_k  <= C x_k + D u_k <= ug_k                         k = 0 .. N-1
 
-(stage ``N`` has no input).  Only the bounds that exist are passed: hpipm's interior-point
-iteration then works on a handful of inequalities per stage, not on a +-1e8 box around
-every variable (what CasADi's ``conic`` interface hands it).
+(stage ``N`` has no input).  Only the bounds that exist are passed, so hpipm's interior-point
+iteration works on a handful of inequalities per stage instead of a (mostly infinite) bound on
+every variable, and no general sparse QP is assembled and converted on every call.
 
 The data live in numpy buffers with the stage on axis 0 and every matrix block flattened
 column-major (the layout of a CasADi ``map`` output), so the compiled stage function's
