@@ -90,6 +90,9 @@ def test_options_defaults_and_from_mapping():
     o = NMPCOptions.from_mapping({"weights": {"speed": 2.0}, "inputs": ["n2"]}, "x")
     assert o.weights.speed == 2.0 and o.weights.ref == NMPCWeights().ref
     assert o.solver == "rti" and o.horizon == 20 and o.inputs == ("n2",) and o.weights.where == "x.weights"
+    assert NMPCOptions(weights={"rel": 0.5}).weights == NMPCWeights(rel=0.5, where="nmpc.weights")
+    with pytest.raises(ConfigError, match=r"^nmpc\.weights\.terminal must be >= 0, got -1$"):
+        NMPCOptions(weights={"terminal": -1})
 
 
 @pytest.mark.parametrize("inputs, states, decisions, action", [

@@ -109,7 +109,7 @@ class NMPCOptions:
     body : the body whose stick-slip the cost suppresses (None: the rig's ``objective_body``)
     speed : nominal speed of that body [rad/s] (None: the programme's drive speed; a torque
         drive: the rig's ``operating_point.speed``)
-    weights : :class:`NMPCWeights`
+    weights : :class:`NMPCWeights` (or a table of them)
     setpoint_band : the drive's set-point stays within the programme's +- this [rad/s, or N m
         for a torque drive] (a speed set-point never changes sign)
     setpoint_rate : rate limit of the set-point [rad/s^2, or N m/s]
@@ -173,6 +173,8 @@ class NMPCOptions:
             raise ConfigError(f"{w}.body must be a body name, got {self.body!r}")
         if self.speed is not None:
             finite_number(self.speed, f"{w}.speed", unit="rad/s")
+        if isinstance(self.weights, Mapping):
+            object.__setattr__(self, "weights", NMPCWeights.from_mapping(self.weights, f"{w}.weights"))
         if not isinstance(self.weights, NMPCWeights):
             raise ConfigError(f"{w}.weights must be a table of weights, got {type(self.weights).__name__}")
         finite_number(self.setpoint_band, f"{w}.setpoint_band", nonneg=True)
