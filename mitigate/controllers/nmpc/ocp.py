@@ -260,8 +260,7 @@ def stage_functions(model, spec: OCPSpec):
 
     u = inputs(xa, v)
     wb = xa[model.speed_index(spec.body)]
-    track = [w_speed * (wb - nom) / ws] + [w_rel * d / ws for d in _spring_speeds(model, xa, u)]
-    r = list(track)
+    r = [w_speed * (wb - nom) / ws] + [w_rel * dd / ws for dd in _spring_speeds(model, xa, u)]
     if L.drive:
         r += [w_ref * (u[L.u_drive] - hold[L.u_drive]) / sps]
     cmd = [v[L.j_cmd[k]] for k in range(L.ns)]
