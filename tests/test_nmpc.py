@@ -444,7 +444,7 @@ def test_load_estimate_scales_the_friction_of_its_contact(use, factor, monkeypat
 
 
 def test_held_normal_force_is_read_through_its_load_cell():
-    """N1 is held at the load cell's reading corrected for the cell's gain and offset."""
+    """N1 and N2 are held at their load cells' readings corrected for the cells' gain and offset."""
     p = P.replace(n1_gain=2.0, n1_offset=1.0)
     c = make_nmpc({"horizon": 5, "compile": False, "inputs": "motor"}, _ctx(params=p))
     seen = []
@@ -452,6 +452,9 @@ def test_held_normal_force_is_read_through_its_load_cell():
     c.ocp.solve = lambda xa0, q, *a: seen.append(q[:M.nu].copy()) or orig(xa0, q, *a)
     c.step(0.0, {"n1": 41.0, "n2": 3.0}, _est(0.0, M.steady_sliding(U0, P)))
     np.testing.assert_allclose(seen[0], [W0, 20.0, 3.0])
+    # a lost reading: the programme's value (N1 = 20 N, N2 = 0 N) until it comes back
+    c.step(0.05, {"n1": float("nan")}, _est(0.05, M.steady_sliding(U0, P)))
+    np.testing.assert_allclose(seen[1], [W0, 20.0, 0.0])
 
 
 # ----------------------------------------------------------------------------- other rigs

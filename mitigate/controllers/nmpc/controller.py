@@ -12,8 +12,8 @@ re-plans at every call and shifts the warm start by the elapsed intervals.
 ``estimate.x`` (whose ``names`` must start with ``model.states``).  A servo's force comes from a
 replica of the rig's servo model driven by the controller's own commands, started from the
 servo's load-cell reading.  Inputs the NMPC does not set are held over the horizon: a normal
-force at its load cell's reading (corrected for the cell's gain and offset), the drive at the
-programme's value.  With ``use_load_estimate``, an estimate state ``load:<contact>`` (the EKF's
+force at its load cell's reading (corrected for the cell's gain and offset; the programme's value
+while the reading is missing or not finite), the drive at the programme's value.  With ``use_load_estimate``, an estimate state ``load:<contact>`` (the EKF's
 random-walk factor on a contact's friction) scales that contact body's friction in the
 prediction.
 
