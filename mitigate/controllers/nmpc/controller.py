@@ -1,0 +1,343 @@
+"""The NMPC controller: plans with the OCP of :mod:`mitigate.controllers.nmpc.ocp` on any rig.
+
+**Timing.**  The NMPC re-plans when at least ``dt`` (the OCP interval, default 0.05 s) has passed
+since its last plan, so with the loop calling every 10 ms DAQ sample it solves every 5th call
+and holds the first planned input in between (``Status.HOLD``; a zero-order hold over one OCP
+interval, which is what the rate limits assume).  With ``prepare_ahead`` the first held call
+after a plan shifts the plan and linearises it (RTI preparation), so a planning call only
+embeds the new state and solves one QP (feedback).  If the loop calls less often than ``dt`` it
+re-plans at every call and shifts the warm start by the elapsed intervals.
+
+**Inputs to the prediction.**  The rig's state is the first ``model.nx`` entries of
+``estimate.x`` (whose ``names`` must start with ``model.states``).  A servo's force comes from a
+replica of the rig's servo model driven by the controller's own commands, started from the
+servo's load-cell reading.  Inputs the NMPC does not set are held over the horizon: a normal
+force at its load cell's reading (corrected for the cell's gain and offset; the programme's value
+while the reading is missing or not finite), the drive at the programme's value.  With ``use_load_estimate``, an estimate state ``load:<contact>`` (the EKF's
+random-walk factor on a contact's friction) scales that contact body's friction in the
+prediction.
+
+**Failures.**  A failed or bound-violating solve: the previous plan shifted to now
+(``Status.FALLBACK``); no plan left: an empty action, i.e. the programme (``Status.FALLBACK``).
+Every failure is counted in ``counts.failures``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+import numpy as np
+
+from mitigate.controllers.base import Action, ControlContext, Controller
+from mitigate.controllers.nmpc.ocp import OCPSolver, OCPSpec, rk4_substeps_needed
+from mitigate.controllers.nmpc.options import MAX_SUBSTEPS, NMPCOptions
+from models.actuators import Servo
+from models.errors import ConfigError, SolverFailure
+from models.status import Status
+
+__all__ = ["NMPC", "make_nmpc", "resolve_inputs"]
+
+#: clip of the load factor taken from an estimate (a diverging estimator must not wreck the plan)
+LOAD_FACTOR_RANGE = (0.2, 5.0)
+
+
+def resolve_inputs(inputs, model, where: str) -> tuple[str, ...]:
+    """The inputs an ``inputs`` option asks for, the drive's first (one-line ConfigError naming
+    ``<where>.inputs`` if the rig cannot set one)."""
+    drive, servos = model.drive_input, model.servo_inputs
+    if inputs == "both":
+        return (drive,) + servos
+    if inputs == "motor":
+        return (drive,)
+    if inputs == "pin":
+        if not servos:
+            raise ConfigError(f"{where}.inputs = 'pin' needs a servo input, and rig {model.name!r} has none "
+                              f"(it can set: {', '.join(model.commands)})")
+        return servos
+    bad = [n for n in inputs if n not in model.commands]
+    if bad:
+        raise ConfigError(f"{where}.inputs: rig {model.name!r} cannot set {', '.join(map(repr, bad))} "
+                          f"(it can set: {', '.join(model.commands)})")
+    return tuple(n for n in model.commands if n in inputs)
+
+
+def _ref_value(ref, params) -> float | None:
+    if ref is None:
+        return None
+    return float(params[ref.name]) if ref.kind == "param" else float(ref.value)
+
+
+class NMPC(Controller):
+    """Nonlinear MPC of any rig (module docstring).
+
+    Parameters
+    ----------
+    options : NMPCOptions (or a raw options table, validated with ``context.where``)
+    context : ControlContext: the rig the NMPC believes, its nominal parameters, the DAQ period,
+        the programme
+
+    Attributes
+    ----------
+    inputs : the inputs it sets (the drive's first); body : the objective body
+    spec : the OCPSpec; ocp : the OCPSolver; nsub : RK4 substeps per interval
+    last_result : the last OCPResult; inject_failure : test hook, ``callable(t) -> bool`` (True
+        makes the next solve fail)
+    """
+
+    kind = "nmpc"
+    options_class = NMPCOptions
+
+    def __init__(self, options: NMPCOptions, context: ControlContext):
+        if isinstance(options, Mapping):
+            options = NMPCOptions.from_mapping(options, context.where)
+        if not isinstance(options, NMPCOptions):
+            raise ConfigError(f"{context.where}: NMPC options must be NMPCOptions or a table, got "
+                              f"{type(options).__name__}")
+        super().__init__(options, context)
+        o, m, where = options, context.model, options.where
+        self.model = m
+        self.params = m.check_params(context.params, f"{where}: params")
+        self.dt_daq = float(context.dt)
+        if o.dt < self.dt_daq - 1e-12:
+            raise ConfigError(f"{where}.dt must be >= the DAQ period {self.dt_daq} s, got {o.dt}")
+        self.inputs = resolve_inputs(o.inputs, m, where)
+        self.body = o.body or m.objective_body
+        if self.body not in m.bodies:
+            raise ConfigError(f"{where}.body must be a body of rig {m.name!r} ({', '.join(m.bodies)}), "
+                              f"got {self.body!r}")
+        drive = m.drive_input
+        self.drives = drive in self.inputs
+        self.servos = tuple(n for n in self.inputs if n != drive)
+        self._torque_drive = m.drive_kind == "torque"
+        if o.speed is None and self._torque_drive:
+            op = m.spec.extra.get("operating_point", {})
+            if "speed" not in op:
+                raise ConfigError(f"{where}.speed: rig {m.name!r} has a torque drive and no operating_point.speed; "
+                                  f"give the nominal speed of {self.body!r} [rad/s]")
+            self._speed0 = float(op["speed"])
+        else:
+            self._speed0 = None if o.speed is None else float(o.speed)
+        acts = [m.actuator(n) for n in self.servos]
+        self._acts = acts
+        self._held = [j for j, n in enumerate(m.inputs) if n not in self.inputs]
+        self._readers = {j: self._reader(n) for j, n in enumerate(m.inputs) if n != drive}
+        # structure of the OCP
+        u0 = np.asarray(context.programme(0.0), float)
+        nom0 = self._nominal(0.0, u0)
+        w_s = max(abs(nom0), 1.0)
+        taus = tuple(float(a.tau) if o.model_servo else 0.0 for a in acts)
+        self.weights = weights = o.weights
+        self.nsub = o.substeps or self._substeps(u0, nom0, taus)
+        if self.nsub > MAX_SUBSTEPS:
+            raise ConfigError(f"{where}.substeps: rig {m.name!r} needs {self.nsub} RK4 substeps per {o.dt} s interval "
+                              f"to be stable (stiff friction or springs); the limit is {MAX_SUBSTEPS}: shorten dt, or "
+                              f"widen eps where the friction law uses it")
+        self.spec = OCPSpec(horizon=o.horizon, dt=o.dt, nsub=self.nsub, eps=o.eps, body=self.body,
+                            inputs=self.inputs, taus=taus, speed_scale=w_s,
+                            setpoint_scale=(o.setpoint_band if self._torque_drive else w_s) or 1.0,
+                            force_scales=tuple(float(a.n_max) for a in acts), weights=weights.as_tuple())
+        self.ocp = OCPSolver(m, self.spec, solver=o.solver, compile=o.compile, qp_solver=o.qp_solver,
+                             qp_tol=o.qp_tol, sqp_max_iter=o.sqp_max_iter)
+        L = self.ocp.layout
+        self.layout = L
+        self._q = L.q_template(self.spec, self.params.vector())
+        self._rate = np.array(([o.setpoint_rate] if self.drives else []) + [a.rate_max for a in acts], float)
+        self._lo = np.array(([0.0] if self.drives else []) + [a.n_min for a in acts], float)
+        self._hi = np.array(([0.0] if self.drives else []) + [a.n_max for a in acts], float)
+        self._load_keys = {f"load:{c}": i for i, names in enumerate(m.contact_names) for c in names}
+        self._names_seen = None
+        self.inject_failure = None
+        self.reset()
+
+    # ------------------------------------------------------------------ set-up helpers
+    def _reader(self, name: str):
+        """``(channel, offset, gain)`` of the load cell that measures input ``name``, or
+        ``(name, 0, 1)`` when the rig logs the input itself."""
+        m = self.model
+        contact = m.contact_of_input(name)
+        for s in m.sensors:
+            if s.kind == "load_cell" and contact is not None and s.target == contact.name:
+                off = _ref_value(s.offset, self.params) or 0.0
+                gain = _ref_value(s.gain, self.params)
+                return s.channels[0], off, 1.0 if gain is None else gain
+        return name, 0.0, 1.0
+
+    def _substeps(self, u0, nom0: float, taus) -> int:
+        m, o = self.model, self.options
+        umax = np.abs(u0).astype(float)
+        for j, n in enumerate(m.inputs):
+            a = m.actuator(n)
+            if n == m.drive_input:
+                umax[j] = abs(u0[j]) + o.setpoint_band
+            elif a is not None:
+                umax[j] = a.n_max
+            elif m.input_kinds[j] == "force":
+                umax[j] = 2.0 * abs(u0[j])  # a held normal force may double (load factor, ramps)
+        return rk4_substeps_needed(m, self.params, o.dt, o.eps, umax, taus, max(abs(nom0) + o.setpoint_band, 1.0))
+
+    def _nominal(self, t: float, u_prog) -> float:
+        """Nominal speed of the objective body [rad/s]."""
+        if self._speed0 is not None:
+            return self._speed0
+        return float(u_prog[self.model.inputs.index(self.model.drive_input)])
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        self.ocp.reset()
+        self._servos = None       # replicas of the commanded servos
+        self._t_call = None       # time of the last call
+        self._t_plan = None       # time of the last successful plan
+        self._plan_u = None       # (N, m) commanded inputs of that plan
+        self._t_solve = None      # time of the last solve attempt
+        self._action = None       # action held between plans
+        self._u_prev = None       # last commands (self.inputs order)
+        self._prep_q = None       # parameters for the pending preparation phase
+        self.last_result = None
+
+    def _measured(self, j: int, measurement, fallback: float) -> float:
+        ch, off, gain = self._readers[j]
+        v = measurement.get(ch) if measurement is not None else None
+        if v is None or not math.isfinite(v):
+            return fallback
+        return (float(v) - off) / gain
+
+    def _advance_servos(self, t: float, measurement, u_prog) -> np.ndarray:
+        """Forces of the commanded servos now (replicas driven by the last commands)."""
+        m = self.model
+        if self._servos is None:
+            self._servos = [Servo(a, self.dt_daq, self._measured(m.inputs.index(n), measurement,
+                                                                 u_prog[m.inputs.index(n)]))
+                            for a, n in zip(self._acts, self.servos)]
+        elif self._t_call is not None:
+            k = int(round((t - self._t_call) / self.dt_daq))
+            j0 = 1 if self.drives else 0
+            for _ in range(max(0, k)):
+                for i, s in enumerate(self._servos):
+                    s.step(self._u_prev[j0 + i])
+        return np.array([s.force for s in self._servos])
+
+    def _bounds(self, u_prog):
+        lo, hi = self._lo.copy(), self._hi.copy()
+        if self.drives:
+            c = float(u_prog[self.layout.u_drive])
+            band = self.options.setpoint_band
+            lo[0], hi[0] = c - band, c + band
+            if not self._torque_drive:   # a speed set-point does not reverse the rotation
+                if c >= 0:
+                    lo[0] = max(lo[0], 0.0)
+                else:
+                    hi[0] = min(hi[0], 0.0)
+        return lo, hi
+
+    def _state(self, estimate):
+        """The rig's state and the friction factors from an estimate."""
+        if estimate is None or getattr(estimate, "x", None) is None:
+            raise SolverFailure("no state estimate")
+        m = self.model
+        names = tuple(getattr(estimate, "names", ()) or ())
+        if names is not self._names_seen:
+            if names and names[:m.nx] != m.states:
+                raise SolverFailure(f"the estimate's states {names[:m.nx]} are not the rig's {m.states}")
+            self._load_idx = [(names.index(k), i) for k, i in self._load_keys.items() if k in names]
+            self._names_seen = names
+        xe = np.asarray(estimate.x, float).ravel()
+        x = xe[:m.nx]
+        if x.shape != (m.nx,) or not math.isfinite(x.sum()):   # a sum is finite iff every entry is
+            raise SolverFailure("non-finite or short state estimate")
+        fc = None
+        if self.options.use_load_estimate and self._load_idx:
+            fc = np.ones(len(m.contacts))
+            for k, i in self._load_idx:
+                if math.isfinite(xe[k]):
+                    fc[i] = min(max(float(xe[k]), LOAD_FACTOR_RANGE[0]), LOAD_FACTOR_RANGE[1])
+        return x, fc
+
+    # ------------------------------------------------------------------ step
+    def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
+        o, L = self.options, self.layout
+        u_prog = self.context.programme(t)
+        if self._u_prev is None:
+            m = self.model
+            # the set-point starts where the programme has held it until now
+            first = [float(u_prog[L.u_drive])] if self.drives else []
+            self._u_prev = np.array(first + [self._measured(m.inputs.index(n), measurement, u_prog[m.inputs.index(n)])
+                                             for n in self.servos], float)
+        forces = self._advance_servos(t, measurement, u_prog)
+        self._t_call = t
+        due = self._t_solve is None or t - self._t_solve >= o.dt - 0.5 * self.dt_daq
+        if not due and self._action is not None:
+            if self._prep_q is not None:
+                q, self._prep_q = self._prep_q, None
+                try:
+                    self.ocp.prepare(q)
+                except Exception:  # noqa: BLE001 - the next plan starts afresh
+                    self.ocp.reset()
+            a = self._action
+            return Action(a.u, Status.HOLD, f"hold: {a.status.value}: {a.message}" if a.message else "hold")
+        steps = 1 if self._t_solve is None else max(1, int(round((t - self._t_solve) / o.dt)))
+        self._t_solve = t
+        try:
+            if self.inject_failure is not None and self.inject_failure(t):
+                raise SolverFailure("injected failure")
+            x, fc = self._state(estimate)
+            hold = np.asarray(u_prog, float).copy()
+            for j in self._held:
+                if j in self._readers:
+                    hold[j] = self._measured(j, measurement, hold[j])
+            if not math.isfinite(hold.sum()):
+                raise SolverFailure("non-finite held input")
+            xa0 = np.empty(L.nxa)
+            xa0[:L.nx] = x
+            xa0[L.i_servo] = forces if o.model_servo else self._u_prev[L.j_cmd]
+            if self.drives:
+                xa0[L.i_wprev] = self._u_prev[0]
+            q = L.set_q(self._q.copy(), hold, self._nominal(t, u_prog), fc)
+            if self.ocp.X is not None and not (self.ocp.prepared and steps == 1):
+                # prepare() already shifted by one interval
+                self.ocp.shift(steps - 1 if self.ocp.prepared else steps)
+            lo, hi = self._bounds(u_prog)
+            res = self.ocp.solve(xa0, q, lo, hi, self._rate)
+        except Exception as exc:  # noqa: BLE001 - every solver failure goes to the fallback chain
+            self.counts.failures += 1
+            self.ocp.reset()   # never warm-start from a failed iterate
+            return self._hold(self._shift_or_programme(t, u_prog, f"{type(exc).__name__}: {exc}"))
+        self.last_result = res
+        self._plan_u, self._t_plan = res.u, t
+        if o.prepare_ahead and o.solver != "ipopt":
+            self._prep_q = q
+        # remove QP-tolerance excursions only; the ranges may have been widened for reachability
+        u0 = np.clip(res.u[0], *self.ocp.first_range(xa0, lo, hi, self._rate, self.ocp.last_bounds))
+        return self._hold(Action(dict(zip(self.inputs, map(float, u0))), Status.OK, res.message))
+
+    def _shift_or_programme(self, t: float, u_prog, why: str) -> Action:
+        if self._plan_u is not None:
+            j = int(round((t - self._t_plan) / self.options.dt))
+            if 0 <= j < len(self._plan_u):
+                lo, hi = self._bounds(u_prog)
+                u = np.clip(self._plan_u[j], lo, hi)
+                return Action(dict(zip(self.inputs, map(float, u))), Status.FALLBACK,
+                              f"solver failed ({why}); shifted plan [{j}]")
+            self._plan_u = None
+        return Action({}, Status.FALLBACK, f"solver failed ({why}); no plan left: the programme")
+
+    def _hold(self, a: Action) -> Action:
+        self._action = a
+        if a.u:
+            self._u_prev = np.array([a.u[n] for n in self.inputs], float)
+        else:
+            u_prog = self.context.programme(self._t_call)
+            self._u_prev = np.array([u_prog[self.model.inputs.index(n)] for n in self.inputs], float)
+        return a
+
+
+def make_nmpc(options: Mapping | NMPCOptions, context: ControlContext) -> NMPC:
+    """Validate raw scenario options (``context.where`` names them in errors) and build the NMPC.
+
+    Raises
+    ------
+    ConfigError : one line naming ``<where>.<field>``.
+    """
+    if isinstance(options, Mapping):
+        options = NMPCOptions.from_mapping(options, context.where)
+    return NMPC(options, context)
