@@ -216,6 +216,7 @@ class EKF(ObservabilityMixin, StateEstimator):
         self.step_fn = ekf_step_function(em)
         self.x = em.x0.copy()
         self.P = em.P0.copy()
+        self.x0_used = self.x.copy()     # the prior mean of the first update
         self._uh = None
         self.compiled = False
         self.compile_status = "not requested"
@@ -247,7 +248,40 @@ class EKF(ObservabilityMixin, StateEstimator):
             self._uh[:] = u
         return self._uh
 
+    def _initial_speeds(self, y, mask) -> None:
+        """Without an initial guess (``context.x0`` None), the first sample's measured speeds
+        replace the at-rest prior's zeros: a filter started at rest on a rig in motion
+        linearises the motor's friction tanh (and the regularised pin friction) at its steepest,
+        and its first correction can throw the twist off by radians."""
+        em = self.em
+        for j, c in enumerate(self.channels):
+            body = em.model.channel_body(c)
+            s = em.model.sensor_of(c)
+            if not mask[j] or body not in em.model.bodies or c != s.channels[-1] or s.offset is not None:
+                continue
+            name = f"omega_{body}"
+            for n in [name] + [f"lag{d}:{name}" for d in range(1, em.delay + 1)]:
+                self.x[em.names.index(n)] = y[j]
+
+    def _delayed_zeros(self, u) -> None:
+        """With delayed encoders, the zeroed reading of the first sample shows the angles
+        ``delay`` samples earlier: the ``zero:`` states' prior is the twist then (one backward
+        Euler step of the twist rates, which are the body speeds' differences)."""
+        em = self.em
+        zeros = [(j, n.partition(":")[2]) for j, n in enumerate(em.names) if n.startswith("zero:")]
+        if not em.delay or not zeros:
+            return
+        rate = np.array(em.model.ode(self.options.eps)(self.x[:em.n_rig], u, em.p)).ravel()
+        for j, tw in zeros:
+            i = em.model.states.index(tw)
+            self.x[j] = self.x[i] - em.delay * em.dt * rate[i]
+
     def _update_impl(self, t, y, mask, u):
+        if self._uh is None:
+            if self.context.x0 is None:
+                self._initial_speeds(y, mask)
+            self._delayed_zeros(u)
+            self.x0_used = self.x.copy()
         uh = self._push_input(u)
         nx = self.em.nx
         if self._c is not None:

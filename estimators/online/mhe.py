@@ -201,6 +201,8 @@ class MHE(ObservabilityMixin, StateEstimator):
         if e_ekf.status is Status.FALLBACK:
             raise RuntimeError(f"EKF alongside failed: {e_ekf.message}")
         yi, mi = self._internal(y, mask)
+        if not self._UH:       # the EKF's prior of the first update (it may take the measured speeds)
+            self._XE[0] = (self.ekf.x0_used.copy(), self.em.P0.copy())
         self._UH.append(self.ekf._uh.copy())
         self._Y.append(yi)
         self._M.append(mi)
@@ -223,7 +225,10 @@ class MHE(ObservabilityMixin, StateEstimator):
         self._xbar = self._ar_out[0].copy()
         self._Pbar = self._ar_out[1].reshape(nx, nx, order="F")
         try:
-            W0 = np.linalg.cholesky(np.linalg.inv(self._Pbar)).T
+            # W0' W0 = Pbar^-1 with W0 = L^-1, Pbar = L L' (no explicit inverse: Pbar is nearly
+            # singular along exact constraints such as a zero: state and its twist)
+            L = np.linalg.cholesky(self._Pbar + FLOOR * np.eye(nx))
+            W0 = scipy.linalg.solve_triangular(L, np.eye(nx), lower=True, check_finite=False)
         except np.linalg.LinAlgError:
             raise RuntimeError("arrival covariance not positive definite") from None
         UHm = np.array(self._UH).T

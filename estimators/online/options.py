@@ -107,7 +107,7 @@ class EKFOptions:
     q_torque: float = 0.02
     q_current: float = 0.05
     q_twist: float = 1e-4
-    q_load: float = 0.05
+    q_load: float = 0.02
     q_offset: float = 0.002
     q_gain: float = 0.002
     q_stick: float = 2.0
