@@ -9,19 +9,23 @@ is a least-squares sum::
                         + sum_k |m_k (y_k - h(x_k, uh_k)) / sqrt(r)|^2
 
 (process noise is the multiple-shooting gap, weighted by the EKF's process covariance,
-whose stick part depends on the state; ``W0' W0 = Pbar^-1``).  The measurement function
+whose stick part depends on the state; ``|W0 v|^2 = v' Pbar^-1 v``).  The measurement function
 is nonlinear (rig3's reaction torque), so every node has its own Jacobian ``C_k =
 dh/dx(x_k)``.
 
 Solver: ``max_iter`` Gauss-Newton iterations per sample (default 1: real-time iteration),
-each ``min 1/2 d'J'Jd + (J'r)'d``: by default the unconstrained step by dense Cholesky,
-projected onto the state bounds (``load:`` in [0, 5], ``gain:`` in [0.05, 20]); or a CasADi
-QP solver for the bound-constrained step.  The weights ``1/sqrt(q(x_k))`` are frozen within
-an iteration (their derivative is left out of the Gauss-Newton Jacobian).
+each ``min 1/2 d'J'Jd + (J'r)'d``: by default (``qpsol = "ldl"``) the unconstrained step by
+CasADi's sparse LDL of the block-tridiagonal Hessian, inside the one Function, projected
+onto the state bounds (``load:`` in [0, 5], ``gain:`` in [0.05, 20]); or OSQP for the
+bound-constrained step.  The weights ``1/sqrt(q(x_k))`` are frozen within an iteration
+(their derivative is left out of the Gauss-Newton Jacobian).
 
-Arrival cost: EKF-style.  When the window slides, ``xbar`` becomes the previous solution's
-``x_1`` and ``Pbar`` follows the EKF Riccati recursion (correct with the measurement leaving
-the window, linearised at its node, then predict), so it is not a fixed weight.
+Arrival cost: EKF-style.  ``(xbar, Pbar)`` is the EKF's prediction of the window's first
+node: its estimate one sample before the window, propagated through ``F`` with the Riccati
+step.  It holds no measurement of the window, so no sample is counted twice (taking the
+previous window's smoothed ``x_1`` as ``xbar`` with a filtered covariance counts them again;
+on rig3 that locked the estimate onto a wrong point of the weakly observable twist / load /
+offset direction), and the weight follows the data, it is not fixed.
 
 Warm start: the previous solution shifted by one node, the new last node the EKF's.
 
@@ -32,9 +36,8 @@ of the inverse Gauss-Newton Hessian.
 
 Speed: the shooting-stage and measurement Functions are SX, built with gcc when
 ``compile=True`` (cached on disk) and mapped over the window inside one MX Function that
-returns the Gauss-Newton Hessian; the dense Cholesky of the ``nx (N+1)`` square Hessian
-dominates.  Run with ``OPENBLAS_NUM_THREADS=1`` (the CLI sets it): on a loaded 2-core
-machine threaded BLAS made the median 2-5x and the p95 100x worse.
+returns the Gauss-Newton step and the last node's covariance (sparse LDL, no threaded BLAS:
+on a loaded 2-core machine a threaded dense Cholesky made the step 3 ms).
 """
 
 from __future__ import annotations
@@ -43,7 +46,6 @@ from collections import deque
 
 import casadi as ca
 import numpy as np
-import scipy.linalg
 
 from estimators.base import Estimate, EstimatorContext, StateEstimator
 from estimators.online.ekf import EKF, ObservabilityMixin
@@ -122,41 +124,48 @@ class MHE(ObservabilityMixin, StateEstimator):
 
         # one MX Function: w and the data -> Gauss-Newton Hessian J'J, gradient J'r, cost
         w = ca.MX.sym("w", nx * (N + 1))
-        xbar, W0 = ca.MX.sym("xbar", nx), ca.MX.sym("W0", nx, nx)
+        xbar, Pbar = ca.MX.sym("xbar", nx), ca.MX.sym("Pbar", nx, nx)
         UH = ca.MX.sym("UH", nuh, N + 1)
         Ym, Wm = ca.MX.sym("Y", ny, N + 1), ca.MX.sym("Wm", ny, N + 1)     # Wm = mask / sqrt(r)
         pm, qm = ca.MX.sym("p", npar), ca.MX.sym("q", nx)
         X = ca.reshape(w, nx, N + 1)
         gaps, Jas, iqs = stage.map(N)(X[:, :N], X[:, 1:], UH[:, 1:], ca.repmat(pm, 1, N), ca.repmat(qm, 1, N))
         Hs, Cs = meas.map(N + 1)(X, UH, ca.repmat(pm, 1, N + 1))
-        r_arr = ca.mtimes(W0, X[:, 0] - xbar)
         r_meas = ca.vec(Wm * (Ym - Hs))
-        J_arr = ca.horzcat(W0, ca.MX(nx, nx * N))
         Jblocks = ca.horzsplit(Jas, nx)
         Iblocks = [ca.diag(iqs[:, k]) for k in range(N)]
         J_dyn = ca.horzcat(ca.diagcat(*Jblocks), ca.MX(nx * N, nx)) + ca.horzcat(ca.MX(nx * N, nx),
                                                                                   ca.diagcat(*Iblocks))
         Cblocks = ca.horzsplit(Cs, nx)
         J_meas = ca.diagcat(*[ca.mtimes(ca.diag(Wm[:, k]), Cblocks[k]) for k in range(N + 1)])
-        J = ca.vertcat(J_arr, J_dyn, -J_meas)
-        r = ca.vertcat(r_arr, ca.vec(gaps), r_meas)
-        H = ca.mtimes(J.T, J)
-        g = ca.mtimes(J.T, r)
-        self.gn = ca.Function(f"{em.model.cname}_mhe_gn", [w, xbar, W0, UH, Ym, Wm, pm, qm],
-                              [H, g, 0.5 * ca.sumsqr(r)],
-                              ["w", "xbar", "W0", "UH", "Y", "Wm", "p", "q"], ["H", "g", "cost"])
-        if options.qpsol == "cholesky":
+        J = ca.vertcat(J_dyn, -J_meas)
+        r = ca.vertcat(ca.vec(gaps), r_meas)
+        # the arrival term |x_0 - xbar|^2 in the metric Pbar^-1 (an LDL solve, no explicit inverse:
+        # Pbar is nearly singular along exact constraints such as a zero: state and its twist)
+        Pinv = ca.solve(Pbar + FLOOR * ca.DM.eye(nx), ca.DM.eye(nx), "ldl")
+        dx0 = X[:, 0] - xbar
+        E0 = ca.vertcat(ca.DM.eye(nx), ca.DM(nx * N, nx))       # structurally sparse: H stays block-tridiagonal
+        H = ca.mtimes(J.T, J) + ca.mtimes([E0, Pinv, E0.T])
+        g = ca.mtimes(J.T, r) + ca.mtimes(E0, ca.mtimes(Pinv, dx0))
+        cost = 0.5 * (ca.sumsqr(r) + ca.dot(dx0, ca.mtimes(Pinv, dx0)))
+        # the Gauss-Newton step and the last node's covariance by CasADi's sparse LDL: the Hessian
+        # is block-tridiagonal, and no threaded BLAS gets involved (on a loaded 2-core machine a
+        # threaded dense Cholesky took 3 ms, an 11 x 11 triangular solve 5 ms)
+        E = ca.DM.zeros(nx * (N + 1), nx)
+        E[nx * N:, :] = ca.DM.eye(nx)
+        d = -ca.solve(H, g, "ldl")
+        Pn = ca.solve(H, E, "ldl")[nx * N:, :]
+        self.gn = ca.Function(f"{em.model.cname}_mhe_gn", [w, xbar, Pbar, UH, Ym, Wm, pm, qm],
+                              [H, g, cost, d, Pn],
+                              ["w", "xbar", "Pbar", "UH", "Y", "Wm", "p", "q"], ["H", "g", "cost", "d", "P"])
+        if options.qpsol == "ldl":
             self.qp = None
         else:
-            qp_opts = {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False} \
-                if options.qpsol == "qrqp" else {"error_on_fail": False, "osqp": {"verbose": False}}
             self.qp = ca.conic("mhe_qp", options.qpsol, {"h": H.sparsity(), "a": ca.Sparsity(0, nx * (N + 1))},
-                               qp_opts)
+                               {"error_on_fail": False, "osqp": {"verbose": False}})
         self._gn_in, self._gn_out, self._gn_buf, self._gn_eval = _bind(self.gn)
         self._gn_in[6][:] = em.p
         self._gn_in[7][:] = em.q
-        self._H_rows, self._H_cols = (np.array(v, dtype=np.intp) for v in H.sparsity().get_triplet())
-        self._Hd = np.zeros((nx * (N + 1), nx * (N + 1)))
         self._lbw = np.tile(em.lb, N + 1)
         self._ubw = np.tile(em.ub, N + 1)
 
@@ -224,51 +233,40 @@ class MHE(ObservabilityMixin, StateEstimator):
         self._ar_eval()
         self._xbar = self._ar_out[0].copy()
         self._Pbar = self._ar_out[1].reshape(nx, nx, order="F")
-        try:
-            # W0' W0 = Pbar^-1 with W0 = L^-1, Pbar = L L' (no explicit inverse: Pbar is nearly
-            # singular along exact constraints such as a zero: state and its twist)
-            L = np.linalg.cholesky(self._Pbar + FLOOR * np.eye(nx))
-            W0 = scipy.linalg.solve_triangular(L, np.eye(nx), lower=True, check_finite=False)
-        except np.linalg.LinAlgError:
-            raise RuntimeError("arrival covariance not positive definite") from None
         UHm = np.array(self._UH).T
         Ym = np.array(self._Y).T
         Wm = (np.array(self._M) / self._sr).T
         w = self._w
         gi = self._gn_in
         gi[1][:] = self._xbar
-        gi[2][:] = W0.ravel(order="F")
+        gi[2][:] = self._Pbar.ravel(order="F")
         gi[3][:] = UHm.ravel(order="F")
         gi[4][:] = Ym.ravel(order="F")
         gi[5][:] = Wm.ravel(order="F")
-        cf = None
-        Hd = self._Hd
+        Pw = None
         for _ in range(self.options.max_iter):
             gi[0][:] = w
             self._gn_eval()
-            Hd[self._H_rows, self._H_cols] = self._gn_out[0]
-            g = self._gn_out[1]
             self.iterations += 1
             if self.qp is None:
-                cf = scipy.linalg.cho_factor(Hd, check_finite=False)
-                d = -scipy.linalg.cho_solve(cf, g, check_finite=False)
+                d = self._gn_out[3]
+                Pw = self._gn_out[4]
             else:
-                sol = self.qp(h=ca.DM(self.gn.sparsity_out(0), self._gn_out[0]), g=g, lbx=self._lbw - w,
-                              ubx=self._ubw - w)
+                sol = self.qp(h=ca.DM(self.gn.sparsity_out(0), self._gn_out[0]), g=self._gn_out[1],
+                              lbx=self._lbw - w, ubx=self._ubw - w)
                 if not self.qp.stats()["success"]:
                     self.qp_failures += 1
                     raise RuntimeError(f"QP ({self.options.qpsol}) failed: {self.qp.stats().get('return_status', '?')}")
                 d = np.array(sol["x"]).ravel()
-                cf = None
+                Pw = self._gn_out[4]
             if not np.all(np.isfinite(d)):
                 raise FloatingPointError("non-finite Gauss-Newton step")
             w = np.clip(w + d, self._lbw, self._ubw)
         self._w = w
-        E = np.zeros((Hd.shape[0], nx))
-        E[-nx:, :] = np.eye(nx)
-        Pw = scipy.linalg.cho_solve(cf, E, check_finite=False) if cf is not None else np.linalg.solve(Hd, E)
-        P = Pw[-nx:, :]
+        P = Pw.reshape(nx, nx, order="F")
         P = 0.5 * (P + P.T)
+        if not np.all(np.diag(P) > 0):
+            raise FloatingPointError("Gauss-Newton Hessian not positive definite")
         x = w[-nx:].copy()
         status, msg = self._status(mask, P)
         return Estimate(t, x, P, self.names, status, msg, bool(mask.any()))
