@@ -116,7 +116,7 @@ class EKFOptions:
     p0_current: float = 2.0
     p0_pi: float = 1.0
     p0_load: float = 0.3
-    p0_offset: float = 0.1
+    p0_offset: float = 0.05
     p0_gain: float = 0.05
     compile: bool = True
     check_observability: bool = True
