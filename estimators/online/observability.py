@@ -21,9 +21,11 @@ pin the state to ``1/s`` prior standard deviations.  Two things make the test ho
 - **the state that matters is the last one**: fast stable modes (a DC motor's current, a
   disc's speed under stiff friction) are invisible as *initial* conditions but forgotten
   within the window, so they do not limit the estimate.  The verdict uses the covariance of
-  the window's END state, ``S^-1 Phi (O'O + I)^-1 Phi' S^-1`` (``Phi`` the transition over the
-  window, ``I`` the prior in scaled units; process noise and the stick torques' own
-  uncertainty are left out).
+  the window's END state, ``S^-1 Phi (O'O + w I)^-1 Phi' S^-1`` (``Phi`` the transition over
+  the window; process noise and the stick torques' own uncertainty are left out).
+- **the data, not the priors, must tell**: ``w = 1e-4`` gives the prior a hundredth of its
+  standard deviation's weight, so an augmented state's prior (a torque offset of +-0.05 N m)
+  cannot make a twist "observable" that the data leave free.
 
 Report (:class:`ObservabilityReport`): ``singular_values``, ``rank`` and ``condition`` of the
 scaled stacked matrix (initial state, stick torques eliminated), and from the end-state
@@ -56,6 +58,9 @@ __all__ = ["ObservabilityReport", "WeakDirection", "observability", "linearisati
 
 #: a direction whose information gain is below this is weak (see module docstring)
 MIN_GAIN = 10.0
+#: the verdicts ask what the DATA tell: the prior enters with this share of its information
+#: (standard deviations 100x wider), enough to keep forgotten fast modes finite
+PRIOR_WEIGHT = 1e-4
 
 
 @dataclass(frozen=True)
@@ -193,7 +198,8 @@ def _name_direction(v: np.ndarray, names, keep: float = 0.25):
 
 
 def observability(em, X, UH, *, min_gain: float = MIN_GAIN, lin: ca.Function | None = None,
-                  suggest=None, stick_speed: float | None = None, regime: str = "trajectory") -> ObservabilityReport:
+                  suggest=None, stick_speed: float | None = None, regime: str = "trajectory",
+                  prior_weight: float = PRIOR_WEIGHT) -> ObservabilityReport:
     """Local observability of ``em`` along the trajectory ``X`` driven by ``UH`` (module docstring).
 
     Parameters
@@ -207,6 +213,7 @@ def observability(em, X, UH, *, min_gain: float = MIN_GAIN, lin: ca.Function | N
     stick_speed : [rad/s] a contact body slower than this is in stick (default: the model's
         ``eps``; 0 or less: trust the regularised friction everywhere)
     regime : words for the message ("start-up at the operating point", "steady sliding", ...)
+    prior_weight : share of the prior's information added to the data's (module docstring)
 
     Returns
     -------
@@ -259,20 +266,22 @@ def observability(em, X, UH, *, min_gain: float = MIN_GAIN, lin: ca.Function | N
     s = np.sqrt(ev)
     rank = int(np.sum(s >= min_gain))
     cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
-    # the end state: propagate the start's posterior (scaled units)
+    # the end state: propagate the start's posterior (scaled units).  Computed as B B' with
+    # B = Phis V diag(1/sqrt(lam)) from the eigen-decomposition of the regularised information:
+    # sums of squares, no cancellation (the information spans 10 decades)
     Phis = Phi / scales[:, None]
-    post_end = Phis @ np.linalg.inv(info + np.eye(n)) @ Phis.T
-    post_end = 0.5 * (post_end + post_end.T)
-    lam, vec = np.linalg.eigh(post_end)
+    B = _end_factor(info, Phis, prior_weight)
+    U_, sv, _ = np.linalg.svd(B, full_matrices=False)
+    lam, vec = sv ** 2, U_
     weak = []
     for j in np.argsort(-lam):
         if lam[j] <= 1.0 / min_gain ** 2:
             break
-        gain = float(np.sqrt(max(1.0 / lam[j] - 1.0, 0.0)))
+        gain = float(np.sqrt(max(1.0 / lam[j] - prior_weight, 0.0)))
         terms, text = _name_direction(vec[:, j], em.names)
         weak.append(WeakDirection(gain, vec[:, j].copy(), terms, text))
     tw_idx = [em.names.index(t) for t in em.twist_names]
-    twist_rel = np.sqrt(np.maximum(np.diag(post_end)[tw_idx], 0.0))
+    twist_rel = np.sqrt(np.sum(B[tw_idx] ** 2, axis=1))
     twist_std = twist_rel * scales[tw_idx]
     observable = not weak
     twist_ok = bool(np.all(twist_rel <= 1.0 / min_gain))
@@ -295,7 +304,8 @@ def observability(em, X, UH, *, min_gain: float = MIN_GAIN, lin: ca.Function | N
         hint = f"; add {_and(suggest)}" if suggest else ""
         cand = [nm for nm, _ in (wd.terms if wd is not None else ()) if nm.startswith(("load:", "offset:", "gain:"))]
         # which one augmented state, if known, would make the twist observable?
-        drop = [nm for nm in cand if _twist_rel_without(info, Phis, em.names.index(nm), tw_idx).max() <= 1.0 / min_gain]
+        drop = [nm for nm in cand
+                if _twist_rel_without(info, Phis, em.names.index(nm), tw_idx, prior_weight).max() <= 1.0 / min_gain]
         if drop or cand:
             hint += f"{'; or' if hint else ';'} drop {_or(drop) if drop else _and(cand)}"
         message = f"twist not observable{where}: {trade} (channels {chans}{hint})"
@@ -311,11 +321,17 @@ def observability(em, X, UH, *, min_gain: float = MIN_GAIN, lin: ca.Function | N
                                em.channels, X.shape[0], float(min_gain), status, message, em.twist_names, regime)
 
 
-def _twist_rel_without(info, Phis, j, tw_idx) -> np.ndarray:
-    """Twist posterior (prior units) at the end if state ``j`` were known exactly."""
+def _end_factor(info, Phis, prior_weight) -> np.ndarray:
+    """``B`` with ``B B' = Phis (info + w I)^-1 Phis'`` (the end state's covariance, scaled)."""
+    ev, V = np.linalg.eigh(info)
+    return (Phis @ V) / np.sqrt(np.clip(ev, 0.0, None) + prior_weight)[None, :]
+
+
+def _twist_rel_without(info, Phis, j, tw_idx, prior_weight) -> np.ndarray:
+    """Twist standard deviation (prior units) at the end if state ``j`` were known exactly."""
     keep = [i for i in range(info.shape[0]) if i != j]
-    post = Phis[:, keep] @ np.linalg.inv(info[np.ix_(keep, keep)] + np.eye(len(keep))) @ Phis[:, keep].T
-    return np.sqrt(np.maximum(np.diag(post)[tw_idx], 0.0))
+    B = _end_factor(info[np.ix_(keep, keep)], Phis[:, keep], prior_weight)
+    return np.sqrt(np.sum(B[tw_idx] ** 2, axis=1))
 
 
 def _or(items) -> str:
