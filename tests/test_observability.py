@@ -7,7 +7,6 @@ trade off exactly at steady sliding; the friction's variation with speed separat
 
 import math
 
-import casadi as ca
 import numpy as np
 import pytest
 

@@ -20,11 +20,10 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.base import Estimate, EstimatorContext, StateEstimator
-from estimators.online.model import default_channels
+from estimators.online.model import angle_combination, default_channels
 from estimators.online.options import EKFOptions, FDOptions
 from models.errors import ConfigError
 from models.rig import RigModel
-from models.rig.spec import NODE_DRIVE
 from models.sensors import channel_variance
 from models.status import Status
 
@@ -62,22 +61,13 @@ class FiniteDifference(StateEstimator):
             raise ConfigError(f"{context.where}.x0 must start with {nx} finite numbers {model.states}")
         self._x = x0.copy()
         n_tw = sum(1 for s in model.states if s.startswith("twist_"))
-        import casadi as ca
-        xs = ca.SX.sym("x", nx)
-
-        def comb(node):
-            if node == NODE_DRIVE or node not in model._ang_path:
-                return None
-            e = model.angle(node, xs, 0)
-            return np.array(ca.evalf(ca.jacobian(e, xs))).ravel()[:n_tw] if isinstance(e, ca.SX) else np.zeros(n_tw)
-
         angles = []
         for j, c in enumerate(chans):
             s = model.sensor_of(c)
             if s.kind == "encoder" and s.channels[0] == c:
-                cv = np.zeros(n_tw) if s.target == NODE_DRIVE else comb(s.target)
+                cv = angle_combination(model, s.target)
                 if cv is not None:
-                    angles.append((j, cv))
+                    angles.append((j, cv[:n_tw]))
         self._pairs = [(a[0], b[0]) for a, b in zip(angles[:-1], angles[1:])]
         Cm = np.array([a[1] - b[1] for a, b in zip(angles[:-1], angles[1:])]).reshape(len(self._pairs), n_tw)
         self._solve = np.linalg.pinv(Cm) if Cm.size else np.zeros((n_tw, 0))

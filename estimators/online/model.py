@@ -60,23 +60,37 @@ wrong twist at power-on on our exact stick/slip plant (0.2-0.7 rad off, benchmar
 
 Defaults, and why
 -----------------
+Measured on rig3 (``benchmarks/results/estimators.md``: our exact stick/slip plant, a
+structurally different plant, the independent simulator; DAQ powered on in stick-slip on a
+twisted shaft):
+
 - ``channels``: every encoder angle and speed, speed sensor and torque sensor of the rig
-  (rig3: ``theta1..3, omega1..3, motor_torque``).  A real rig has them all; the torque
-  channel is what makes the twist of the motor-side shaft observable in absolute terms.
-- ``angles = "zeroed"``: incremental encoders read 0 at power-on, whatever the twist then; an
-  estimator that assumed otherwise would be off by the twist at power-on for ever (the
-  finite-difference baseline is, by 0.2-0.3 rad on a rig powered on in stick-slip).
+  (rig3: ``theta1..3, omega1..3, motor_torque``); load cells are inputs.  A real rig has them.
+- ``angles = "zeroed"``: incremental encoders read 0 at power-on whatever the twist then; an
+  estimator that assumed an untwisted shaft is off by that twist for ever (the FD baseline,
+  by 0.18 / 0.28 rad).
 - ``augment = ["load:<contact of the objective body>", "offset:<each torque channel>"]``
-  (rig3: ``load:pin1, offset:motor_torque``).  The regularised friction of the model never
-  matches a real contact's level (nor the exact stick of our plant), and a contact's
-  friction drifts as it wears: without ``load:pin1`` the twist is biased by the mismatch
-  (benchmarks/results/estimators.md).  A real load cell's zero drifts, and an unmodelled
-  offset of 0.05 N m on rig3's torque channel is a 0.14 rad error in the twist of shaft 2
-  (``0.05 / k2``); the offset state removes it.  The price: the offset, the load factor and
-  the twists at power-on trade off against each other at STEADY sliding (a constant friction
-  torque cannot be told from a constant offset); they separate only when the friction varies
-  (stick-slip, speed changes).  :mod:`estimators.online.observability` says when that is
-  the case.
+  (rig3: ``load:pin1, offset:motor_torque``):
+
+  - ``load:pin1``: the regularised friction never matches a real contact's level, and a
+    contact's friction drifts as it wears; the factor absorbs both.
+  - ``offset:motor_torque``: a real load cell's zero drifts.  An unmodelled 0.05 N m offset
+    put the twist of shaft 2 off by 0.14 rad (``0.05 / k2``) while the filter claimed 1 mrad
+    (NEES 1.7e4): a confident wrong answer.  With the state: 8 / 27 mrad, offset found.
+  - The price, stated by the observability check: with the offset state the torque channel no
+    longer gives the twist's absolute level, so the twist at power-on, the load factor and the
+    offset trade off exactly at STEADY sliding and separate only through the friction's
+    variation (stick-slip, speed changes).  In stick-slip the twist RMSE is 1-2 % of its range
+    (4 / 12 mrad on our plant, against 1.5 / 1.5 mrad without the offset state); at steady
+    sliding the level set at power-on is not corrected (benchmark case (e)).  On a rig known
+    to have a stable, tared torque channel, ``augment = ["load:pin1"]`` is better.
+- ``q_stick = 2``: in stick the friction is a constraint force, so a body within ``eps`` of
+  rest gets an unknown torque of twice its static friction.  Trusting the regularised creep
+  instead (``q_stick = 0``) made the EKF converge to a twist 0.2-0.7 rad off on our plant.
+- ``q_load = 0.02 /sqrt(s)`` (a friction level that may drift 15 % in a minute) and
+  ``p0_offset = 0.05 N m`` (a roughly tared cell): smaller values tie the twist closer to the
+  prior and hurt when the plant does have an offset; larger ones let the weakly observable
+  direction wander (measured trade-off, benchmarks).
 """
 
 from __future__ import annotations
@@ -95,7 +109,8 @@ from models.rig.spec import NODE_DRIVE
 from models.sensors import FLOOR, SensorOptions, channel_variance
 from models.discretise import rk4
 
-__all__ = ["EstimationModel", "build_estimation_model", "default_channels", "default_augment", "state_units"]
+__all__ = ["EstimationModel", "build_estimation_model", "default_channels", "default_augment", "state_units",
+           "angle_combination"]
 
 _MEAS_KINDS = ("encoder", "speed", "torque")
 
@@ -127,6 +142,19 @@ def default_augment(model: RigModel, channels) -> tuple[str, ...]:
         if s is not None and s.kind == "torque":
             out.append(f"offset:{c}")
     return tuple(out)
+
+
+def angle_combination(model: RigModel, node: str):
+    """``c`` with ``angle(node) = theta_ref + c . x`` (coefficients of the twists on the node's
+    path through the spring tree), or None if no spring joins the node to the reference."""
+    if node == NODE_DRIVE:
+        return np.zeros(model.nx)
+    xs = ca.SX.sym("x", model.nx)
+    try:
+        e = model.angle(node, xs, 0)
+    except KeyError:
+        return None
+    return np.array(ca.evalf(ca.jacobian(e, xs))).ravel() if isinstance(e, ca.SX) else np.zeros(model.nx)
 
 
 def state_units(model: RigModel, names) -> tuple[str, ...]:
@@ -309,7 +337,7 @@ def _resolve_channels(model: RigModel, o, where: str) -> tuple[str, ...]:
                           f"measures angle differences); give at least two encoder angles or none")
     for c in angles:
         node = _angle_node(model, c)
-        if node != NODE_DRIVE and node not in model._ang_path:
+        if angle_combination(model, node) is None:
             raise ConfigError(f"{where}.channels: encoder angle {c!r} is on {node!r}, which no spring joins to the "
                               f"drive; its angle is not a function of the twists")
     return chans
@@ -379,15 +407,7 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
     # ---- measurement layout
     angle_ch = [c for c in chans if _angle_node(model, c) is not None]
     other_ch = [c for c in chans if c not in angle_ch]
-    xs = ca.SX.sym("xs", nxr)
-
-    def comb(node):
-        if node == NODE_DRIVE:
-            return np.zeros(nxr)
-        e = model.angle(node, xs, 0)
-        return np.array(ca.evalf(ca.jacobian(e, xs))).ravel() if isinstance(e, ca.SX) else np.zeros(nxr)
-
-    combs = {c: comb(_angle_node(model, c)) for c in angle_ch}
+    combs = {c: angle_combination(model, _angle_node(model, c)) for c in angle_ch}
     n_tw = sum(1 for s in model.states if s.startswith("twist_"))
     zero_tw = []
     if options.angles == "zeroed" and angle_ch:

@@ -27,14 +27,13 @@ import numpy as np
 
 from estimators.base import EstimatorContext
 from estimators.online.factory import ESTIMATOR_KINDS, make_estimator
-from estimators.online.model import default_channels
+from estimators.online.model import angle_combination, default_channels
 from mitigate.cliutil import check_outputs, emit_json, format_table
 from models.errors import ConfigError, DataError
 from models.files import atomic_write_text
 from models.logs import read_csv
 from models.params import load_params
 from models.rig import get_model
-from models.rig.spec import NODE_DRIVE
 from models.sensors import SensorOptions
 
 EPILOG = """examples:
@@ -136,18 +135,12 @@ def _true_twists(log, model) -> dict[str, np.ndarray]:
     for name in twists:
         if name in log:
             out[name] = log[name]
-    import casadi as ca
-    xs = ca.SX.sym("x", model.nx)
 
     def comb(ch):
         s = model.sensor_of(ch)
         if s is None or s.kind != "encoder" or s.channels[0] != ch:
             return None
-        if s.target == NODE_DRIVE:
-            return np.zeros(model.nx)
-        if s.target not in model._ang_path:
-            return None
-        return np.array(ca.evalf(ca.jacobian(model.angle(s.target, xs, 0), xs))).ravel()
+        return angle_combination(model, s.target)
 
     for col in log.channels:
         if not col.startswith("twist") or col in out or col.startswith("twist_"):
