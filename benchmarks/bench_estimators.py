@@ -20,7 +20,9 @@ Inputs are the logged ones (the load cells' noisy forces, the set-point).  Metri
 power-on + 2 s: twist RMSE (each twist, and as a fraction of that twist's range over the
 window, the larger of the two), the same during stick (true omega_R1 == 0), the mean NEES of
 the twist pair (2 for a consistent filter), the share of estimates with a warning, and the
-per-step time (median, p95; ``update`` incl. Python overhead, first 50 steps excluded).
+per-step time (median, p95; ``update`` incl. Python overhead, first 50 steps excluded), and in
+how many 4-s windows of the run the twist was observable along the estimates
+(:meth:`estimators.online.ekf.ObservabilityMixin.observability_windows`).
 
 Usage::
 
@@ -106,19 +108,19 @@ def independent_run(duration: float, power_on: float, seed: int) -> Run | None:
     return Run("independent", np.asarray(log["t"][k0:]) - log["t"][k0], tw, np.asarray(log["omega1_true"][k0:]), y, u)
 
 
-def run_estimator(est, run: Run):
+def run_estimator(est, run: Run, full: bool = False):
     n = len(run.t)
-    X = np.zeros((n, 2))
+    XF = np.zeros((n, len(est.names)))
     P = np.zeros((n, 2, 2))
     T = np.zeros(n)
     warn = np.zeros(n, bool)
     for k in range(1, n):
         e = est.update(run.t[k], {c: run.y[c][k] for c in est.channels}, run.u[k])
-        X[k] = e.x[:2]
+        XF[k] = e.x
         P[k] = e.P[:2, :2]
         T[k] = e.solve_time
         warn[k] = e.status.name == "WARNING"
-    return X, P, T, warn
+    return (XF if full else XF[:, :2]), P, T, warn
 
 
 def metrics(run: Run, X, P, T, warn, stick_speed: float) -> dict:
@@ -126,12 +128,13 @@ def metrics(run: Run, X, P, T, warn, stick_speed: float) -> dict:
     st = m & (np.abs(run.w1) <= stick_speed)
     e = X - run.twist
     rng = np.ptp(run.twist[m], axis=0)
+    rng = np.where(rng > 0.05, rng, np.nan)       # steady sliding: no range to compare with
     rm = np.sqrt(np.mean(e[m] ** 2, axis=0))
     rs = np.sqrt(np.mean(e[st] ** 2, axis=0)) if st.any() else np.full(2, np.nan)
     nees = np.array([e[k] @ np.linalg.solve(P[k] + 1e-18 * np.eye(2), e[k]) for k in np.flatnonzero(m)])
     tt = T[51:] * 1e3
     return dict(rmse=rm, rmse_stick=rs, range=rng, frac=float(np.max(rm / rng)),
-                frac_stick=float(np.max(rs / rng)), nees=float(np.mean(nees)), warn=float(np.mean(warn[m])),
+                frac_stick=float(np.max(rs / rng)) if st.any() else float("nan"), nees=float(np.mean(nees)), warn=float(np.mean(warn[m])),
                 t_med=float(np.median(tt)), t_p95=float(np.percentile(tt, 95)), stick=float(np.mean(st[m])))
 
 
@@ -189,8 +192,13 @@ def main(argv=None):
         if case not in rundict:
             continue
         est = make_estimator(spec, ctx)
-        X, P, T, warn = run_estimator(est, rundict[case])
-        r = metrics(rundict[case], X, P, T, warn, 1e-9 if case != "d" else 1e-3)
+        run = rundict[case]
+        XF, P, T, warn = run_estimator(est, run, full=True)
+        r = metrics(run, XF[:, :2], P, T, warn, 1e-9 if case != "d" else 1e-3)
+        r["along"] = "-"
+        if hasattr(est, "observability_windows"):
+            reps = est.observability_windows(XF, run.u, window=4.0, max_windows=8)
+            r["along"] = f"{sum(x.twist_observable for x in reps)}/{len(reps)}"
         r.update(case=case, name=label, failures=est.counts.failures, fallbacks=est.counts.fallbacks,
                  compiled=getattr(est, "compile_status", "-"))
         if hasattr(est, "observability_message"):
@@ -198,8 +206,8 @@ def main(argv=None):
         rows.append(r)
         print(f"({case}) {label:55s} rmse {1e3 * r['rmse'][0]:.1f}/{1e3 * r['rmse'][1]:.1f} mrad "
               f"({100 * r['frac']:.1f} % of range) stick {1e3 * r['rmse_stick'][0]:.1f}/{1e3 * r['rmse_stick'][1]:.1f} "
-              f"NEES {r['nees']:.3g} warn {100 * r['warn']:.0f} % t {r['t_med']:.3f}/{r['t_p95']:.3f} ms "
-              f"fail {r['failures']}", flush=True)
+              f"NEES {r['nees']:.3g} warn {100 * r['warn']:.0f} % observable {r['along']} "
+              f"t {r['t_med']:.3f}/{r['t_p95']:.3f} ms fail {r['failures']}", flush=True)
     verdicts.pop(None, None)
 
     cases = {"a": f"our plant, reference channels (range {_rng(rundict['a'])})",
@@ -207,9 +215,9 @@ def main(argv=None):
              "c": f"plant (c): torque offset 0.05 N m, PI on the motor error, 1-sample DAQ delay (range {_rng(rundict['c'])})"}
     if "d" in rundict:
         cases["d"] = f"independent simulator (range {_rng(rundict['d'])})"
-    cases["e"] = f"our plant sliding steadily, no stick-slip (range {_rng(rundict['e'])}; RMSE / range is not meaningful here)"
+    cases["e"] = f"our plant sliding steadily, no stick-slip (twists constant: no range)"
     hdr = ("| case | estimator | twist RMSE 12 / 23 [mrad] | RMSE / range | in stick 12 / 23 [mrad] | in stick / range "
-           "| NEES (2) | warned | step median [ms] | step p95 [ms] | failures |")
+           "| NEES (2) | warned | twist observable (4 s windows) | step median [ms] | step p95 [ms] | failures |")
     lines = [
         "# Online twist estimators on stick-slip of the 3-disc rig",
         "",
@@ -224,12 +232,12 @@ def main(argv=None):
         *[f"- ({k}) {v}" for k, v in cases.items()],
         "",
         hdr,
-        "|" + "---|" * 11,
+        "|" + "---|" * 12,
     ]
     for r in rows:
         lines.append(f"| ({r['case']}) | {r['name']} | {1e3 * r['rmse'][0]:.1f} / {1e3 * r['rmse'][1]:.1f} | "
-                     f"{100 * r['frac']:.1f} % | {1e3 * r['rmse_stick'][0]:.1f} / {1e3 * r['rmse_stick'][1]:.1f} | "
-                     f"{100 * r['frac_stick']:.1f} % | {r['nees']:.3g} | {100 * r['warn']:.0f} % | {r['t_med']:.3f} | "
+                     f"{_pct(r['frac'])} | {_mrad(r['rmse_stick'])} | "
+                     f"{_pct(r['frac_stick'])} | {r['nees']:.3g} | {100 * r['warn']:.0f} % | {r['along']} | {r['t_med']:.3f} | "
                      f"{r['t_p95']:.3f} | {r['failures']} |")
     lines += ["", "Observability verdicts at construction (start-up at the operating point; steady sliding):", ""]
     lines += [f"- {k}: {v}" for k, v in verdicts.items()]
@@ -241,6 +249,14 @@ def main(argv=None):
     if not args.no_write:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(text)
+
+
+def _pct(v: float) -> str:
+    return f"{100 * v:.1f} %" if np.isfinite(v) else "-"
+
+
+def _mrad(v) -> str:
+    return " / ".join(f"{1e3 * x:.1f}" if np.isfinite(x) else "-" for x in v)
 
 
 def _rng(run: Run) -> str:

@@ -169,6 +169,28 @@ class ObservabilityMixin:
             self._lin = linearisation_function(em)
         return observability(em, x, u, lin=self._lin, regime=regime, min_gain=min_gain)
 
+    def observability_windows(self, x, u, *, window: float | None = None,
+                              max_windows: int = 12) -> list[ObservabilityReport]:
+        """:meth:`observability_along` on consecutive windows of a run (at most ``max_windows``,
+        spread evenly), e.g. to see where along a log the twist was observable.
+
+        Parameters
+        ----------
+        x : (N, nx) estimates, row k at sample k (row 0 the prior)
+        u : (N, nu) inputs, row k the input over the sample that ended at k
+        window : window length [s] (default: ``observability_window``)
+        """
+        x = np.asarray(x, float)
+        u = np.asarray(u, float)
+        n = x.shape[0] - 1
+        w = min(int(round((window or self.options.observability_window) / self.em.dt)), n)
+        if w < 2:
+            return []
+        starts = np.unique(np.linspace(1, n - w + 1, min(max_windows, max(n // w, 1))).astype(int))
+        dt = self.em.dt
+        return [self.observability_along(x[s:s + w], u[s:s + w], regime=f"t = {s * dt:.1f}-{(s + w) * dt:.1f} s")
+                for s in starts]
+
     def _status(self, mask, P) -> tuple[Status, str]:
         """Status and message of an estimate: missing channels, and what it cannot know."""
         msg = "ok" if mask.all() else "missing " + ",".join(np.asarray(self.channels)[~mask])

@@ -92,9 +92,13 @@ class EKFOptions:
         deviations [rad], [rad/s], [A], [rad], [-], [channel unit], [-]
     compile : build the step Functions in C (gcc, cached on disk); False or a failed build
         calls CasADi
-    check_observability : run the observability check at construction (a short simulated
-        trajectory of the estimator's own model at the rig's operating point)
-    observability_window : length of that trajectory [s]
+    check_observability : run the observability checks at construction (a start-up of the
+        estimator's own model at the rig's operating point, and steady sliding there;
+        :class:`estimators.online.ekf.ObservabilityMixin`)
+    observability_window : length of the start-up trajectory [s]
+
+    The defaults are rig3's measured choices (:mod:`estimators.online.model`, "Defaults, and
+    why"); the noise levels ``q_torque``, ``p0_*`` are in SI units and sized for it.
     """
 
     kind_name: ClassVar[str] = "ekf"

@@ -158,23 +158,17 @@ def _true_twists(log, model) -> dict[str, np.ndarray]:
     return out
 
 
-def _observability_along_log(est, X, U, dt) -> dict:
-    """Observability along windows of the estimated trajectory."""
-    if not hasattr(est, "observability_along"):
+def _observability_along_log(est, X, U) -> dict:
+    """Observability along windows of the estimated trajectory (``U[k]``: the input over the
+    sample that ended at row k)."""
+    if not hasattr(est, "observability_windows"):
         return {}
-    n = X.shape[0] - 1
-    w = int(round(OBS_WINDOW_S / dt))
-    if n < w:
-        w = n
-    if w < 2:
+    reps = est.observability_windows(X, U, window=OBS_WINDOW_S, max_windows=OBS_WINDOWS_MAX)
+    if not reps:
         return {}
-    starts = np.unique(np.linspace(1, n - w + 1, min(OBS_WINDOWS_MAX, max(n // w, 1))).astype(int))
-    reps = [est.observability_along(X[s:s + w], U[s - 1:s - 1 + w], regime=f"t = {s * dt:.1f}-{(s + w) * dt:.1f} s")
-            for s in starts]
-    ok = [r.twist_observable for r in reps]
     worst = max(reps, key=lambda r: float(np.max(r.twist_std / r.scales[[r.names.index(t) for t in r.twist_names]])))
-    return {"windows": len(reps), "window_s": w * dt, "twist_observable_windows": int(sum(ok)),
-            "worst": worst.message}
+    return {"windows": len(reps), "window_s": reps[0].samples * est.em.dt,
+            "twist_observable_windows": int(sum(r.twist_observable for r in reps)), "worst": worst.message}
 
 
 def run(args) -> int:
@@ -239,7 +233,8 @@ def run(args) -> int:
         rep = getattr(est, rep_name, None)
         if rep is not None:
             summary[f"{rep_name}_report"] = rep.as_dict()
-    along = _observability_along_log(est, X, U, dt)
+    U_held = np.vstack([U[:1], U[:-1]])           # row k: the input over the sample ending at k
+    along = _observability_along_log(est, X, U_held)
     if along:
         summary["observability_along_log"] = along
     if hasattr(est, "compile_status"):
