@@ -81,7 +81,7 @@ twisted shaft):
     longer gives the twist's absolute level, so the twist at power-on, the load factor and the
     offset trade off exactly at STEADY sliding and separate only through the friction's
     variation (stick-slip, speed changes).  In stick-slip the twist RMSE is 1-2 % of its range
-    (4 / 12 mrad on our plant, against 1.5 / 1.5 mrad without the offset state); at steady
+    (4 / 12 mrad on our plant, against 1.3 / 1.3 mrad without the offset state); at steady
     sliding the level set at power-on is not corrected (benchmark case (e)).  On a rig known
     to have a stable, tared torque channel, ``augment = ["load:pin1"]`` is better.
 - ``q_stick = 2``: in stick the friction is a constraint force, so a body within ``eps`` of
