@@ -1,0 +1,644 @@
+"""The estimation model the EKF and the MHE share, built from any rig.
+
+:func:`build_estimation_model` turns a :class:`models.rig.RigModel`, its parameters, the DAQ
+period and :class:`estimators.online.options.EKFOptions` into an :class:`EstimationModel`:
+a discrete-time augmented model ``x+ = F(x, u, p)``, a measurement function
+``y = h(x, u, p)`` (NOT linear in the state: the filters linearise it), the map from raw log
+channels to the internal measurements, and the noise covariances and prior.
+
+State (``EstimationModel.names``)
+---------------------------------
+The rig's states (``model.states``, e.g. rig3 ``twist_shaft1, twist_shaft2, omega_R1,
+omega_R2, omega_R3, current, pi_integral``), then, in this order:
+
+- ``zero:<twist>`` [rad] (``angles = "zeroed"``): the twist at encoder power-on.  Incremental
+  encoders read 0 at power-on, so an encoder difference measures the twist combination
+  between the two encoders MINUS its value at power-on.  These are constants whose prior is
+  the initial-twist prior, fully correlated with it (the offset IS the initial twist).
+  ``angles = "absolute"`` drops them (encoders referenced to the untwisted shaft).
+- ``load:<contact>`` [-]: a random-walk factor on that contact's friction torque (absorbs a
+  friction-level mismatch and its drift, the contact's "formation"); prior 1.
+- ``offset:<channel>`` [channel unit], ``gain:<channel>`` [-]: random walks replacing the rig's
+  parameters ``<channel>_offset`` / ``<channel>_gain`` of a torque or speed sensor (they enter
+  ``h``) or of a load cell (they enter the input correction ``N = (reading - offset)/gain``,
+  :meth:`models.rig.RigModel.input_from_measured`); prior the parameter's value.
+- ``lag<d>:<state>``: the rig's states ``d`` samples ago, when a channel's sensor in the
+  estimator's rig file has ``delay = d > 0``; that channel is then ``h`` of the lagged state
+  (and of the input then), which is exact for instantaneous channels.
+
+Measurements
+------------
+- Encoder angles enter as differences of consecutive encoders (``theta1 - theta2``,
+  ``theta2 - theta3``): an encoder's angle is the reference angle plus the twists on its path
+  through the rig's spring tree (:meth:`models.rig.RigModel.angle`), so a difference is a
+  combination of twists and needs no absolute angle.  Consecutive differences share an
+  encoder, so their quantisation errors are correlated; they are whitened (Cholesky of their
+  covariance) so that the sequential scalar updates of the filters are exact.
+- Speeds (an encoder's backward difference, or a speed sensor) and torque sensors are the
+  rig's own output function (:meth:`models.rig.RigModel.outputs`) at the state and the
+  input of the sample that ended.  For rig3's ``motor_torque`` that is the REACTION torque
+  of the free-mounted motor and gearbox, ``T_em - eta (eta - 1) Jm omega_R3'``, which contains
+  the acceleration and a tanh: nonlinear in the state.
+- Load cells are inputs, never measurements: ``update(t, measurement, u)`` gets the logged
+  forces in ``u`` and the model corrects them for the cells' gain and offset.
+- Noise: :func:`models.sensors.channel_variance` (encoder angle ``q^2/12``, encoder speed
+  ``2 q^2/12/dt^2``, others ``(noise noise_scale)^2``).  The backward-difference speed is the
+  mean speed over the last sample and its noise is MA(1); the model reads the speed at the
+  sample and treats the noise as white (a documented approximation).
+
+Process noise (per DAQ sample): an unmodelled torque of standard deviation ``q_torque`` on
+every body (``var(omega_b) = (q_torque dt / J_b)^2``, ``J_b`` the body's total inertia, a DC
+motor's ``ratio^2 Jm`` included), ``q_current`` on a DC motor's current, ``q_twist`` on the
+twists, none on the PI integral (it integrates known signals) nor on ``zero:`` and ``lag``
+states, and random walks ``q_load^2 dt``, ``q_offset^2 dt``, ``q_gain^2 dt``.  On top, a body
+with friction that is (nearly) at rest gets an unknown torque of ``q_stick`` times its
+contacts' static friction torque (weighted by ``1 - tanh^2(omega/eps)``, so only within about
+``eps`` of rest): in stick the friction is a constraint force anywhere within the static
+limit, while the regularised model makes it a steep function of a creep speed that the real
+contact does not have.  Trusting that creep (``q_stick = 0``) made the EKF converge to a
+wrong twist at power-on on our exact stick/slip plant (0.2-0.7 rad off, benchmarks).
+
+Defaults, and why
+-----------------
+Measured on rig3 (``benchmarks/results/estimators.md``: our exact stick/slip plant, a
+structurally different plant, the independent simulator; DAQ powered on in stick-slip on a
+twisted shaft):
+
+- ``channels``: every encoder angle and speed, speed sensor and torque sensor of the rig
+  (rig3: ``theta1..3, omega1..3, motor_torque``); load cells are inputs.  A real rig has them.
+- ``angles = "zeroed"``: incremental encoders read 0 at power-on whatever the twist then; an
+  estimator that assumed an untwisted shaft is off by that twist for ever (the FD baseline,
+  by 0.18 / 0.28 rad).
+- ``augment = ["load:<contact of the objective body>", "offset:<each torque channel>"]``
+  (rig3: ``load:pin1, offset:motor_torque``):
+
+  - ``load:pin1``: the regularised friction never matches a real contact's level, and a
+    contact's friction drifts as it wears; the factor absorbs both.
+  - ``offset:motor_torque``: a real load cell's zero drifts.  An unmodelled 0.05 N m offset
+    put the twist of shaft 2 off by 0.14 rad (``0.05 / k2``) while the filter claimed 1 mrad
+    (NEES 1.7e4): a confident wrong answer.  With the state: 8 / 27 mrad, offset found.
+  - The price, stated by the observability check: with the offset state the torque channel no
+    longer gives the twist's absolute level, so the twist at power-on, the load factor and the
+    offset trade off exactly at STEADY sliding and separate only through the friction's
+    variation (stick-slip, speed changes).  In stick-slip the twist RMSE is 1-2 % of its range
+    (4 / 12 mrad on our plant, against 1.3 / 1.3 mrad without the offset state); at steady
+    sliding the level set at power-on is not corrected (benchmark case (e)).  On a rig known
+    to have a stable, tared torque channel, ``augment = ["load:pin1"]`` is better.
+- ``q_stick = 2``: in stick the friction is a constraint force, so a body within ``eps`` of
+  rest gets an unknown torque of twice its static friction.  Trusting the regularised creep
+  instead (``q_stick = 0``) made the EKF converge to a twist 0.2-0.7 rad off on our plant.
+- ``q_load = 0.02 /sqrt(s)`` (a friction level that may drift 15 % in a minute) and
+  ``p0_offset = 0.05 N m`` (a roughly tared cell): smaller values tie the twist closer to the
+  prior and hurt when the plant does have an offset; larger ones let the weakly observable
+  direction wander (measured trade-off, benchmarks).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from models import friction as fr
+from models.errors import ConfigError
+from models.params import ParameterSet
+from models.rig import RigModel
+from models.rig.spec import NODE_DRIVE
+from models.sensors import FLOOR, SensorOptions, channel_variance
+from models.discretise import rk4
+
+__all__ = ["EstimationModel", "build_estimation_model", "default_channels", "default_augment", "state_units",
+           "angle_combination"]
+
+_MEAS_KINDS = ("encoder", "speed", "torque")
+
+
+# ----------------------------------------------------------------------------- defaults
+def _is_input(model: RigModel, channel: str) -> bool:
+    return channel in model.inputs
+
+
+def default_channels(model: RigModel) -> tuple[str, ...]:
+    """Every encoder angle and speed, speed-sensor and torque-sensor channel of the rig that
+    is not a model input (a speed drive's speed, a torque drive's torque, a load cell's force
+    are inputs)."""
+    out = []
+    for s in model.sensors:
+        if s.kind in _MEAS_KINDS:
+            out.extend(c for c in s.channels if not _is_input(model, c))
+    return tuple(out)
+
+
+def default_augment(model: RigModel, channels) -> tuple[str, ...]:
+    """``load:`` on the objective body's contact, ``offset:`` on every torque channel used."""
+    out = []
+    body = model.objective_body
+    if body in model.contact_bodies:
+        out.append(f"load:{model.contact_names[model.contact_bodies.index(body)][0]}")
+    for c in channels:
+        s = model.sensor_of(c)
+        if s is not None and s.kind == "torque":
+            out.append(f"offset:{c}")
+    return tuple(out)
+
+
+def angle_combination(model: RigModel, node: str):
+    """``c`` with ``angle(node) = theta_ref + c . x`` (coefficients of the twists on the node's
+    path through the spring tree), or None if no spring joins the node to the reference."""
+    if node == NODE_DRIVE:
+        return np.zeros(model.nx)
+    xs = ca.SX.sym("x", model.nx)
+    try:
+        e = model.angle(node, xs, 0)
+    except KeyError:
+        return None
+    return np.array(ca.evalf(ca.jacobian(e, xs))).ravel() if isinstance(e, ca.SX) else np.zeros(model.nx)
+
+
+def state_units(model: RigModel, names) -> tuple[str, ...]:
+    """SI unit of every estimator state."""
+    units = dict(zip(model.states, model.state_units))
+    out = []
+    for n in names:
+        kind, _, target = n.partition(":")
+        if not target:
+            out.append(units[n])
+        elif kind == "zero" or kind.startswith("lag"):
+            out.append(units[target])
+        elif kind in ("load", "gain"):
+            out.append("-")
+        else:   # offset: the channel's unit
+            s = model.sensor_of(target)
+            out.append({"torque": "N m", "load_cell": "N", "speed": "rad/s"}.get(s.kind if s else "", "-"))
+    return tuple(out)
+
+
+# ----------------------------------------------------------------------------- the model
+@dataclass(frozen=True)
+class EstimationModel:
+    """The augmented discrete-time model of both filters (module docstring).
+
+    Attributes
+    ----------
+    model : the rig; params : its parameter set; dt : DAQ period [s]
+    names, units : estimator states and their SI units
+    n_rig : the first ``n_rig`` states are the rig's (``model.states``)
+    channels : raw log channels read from a measurement dict, in order
+    meas_names : internal measurements (whitened angle differences, then the other channels)
+    delay : samples of input history the model needs (``uh`` holds ``u_k, u_{k-1}, ...``)
+    F : Function ``(x, uh, p) -> x_next`` over one sample (RK4 with substeps)
+    h : Function ``(x, uh, p) -> y`` internal measurements
+    to_internal : Function ``(y_raw, m_raw) -> (y, m)`` raw channels and their masks (1 present,
+        0 missing) to internal measurements and masks
+    dep : (n_meas, n_channels) bool: which raw channels each internal measurement uses
+    q : (nx,) process-noise variances per sample (the constant part)
+    stick : Function ``(x, uh, p) -> dq``: the state-dependent part, the unknown friction of
+        bodies at rest (``q_stick``); the total is ``q + dq``
+    stick_speed : [rad/s] the model's friction regularisation ``eps``: a contact body slower
+        than this is "in stick" (the observability analysis treats its friction as unknown)
+    r : (n_meas,) measurement-noise variances
+    x0, P0 : prior; lb, ub : state bounds (MHE)
+    p : (n_p,) parameter vector (the rig's order)
+    """
+
+    model: RigModel
+    params: ParameterSet
+    dt: float
+    names: tuple
+    units: tuple
+    n_rig: int
+    channels: tuple
+    meas_names: tuple
+    delay: int
+    F: ca.Function
+    h: ca.Function
+    to_internal: ca.Function
+    dep: np.ndarray
+    q: np.ndarray
+    stick: ca.Function
+    stick_speed: float
+    r: np.ndarray
+    x0: np.ndarray
+    P0: np.ndarray
+    lb: np.ndarray
+    ub: np.ndarray
+    p: np.ndarray
+    angles: str = "zeroed"
+    augment: tuple = ()
+
+    @property
+    def nx(self) -> int:
+        return len(self.names)
+
+    @property
+    def ny(self) -> int:
+        return len(self.meas_names)
+
+    @property
+    def nu(self) -> int:
+        return self.model.nu
+
+    @property
+    def nuh(self) -> int:
+        """Length of the input history vector ``uh``."""
+        return self.model.nu * (self.delay + 1)
+
+    @property
+    def twist_names(self) -> tuple[str, ...]:
+        return tuple(n for n in self.model.states if n.startswith("twist_"))
+
+    def index(self, name: str) -> int:
+        return self.names.index(name)
+
+    def full_state(self, x_rig) -> np.ndarray:
+        """An estimator state from rig states: augmented states at their prior values
+        (``zero:`` and ``lag`` states follow the given rig state)."""
+        x_rig = np.asarray(x_rig, float).ravel()
+        x = self.x0.copy()
+        x[:self.n_rig] = x_rig
+        for j, n in enumerate(self.names[self.n_rig:], start=self.n_rig):
+            kind, _, target = n.partition(":")
+            if kind == "zero" or kind.startswith("lag"):
+                x[j] = x_rig[self.model.states.index(target)]
+        return x
+
+
+def _ref_value(ref, P, un):
+    """A rig-file reference's value: parameter, input or constant."""
+    if ref is None:
+        return None
+    if ref.kind == "param":
+        return P[ref.name]
+    if ref.kind == "input":
+        return un[ref.name]
+    return ref.value
+
+
+def _body_inertia(model: RigModel, body: str, P: dict):
+    J = _ref_value(model.spec.body(body).inertia, P, {})
+    d = model.spec.drive
+    if d.kind == "dc_motor" and d.body == body:
+        J = J + _ref_value(d.param("ratio"), P, {}) ** 2 * _ref_value(d.param("Jm"), P, {})
+    return J
+
+
+def rig_rhs(model: RigModel, x, u, P: dict, eps: float, factors: dict):
+    """The rig's regularised state derivative with friction factors per contact.
+
+    Identical to ``model.ode(eps)`` when every factor is 1 (tests check it); a factor scales
+    its contact's friction torque, not the inertia a contact may add.
+    """
+    un = {n: u[i] for i, n in enumerate(model.inputs)}
+    Tc, s = [], []
+    for i, idx in enumerate(model.contacts):
+        v = x[idx]
+        T = 0
+        for cname in model.contact_names[i]:
+            c = next(cc for cc in model.spec.contacts if cc.name == cname)
+            N = _ref_value(c.normal, P, un) if c.normal is not None else 1.0
+            r = _ref_value(c.radius, P, un) if c.radius is not None else 1.0
+            LP = {k: _ref_value(ref, P, un) for k, ref in c.params}
+            Tk = fr.get_law(c.law).smooth(v, N, r, LP, eps)
+            T = T + (factors[cname] * Tk if cname in factors else Tk)
+        Tc.append(T)
+        s.append(fr.smooth_sign(v, eps))
+    return ca.vertcat(*model.dynamics(x, u, P, Tc, s))
+
+
+def _check_dt(dt, where):
+    if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not (math.isfinite(dt) and dt > 0):
+        raise ConfigError(f"{where}.dt must be a finite number > 0 s, got {dt!r}")
+    return float(dt)
+
+
+def _resolve_channels(model: RigModel, o, where: str) -> tuple[str, ...]:
+    if o.channels is None:
+        chans = default_channels(model)
+        if not chans:
+            raise ConfigError(f"{where}: rig {model.name!r} has no measurement channel (encoder, speed or torque "
+                              f"sensor); the estimator has nothing to correct with")
+    else:
+        ok = default_channels(model)
+        for c in o.channels:
+            if c in ok:
+                continue
+            s = model.sensor_of(c)
+            if s is None:
+                raise ConfigError(f"{where}.channels: unknown channel {c!r} of rig {model.name!r}; expected some of "
+                                  f"{', '.join(ok)}")
+            raise ConfigError(f"{where}.channels: {c!r} is an input of rig {model.name!r} (a {s.kind.replace('_', ' ')} "
+                              f"reading); inputs go in u, the measurements are some of {', '.join(ok)}")
+        chans = tuple(c for c in ok if c in o.channels)      # the rig's sensor order
+    angles = [c for c in chans if _angle_node(model, c) is not None]
+    if len(angles) == 1:
+        raise ConfigError(f"{where}.channels: one encoder angle ({angles[0]}) alone carries no twist (the estimator "
+                          f"measures angle differences); give at least two encoder angles or none")
+    for c in angles:
+        node = _angle_node(model, c)
+        if angle_combination(model, node) is None:
+            raise ConfigError(f"{where}.channels: encoder angle {c!r} is on {node!r}, which no spring joins to the "
+                              f"drive; its angle is not a function of the twists")
+    return chans
+
+
+def _angle_node(model: RigModel, channel: str):
+    s = model.sensor_of(channel)
+    if s is not None and s.kind == "encoder" and s.channels[0] == channel:
+        return s.target
+    return None
+
+
+def _resolve_augment(model: RigModel, o, chans, where: str) -> tuple[str, ...]:
+    aug = default_augment(model, chans) if o.augment is None else tuple(o.augment)
+    contacts = [c.name for c in model.spec.contacts]
+    for a in aug:
+        kind, _, target = a.partition(":")
+        if kind == "load":
+            if target not in contacts:
+                raise ConfigError(f"{where}.augment: {a!r}: rig {model.name!r} has no contact {target!r} "
+                                  f"(contacts: {', '.join(contacts) or 'none'})")
+            continue
+        s = model.sensor_of(target)
+        ref = getattr(s, kind, None) if s is not None else None
+        if s is None or ref is None or s.kind == "encoder":
+            cands = [c for sn in model.sensors if sn.kind in ("torque", "load_cell", "speed") for c in sn.channels]
+            raise ConfigError(f"{where}.augment: {a!r}: {target!r} is not a channel with an {kind} (torque, speed "
+                              f"sensor or load cell) of rig {model.name!r}; candidates: {', '.join(cands) or 'none'}")
+        if s.kind != "load_cell" and target not in chans:
+            raise ConfigError(f"{where}.augment: {a!r}: channel {target!r} is not among the measured channels "
+                              f"({', '.join(chans)})")
+        if s.kind == "load_cell" and target not in model.inputs:
+            raise ConfigError(f"{where}.augment: {a!r}: load cell {target!r} does not log an input of rig "
+                              f"{model.name!r}")
+    return aug
+
+
+def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: float,
+                           sensors: SensorOptions = SensorOptions(), x0=None,
+                           where: str = "estimator") -> EstimationModel:
+    """Build the augmented model, its covariances and prior (module docstring).
+
+    Parameters
+    ----------
+    model : the rig the estimator believes
+    params : its parameter set
+    options : :class:`estimators.online.options.EKFOptions` (or MHEOptions)
+    dt : DAQ period [s]
+    sensors : sensor settings (noise scale, quantisation)
+    x0 : initial guess, ``model.states`` order (nx_rig) or the full estimator state; None:
+        at rest (rig states 0, augmented states at their nominal values)
+    where : prefix of error messages
+
+    Raises
+    ------
+    ConfigError : one line naming ``<where>.<field>``.
+    """
+    if not isinstance(model, RigModel):
+        raise ConfigError(f"{where}.model must be a RigModel, got {type(model).__name__}")
+    model.check_params(params, f"{where}.params")
+    dt = _check_dt(dt, where)
+    chans = _resolve_channels(model, options, where)
+    aug = _resolve_augment(model, options, chans, where)
+    nxr, nu = model.nx, model.nu
+    P_num = dict(zip(model.param_names, np.asarray(params.vector(), float)))
+
+    # ---- measurement layout
+    angle_ch = [c for c in chans if _angle_node(model, c) is not None]
+    other_ch = [c for c in chans if c not in angle_ch]
+    combs = {c: angle_combination(model, _angle_node(model, c)) for c in angle_ch}
+    n_tw = sum(1 for s in model.states if s.startswith("twist_"))
+    zero_tw = []
+    if options.angles == "zeroed" and angle_ch:
+        used = np.zeros(nxr, bool)
+        for a, b in zip(angle_ch[:-1], angle_ch[1:]):
+            used |= np.abs(combs[a] - combs[b]) > 0
+        zero_tw = [model.states[j] for j in range(n_tw) if used[j]]
+    delays = {c: model.sensor_of(c).delay for c in chans}
+    D = max(delays.values(), default=0)
+
+    names = list(model.states)
+    names += [f"zero:{n}" for n in zero_tw]
+    names += [a for a in aug if a.startswith("load:")]
+    names += [a for a in aug if a.startswith(("offset:", "gain:"))]
+    names += [f"lag{d}:{n}" for d in range(1, D + 1) for n in model.states]
+    names = tuple(names)
+    nx = len(names)
+    idx = {n: i for i, n in enumerate(names)}
+
+    x = ca.SX.sym("x", nx)
+    uh = ca.SX.sym("uh", nu * (D + 1))
+    p = ca.SX.sym("p", model.n_p)
+    P = model.unpack(p)
+    # augmented sensor offsets and gains replace their parameters everywhere they are used
+    Pm = dict(P)
+    for a in aug:
+        kind, _, target = a.partition(":")
+        if kind in ("offset", "gain"):
+            Pm[getattr(model.sensor_of(target), kind).name] = x[idx[a]]
+    factors = {a.partition(":")[2]: x[idx[a]] for a in aug if a.startswith("load:")}
+
+    def u_at(d):
+        return model.input_from_measured(uh[d * nu:(d + 1) * nu], Pm)
+
+    def x_rig_at(d):
+        if d == 0:
+            return x[:nxr]
+        return ca.vertcat(*[x[idx[f"lag{d}:{n}"]] for n in model.states])
+
+    # ---- dynamics: RK4 of the rig with the friction factors; augmented states held; lags shift
+    xr_s, ur_s, fa_s = ca.SX.sym("xr", nxr), ca.SX.sym("ur", nu), ca.SX.sym("fa", max(len(factors), 1))
+    ps = ca.SX.sym("p", model.n_p)
+    fac = {c: fa_s[i] for i, c in enumerate(factors)}
+    f_rhs = ca.Function("rhs", [xr_s, ur_s, ps, fa_s], [rig_rhs(model, xr_s, ur_s, model.unpack(ps), options.eps, fac)])
+    fvec = ca.vertcat(*factors.values()) if factors else ca.SX.zeros(1)
+    u0 = ca.vertcat(*u_at(0))
+    xr_next = rk4(lambda a, b, c: f_rhs(a, b, c, fvec), x[:nxr], u0, p, dt, int(options.nsub))
+    nxt = [xr_next]
+    if nx > nxr:
+        held = [x[idx[n]] for n in names[nxr:] if not n.startswith("lag")]
+        if held:
+            nxt.append(ca.vertcat(*held))
+        for d in range(1, D + 1):
+            nxt.append(x_rig_at(d - 1))
+    F = ca.Function(f"{model.cname}_est_F", [x, uh, p], [ca.vertcat(*nxt)], ["x", "uh", "p"], ["x_next"])
+
+    # ---- measurements
+    ys, meas, dep_rows = [], [], []
+    ci = {c: i for i, c in enumerate(chans)}
+    yr, mr = ca.SX.sym("y_raw", len(chans)), ca.SX.sym("m_raw", len(chans))
+    yi, mi = [], []
+    if angle_ch:
+        pairs = list(zip(angle_ch[:-1], angle_ch[1:]))
+        var = {c: channel_variance(model, c, dt, sensors) for c in angle_ch}
+        T = np.zeros((len(pairs), len(angle_ch)))
+        for k in range(len(pairs)):
+            T[k, k], T[k, k + 1] = 1.0, -1.0
+        Rd = T @ np.diag([var[c] for c in angle_ch]) @ T.T
+        Linv = np.linalg.inv(np.linalg.cholesky(Rd))
+        hd = []
+        for a, b in pairs:
+            da = delays[a]
+            if da != delays[b]:
+                raise ConfigError(f"{where}.channels: encoder angles {a!r} and {b!r} have different delays "
+                                  f"({da} and {delays[b]} samples); their difference is not one instant's twist")
+            cvec = combs[a] - combs[b]
+            xr_d = x_rig_at(da)
+            e = 0
+            for j in np.flatnonzero(cvec):
+                tw = xr_d[j] - (x[idx[f"zero:{model.states[j]}"]] if f"zero:{model.states[j]}" in idx else 0)
+                e = e + float(cvec[j]) * tw
+            hd.append(e)
+        ys.append(ca.mtimes(ca.DM(Linv), ca.vertcat(*hd)))
+        draw = ca.vertcat(*[yr[ci[a]] - yr[ci[b]] for a, b in pairs])
+        yi.append(ca.mtimes(ca.DM(Linv), draw))
+        for k, (a, b) in enumerate(pairs):
+            meas.append(f"{a}-{b}")
+            used = {c for kk in range(k + 1) if abs(Linv[k, kk]) > 0 for c in pairs[kk]}
+            mi.append(_prod([mr[ci[c]] for c in angle_ch if c in used]))
+            dep_rows.append([c in used for c in chans])
+    if other_ch:
+        for c in other_ch:
+            d = delays[c]
+            out = model.outputs(x_rig_at(d), ca.vertcat(*u_at(d)), Pm, 0)
+            ys.append(out[c])
+            meas.append(c)
+            yi.append(yr[ci[c]])
+            mi.append(mr[ci[c]])
+            dep_rows.append([cc == c for cc in chans])
+    h = ca.Function(f"{model.cname}_est_h", [x, uh, p], [ca.vertcat(*ys)], ["x", "uh", "p"], ["y"])
+    to_internal = ca.Function(f"{model.cname}_est_to_internal", [yr, mr], [ca.vertcat(*yi), ca.vertcat(*mi)],
+                              ["y_raw", "m_raw"], ["y", "m"])
+    r = np.array([1.0] * (len(angle_ch) - 1 if angle_ch else 0)
+                 + [channel_variance(model, c, dt, sensors) for c in other_ch])
+    r = np.maximum(r, FLOOR)
+
+    # ---- stick: in stick the friction is a constraint force, not the regularised law's creep
+    dq = [ca.SX(0)] * nx
+    if options.q_stick > 0:
+        uu = u_at(0)
+        un = {n: uu[i] for i, n in enumerate(model.inputs)}
+        for i, jdx in enumerate(model.contacts):
+            Ts = 0
+            for cname in model.contact_names[i]:
+                c = next(cc for cc in model.spec.contacts if cc.name == cname)
+                N = _ref_value(c.normal, P, un) if c.normal is not None else 1.0
+                rr = _ref_value(c.radius, P, un) if c.radius is not None else 1.0
+                LP = {k: _ref_value(ref, P, un) for k, ref in c.params}
+                tp, tm = fr.get_law(c.law).static_limits(N, rr, LP)
+                t_s = 0.5 * (ca.fabs(tp) + ca.fabs(tm))
+                Ts = Ts + t_s     # the nominal limit: a load factor near 0 must not switch this off
+            J = _body_inertia(model, model.contact_bodies[i], P)
+            sech2 = 1 - ca.tanh(x[jdx] / options.eps) ** 2
+            dq[jdx] = (options.q_stick * Ts * dt / J) ** 2 * sech2
+    stick = ca.Function(f"{model.cname}_est_stick", [x, uh, p], [ca.vertcat(*dq)], ["x", "uh", "p"], ["dq"])
+
+    # ---- covariances, prior, bounds
+    q = _process_variances(model, names, P_num, dt, options)
+    x0v, P0 = _prior(model, names, idx, P_num, options, x0, where)
+    lb, ub = _bounds(names)
+    return EstimationModel(model, params, dt, names, state_units(model, names), nxr, chans, tuple(meas), D, F, h,
+                           to_internal, np.array(dep_rows, bool).reshape(len(meas), len(chans)), q, stick, float(options.eps), r, x0v, P0, lb,
+                           ub, np.array([P_num[n] for n in model.param_names]), options.angles, aug)
+
+
+def _prod(terms):
+    out = terms[0]
+    for t in terms[1:]:
+        out = out * t
+    return out
+
+
+def _process_variances(model: RigModel, names, P_num: dict, dt: float, o) -> np.ndarray:
+    out = []
+    for n in names:
+        kind, _, target = n.partition(":")
+        if not target:
+            if n.startswith("twist_"):
+                v = o.q_twist ** 2
+            elif n.startswith("omega_"):
+                J = float(_body_inertia(model, n[len("omega_"):], P_num))
+                v = (o.q_torque * dt / J) ** 2 if J > 0 else o.q_torque ** 2
+            elif n == "current":
+                v = o.q_current ** 2
+            else:           # pi_integral: integrates known signals exactly
+                v = 0.0
+        elif kind == "load":
+            v = o.q_load ** 2 * dt
+        elif kind == "offset":
+            v = o.q_offset ** 2 * dt
+        elif kind == "gain":
+            v = o.q_gain ** 2 * dt
+        else:               # zero:, lag: constants and exact copies
+            v = 0.0
+        out.append(max(v, FLOOR))
+    return np.array(out)
+
+
+def _prior(model: RigModel, names, idx, P_num, o, x0, where):
+    nx, nxr = len(names), model.nx
+    x = np.zeros(nx)
+    for n in names:
+        kind, _, target = n.partition(":")
+        if kind == "load":
+            x[idx[n]] = 1.0
+        elif kind in ("offset", "gain"):
+            x[idx[n]] = P_num[getattr(model.sensor_of(target), kind).name]
+    full = False
+    if x0 is not None:
+        x0 = np.asarray(x0, float).ravel()
+        if x0.shape not in ((nxr,), (nx,)) or not np.all(np.isfinite(x0)):
+            raise ConfigError(f"{where}.x0 must be {nxr} (the rig's states) or {nx} finite numbers, got shape "
+                              f"{x0.shape}")
+        full = x0.size == nx
+        if full:
+            x[:] = x0
+        else:
+            x[:nxr] = x0
+    std = []
+    for n in names:
+        kind, _, target = n.partition(":")
+        base = target if (kind == "zero" or kind.startswith("lag")) else n
+        if base.startswith("twist_"):
+            s = o.p0_twist
+        elif base.startswith("omega_"):
+            s = o.p0_speed
+        elif base == "current":
+            s = o.p0_current
+        elif base == "pi_integral":
+            s = o.p0_pi
+        elif kind == "load":
+            s = o.p0_load
+        elif kind == "offset":
+            s = o.p0_offset
+        else:
+            s = o.p0_gain
+        std.append(s)
+    P0 = np.diag(np.square(std))
+    for n in names:
+        kind, _, target = n.partition(":")
+        if kind == "zero" or kind.startswith("lag"):
+            # the twist at power-on IS the initial twist (a lagged state is the initial state):
+            # same prior, fully correlated
+            j, t = idx[n], model.states.index(target)
+            if not full:
+                x[j] = x[t]
+            P0[j, t] = P0[t, j] = P0[t, t]
+            for m in names:
+                km, _, tm = m.partition(":")
+                if (km == "zero" or km.startswith("lag")) and tm == target:
+                    P0[j, idx[m]] = P0[t, t]
+    P0 += 1e-12 * np.eye(nx)
+    return x, P0
+
+
+def _bounds(names):
+    big = 1e6
+    lb, ub = np.full(len(names), -big), np.full(len(names), big)
+    for j, n in enumerate(names):
+        if n.startswith("load:"):
+            lb[j], ub[j] = 0.0, 5.0
+        elif n.startswith("gain:"):
+            lb[j], ub[j] = 0.05, 20.0
+    return lb, ub
