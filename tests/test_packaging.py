@@ -129,5 +129,5 @@ def test_sdist_and_its_wheel_ship_rig_and_data_files(clean_tree, tmp_path):
     names = _build_wheel(str(sdists[0]), tmp_path, tmp_path / "wheels")
     _assert_ships(names, expected, "the wheel built from the sdist")
     _assert_only_packages(names)
-    # models/rigs/ (no __init__.py) stays a data folder next to the models/rigs.py module
-    assert "models/rigs.py" in names and "models/rigs/__init__.py" not in names
+    # models/rigs/ (no __init__.py) stays a data folder: the shipped rig files, not a package
+    assert "models/rigs/rig3.toml" in names and "models/rigs/__init__.py" not in names
