@@ -28,13 +28,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from models.rigs import get_model  # noqa: E402
+from models import get_model  # noqa: E402
 from models.plant import SimOptions, simulate  # noqa: E402
 from mitigate import metrics as mx  # noqa: E402
 from mitigate.scenario import load_scenario  # noqa: E402
 from mitigate.sweep import (batched_step, make_tasks, options_from_scenario, parse_axis, plan_sweep,  # noqa: E402
                             run_chunk, run_sweep)
-from mitigate.sweepstore import SweepStore  # noqa: E402
+from mitigate.sweep import SweepStore  # noqa: E402
 
 
 def p95(xs):
@@ -58,7 +58,7 @@ def main(argv=None) -> int:
 
     # warm-up: compile (or load from the on-disk cache) the plant step
     t = time.perf_counter()
-    batched_step("rig3", opts.dt, opts.nsub, opts.block, opts.chunk, "compiled")
+    batched_step(sc.plant_model, opts.dt, opts.nsub, opts.block, opts.chunk, "compiled")
     t_compile = time.perf_counter() - t
 
     # --- full grid, default engine
@@ -87,8 +87,8 @@ def main(argv=None) -> int:
                      statistics.median(times) * npts / chunk_pts, statistics.median(times), p95(times), npts))
 
     # thread map of the compiled step (CasADi "thread" map, 2 threads), one block
-    from mitigate import sweep as swmod
-    F = swmod._FN_CACHE[("rig3", opts.dt, opts.nsub, "compiled")]
+    from mitigate.sweep import chunks as swmod
+    F = swmod._FN_CACHE[(swmod._model_key(sc.plant_model), opts.dt, opts.nsub, "compiled")]
     acc = F.mapaccum("acc", opts.block, [0, 1], [0, 1])
     model = get_model("rig3")
     x0 = np.zeros((model.nx, chunk_pts))
@@ -128,7 +128,7 @@ def main(argv=None) -> int:
         sol = solve_ivp(fun, (0.0, opts.duration), np.zeros(model.nx), method="LSODA",
                         t_eval=np.arange(opts.n_steps + 1) * opts.dt, rtol=1e-6, atol=1e-8)
         times.append(time.perf_counter() - tt)
-        amp_ivp.append(mx.amplitude(sol.y[2, opts.settle_steps + 1:]))
+        amp_ivp.append(mx.amplitude(sol.y[model.speed_index('R1'), opts.settle_steps + 1:]))
     t_ivp = statistics.median(times)
     rows.append(("per-point loop, scipy solve_ivp LSODA, regularised model (4 pts, extrapolated)",
                  t_ivp * npts, t_ivp, p95(times), npts))
