@@ -26,7 +26,7 @@ import numpy as np
 
 from models.actuators import Servo
 from models.checks import finite_number
-from models.codegen import compiled_or_none
+from models.codegen import FastFunction
 from models.discretise import rk4
 from models.errors import ConfigError
 from models.logs import Log, channel_kind
@@ -89,9 +89,7 @@ def step_function(model, options: SimOptions) -> ca.Function:
     if key in _CACHE:
         return _CACHE[key]
     if options.method == "hybrid":
-        # compiled with gcc (cached on disk) when a compiler is there: 3-5x faster per call
         F = hybrid_step_function(model, options.dt, options.nsub)
-        F = compiled_or_none(F) or F
     else:
         f = model.ode(options.eps)
         x = ca.SX.sym("x", model.nx)
@@ -150,11 +148,15 @@ class Plant:
             if name not in model.param_names:
                 raise ConfigError(f"drift.{name}: not a parameter of rig {model.name!r}")
             self._drift[model.param_names.index(name)] = finite_number(rate, f"drift.{name}", unit="1/s")
-        self._F = step_function(model, options)
+        # compiled (cached on disk) and called through ctypes: the CasADi call's overhead was half a
+        # closed loop's time
+        F = step_function(model, options)
+        self._F = FastFunction(F, compile=options.method != "cvodes")
         h = model.meas()
         self._h_names = tuple(h.name_out())
         xs, us, ps, ths = (ca.SX.sym(n, h.size1_in(i)) for i, n in enumerate(("x", "u", "p", "th")))
-        self._h = ca.Function("h_vec", [xs, us, ps, ths], [ca.vertcat(*h(xs, us, ps, ths))])
+        self._h = FastFunction(ca.Function(f"{model.cname}_h_vec", [xs, us, ps, ths],
+                                           [ca.vertcat(*h(xs, us, ps, ths))]))
         self._ideal = None
         self.rng = np.random.default_rng(options.seed)
         self.sensor_options = sensors
@@ -188,7 +190,7 @@ class Plant:
         """Noise-free readings and physical quantities at the current state."""
         key = (self.x.tobytes(), np.asarray(self.u_applied, float).tobytes(), self.theta_ref, self._p.tobytes())
         if self._ideal is None or self._ideal[0] != key:
-            y = np.asarray(self._h(self.x, self.u_applied, self._p, self.theta_ref)).ravel()
+            y = self._h(self.x, self.u_applied, self._p, self.theta_ref)[0]
             self._ideal = (key, dict(zip(self._h_names, y.tolist())))
         return dict(self._ideal[1])
 
@@ -218,8 +220,8 @@ class Plant:
         if self._drift.any():
             self._p = self._p0 * (1.0 + self._drift * self.t)
         xn, thn = self._F(self.x, self.theta_ref, ua, self._p)
-        self.x = np.array(xn).ravel()
-        self.theta_ref = float(thn)
+        self.x = xn
+        self.theta_ref = float(thn[0])
         self.t += self.options.dt
         return self.measure()
 
