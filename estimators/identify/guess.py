@@ -78,15 +78,21 @@ def _inertia(model, P: dict, body: str) -> float:
     return J
 
 
-def _stuck_threshold(model, channel: str, dt: float, omega_scale: float) -> float:
-    """Below this a measured speed counts as stuck: half a tick per sample (encoders), 3 std (speed
-    sensors), at least 1e-3 of the speed scale."""
+def _stuck_threshold(model, channel: str, dt: float, omega_scale: float, n_avg: int = 1) -> float:
+    """Below this a measured speed (averaged over ``n_avg`` samples) counts as stuck: half an
+    encoder tick over the averaging window, or 3 standard deviations of a speed sensor's mean;
+    at least 1e-3 of the speed scale."""
     s = model.sensor_of(channel)
     if s is not None and s.kind == "encoder":
-        thr = 0.5 * 2 * math.pi / (s.ticks * s.ratio) / dt
+        thr = 0.5 * 2 * math.pi / (s.ticks * s.ratio) / (n_avg * dt)
     else:
-        thr = 3 * channel_std(model, channel, dt)
+        thr = 3 * channel_std(model, channel, dt) / math.sqrt(n_avg)
     return max(thr, 1e-3 * abs(omega_scale), 1e-9)
+
+
+#: samples the measured speed is averaged over before stick is detected (a quantised encoder
+#: speed of a slowly sliding body reads 0 in single samples)
+N_AVG = 5
 
 
 class _Data:
@@ -208,19 +214,25 @@ def _cycle_guess(model, P, data, body, log, free, notes, values):
     dt = data.dt
     ch = model.speed_channel(body)
     Omega = float(np.mean(w_o))
+    if np.std(moving_average(w_o, N_AVG)) > 0.25 * np.std(moving_average(w_b, N_AVG)):
+        return None      # the spring's other end oscillates too: not one disc driven at a steady speed
     if abs(Omega) < 1e-6:
         return
     sgn = 1.0 if Omega > 0 else -1.0
-    thr = _stuck_threshold(model, ch, dt, Omega)
-    cyc = stick_slip_cycles(sgn * w_b, dt, thr, skip=min(1.0, 0.1 * (log.t[-1] - log.t[0])))
+    thr = _stuck_threshold(model, ch, dt, Omega, N_AVG)
+    ws = moving_average(sgn * w_b, N_AVG)
+    cyc = stick_slip_cycles(ws, dt, thr, skip=min(1.0, 0.1 * (log.t[-1] - log.t[0])))
     if cyc is None:
         return
     Om = abs(Omega)
     wmax = float(np.mean([np.max(moving_average(sgn * w_b, 3)[a:b])
                           for a, b in zip(cyc.onsets[:-1], cyc.onsets[1:])]))
+    # the N_AVG-sample average lengthens the stuck runs' edges by about N_AVG - 1 samples in all
+    stick = max(cyc.stick_time - (N_AVG - 1) * dt, 0.0)
     dk = []
-    if cyc.stick_time >= 2 * dt:
-        dk.append(cyc.stick_time * Om / 2)
+    slip = cyc.period - stick
+    if stick >= 2 * dt:
+        dk.append(stick * Om / 2)
     A = math.sqrt((wmax - Om) ** 2 - Om ** 2) if wmax - Om > Om else None
     if A is not None:
         psi = math.atan(A / Om)
@@ -229,16 +241,16 @@ def _cycle_guess(model, P, data, body, log, free, notes, values):
         lo, hi = 1e-3, 1e4
         for _ in range(80):
             mid = math.sqrt(lo * hi)
-            lo, hi = (mid, hi) if cyc.slip_time * mid < 2 * math.pi - 2 * math.atan(mid * dk[0] / Om) else (lo, mid)
+            lo, hi = (mid, hi) if slip * mid < 2 * math.pi - 2 * math.atan(mid * dk[0] / Om) else (lo, mid)
         psi = math.atan(math.sqrt(lo * hi) * dk[0] / Om)
     else:
         return
-    wn = (2 * math.pi - 2 * psi) / cyc.slip_time
+    wn = (2 * math.pi - 2 * psi) / slip
     if A is not None:
         dk.append(A / wn)
     dk_over_k = float(np.exp(np.mean(np.log(dk))))
     J = float(model.contact_inertia(i, np.zeros(model.nx), np.zeros(model.nu), P, 1.0))
-    src = (f"stick-slip cycle of {ch} (period {cyc.period:.3g} s, stick {cyc.stick_time:.3g} s, peak "
+    src = (f"stick-slip cycle of {ch} (period {cyc.period:.3g} s, stick {stick:.3g} s, peak "
            f"{wmax:.3g} rad/s, {cyc.cycles} cycles; exact Coulomb cycle)")
     kref = c.stiffness
     k = float(_val(kref, P))
@@ -254,6 +266,56 @@ def _cycle_guess(model, P, data, body, log, free, notes, values):
             notes.append(f"{jref.name} = {Jb:.4g} from the {src}")
     delta = k * dk_over_k
     return {"delta": delta, "thr": thr, "src": src, "spring": c, "other": other, "k": k}
+
+
+def _active_contacts(model, data, contacts):
+    """Contacts that carry a real normal load: mean ``|N r|`` above 5 % of the largest (a logged
+    zero force with load-cell noise is not a load)."""
+    sc = {c.name: float(np.mean(np.abs(data.scale(c)))) for c in model.spec.contacts}
+    top = max(sc.values(), default=0.0)
+    return [c for c in contacts if sc[c.name] > max(0.05 * top, 1e-12)]
+
+
+def _far_body(model, conn):
+    """The body of ``conn`` on its side away from the drive (None if that end is the ground)."""
+    side = _side(model, conn)
+    for n in (conn.a, conn.b):
+        if n in side:
+            return n
+    return None
+
+
+def _walk_chain(model, P, data, conn, T_conn, free, values, notes, source):
+    """Stiffness and damping of ``conn`` (and onward along the chain) from its torque ``T_conn``
+    (its reading convention, ``k phi + d (w_a - w_b)``) regressed on the encoder twist; the torque
+    passes on through every body without friction that joins exactly two springs."""
+    active = {c.body for c in _active_contacts(model, data, model.spec.contacts)}
+    c, Tc = conn, T_conn
+    for _ in range(len(model.spec.connections)):
+        tha, thb = data.angle(c.a), data.angle(c.b)
+        wa, wb = data.speed(c.a), data.speed(c.b)
+        if tha is not None and thb is not None and wa is not None and wb is not None:
+            X = np.column_stack([tha - thb, moving_average(wa - wb, 3), np.ones_like(Tc)])
+            (kk, dd, _), *_ = np.linalg.lstsq(X, Tc, rcond=None)
+            for ref, v, what in ((c.stiffness, kk, "stiffness"), (c.damping, dd, "damping")):
+                if ref is not None and ref.kind == "param" and ref.name in free and ref.name not in values and v > 0:
+                    values[ref.name] = float(v)
+                    P[ref.name] = float(v)
+                    notes.append(f"{ref.name} = {v:.4g} from {source} regressed on the encoder twist of {c.name} ({what})")
+        b = _far_body(model, c)
+        if b is None or b in active or data.speed(b) is None:
+            return
+        others = [o for o in model.spec.connections if o is not c and b in (o.a, o.b) and NODE_GROUND not in (o.a, o.b)]
+        if len(others) != 1 or others[0].stiffness is None:
+            return
+        c2 = others[0]
+        s, s2 = (1.0 if b == c.b else -1.0), (1.0 if b == c2.b else -1.0)
+        Tb = _inertia(model, P, b) * data.accel(b)
+        for g in model.spec.connections:          # dampers to the ground on b
+            if g.damping is not None and NODE_GROUND in (g.a, g.b) and b in (g.a, g.b):
+                Tb = Tb + float(_val(g.damping, P)) * data.speed(b)
+        c, Tc = c2, s2 * (Tb - s * Tc)
+        source = f"{source} passed through {b}"
 
 
 def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encoder_zero: str = "free",
@@ -288,10 +350,6 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
     if model.objective_body in bodies:
         bodies.remove(model.objective_body)
         bodies.insert(0, model.objective_body)
-    cyc = None
-    if bodies:
-        cyc = _cycle_guess(model, P, data, bodies[0], log, free, notes, values)
-    P.update(values)
 
     # piece 2 and 3: a torque sensor
     tq = next((s for s in model.sensors if s.kind == "torque" and s.channels[0] in log.channels), None)
@@ -324,20 +382,9 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
             side = _side(model, c)
             T_in = T if (c.b in side) else -T
             k_conn = (c, T)
-        # stiffness and damping from the connection's torque and its encoders (piece 3)
+        # stiffness and damping from the connection's torque and its encoders, along the chain (piece 3)
         if k_conn is not None:
-            c, Tc = k_conn
-            tha, thb = data.angle(c.a), data.angle(c.b)
-            wa, wb = data.speed(c.a), data.speed(c.b)
-            if tha is not None and thb is not None and wa is not None and wb is not None:
-                X = np.column_stack([tha - thb, moving_average(wa - wb, 3), np.ones_like(Tc)])
-                (kk, dd, _), *_ = np.linalg.lstsq(X, Tc, rcond=None)
-                for ref, v, what in ((c.stiffness, kk, "stiffness"), (c.damping, dd, "damping")):
-                    if ref is not None and ref.kind == "param" and ref.name in free and v > 0:
-                        values[ref.name] = float(v)
-                        notes.append(f"{ref.name} = {v:.4g} from {tq.channels[0]} regressed on the encoder "
-                                     f"twist of {c.name} ({what})")
-                P.update(values)
+            _walk_chain(model, P, data, k_conn[0], k_conn[1], free, values, notes, tq.channels[0])
         # friction levels from the torque balance of the bodies beyond the sensor (piece 2)
         if T_in is not None and side and all(data.speed(b) is not None for b in side):
             F = T_in.copy()
@@ -348,7 +395,7 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
                     b = c.a if c.a in side else c.b
                     F = F - float(_val(c.damping, P)) * data.speed(b)
             contacts = [c for c in model.spec.contacts if c.body in side]
-            active = [c for c in contacts if np.mean(np.abs(data.scale(c))) > 1e-9]
+            active = _active_contacts(model, data, contacts)
             if active:
                 wref = data.speed(active[0].body)
                 sgn = 1.0 if np.mean(wref) >= 0 else -1.0
@@ -369,6 +416,11 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
                                          f"{int(mask.sum())} sliding samples")
                     friction_done = bool(lv)
                     P.update(values)
+    # the stick-slip cycle: stiffness (or inertia) not found above, and the friction drop
+    cyc = None
+    if bodies:
+        cyc = _cycle_guess(model, P, data, bodies[0], log, free, notes, values)
+    P.update(values)
     # without a torque sensor: the spring torque itself, when the twist level is known
     if not friction_done and cyc is not None and encoder_zero == "untwisted":
         c, body = cyc["spring"], bodies[0]
