@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from models.params import Rig3Params
+from models.params import published
 
 G = 9.81  # m/s^2, thesis eq. (3-2)
 D1, D2 = 0.190, 0.162  # m, thesis Table 3.2
@@ -20,10 +20,10 @@ def test_table_3_2_inertias_eq_3_1():
     # J = 1/2 m (D/2)^2 = m D^2 / 8
     for m, D, J in [(6.40, D1, 0.02888), (4.56, D2, 0.01496)]:
         assert m * D ** 2 / 8 == pytest.approx(J, rel=5e-4)
-    p = Rig3Params()
+    p = published("rig3")
     assert (p.J1, p.J2) == (0.02888, 0.01496)
     # J3 = eta^2 Jm (eq. 3-3 / Table 3.1)
-    assert p.J3 == pytest.approx(64 * 0.370e-3)
+    assert p.eta ** 2 * p.Jm == pytest.approx(64 * 0.370e-3)
 
 
 # thesis Table 3.3 (the third k1 row is garbled in the extracted text: only Torque and delta survive)
@@ -89,8 +89,8 @@ def test_eq_3_9_d2_printed_value_not_reproduced():
     assert d2_text == pytest.approx(0.016145, abs=5e-6)
     assert 0.010 < d2_text / 0.01595 - 1 < 0.014
     assert 0.050 < d2_static / 0.01595 - 1 < 0.056
-    p = Rig3Params()
-    assert (p.d1, p.d2) == (0.02145, 0.01595)   # the code keeps the printed values
+    p = published("rig3")
+    assert (p.d1, p.d2) == (0.02145, 0.01595)   # the rig file keeps the printed values
 
 
 # thesis Table 3.5: (N1 [N], F_T [N], mu_s printed) in three groups
@@ -112,4 +112,4 @@ def test_table_3_5_mu_s_rows_means_and_eq_3_11():
         assert np.mean(mus) == pytest.approx(printed_mean, abs=6e-5)
         means.append(np.mean(mus))
     assert np.mean(means) == pytest.approx((0.5019 + 0.4968 + 0.4976) / 3, abs=1e-4)
-    assert round(np.mean(means), 1) == Rig3Params().mu_s == 0.5
+    assert round(np.mean(means), 1) == published("rig3").mu_s == 0.5

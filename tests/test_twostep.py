@@ -78,8 +78,8 @@ def test_step2_limit_cycle_recovers_stiffness():
     c -74 % (the damping is NOT identified by this log; only its sign/bound is asserted).
     """
     from estimators.twostep import fit_step2
-    from models.rigs import get_model
-    from models.simulator import SimOptions, simulate
+    from models import get_model
+    from models.plant import SimOptions, simulate
 
     true = published("leadscrew")
     sim = simulate(get_model("leadscrew"), true, np.array([40.0, 314.3]), 0.1, SimOptions(dt=2e-4, nsub=10, seed=3))
