@@ -121,7 +121,7 @@ def _kkt_solve(prob, H, mu, grad, A, g, G, h, w, active, ng):
 
 
 def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8, trust_radius: float = 1.0,
-             callback=None) -> GNResult:
+             callback=None, admissible=None) -> GNResult:
     """Constrained Gauss-Newton on ``prob`` from ``w0`` (see the module docstring).
 
     Parameters
@@ -133,6 +133,8 @@ def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8
     tol : converged when the scaled step is below ``sqrt(tol)`` and the scaled gaps below ``100 tol``
     trust_radius : initial largest change of a scaled free parameter per step
     callback : ``callback(iteration, cost, max_gap, step)`` per iteration
+    admissible : ``admissible(w) -> bool``: trial points where it is False are rejected by the line
+        search (e.g. parameters for which the discretisation is unstable)
     """
     nf, nb, nw = prob.nf, prob.nb, prob.nw
     G = np.zeros((0, nb)) if G is None else np.asarray(G, float)
@@ -220,6 +222,9 @@ def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8
         wt, phit = w, np.inf
         for ls in range(30):
             wt = w + alpha * dw
+            if admissible is not None and not admissible(wt):
+                alpha *= 0.5
+                continue
             rt, gt, _, _, _ = prob.evaluate(wt, jac=False)
             ok, phit = _ok(rt, gt, alpha)
             if ok:

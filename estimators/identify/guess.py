@@ -22,9 +22,12 @@ Three pieces of physics, each used where the log and the rig allow it:
    ``mu_cb``, ``mu_sb``, ``c_b``): the mean torque in sliding is the kinetic level.
 3. **The twist**: where the sensor's connection (or the drive's only shaft) has encoders at both
    ends, the measured torque regressed on the angle difference and the speed difference gives
-   the stiffness and damping (the encoder zero and a sensor offset go into the intercept).
-   Without a torque sensor, when the log started untwisted (``encoder_zero = "untwisted"``), the
-   spring torque ``k phi + d dw`` itself is the torque into the friction body.
+   the stiffness and damping (the encoder zero and a sensor offset go into the intercept); the
+   torque passes on through every body without friction, so the next shaft's stiffness follows
+   too.  Without a torque sensor, the friction body's own equation of motion on its sliding
+   samples, ``J w' = s (k phi + d dw) - sgn(w) T_f``, regressed on the measured twist, relative
+   speed and the law's levels (and an intercept for a free encoder zero) gives those that the
+   data determine.
 
 Only free parameters are changed; a guess that is not finite, not positive where it must be,
 or more than 100x from the starting value is dropped.  Guesses are clipped into the bounds and
@@ -214,8 +217,8 @@ def _cycle_guess(model, P, data, body, log, free, notes, values):
     dt = data.dt
     ch = model.speed_channel(body)
     Omega = float(np.mean(w_o))
-    if np.std(moving_average(w_o, N_AVG)) > 0.25 * np.std(moving_average(w_b, N_AVG)):
-        return None      # the spring's other end oscillates too: not one disc driven at a steady speed
+    if other in model.bodies and np.std(moving_average(w_o, N_AVG)) > 0.25 * np.std(moving_average(w_b, N_AVG)):
+        return None      # the other end is a body that swings with the stick-slip: not one disc on a steady drive
     if abs(Omega) < 1e-6:
         return
     sgn = 1.0 if Omega > 0 else -1.0
@@ -318,6 +321,92 @@ def _walk_chain(model, P, data, conn, T_conn, free, values, notes, source):
         source = f"{source} passed through {b}"
 
 
+def _equation_error(model, P, data, body, free, values, notes, thr, encoder_zero):
+    """The friction body's equation of motion on its sliding samples, regressed on the measured
+    twists, relative speeds and friction levels (piece 3 without a torque sensor).
+
+    ``J w' = sum_c s_c (k_c phi_c + d_c dw_c) - sgn(w) T_f(|w|)`` with the acceleration from the
+    measured speed; the free stiffnesses, dampings and friction levels are the unknowns, plus one
+    intercept for the encoder zeros when they are free (``k z``).  A coefficient is used only if the
+    regression determines it (relative standard error below 30 %)."""
+    conns = [c for c in model.spec.connections if body in (c.a, c.b)]
+    y = _inertia(model, P, body) * data.accel(body)
+    w = data.speed(body)
+    cols: dict[str, np.ndarray] = {}
+    for c in conns:
+        o = c.b if c.a == body else c.a
+        s = 1.0 if body == c.b else -1.0
+        if o == NODE_GROUND:
+            if c.damping is not None:
+                y = y + float(_val(c.damping, P)) * w       # (fixed) damper to the ground
+            continue
+        tha, thb, wa, wb = data.angle(c.a), data.angle(c.b), data.speed(c.a), data.speed(c.b)
+        if tha is None or thb is None or wa is None or wb is None:
+            return
+        for ref, reg in ((c.stiffness, s * (tha - thb)), (c.damping, s * moving_average(wa - wb, 3))):
+            if ref is None:
+                continue
+            if ref.kind == "param" and ref.name in free and ref.name not in values:
+                cols[ref.name] = cols.get(ref.name, 0) + reg
+            else:
+                y = y - float(_val(ref, P)) * reg
+        if encoder_zero == "free" and c.stiffness is not None:
+            cols["(encoder zero)"] = cols.get("(encoder zero)", 0) + s * np.ones_like(w)
+    sg = np.sign(w)
+    aw = np.abs(w)
+    no_use: set[str] = set()      # static levels: barely seen by sliding samples, taken from the cycle
+    for ct in model.spec.contacts:
+        if ct.body != body:
+            continue
+        pr = dict(ct.params)
+        sc = data.scale(ct)
+        if ct.law == "coulomb":
+            terms = [(pr.get("mu_k"), sc)]
+        elif ct.law in LEVELS:
+            v = float(_val(pr["v_s" if ct.law == "stribeck" else "v_b"], P))
+            e = np.exp(-aw / max(v, 1e-9))
+            terms = [(pr.get(LEVELS[ct.law][0]), sc * e), (pr.get(LEVELS[ct.law][1]), sc * (1 - e))]
+            if ct.law == "bit_rock":
+                terms.append((pr.get("c_b"), aw))
+        else:
+            return
+        static = pr.get(LEVELS[ct.law][0]) if ct.law in LEVELS else None
+        for ref, reg in terms:
+            if ref is not None and ref.kind == "param" and ref.name in free and ref.name not in values:
+                cols[ref.name] = cols.get(ref.name, 0) - sg * reg
+                if ref is static:
+                    no_use.add(ref.name)
+            elif ref is not None:
+                y = y + float(_val(ref, P)) * sg * reg
+    names = [n for n in cols if n != "(encoder zero)"]
+    if not names:
+        return
+    mask = moving_average((np.abs(moving_average(w, N_AVG)) > thr).astype(float), 2 * N_AVG + 1) > 0.999
+    mask[: max(5, len(mask) // 20)] = False
+    if mask.sum() < 50:
+        return
+    allnames = list(cols)
+    X = np.column_stack([np.broadcast_to(cols[n], w.shape)[mask] for n in allnames])
+    yy = y[mask]
+    scale = np.maximum(np.sqrt(np.mean(X * X, axis=0)), 1e-300)
+    sol, *_ = np.linalg.lstsq(X / scale, yy, rcond=None)
+    resid = yy - (X / scale) @ sol
+    s2 = float(resid @ resid) / max(len(yy) - len(allnames), 1)
+    try:
+        cov = s2 * np.linalg.inv((X / scale).T @ (X / scale))
+    except np.linalg.LinAlgError:
+        return
+    coef = sol / scale
+    se = np.sqrt(np.maximum(np.diag(cov), 0)) / scale
+    for n, v, e in zip(allnames, coef, se):
+        if n == "(encoder zero)" or n in no_use or not (v > 0 and e < 0.3 * v):
+            continue
+        values[n] = float(v)
+        P[n] = float(v)
+        notes.append(f"{n} = {v:.4g} from the equation of motion of {body} on {int(mask.sum())} sliding samples "
+                     f"(measured acceleration, twist and speeds; relative SE {100 * e / v:.0f} %)")
+
+
 def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encoder_zero: str = "free",
                   input_row: str = "end") -> Guess:
     """Data-derived values for the free parameters (see the module docstring).
@@ -416,34 +505,17 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
                                          f"{int(mask.sum())} sliding samples")
                     friction_done = bool(lv)
                     P.update(values)
+    # the friction body's equation of motion (piece 3 without a torque sensor)
+    if bodies:
+        b0 = bodies[0]
+        ch0 = model.speed_channel(b0)
+        thr0 = _stuck_threshold(model, ch0, dt, float(np.mean(np.abs(data.speed(b0)))), N_AVG)
+        _equation_error(model, P, data, b0, free, values, notes, thr0, encoder_zero)
     # the stick-slip cycle: stiffness (or inertia) not found above, and the friction drop
     cyc = None
     if bodies:
         cyc = _cycle_guess(model, P, data, bodies[0], log, free, notes, values)
     P.update(values)
-    # without a torque sensor: the spring torque itself, when the twist level is known
-    if not friction_done and cyc is not None and encoder_zero == "untwisted":
-        c, body = cyc["spring"], bodies[0]
-        tha, thb = data.angle(c.a), data.angle(c.b)
-        wa, wb = data.speed(c.a), data.speed(c.b)
-        if tha is not None and thb is not None and wa is not None and wb is not None:
-            Ts = float(_val(c.stiffness, P)) * (tha - thb) + (float(_val(c.damping, P)) if c.damping else 0.0) * (wa - wb)
-            T_on = Ts if body == c.b else -Ts
-            F = T_on - _inertia(model, P, body) * data.accel(body)
-            w = data.speed(body)
-            sgn = 1.0 if np.mean(w) >= 0 else -1.0
-            mask = moving_average((sgn * w > cyc["thr"]).astype(float), 5) > 0.999
-            mask[: max(5, len(mask) // 20)] = False
-            contacts = [ct for ct in model.spec.contacts if ct.body == body]
-            if mask.sum() > 20:
-                lv = _regress_friction(model, P, data, contacts, sgn * F, mask, free)
-                for n, v in lv.items():
-                    if n not in values:
-                        values[n] = v
-                        notes.append(f"{n} = {v:.4g} from the spring torque (encoder twist, log started untwisted) "
-                                     f"on {int(mask.sum())} sliding samples")
-                friction_done = bool(lv)
-                P.update(values)
     # the static level from the cycle's friction drop, where nothing better was found
     if cyc is not None:
         body = bodies[0]

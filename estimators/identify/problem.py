@@ -77,24 +77,36 @@ class LogData:
     nint: int
 
 
+class StiffRate:
+    """The largest eigenvalue magnitude [1/s] of the regularised model's Jacobian at zero contact
+    speed (its stiffest point), as a function of the parameter vector, for inputs ``u``."""
+
+    def __init__(self, model, params: ParameterSet, u, eps: float):
+        f = model.ode(eps)
+        x = ca.SX.sym("x", model.nx)
+        p = ca.SX.sym("p", model.n_p)
+        self._J = ca.Function("jf", [x, p], [ca.jacobian(f(x, ca.DM(u), p), x)])
+        try:
+            x0 = np.asarray(model.sliding_guess(u, params), dtype=float)
+        except Exception:  # noqa: BLE001 - any finite point will do
+            x0 = np.zeros(model.nx)
+        x0 = np.where(np.isfinite(x0), x0, 0.0)
+        for idx in model.contacts:
+            x0[idx] = 0.0
+        self.x0 = x0
+
+    def __call__(self, p) -> float:
+        lam = np.linalg.eigvals(np.array(self._J(self.x0, np.asarray(p, float))))
+        return float(np.max(np.abs(lam))) if lam.size else 0.0
+
+
 def auto_nsub(model, params: ParameterSet, u, dt: float, eps: float, rho_h: float = 3.5) -> int:
     """RK4 substeps so that ``h |lambda|max <= rho_h`` at zero contact speed (the stiffest point).
 
     ``u`` are model inputs (e.g. the largest logged ones).  RK4 is stable to 2.8 on the real
     axis, but the stiff rate holds only for ``|v| < eps``; fits were unchanged up to 3.5.
     """
-    f = model.ode(eps)
-    x = ca.SX.sym("x", model.nx)
-    Jf = ca.Function("jf", [x], [ca.jacobian(f(x, ca.DM(u), ca.DM(params.vector())), x)])
-    try:
-        x0 = np.asarray(model.sliding_guess(u, params), dtype=float)
-    except Exception:  # noqa: BLE001 - any finite point will do
-        x0 = np.zeros(model.nx)
-    x0 = np.where(np.isfinite(x0), x0, 0.0)
-    for idx in model.contacts:
-        x0[idx] = 0.0
-    lam = np.linalg.eigvals(np.array(Jf(x0)))
-    rho = float(np.max(np.abs(lam))) if lam.size else 0.0
+    rho = StiffRate(model, params, u, eps)(params.vector())
     return max(1, int(math.ceil(dt * rho / rho_h)))
 
 
@@ -198,10 +210,13 @@ class IdentificationProblem:
         # ---- initial set (data-derived guess if none)
         self._initial_arg = initial
         self.guess_notes: tuple[str, ...] = ()
+        self._alternative = None
         if initial is None:
             g = initial_guess(m, logs, o.free, m.published(), encoder_zero=o.encoder_zero, input_row=o.input_row)
             initial = g.params
             self.guess_notes = g.notes
+            if g.values:
+                self._alternative = m.published()   # compared with the guess in _shooting()
         else:
             m.check_params(initial, "initial")
         self.initial = initial
@@ -272,13 +287,10 @@ class IdentificationProblem:
             self.input_noise = dict(o.input_noise)
         self.hints = input_noise_hints(logs, m, o.input_cutoff, self.input_noise) if o.solver == "gn" else []
         # ---- substeps
-        if o.nsub is None:
-            umax = np.max(np.abs(np.concatenate([d.U for d in self.data])), axis=0) if m.nu else np.zeros(0)
-            P0 = m.unpack(initial.vector())
-            um = np.array(m.input_from_measured(list(umax), P0), float).ravel()
-            self.nsub = auto_nsub(m, initial, um, self.dt, o.eps)
-        else:
-            self.nsub = o.nsub
+        umax = np.max(np.abs(np.concatenate([d.U for d in self.data])), axis=0) if m.nu else np.zeros(0)
+        self._umax = np.array(m.input_from_measured(list(umax), m.unpack(initial.vector())), float).ravel()
+        self.nsub = auto_nsub(m, initial, self._umax, self.dt, o.eps) if o.nsub is None else o.nsub
+        self._stiff = None
         self._sh = None
 
     # ------------------------------------------------------------------ pickling, derived problems
@@ -377,6 +389,8 @@ class IdentificationProblem:
             self.zero_index.append(zi)
         U, Y = np.concatenate(Ub), np.concatenate(Yb)
         sig = np.array([self.noise[c.name] for c in self.channels])
+        if self._alternative is not None:
+            self._choose_start(Sv_run, U, Y, sig, np.concatenate(starts), np.concatenate(zmap), nz)
         init_nodes, z0 = self._initial_nodes(Sv_run)
         x_abs = np.max(np.abs(np.concatenate(init_nodes)), axis=0)
         x_scale = np.where(x_abs > 1e-6, x_abs, 1.0)
@@ -396,6 +410,40 @@ class IdentificationProblem:
                                    eiv_idx=[m.inputs.index(n) for n in eiv],
                                    eiv_scale=[eiv[n] / math.sqrt(M) for n in eiv])
         return self._sh
+
+    def _one_interval_cost(self, Sv, U, Y, sig, starts, zmap, nz) -> float:
+        """``0.5 |r|^2`` of the current initial set's predictions over one shooting interval from
+        the data-initialised nodes (how well it predicts the log)."""
+        m = self.model
+        nodes, z0 = self._initial_nodes(Sv)
+        sh = ShootingProblem(Sv, m.nx, m.n_p, self.initial.vector(), self.free_idx, np.ones(len(self.free)),
+                             np.ones(m.nx), U, Y, 1.0 / sig, starts, self.dt, self.options.eps, zmap=zmap,
+                             z_scale=np.ones(nz), S_val=Sv)
+        w = np.concatenate([self.theta0, z0] + [n.ravel() for n in nodes])
+        r = sh.evaluate(w, jac=False)[0]
+        return 0.5 * float(r @ r) if np.all(np.isfinite(r)) else float("inf")
+
+    def _choose_start(self, Sv, U, Y, sig, starts, zmap, nz) -> None:
+        """Start from the data-derived guess or from the rig file's values, whichever predicts the
+        log better over one shooting interval."""
+        guess, theta_g = self.initial, self.theta0.copy()
+        c_guess = self._one_interval_cost(Sv, U, Y, sig, starts, zmap, nz)
+        alt = self._alternative
+        theta_a = np.clip(alt.vector(self.free), self.lo, self.hi)
+        Gp, hp = self._constraint_rows()
+        self.initial, self.theta0 = alt, theta_a
+        c_alt = self._one_interval_cost(Sv, U, Y, sig, starts, zmap, nz) \
+            if not Gp.shape[0] or np.all(Gp @ theta_a <= hp + 1e-12) else float("inf")
+        if c_guess <= c_alt:
+            self.initial, self.theta0 = guess, theta_g
+            self.guess_notes = self.guess_notes + (f"started from the guess: it predicts the log over one shooting "
+                                                   f"interval with cost {c_guess:.4g}, the rig file's values "
+                                                   f"{c_alt:.4g}",)
+        else:
+            self.guess_notes = (f"started from the rig file's values: they predict the log over one shooting "
+                                f"interval with cost {c_alt:.4g}, the data-derived guess {c_guess:.4g} "
+                                f"(guess not used: " + "; ".join(self.guess_notes) + ")",)
+        self._alternative = None
 
     def _initial_nodes(self, S_val):
         """Node states from the data (measured speeds and twists) and a smooth simulation with the
@@ -517,7 +565,37 @@ class IdentificationProblem:
         if self.options.detect_delay and warm is None:
             return self._detect_delay()
         fit = self._fit(warm)
+        if self.options.nsub is None and np.all(np.isfinite(fit.estimate)):
+            # the fitted parameters may be stiffer than the initial ones: refit (warm) with the
+            # substeps they need, at most twice
+            prob, first = self, fit
+            for _ in range(2):
+                need = auto_nsub(self.model, fit.params, self._umax, self.dt, self.options.eps)
+                if need <= prob.nsub:
+                    break
+                old = prob.nsub
+                prob = prob.derive(nsub=need)
+                fit = prob._fit(fit)
+                fit = replace(fit, initial=first.initial, guess_notes=first.guess_notes,
+                              warnings=fit.warnings + (f"RK4 substeps raised from {old} to {need} for the fitted "
+                                                       f"parameters (stiffer than the initial ones) and refitted",))
+            return prob._finish(fit)
         return self._finish(fit)
+
+    def stiff_rate(self, theta) -> float:
+        """The model's stiffest rate [1/s] with the free parameters at ``theta`` (largest logged inputs)."""
+        if self._stiff is None:
+            self._stiff = StiffRate(self.model, self.initial, self._umax, self.options.eps)
+        p = self.initial.vector()
+        p[self.free_idx] = theta
+        return self._stiff(p)
+
+    def _rk4_stable(self, w) -> bool:
+        """RK4 with ``nsub`` substeps stays usable for the trial parameters: ``h |lambda|max <= 4.5``
+        at the stiffest point (the substeps are chosen for 3.5; a rig3-like disc fit blew up at 5.5,
+        its Jacobians reaching 1e16)."""
+        theta = np.asarray(w[:len(self.free)], float) * self._shooting().th_scale
+        return self.stiff_rate(theta) * self.dt / self.nsub <= 4.5
 
     def _finish(self, fit: FitResult) -> FitResult:
         if self.options.systematic and fit.status is not Status.FAILED:
@@ -556,7 +634,7 @@ class IdentificationProblem:
 
         if o.solver == "gn":
             res = solve_gn(sh, w0, G, h, max_iter=o.max_iter, tol=o.tol, trust_radius=o.trust_radius,
-                           callback=_progress if o.progress else None)
+                           callback=_progress if o.progress else None, admissible=self._rk4_stable)
             costs = res.costs
         else:
             res = solve_ipopt(sh, self._S_val, w0, G, h, max_iter=o.max_iter, tol=o.tol, progress=o.progress,
