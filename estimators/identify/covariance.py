@@ -7,8 +7,8 @@ encoder zeros), with ``J`` the Jacobian of the weighted residuals, ``A`` that of
 time of the residuals (quantised, slowly varying signals and model error make them correlated).
 
 Conditioning: the information matrix of the free parameters in *relative* units (each
-parameter divided by its estimate), with the state nodes and encoder zeros eliminated, is
-the inverse of their relative covariance.  Its condition number says how unevenly the data
+parameter divided by its scale, the magnitude it started from), with the state nodes and
+encoder zeros eliminated, is the inverse of their relative covariance.  Its condition number says how unevenly the data
 determine the parameters; its weakest eigen-directions are named by their dominant
 parameters, e.g. ``"k1 - 0.9 d1"``: a relative increase of k1 with 0.9 times that relative
 decrease of d1 changes the fit least (:class:`WeakDirection`).
@@ -80,13 +80,13 @@ def direction_text(names, v, floor: float = 0.1) -> tuple[str, dict]:
     return " ".join(parts), {names[i]: float(v[i]) for i in order}
 
 
-def uncertainty(prob, w, r, Jr, A, names, estimate, *, rse_warn: float = 0.5) -> Uncertainty:
+def uncertainty(prob, w, r, Jr, A, names, *, rse_warn: float = 0.5) -> Uncertainty:
     """Covariance, correlations and conditioning at the solution ``w`` (see the module docstring).
 
     Parameters
     ----------
     prob : the ShootingProblem; w : the scaled solution; r, Jr, A : residuals and Jacobians there
-    names : free parameter names; estimate : their values (SI)
+    names : free parameter names
     rse_warn : directions whose relative standard error exceeds this are reported as weak
         (the weakest one always is)
     """
@@ -122,12 +122,11 @@ def uncertainty(prob, w, r, Jr, A, names, estimate, *, rse_warn: float = 0.5) ->
         corr = cov / np.outer(se, se)
     zvar = np.diag(cov_b)[nf:]
     zse = np.sqrt(np.where(zvar > 0, zvar, np.nan))
-    # conditioning in relative units
-    est = np.asarray(estimate, float)
-    rel = np.where(np.abs(est) > 0, np.abs(est), prob.th_scale)
+    # conditioning in relative units: each parameter divided by its scale (its starting magnitude;
+    # an estimate that runs to 0 would make its own relative variance explode)
     cond, weak = float("inf"), []
     if np.all(np.isfinite(C[:nf, :nf])):
-        Crel = C[:nf, :nf] * np.outer(prob.th_scale / rel, prob.th_scale / rel)
+        Crel = C[:nf, :nf]
         mu, V = np.linalg.eigh(0.5 * (Crel + Crel.T))
         mu = np.maximum(mu, 0.0)
         cond = float(mu[-1] / mu[0]) if mu[0] > 0 else float("inf")

@@ -96,7 +96,10 @@ class StiffRate:
         self.x0 = x0
 
     def __call__(self, p) -> float:
-        lam = np.linalg.eigvals(np.array(self._J(self.x0, np.asarray(p, float))))
+        J = np.array(self._J(self.x0, np.asarray(p, float)))
+        if not np.all(np.isfinite(J)):
+            return float("inf")
+        lam = np.linalg.eigvals(J)
         return float(np.max(np.abs(lam))) if lam.size else 0.0
 
 
@@ -225,8 +228,12 @@ class IdentificationProblem:
         nf = len(o.free)
         self.theta0 = initial.vector(o.free)
         self.lo, self.hi = np.empty(nf), np.empty(nf)
+        law_lo, law_hi = self._law_bounds()
         for i, n in enumerate(o.free):
-            b = (o.bounds or {}).get(n) or initial.bounds(n)
+            b = (o.bounds or {}).get(n)
+            if b is None:
+                b = initial.bounds(n)
+                b = (max(b[0], law_lo.get(n, -math.inf)), min(b[1], law_hi.get(n, math.inf)))
             self.lo[i], self.hi[i] = float(b[0]), float(b[1])
             if not self.lo[i] < self.hi[i]:
                 raise ConfigError(f"bounds.{n} must have lower < upper, got [{self.lo[i]:g}, {self.hi[i]:g}]")
@@ -316,6 +323,23 @@ class IdentificationProblem:
         return self.derive(logs=logs, initial=initial, holdout=holdout, **changes).solve(warm)
 
     # ------------------------------------------------------------------ constraints
+    def _law_bounds(self):
+        """Physical bounds the friction laws declare for their parameters (e.g. levels >= 0),
+        ``({name: lower}, {name: upper})`` for the rig parameters that feed them."""
+        from models.friction import get_law
+
+        lo, hi = {}, {}
+        for c in self.model.spec.contacts:
+            law = get_law(c.law)
+            refs = dict(c.params)
+            for prm in law.params:
+                ref = refs.get(prm.name)
+                if ref is None or ref.kind != "param":
+                    continue
+                lo[ref.name] = max(lo.get(ref.name, -math.inf), prm.lower)
+                hi[ref.name] = min(hi.get(ref.name, math.inf), prm.upper)
+        return lo, hi
+
     def _constraints(self) -> tuple[LinearConstraint, ...]:
         """Bounds excluded: ``mu_k <= mu_s`` per Stribeck-type contact with both levels free, and the options'."""
         m, o = self.model, self.options
@@ -521,8 +545,14 @@ class IdentificationProblem:
             zw = [z_ for zl in warm.encoder_zero for z_ in zl.values()]
             if len(zw) == z.size:
                 z = np.asarray(zw, float)
+        deltas = np.zeros((sh.Nint, sh.ne))
+        if warm is not None and warm.input_corrections and sh.ne:
+            dw = np.concatenate(warm.input_corrections) if len(warm.input_corrections) else np.zeros((0, sh.ne))
+            if dw.shape == deltas.shape and tuple(warm.input_noise) == tuple(self.input_noise):
+                deltas = dw
         w0 = np.concatenate([theta / sh.th_scale, z / sh.z_scale]
-                            + [(n / sh.x_scale).ravel() for n in nodes] + [np.zeros(sh.Nint * sh.ne)])
+                            + [(n / sh.x_scale).ravel() for n in nodes]
+                            + [(deltas / sh.d_scale if sh.ne else deltas).ravel()])
         return w0
 
     def _scaled_constraints(self):
@@ -581,6 +611,20 @@ class IdentificationProblem:
                                                        f"parameters (stiffer than the initial ones) and refitted",))
             return prob._finish(fit)
         return self._finish(fit)
+
+    def _feasible(self, theta):
+        """``theta`` moved onto the constraints it violates by round-off (the regularised KKT rows
+        leave ~1e-7) and clipped into the bounds."""
+        theta = np.clip(np.asarray(theta, float), self.lo, self.hi)
+        Gp, hp = self._constraint_rows()
+        for _ in range(5):
+            viol = Gp @ theta - hp if Gp.shape[0] else np.zeros(0)
+            if not np.any(viol > 0):
+                break
+            for i in np.flatnonzero(viol > 0):
+                theta = theta - Gp[i] * (viol[i] / float(Gp[i] @ Gp[i])) * (1 + 1e-12)
+            theta = np.clip(theta, self.lo, self.hi)
+        return theta
 
     def stiff_rate(self, theta) -> float:
         """The model's stiffest rate [1/s] with the free parameters at ``theta`` (largest logged inputs)."""
@@ -647,8 +691,8 @@ class IdentificationProblem:
             raise SolverFailure(f"identify {m.name}: the solver returned non-finite values ({res.reason})")
         r, g, Jr, A, Ypred = sh.evaluate(w)
         theta, z, nodes = sh.split(w)
-        theta = np.clip(theta, self.lo, self.hi)
-        unc = uncertainty(sh, w, r, Jr, A, self.free, theta, rse_warn=o.rse_warn)
+        theta = self._feasible(theta)
+        unc = uncertainty(sh, w, r, Jr, A, self.free, rse_warn=o.rse_warn)
         se, corr = unc.stderr, unc.corr
         tol_b = 1e-6 * sh.th_scale
         at_bound = tuple(n for i, n in enumerate(self.free)
@@ -670,8 +714,9 @@ class IdentificationProblem:
                 if np.isfinite(corr[i, j]) and abs(corr[i, j]) > o.corr_warn:
                     warns.append(f"{self.free[i]} and {self.free[j]} are correlated (corr = {corr[i, j]:+.3f}): "
                                  f"poorly identifiable separately")
+        warned = {n for n, s, v in zip(self.free, se, theta) if not np.isfinite(s) or abs(v) > 0 and s / abs(v) > o.rse_warn}
         for d in unc.weak:
-            if d.rel_stderr > o.rse_warn and len(d.coefficients) > 1:
+            if d.rel_stderr > o.rse_warn and (len(d.coefficients) > 1 or not set(d.coefficients) <= warned):
                 warns.append(f"{d.text} is poorly determined (relative standard error {100 * d.rel_stderr:.0f} % "
                              f"along that direction; condition number {unc.condition:.3g})")
         for n in at_bound:
@@ -691,7 +736,9 @@ class IdentificationProblem:
         # ---- fitted set and trajectories
         fitted = self.initial.with_vector(self.free, theta).with_meta(
             stderr=tuple((n, float(s)) for n, s in zip(self.free, se) if np.isfinite(s)))
-        t_l, meas_l, sim_l, res_l, states, zeros = [], [], [], [], [], []
+        dlt = sh.deltas(w) if sh.ne else np.zeros((sh.Nint, 0))
+        t_l, meas_l, sim_l, res_l, states, zeros, corr_l = [], [], [], [], [], [], []
+        iv = 0
         col = 0
         node = 0
         M = o.shoot_every
@@ -707,6 +754,8 @@ class IdentificationProblem:
             res_l.append({c: (Ym[col:col + ncol, j] - Yp[col:col + ncol, j]) / sig[j] for j, c in enumerate(names)})
             states.append(nodes[node:node + d.nint + 1].copy())
             zeros.append({c: float(z[j]) for c, j in zi.items()})
+            corr_l.append(dlt[iv:iv + d.nint].copy())
+            iv += d.nint
             node += d.nint + 1
             col += ncol
         nrmse = {}
@@ -719,7 +768,7 @@ class IdentificationProblem:
             params=fitted, t=tuple(t_l), measured=tuple(meas_l), simulated=tuple(sim_l), residuals=tuple(res_l),
             nrmse=nrmse, sigma2=unc.sigma2, tau=unc.tau, cost=0.5 * float(r @ r), nsub=self.nsub,
             noise=dict(self.noise), noise_source=dict(self.noise_source), states=tuple(states),
-            encoder_zero=tuple(zeros), status=status, message=message, reason=res.reason,
+            encoder_zero=tuple(zeros), input_corrections=tuple(corr_l), status=status, message=message, reason=res.reason,
             iterations=res.iterations, wall_time=time.perf_counter() - t_start, warnings=tuple(warns),
             at_bound=at_bound, active_constraints=active, condition=unc.condition, weak_directions=unc.weak,
             input_noise=dict(self.input_noise), delay=o.extra_delay, guess_notes=self.guess_notes)

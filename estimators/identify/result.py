@@ -42,10 +42,13 @@ def convergence_message(reason: str, success: bool, *, iterations: int, max_iter
     if success:
         return why
     hints = []
-    if reason == "max_iter" and len(costs) >= 3:
-        last = costs[-3:]
-        rate = (last[0] - last[-1]) / max(abs(last[0]), 1e-300) / 2
-        why += f" ({iterations} iterations; the cost still fell by {100 * rate:.2g} % per iteration)"
+    if reason == "max_iter":
+        why += f" ({iterations} iteration{'s' if iterations != 1 else ''}"
+        if len(costs) >= 3:
+            last = costs[-3:]
+            rate = (last[0] - last[-1]) / max(abs(last[0]), 1e-300) / 2
+            why += f"; the cost still fell by {100 * rate:.2g} % per iteration"
+        why += ")"
         hints.append(f"more iterations (max_iter {2 * max_iter}, CLI --max-iter {2 * max_iter})")
     if at_bound:
         why += f"; at a bound: {', '.join(at_bound)}"
@@ -94,10 +97,13 @@ class FitResult:
     states : per log: (n_nodes, nx) fitted node states
     encoder_zero : per log ``{angle difference: fitted twist at power-on [rad]}`` (empty when
         ``encoder_zero = "untwisted"``)
+    input_corrections : per log, (n_intervals, n_noisy_inputs) corrections of the inputs treated
+        as noisy (errors in the variables), SI units, in ``input_noise`` order
     status : :class:`models.status.Status`; message : why the fit stopped (and what to try)
     reason : the solver's stop reason (machine-readable)
     iterations, wall_time [s], warnings, at_bound, active_constraints
-    condition : condition number of the relative information matrix of the free parameters
+    condition : condition number of the information matrix of the free parameters, each relative to its
+        scale (the magnitude it started from)
     weak_directions : the poorly determined parameter combinations (weakest first)
     validation : hold-out prediction (:class:`~estimators.identify.validation.Validation`) or None
     syserr : (n_free,) ``|theta(eps) - theta(eps/2)|`` or None
@@ -128,6 +134,7 @@ class FitResult:
     noise_source: dict = field(default_factory=dict)
     states: tuple = field(default=(), repr=False)
     encoder_zero: tuple = ()
+    input_corrections: tuple = field(default=(), repr=False)
     status: Status = Status.FAILED
     message: str = ""
     reason: str = ""
