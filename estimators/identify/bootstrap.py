@@ -9,9 +9,10 @@ The parametric bootstrap measures those effects instead of assuming them away:
 
 1. simulate the exact stick/slip plant (:func:`models.plant.simulate`) with the FITTED
    parameters, from the fitted initial state of every log, driven by the logged inputs
-   (corrected through the fitted load-cell offsets and gains; normal forces low-passed at
-   ``force_cutoff`` to serve as the true forces), through the rig's sensor models (encoders,
-   load-cell noise, delays) with a fresh seed per replicate;
+   (corrected through the fitted load-cell offsets and gains; forces low-passed at
+   ``force_cutoff`` and encoder-measured drive speeds at ``speed_cutoff`` to serve as the true
+   inputs; commands and other inputs replayed as logged), through the rig's sensor models
+   (encoders, load-cell noise, delays) with a fresh seed per replicate;
 2. fit every replicate exactly as the original was fitted: the same problem
    (``fit.problem.refit(logs=replicates)``), from the same start (``start="initial"``: the
    original initial set, or a new data-derived guess if the original had none, so the
@@ -54,7 +55,10 @@ class BootstrapOptions:
     replicates : number of simulated replicate logs B (>= 2)
     seed : seed of the first replicate's sensor noise (replicate b uses ``seed + 7919 b + log``)
     sensors : noise scale and quantisation of the replicates' sensors (the rig file's sensors)
-    force_cutoff : low-pass [Hz] of the force inputs to obtain the true forces; None: replay as logged
+    force_cutoff : low-pass [Hz] of the force inputs (load cells) to obtain the true forces; None: replay
+        as logged
+    speed_cutoff : low-pass [Hz] of speed inputs measured by an encoder (a speed drive's: quantised
+        backward differences) to obtain the true drive speed; None: replay as logged
     sim_nsub : substeps per sample of the exact plant
     max_iter : iteration limit of each replicate fit (None: the original's)
     start : "initial" (the original start: repeats the whole pipeline) or "fit" (the fitted values)
@@ -66,6 +70,7 @@ class BootstrapOptions:
     seed: int = 1000
     sensors: SensorOptions = field(default_factory=SensorOptions)
     force_cutoff: float | None = 2.0
+    speed_cutoff: float | None = 5.0
     sim_nsub: int = 10
     max_iter: int | None = None
     start: str = "initial"
@@ -81,10 +86,11 @@ class BootstrapOptions:
                 raise ConfigError(f"bootstrap.{name} must be an integer >= {least}, got {v!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int):
             raise ConfigError(f"bootstrap.seed must be an integer, got {self.seed!r}")
-        fc = self.force_cutoff
-        if fc is not None and (isinstance(fc, bool) or not (isinstance(fc, (int, float)) and np.isfinite(fc)
-                                                            and fc > 0)):
-            raise ConfigError(f"bootstrap.force_cutoff must be a frequency > 0 Hz, got {fc!r}")
+        for name in ("force_cutoff", "speed_cutoff"):
+            fc = getattr(self, name)
+            if fc is not None and (isinstance(fc, bool) or not (isinstance(fc, (int, float)) and np.isfinite(fc)
+                                                                and fc > 0)):
+                raise ConfigError(f"bootstrap.{name} must be a frequency > 0 Hz, got {fc!r}")
         if self.start not in ("initial", "fit"):
             raise ConfigError(f"bootstrap.start must be 'initial' or 'fit', got {self.start!r}")
         if not isinstance(self.sensors, SensorOptions):
@@ -134,7 +140,7 @@ class BootstrapResult:
                 "message": self.message, "success": self.success, "wall_time_s": self.wall_time}
 
 
-def _replicate_inputs(problem, fit, j: int, cutoff) -> tuple[np.ndarray, np.ndarray]:
+def _replicate_inputs(problem, fit, j: int, boot) -> tuple[np.ndarray, np.ndarray]:
     """(model inputs held over each training sample of log ``j``, its fitted initial state)."""
     m = problem.model
     d = problem.data[j]
@@ -143,8 +149,11 @@ def _replicate_inputs(problem, fit, j: int, cutoff) -> tuple[np.ndarray, np.ndar
     U = d.U[1:n_int + 1] if problem.options.input_row == "end" else d.U[:n_int]
     P = m.unpack(fit.params.vector())
     Um = np.array(m.input_from_measured([U[:, i] for i in range(m.nu)], P), float).T.reshape(n_int, m.nu)
-    for i, kind in enumerate(m.input_kinds):
-        if cutoff is not None and kind == "force" and cutoff < 0.5 / problem.dt and n_int > 9:
+    for i, (name, kind) in enumerate(zip(m.inputs, m.input_kinds)):
+        s = m.sensor_of(name)
+        cutoff = boot.force_cutoff if kind == "force" else \
+            boot.speed_cutoff if (kind == "speed" and s is not None and s.kind == "encoder") else None
+        if cutoff is not None and cutoff < 0.5 / problem.dt and n_int > 9:
             Um[:, i] = lowpass(Um[:, i], problem.dt, cutoff)
     return Um, np.asarray(fit.states[j][0], float)
 
@@ -195,7 +204,7 @@ def bootstrap(fit, options: BootstrapOptions | None = None) -> BootstrapResult:
     if problem is None:
         raise DataError("bootstrap needs a FitResult that carries its problem (from identify or problem.solve)")
     boot = options
-    inputs = [_replicate_inputs(problem, fit, j, boot.force_cutoff) for j in range(len(problem.data))]
+    inputs = [_replicate_inputs(problem, fit, j, boot) for j in range(len(problem.data))]
     start = fit.params if boot.start == "fit" else problem._initial_arg
     jobs = [(b, problem, fit.params, start, inputs, boot) for b in range(boot.replicates)]
     results = []

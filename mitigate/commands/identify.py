@@ -213,7 +213,7 @@ def run(args) -> int:
 
 
 def _run(args) -> int:
-    from estimators.identify import BootstrapOptions, IdentifyOptions, bootstrap, identify, initial_guess
+    from estimators.identify import BootstrapOptions, IdentificationProblem, IdentifyOptions, bootstrap, initial_guess
     from models.sensors import SensorOptions
 
     model = get_model(args.model)
@@ -251,12 +251,13 @@ def _run(args) -> int:
         initial, notes = g.params, g.notes
     elif guess == "off" and initial is None:
         initial = model.published()
-    if not args.json:
-        sys.stderr.write(f"identify {model.name}: {len(logs)} log(s), {sum(len(lg.t) for lg in logs)} samples, "
-                         f"free {', '.join(free)} ...\n")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # listed in the result and printed below
-        fit = identify(logs, model, initial, options, holdout=args.holdout)
+        problem = IdentificationProblem(model, logs, initial, options, holdout=args.holdout)  # checks everything
+        if not args.json:
+            sys.stderr.write(f"identify {model.name}: {len(logs)} log(s), {sum(len(lg.t) for lg in logs)} samples, "
+                             f"free {', '.join(free)}, compared {', '.join(c.name for c in problem.channels)} ...\n")
+        fit = problem.solve()
     notes = notes or fit.guess_notes
     note = (f"fitted by mitigate identify ({fit.status.value}: {fit.message.split('. Try')[0]}) from "
             f"{', '.join(args.logs)}; free: {', '.join(free)}; eps = {args.eps} rad/s; encoder zero {args.encoder_zero}")
