@@ -96,7 +96,7 @@ def test_weak_direction_is_the_encoder_zero_symmetry(disc_logs):
     weak = free.weak_directions[0]
     assert set(weak.coefficients) == {"mu_k", "mu_s"} and weak.text.startswith("mu_k + 0.6")
     assert weak.coefficients["mu_s"] == pytest.approx(0.306 / 0.5, abs=0.03)
-    assert any("mu_k and mu_s are correlated (corr = +1.000)" in w for w in free.warnings)
+    assert any("mu_k and mu_s are correlated (corr = +0.99" in w or "(corr = +1.000)" in w for w in free.warnings)
     known = quiet(identify, a, "disc", published("disc"), IdentifyOptions(**opts, encoder_zero="untwisted"))
     assert free.condition > 300 * known.condition
     assert not any("correlated" in w for w in known.warnings)
@@ -337,20 +337,31 @@ def test_delay_detected_rig3():
 
 
 def test_gn_matches_ipopt_and_compiled_matches_vm(short_log):
-    """The hand-written GN, its uncompiled variant and IPOPT (GN Hessian) reach the same optimum
-    on the same problem (errors in the variables off, IPOPT does not have them; encoder zero free)."""
+    """The hand-written GN, its uncompiled variant and IPOPT (GN Hessian) reach the same optimum on
+    the same problem (errors in the variables off: IPOPT does not have them).  With the encoder
+    zero free (a per-log unknown in both solvers) the friction levels lie in a nearly flat valley
+    (the encoder-zero symmetry): there the solvers agree on the cost and on k."""
     fits = {}
-    for key, kw in (("gn_c", dict(solver="gn", compile=None)), ("gn_vm", dict(solver="gn", compile=False)),
-                    ("ipopt", dict(solver="ipopt"))):
-        fits[key] = quiet(identify, short_log, "disc", published("disc"),
-                          IdentifyOptions(free=("k", "mu_k", "mu_s"), nsub=10, input_noise="off", **kw))
+    for zero in ("untwisted", "free"):
+        for key, kw in (("gn_c", dict(solver="gn", compile=None)), ("gn_vm", dict(solver="gn", compile=False)),
+                        ("ipopt", dict(solver="ipopt"))):
+            fits[zero, key] = quiet(identify, short_log, "disc", published("disc"),
+                                    IdentifyOptions(free=("k", "mu_k", "mu_s"), nsub=10, input_noise="off",
+                                                    encoder_zero=zero, **kw))
     for f in fits.values():
         assert f.success, f.message
-    ref = fits["ipopt"]
+    ref = fits["untwisted", "ipopt"]
     for key in ("gn_c", "gn_vm"):
-        assert np.all(np.abs(fits[key].estimate - ref.estimate) < 0.05 * ref.stderr), (key, fits[key].estimate)
-        assert np.allclose(fits[key].stderr, ref.stderr, rtol=0.05)
-    assert np.allclose(fits["gn_c"].estimate, fits["gn_vm"].estimate, rtol=1e-6, atol=0)
+        f = fits["untwisted", key]
+        assert np.all(np.abs(f.estimate - ref.estimate) < 0.05 * ref.stderr), (key, f.estimate)
+        assert np.allclose(f.stderr, ref.stderr, rtol=0.05)
+    assert np.allclose(fits["untwisted", "gn_c"].estimate, fits["untwisted", "gn_vm"].estimate, rtol=1e-6, atol=0)
+    free = fits["free", "ipopt"]
+    for key in ("gn_c", "gn_vm"):
+        f = fits["free", key]
+        assert abs(f.cost - free.cost) < 0.01        # noise-normalised squares: far below one SE
+        assert abs(f.estimate[0] - free.estimate[0]) < 0.1 * free.stderr[0]
+        assert f.encoder_zero[0]["theta1-theta3"] == pytest.approx(free.encoder_zero[0]["theta1-theta3"], abs=0.02)
 
 
 def _assert_jacobians_match_fd(prob, w, Jr, A, h=1e-6):
