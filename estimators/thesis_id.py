@@ -31,7 +31,7 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import least_squares, root
 
 from models.errors import ConfigError
-from models.params import Rig3Params
+from models.params import ParameterSet, published
 
 __all__ = [
     "G", "D1", "D2", "TABLE_3_3_K1", "TABLE_3_3_K2", "TABLE_3_4", "TABLE_3_5", "OMEGA_N",
@@ -104,14 +104,14 @@ class ModalFit:
     variant: str
 
 
-def modal_stiffness(x0=None, *, omega_n=OMEGA_N, params: Rig3Params = Rig3Params(), motor: str = "free") -> ModalFit:
+def modal_stiffness(x0=None, *, omega_n=OMEGA_N, params: ParameterSet | None = None, motor: str = "free") -> ModalFit:
     """Eq. (3-6): solve ``omega_n_i^2 - lambda_i(k1, k2) = 0`` with MINPACK's modified Powell method.
 
     Parameters
     ----------
     x0 : initial (k1, k2); default the Table 3.3 means (as in the thesis)
     omega_n : measured natural frequencies [rad/s]
-    params : inertias J1, J2 and J3 = eta^2 Jm
+    params : the rig3 set with the inertias J1, J2 and J3 = eta^2 Jm (default: the published one)
     motor : "free" (eq. 3-3 as printed, J3 = eta^2 Jm) or "clamped" (J3 -> inf)
 
     Notes
@@ -126,7 +126,8 @@ def modal_stiffness(x0=None, *, omega_n=OMEGA_N, params: Rig3Params = Rig3Params
         raise ConfigError(f"motor must be 'free' or 'clamped', got {motor!r}")
     st = static_stiffness()
     x0 = np.array([st["k1_mean"], st["k2_mean"]] if x0 is None else x0, dtype=float)
-    J3 = math.inf if motor == "clamped" else params.J3
+    params = published("rig3") if params is None else params
+    J3 = math.inf if motor == "clamped" else params.eta ** 2 * params.Jm
     target = np.asarray(omega_n, dtype=float) ** 2
 
     def f(k):

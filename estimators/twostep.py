@@ -29,8 +29,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from models.errors import ConfigError, DataError
-from models.params import LeadScrewParams, ParameterSet
-from models.rigs import get_model
+from models import get_model
+from models.params import ParameterSet
 
 __all__ = ["Step1Result", "fit_step1", "steady_sliding_data", "seed002_crosscheck", "xi_w0", "fit_step2"]
 
@@ -187,11 +187,14 @@ def seed002_crosscheck() -> dict:
     return out
 
 
-def fit_step2(logs, initial: LeadScrewParams, *, free=("K", "c", "sm"), **options):
+def fit_step2(logs, initial: ParameterSet, *, free=("K", "c", "sm"), **options):
     """Seed 002 step 2: match the limit cycle (K, c, sm by default) with the multiple-shooting estimator.
 
     ``logs`` are stick-slip logs of the lead screw (omega1 measured, omega_drive and
     axial_force as inputs); ``options`` go to :class:`estimators.identify.IdentifyOptions`.
+    The seed's limit-cycle records start at rest, untwisted: ``encoder_zero`` defaults to
+    "untwisted" here, which is what pins the friction scaling ``sm`` (with a free encoder zero
+    and a steady axial force, ``sm`` and a constant twist cannot be told apart).
 
     Measured (tests/test_twostep.py, 0.1 s exact-plant log at 0.2 ms, Fig. 9.23 setting, fitted
     model with r1 = 1 s/rad and 10 RK4 substeps): K within 1.3-1.4 % from a -15 % / +15 % start,
@@ -202,4 +205,5 @@ def fit_step2(logs, initial: LeadScrewParams, *, free=("K", "c", "sm"), **option
     """
     from estimators.identify import IdentifyOptions, identify
 
+    options.setdefault("encoder_zero", "untwisted")
     return identify(logs, "leadscrew", initial, IdentifyOptions(free=tuple(free), **options))

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from models import published
+from models.params import published
 
 G = 9.81  # m/s^2, thesis eq. (3-2)
 D1, D2 = 0.190, 0.162  # m, thesis Table 3.2
@@ -90,7 +90,7 @@ def test_eq_3_9_d2_printed_value_not_reproduced():
     assert 0.010 < d2_text / 0.01595 - 1 < 0.014
     assert 0.050 < d2_static / 0.01595 - 1 < 0.056
     p = published("rig3")
-    assert (p.d1, p.d2) == (0.02145, 0.01595)   # the code keeps the printed values
+    assert (p.d1, p.d2) == (0.02145, 0.01595)   # the rig file keeps the printed values
 
 
 # thesis Table 3.5: (N1 [N], F_T [N], mu_s printed) in three groups

@@ -78,7 +78,7 @@ def test_step2_limit_cycle_recovers_stiffness():
     c -74 % (the damping is NOT identified by this log; only its sign/bound is asserted).
     """
     from estimators.twostep import fit_step2
-    from models.rigs import get_model
+    from models import get_model
     from models.plant import SimOptions, simulate
 
     true = published("leadscrew")

@@ -1,0 +1,290 @@
+"""Constrained Gauss-Newton / Levenberg-Marquardt for a :class:`~estimators.identify.shooting.ShootingProblem`.
+
+Each iteration solves the sparse KKT system of the continuity-constrained least-squares
+problem with the Gauss-Newton Hessian ``J^T J``::
+
+    [ J^T J + mu I   A^T   G_a^T ] [dw ]   [ -J^T r  ]
+    [ A              0     0     ] [lam] = [ -g      ]
+    [ G_a            0     0     ] [nu ]   [ h_a - G_a w ]
+
+(scipy SuperLU on a banded ordering with a border), where ``A`` is the Jacobian of the
+continuity gaps ``g`` and ``G_a w <= h_a`` the *active* linear inequalities on the border
+variables (the parameters' bounds, ``mu_k <= mu_s``, user constraints).  The active set is
+updated inside the iteration: a row whose multiplier has the wrong sign is released, the most
+violated inactive row is added, until neither happens.
+
+Robustness on real logs (Levenberg-Marquardt / trust region):
+
+- ``mu`` (relative to the largest diagonal entry of ``J^T J``) and a trust radius on the scaled
+  parameter step adapt to the ratio of the actual to the predicted decrease of the l1 merit
+  function ``0.5 |r|^2 + nu |g|_1``;
+- the step length comes from a backtracking line search on that merit, with one second-order
+  correction (Nocedal & Wright 18.3) against the Maratos effect;
+- when no step decreases the merit, ``mu`` is raised (shorter, more gradient-like steps) and the
+  iteration is retried before the solver gives up;
+- once the scaled gaps are below :data:`GAP_OK` (far below any sensor's noise), a step is judged
+  by the cost alone: its actual change may not exceed the GN model's for that step length (closing
+  the last gaps may cost a little), and the gaps must stay below GAP_OK; the l1 merit's gap
+  multipliers, huge in stiff (stuck) intervals, would trade real cost for gap changes far below
+  the noise;
+- the solver keeps the lowest-cost iterate whose scaled gaps are below GAP_OK, and counts a failed
+  line search there as
+  converged when the step would lower the cost by less than ``0.02 s^2`` (``s^2`` the residual
+  variance per degree of freedom: the parameters would move by less than 0.2 standard errors),
+  or when five feasible iterations together lowered it by less than ``1e-3 s^2`` (a stall).
+
+The solver reports WHY it stopped (:class:`GNResult.reason`): ``"small_step"``,
+``"no_predicted_decrease"``, ``"no_further_decrease"`` (all converged), ``"max_iter"``,
+``"line_search"`` or ``"singular"``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from estimators.identify.shooting import KKTFactor
+
+__all__ = ["GNResult", "solve_gn", "CONVERGED"]
+
+CONVERGED = ("small_step", "no_predicted_decrease", "no_further_decrease")
+#: scaled continuity gaps below this are far below any sensor's noise (the states are scaled by
+#: their range): such an iterate counts as feasible
+GAP_OK = 1e-4
+
+
+@dataclass(frozen=True)
+class GNResult:
+    """What :func:`solve_gn` returns.
+
+    Attributes
+    ----------
+    w : the final scaled decision vector
+    iterations : iterations done
+    reason : why it stopped (see the module docstring)
+    success : ``reason in CONVERGED``
+    costs : ``0.5 |r|^2`` at the start of every iteration, then at the end
+    max_gap : largest scaled continuity gap at the end
+    active : indices of the inequality rows active at the end
+    """
+
+    w: np.ndarray
+    iterations: int
+    reason: str
+    success: bool
+    costs: tuple = ()
+    max_gap: float = 0.0
+    active: tuple = ()
+    radius: float = float("nan")
+    lm: float = float("nan")
+    history: tuple = field(default=(), repr=False)
+
+
+def _kkt_solve(prob, H, mu, grad, A, g, G, h, w, active, ng):
+    """Solve the KKT system for the step with the active-set update; returns (dw, lam, active, factor, Aall)."""
+    nw, nb = prob.nw, prob.nb
+    m = G.shape[0]
+    active = [i for i in active if i < m]
+    Hm = (H + mu * sp.identity(nw, format="csc")).tocsc()
+    fac = Aall = None
+    for _ in range(2 * m + 4):
+        na = len(active)
+        if na:
+            Ga = np.zeros((na, nw))
+            Ga[:, :nb] = G[active]
+            Aall = sp.vstack([A, sp.csc_matrix(Ga)]).tocsc()
+            rhs_c = np.r_[-g, h[active] - G[active] @ w[:nb]]
+        else:
+            Aall = A.tocsc()
+            rhs_c = -g
+        K = sp.bmat([[Hm, Aall.T], [Aall, -1e-12 * sp.identity(Aall.shape[0], format="csc")]], format="csc")
+        fac = KKTFactor(prob, K, na)
+        sol = fac.solve(np.r_[-grad, rhs_c])
+        if not np.all(np.isfinite(sol)):
+            raise RuntimeError("non-finite KKT solution")
+        dw = sol[:nw]
+        lam = sol[nw:nw + ng]
+        if na:
+            nu = sol[nw + ng:]
+            j = int(np.argmin(nu))
+            if nu[j] < -1e-10 * max(1.0, float(np.max(np.abs(grad[:nb])))):
+                active.pop(j)           # this row pulls the step inward: release it
+                continue
+        if m:
+            slack = G @ (w[:nb] + dw[:nb]) - h
+            slack[active] = -np.inf
+            j = int(np.argmax(slack))
+            if slack[j] > 1e-12 * max(1.0, abs(h[j])):
+                active.append(j)
+                continue
+        break
+    return dw, lam, active, fac, Aall
+
+
+def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8, trust_radius: float = 1.0,
+             callback=None, admissible=None) -> GNResult:
+    """Constrained Gauss-Newton on ``prob`` from ``w0`` (see the module docstring).
+
+    Parameters
+    ----------
+    prob : ShootingProblem
+    w0 : (nw,) scaled start; it must satisfy ``G w0[:nb] <= h`` (up to round-off)
+    G, h : linear inequalities ``G w[:nb] <= h`` on the scaled border variables (m, nb), (m,)
+    max_iter : iteration limit
+    tol : converged when the scaled step is below ``sqrt(tol)`` and the scaled gaps below ``100 tol``
+    trust_radius : initial largest change of a scaled free parameter per step
+    callback : ``callback(iteration, cost, max_gap, step)`` per iteration
+    admissible : ``admissible(w) -> bool``: trial points where it is False are rejected by the line
+        search (e.g. parameters for which the discretisation is unstable)
+    """
+    nf, nb, nw = prob.nf, prob.nb, prob.nw
+    G = np.zeros((0, nb)) if G is None else np.asarray(G, float)
+    h = np.zeros(0) if h is None else np.asarray(h, float)
+    w = np.asarray(w0, float).copy()
+    r, g, Jr, A, _ = prob.evaluate(w)
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(g))):
+        return GNResult(w, 0, "non_finite_start", False, (), float("inf"))
+    nu_pen = 1.0
+    lm = 1e-10
+    radius = float(trust_radius)
+    active = [i for i in range(G.shape[0]) if G[i] @ w[:nb] >= h[i] - 1e-10 * max(1.0, abs(h[i]))]
+    reason = "max_iter"
+    costs = []
+    best = None         # (cost, w) of the lowest-cost iterate whose gaps are below GAP_OK
+    diag = ()
+    it = 0
+    for it in range(1, max_iter + 1):
+        f = 0.5 * float(r @ r)
+        costs.append(f)
+        gmax0 = float(np.max(np.abs(g))) if g.size else 0.0
+        if gmax0 < GAP_OK and (best is None or f < best[0]):
+            best = (f, w.copy())
+        H = (Jr.T @ Jr).tocsc()
+        grad = Jr.T @ r
+        mu = lm * max(1.0, float(H.diagonal().max()))
+        ng = A.shape[0]
+        try:
+            dw, lam, active, fac, Aall = _kkt_solve(prob, H, mu, grad, A, g, G, h, w, active, ng)
+        except (RuntimeError, ValueError):
+            reason = "singular"
+            break
+        gmax = float(np.max(np.abs(g))) if g.size else 0.0
+        step_inf = float(np.max(np.abs(dw))) if nw else 0.0
+        if callback is not None:
+            callback(it, f, gmax, step_inf)
+        if step_inf < math.sqrt(tol) and gmax < 100 * tol:
+            reason = "small_step"
+            break
+        # predicted GN decrease negligible (in units of noise-normalised squares: 1e-4 moves the
+        # parameters by ~0.01 standard errors) and the gaps small: converged
+        Jdw = Jr @ dw
+        pred_full = -float(grad @ dw) - 0.5 * float(Jdw @ Jdw)
+        s2 = max(1.0, 2 * f / max(r.size - nw + g.size, 1))
+        if 0 <= pred_full <= max(tol * f, 1e-4 * s2) and gmax < GAP_OK:
+            reason = "no_predicted_decrease"
+            break
+        # stalled: feasible, and the last 5 iterations lowered the cost by less than 1e-3 s^2
+        if gmax < GAP_OK and len(costs) > 5 and costs[-6] - f < 1e-3 * s2:
+            reason = "no_further_decrease"
+            break
+        # step length limits: the feasible region of the inequalities, the trust radius
+        t_max = 1.0
+        if G.shape[0]:
+            Gd = G @ dw[:nb]
+            slack = h - G @ w[:nb]
+            for i in np.flatnonzero(Gd > 1e-15):
+                if i in active:
+                    continue
+                t_max = min(t_max, max(slack[i], 0.0) / Gd[i])
+        dth = float(np.max(np.abs(dw[:nf]))) if nf else 0.0
+        capped = False
+        if dth * t_max > radius:
+            t_max, capped = radius / dth, True
+        nu_pen = max(nu_pen, 1.5 * float(np.max(np.abs(lam))) if lam.size else 0.0)
+        gl1 = float(np.sum(np.abs(g)))
+        phi0 = f + nu_pen * gl1
+        dphi = float(grad @ dw) - nu_pen * gl1
+        alpha = t_max
+        accepted = False
+        # feasible phase (gaps far below the noise): judge a step by the cost alone and keep the
+        # gaps below GAP_OK, instead of the l1 merit that the gap multipliers dominate
+        feasible = gmax < GAP_OK
+        gdw = float(grad @ dw)
+
+        jdw2 = float(Jdw @ Jdw)
+
+        def _ok(rt, gt, a):
+            if not (np.all(np.isfinite(rt)) and np.all(np.isfinite(gt))):
+                return False, np.inf
+            ft = 0.5 * float(rt @ rt)
+            if feasible:
+                # the actual cost change may not exceed the GN model's for this step length (which
+                # may be an increase: closing the last gaps can cost a little), plus a sufficient
+                # decrease margin; and the gaps stay below GAP_OK
+                model = a * gdw + 0.5 * a * a * jdw2
+                return (ft - f <= model - 1e-4 * a * abs(gdw) + 1e-10 * f + 1e-12
+                        and float(np.max(np.abs(gt))) < GAP_OK), ft
+            pt = ft + nu_pen * float(np.sum(np.abs(gt)))
+            return pt <= phi0 + 1e-4 * a * min(dphi, 0.0), pt
+
+        wt, phit = w, np.inf
+        for ls in range(12 if feasible else 30):
+            wt = w + alpha * dw
+            if admissible is not None and not admissible(wt):
+                alpha *= 0.5
+                continue
+            rt, gt, _, _, _ = prob.evaluate(wt, jac=False)
+            ok, phit = _ok(rt, gt, alpha)
+            if ok:
+                accepted = True
+                break
+            if ls == 0 and Aall is not None and np.all(np.isfinite(gt)):
+                # second-order correction: the minimum-norm (GN metric) change that removes the
+                # gaps the full step leaves, from the same factorisation
+                corr = fac.solve(np.r_[np.zeros(nw), -gt, np.zeros(Aall.shape[0] - ng)])
+                ws = wt + corr[:nw]
+                if not G.shape[0] or np.all(G @ ws[:nb] - h <= 1e-10 * np.maximum(1.0, np.abs(h))):
+                    rs, gs, _, _, _ = prob.evaluate(ws, jac=False)
+                    ok, phis = _ok(rs, gs, alpha)
+                    if ok:
+                        wt, phit, accepted = ws, phis, True
+                        break
+            alpha *= 0.5
+        if not accepted and lm < 1e-3:
+            lm = max(lm * 100, 1e-8)          # shorter, more gradient-like steps; retry from w
+            radius = max(radius * 0.25, 1e-3)
+            continue
+        if not accepted:
+            # near a solution the gap multipliers of stiff (stuck) intervals make the l1 merit
+            # reject every step: converged if the gaps are far below the noise and the step would
+            # lower the cost by less than 0.02 s^2 (it would move the parameters by < 0.2 SE)
+            if (gmax < 1e-6 and step_inf < 1e-3) or (gmax < GAP_OK and pred_full <= 0.02 * s2):
+                reason = "no_further_decrease"
+            else:
+                reason = "line_search"
+            diag = (("max_gap", gmax), ("predicted_decrease", pred_full), ("s2", s2), ("step", step_inf))
+            break
+        # trust-region bookkeeping: actual vs predicted merit decrease along the accepted step
+        pred = -(alpha * gdw + 0.5 * alpha * alpha * jdw2) + (0.0 if feasible else alpha * nu_pen * gl1)
+        rho = ((f if feasible else phi0) - phit) / pred if pred > 0 else 1.0
+        if rho > 0.75 and capped and alpha >= t_max:
+            radius = min(2 * radius, 1e3)
+        elif rho < 0.25:
+            radius = max(0.25 * radius, 1e-3)
+        lm = max(lm / 10, 1e-12) if alpha >= 0.5 * t_max else min(lm * 10, 1e-2)
+        w = wt
+        active = [i for i in active if G[i] @ w[:nb] >= h[i] - 1e-9 * max(1.0, abs(h[i]))]
+        r, g, Jr, A, _ = prob.evaluate(w)
+    f = 0.5 * float(r @ r)
+    gmax = float(np.max(np.abs(g))) if g.size else 0.0
+    if best is not None and (gmax >= GAP_OK or f > best[0]) and reason != "max_iter":
+        w = best[1]
+        r, g, _, _, _ = prob.evaluate(w, jac=False)
+        f = 0.5 * float(r @ r)
+        gmax = float(np.max(np.abs(g))) if g.size else 0.0
+        active = [i for i in range(G.shape[0]) if G[i] @ w[:nb] >= h[i] - 1e-9 * max(1.0, abs(h[i]))]
+    costs.append(f)
+    return GNResult(w, it, reason, reason in CONVERGED, tuple(costs), gmax, tuple(sorted(active)), radius, lm, diag)

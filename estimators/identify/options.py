@@ -1,0 +1,297 @@
+"""What to fit and how: :class:`IdentifyOptions` and :class:`LinearConstraint`.
+
+Both are frozen and check themselves when built; every error is one line naming the field,
+``"options.eps must be a finite number > 0 rad/s, got -1"``.  Names of parameters and channels
+are checked against the rig and the logs later, by :class:`~estimators.identify.problem.IdentificationProblem`.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Mapping
+
+from models.errors import ConfigError
+from models.sensors import SensorOptions
+
+__all__ = ["IdentifyOptions", "LinearConstraint", "SOLVERS", "ENCODER_ZERO"]
+
+SOLVERS = ("gn", "ipopt")
+#: "free": each log's encoders were zeroed at an unknown twist (one unknown per angle difference
+#: and log); "untwisted": the rig was untwisted when the encoders were zeroed
+ENCODER_ZERO = ("free", "untwisted")
+
+_TERM = re.compile(r"\s*([+-]?)\s*((?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)?\s*\*?\s*([A-Za-z_][A-Za-z0-9_]*)\s*")
+_NUM = re.compile(r"^\s*[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?\s*$")
+
+
+@dataclass(frozen=True)
+class LinearConstraint:
+    """A linear inequality on parameters, ``sum_i c_i p_i <= upper`` (SI units).
+
+    Parameters
+    ----------
+    terms : ``((name, coefficient), ...)``
+    upper : the right-hand side
+    text : how it reads (for messages)
+
+    Build one from text with :meth:`parse`, e.g. ``LinearConstraint.parse("mu_k - mu_s <= 0")``
+    or ``"k1 + 2.5 k2 >= 1"``.
+    """
+
+    terms: tuple[tuple[str, float], ...]
+    upper: float
+    text: str = ""
+
+    def __post_init__(self):
+        if not self.terms:
+            raise ConfigError(f"constraint {self.text or ''!r} must involve at least one parameter")
+        for name, c in self.terms:
+            if not isinstance(name, str) or isinstance(c, bool) or not isinstance(c, (int, float)) \
+                    or not math.isfinite(c):
+                raise ConfigError(f"constraint term must be (name, finite coefficient), got {(name, c)!r}")
+        if isinstance(self.upper, bool) or not isinstance(self.upper, (int, float)) or not math.isfinite(self.upper):
+            raise ConfigError(f"constraint right-hand side must be a finite number, got {self.upper!r}")
+        if not self.text:
+            object.__setattr__(self, "text", self.describe())
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(n for n, _ in self.terms)
+
+    def describe(self) -> str:
+        parts = []
+        for i, (n, c) in enumerate(self.terms):
+            sign = "-" if c < 0 else ("+" if i else "")
+            mag = abs(c)
+            coef = "" if mag == 1 else f"{mag:g} "
+            parts.append(f"{sign} {coef}{n}".strip() if i else f"{'-' if c < 0 else ''}{coef}{n}")
+        return " ".join(parts) + f" <= {self.upper:g}"
+
+    @classmethod
+    def parse(cls, text: str, where: str = "options.constraints") -> "LinearConstraint":
+        """``"a x + b y <= c"`` (or ``>=``) with numeric coefficients and parameter names."""
+        if not isinstance(text, str):
+            raise ConfigError(f"{where} must be text such as 'mu_k - mu_s <= 0', got {text!r}")
+        for op, sign in (("<=", 1.0), (">=", -1.0)):
+            if op in text:
+                lhs, _, rhs = text.partition(op)
+                break
+        else:
+            raise ConfigError(f"{where} must read 'EXPRESSION <= NUMBER' or 'EXPRESSION >= NUMBER', got {text!r}")
+        if not _NUM.match(rhs):
+            raise ConfigError(f"{where}: the right-hand side must be a number, got {rhs.strip()!r} in {text!r}")
+        terms: dict[str, float] = {}
+        pos, s = 0, lhs.strip()
+        if not s:
+            raise ConfigError(f"{where}: no parameter on the left-hand side of {text!r}")
+        while pos < len(s):
+            m = _TERM.match(s, pos)
+            if not m or m.end() == pos:
+                raise ConfigError(f"{where}: cannot read {s[pos:]!r} in {text!r} (expected e.g. '2.5 k1 - k2')")
+            if pos > 0 and not m.group(1):
+                raise ConfigError(f"{where}: missing + or - before {m.group(3)!r} in {text!r}")
+            c = float(m.group(2)) if m.group(2) else 1.0
+            c = -c if m.group(1) == "-" else c
+            terms[m.group(3)] = terms.get(m.group(3), 0.0) + c
+            pos = m.end()
+        terms = {n: c for n, c in terms.items() if c != 0.0}
+        return cls(tuple((n, sign * c) for n, c in terms.items()), sign * float(rhs), text.strip())
+
+
+def _pos_number(v, where: str, unit: str = "", *, allow_none: bool = False) -> None:
+    if v is None and allow_none:
+        return
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not v > 0:
+        raise ConfigError(f"{where} must be a finite number > 0{' ' + unit if unit else ''}, got {v!r}")
+
+
+def _names(v, where: str) -> tuple[str, ...]:
+    if isinstance(v, str):
+        v = [s.strip() for s in v.split(",") if s.strip()]
+    try:
+        out = tuple(v)
+    except TypeError:
+        raise ConfigError(f"{where} must be a list of names, got {v!r}") from None
+    for n in out:
+        if not isinstance(n, str) or not n:
+            raise ConfigError(f"{where} must hold names, got {n!r}")
+    return out
+
+
+@dataclass(frozen=True, kw_only=True)
+class IdentifyOptions:
+    """What to fit and how.
+
+    Parameters
+    ----------
+    free : names of the parameters to fit: physical ones and sensor offsets/gains alike
+        (``("k1", "k2", "motor_torque_offset")``); a comma-separated string is accepted
+    bounds : ``{name: (lower, upper)}`` [SI]; default the initial set's fitting bounds
+        (its TOML ``[bounds]``, else the rig file's physical bounds)
+    constraints : further linear inequalities on the free parameters, as
+        :class:`LinearConstraint` or text (``"k1 - 3 k2 <= 0"``)
+    order_friction : add ``mu_k <= mu_s`` for every Stribeck-type contact whose static and
+        kinetic levels are both free (stribeck: mu_k <= mu_s; bit_rock: mu_cb <= mu_sb)
+    outputs : compared channels; default every sensor channel of the rig found in the log
+        (encoder speeds, speed, torque and load-cell channels that are not inputs) plus the
+        encoder angle differences that measure twists (``"theta1-theta2"``, see ``use_twist``)
+    exclude : channels left out of the default ``outputs`` (e.g. ``("torque_bit",)``)
+    noise : ``{channel: standard deviation}`` [SI]; default from the rig's sensors
+        (:func:`models.sensors.channel_std` with ``sensors``)
+    sensors : the noise scale and quantisation the default noise levels assume
+    eps : friction regularisation of the fitted model [rad/s].  The regularised model creeps
+        where the plant sticks; the bias this puts on friction and damping shrinks with eps,
+        at the price of more substeps
+    nsub : RK4 substeps per sample; None: from the stiffest rate at zero contact speed,
+        ``ceil(dt |lambda|max / 3.5)``
+    shoot_every : samples per shooting interval
+    speed_average : compare encoder speeds as means over the sample (the DAQ's backward
+        differences of counted angles)
+    use_twist : compare encoder angle differences with the twists they measure
+    encoder_zero : "free" (default): incremental encoders read 0 at power-on, so an angle
+        difference is the twist minus its unknown value then: one unknown per difference and
+        log, fitted with the parameters; "untwisted": the logs started untwisted (the
+        differences are the twists).  With "free" a constant friction level and a constant
+        twist can only be told apart by a torque sensor, a varying normal force, or reversals
+    input_row : "end" (row k+1 holds the input held over [t_k, t_k+1): the plant's logs) or
+        "start" (row k holds it)
+    extra_delay : whole samples added to every sensor channel's delay (the rig file's
+        ``delay``); commands (set-points) are not delayed
+    detect_delay : also fit with ``extra_delay`` = 0 .. detect_delay and keep the delay with
+        the smallest cost per residual (reported in the result)
+    max_iter : iteration limit; tol : convergence tolerance (GN: the scaled step below
+        ``sqrt(tol)`` and the scaled gaps below ``100 tol``; IPOPT: its ``tol``)
+    trust_radius : largest change of a scaled parameter (relative to its scale) in the first
+        Gauss-Newton step; adapted from the ratio of actual to predicted decrease
+    solver : "gn" (constrained Gauss-Newton / Levenberg-Marquardt on the sparse KKT system,
+        compiled sensitivities) or "ipopt" (IPOPT with the Gauss-Newton Hessian, uncompiled;
+        no errors in the variables)
+    compile : GN: build the per-sample sensitivity function with gcc (cached on disk); None:
+        if gcc is available
+    input_cutoff : ``{input channel: cutoff [Hz]}``: zero-phase low-pass of those logged inputs
+    input_noise : errors in the variables: ``{input channel: noise std [SI]}``, "auto" (the
+        force/torque inputs whose fast part is white noise, with the estimated std; GN only)
+        or "off".  Every shooting interval gets a constant correction per such input, with the
+        prior N(0, std^2 / shoot_every)
+    corr_warn, rse_warn : identifiability thresholds (|correlation|, relative standard error,
+        also along the weakest direction of the information matrix)
+    systematic : also refit with the regularisation halved (eps/2; the lead screw's r1 doubled)
+        and report ``|theta(eps) - theta(eps/2)|`` as a systematic error
+    systematic_iter : iteration limit of that refit
+    progress : one status line per iteration on stderr
+    """
+
+    free: tuple[str, ...]
+    bounds: Mapping[str, tuple[float, float]] | None = None
+    constraints: tuple = ()
+    order_friction: bool = True
+    outputs: tuple[str, ...] | None = None
+    exclude: tuple[str, ...] = ()
+    noise: Mapping[str, float] | None = None
+    sensors: SensorOptions = field(default_factory=SensorOptions)
+    eps: float = 0.005
+    nsub: int | None = None
+    shoot_every: int = 10
+    speed_average: bool = True
+    use_twist: bool = True
+    encoder_zero: str = "free"
+    input_row: str = "end"
+    extra_delay: int = 0
+    detect_delay: int = 0
+    max_iter: int = 100
+    tol: float = 1e-8
+    trust_radius: float = 1.0
+    solver: str = "gn"
+    compile: bool | None = None
+    input_cutoff: Mapping[str, float] | None = None
+    input_noise: Mapping[str, float] | str | None = "auto"
+    corr_warn: float = 0.95
+    rse_warn: float = 0.5
+    systematic: bool = False
+    systematic_iter: int = 20
+    progress: bool = False
+
+    def __post_init__(self):
+        free = _names(self.free, "options.free")
+        if not free:
+            raise ConfigError("options.free must name at least one parameter, got none")
+        dup = sorted({n for n in free if free.count(n) > 1})
+        if dup:
+            raise ConfigError(f"options.free must not repeat names, got {', '.join(dup)} twice")
+        object.__setattr__(self, "free", free)
+        if self.outputs is not None:
+            outs = _names(self.outputs, "options.outputs")
+            if not outs:
+                raise ConfigError("options.outputs must name at least one channel, got none")
+            object.__setattr__(self, "outputs", outs)
+        object.__setattr__(self, "exclude", _names(self.exclude, "options.exclude"))
+        cons = []
+        for c in (self.constraints if not isinstance(self.constraints, (str, LinearConstraint)) else (self.constraints,)):
+            if isinstance(c, str):
+                c = LinearConstraint.parse(c)
+            if not isinstance(c, LinearConstraint):
+                raise ConfigError(f"options.constraints must hold LinearConstraint or text, got {type(c).__name__}")
+            cons.append(c)
+        object.__setattr__(self, "constraints", tuple(cons))
+        if self.bounds is not None:
+            if not isinstance(self.bounds, Mapping):
+                raise ConfigError(f"options.bounds must be a table {{name: (lower, upper)}}, got {self.bounds!r}")
+            for n, b in self.bounds.items():
+                ok = isinstance(b, (tuple, list)) and len(b) == 2 and all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v) for v in b)
+                if not ok or not b[0] < b[1]:
+                    raise ConfigError(f"options.bounds.{n} must be (lower, upper) with lower < upper, got {b!r}")
+        for flag in ("order_friction", "speed_average", "use_twist", "systematic", "progress"):
+            if getattr(self, flag) not in (True, False):
+                raise ConfigError(f"options.{flag} must be true or false, got {getattr(self, flag)!r}")
+        if not isinstance(self.sensors, SensorOptions):
+            raise ConfigError(f"options.sensors must be SensorOptions, got {type(self.sensors).__name__}")
+        _pos_number(self.eps, "options.eps", "rad/s")
+        for name, least in (("nsub", 1), ("shoot_every", 1), ("max_iter", 1), ("systematic_iter", 1),
+                            ("extra_delay", 0), ("detect_delay", 0)):
+            v = getattr(self, name)
+            if name == "nsub" and v is None:
+                continue
+            if isinstance(v, bool) or not isinstance(v, int) or v < least:
+                raise ConfigError(f"options.{name} must be an integer >= {least}, got {v!r}")
+        if self.detect_delay > 10 or self.extra_delay > 100:
+            raise ConfigError(f"options.detect_delay must be <= 10 and options.extra_delay <= 100 samples, "
+                              f"got {self.detect_delay} and {self.extra_delay}")
+        if self.encoder_zero not in ENCODER_ZERO:
+            raise ConfigError(f"options.encoder_zero must be one of {', '.join(ENCODER_ZERO)}, got {self.encoder_zero!r}")
+        if self.input_row not in ("end", "start"):
+            raise ConfigError(f"options.input_row must be 'end' or 'start', got {self.input_row!r}")
+        _pos_number(self.tol, "options.tol")
+        _pos_number(self.trust_radius, "options.trust_radius")
+        if self.solver not in SOLVERS:
+            raise ConfigError(f"options.solver must be one of {', '.join(SOLVERS)}, got {self.solver!r}")
+        if self.compile not in (None, True, False):
+            raise ConfigError(f"options.compile must be true, false or unset, got {self.compile!r}")
+        if not (isinstance(self.corr_warn, (int, float)) and 0 < self.corr_warn <= 1):
+            raise ConfigError(f"options.corr_warn must be in (0, 1], got {self.corr_warn!r}")
+        _pos_number(self.rse_warn, "options.rse_warn")
+        for k, v in (self.input_cutoff or {}).items():
+            _pos_number(v, f"options.input_cutoff.{k}", "Hz")
+        if isinstance(self.input_noise, str):
+            if self.input_noise not in ("auto", "off"):
+                raise ConfigError(f"options.input_noise must be 'auto', 'off' or a table of standard deviations, "
+                                  f"got {self.input_noise!r}")
+        elif self.input_noise is not None:
+            for k, v in self.input_noise.items():
+                _pos_number(v, f"options.input_noise.{k}")
+            if self.input_noise and self.solver != "gn":
+                raise ConfigError(f"options.input_noise needs solver 'gn' (errors in the variables), got solver "
+                                  f"{self.solver!r}")
+        for k, v in (self.noise or {}).items():
+            _pos_number(v, f"options.noise.{k}")
+
+    def replace(self, **changes) -> "IdentifyOptions":
+        """A copy with some fields changed (validated again)."""
+        import dataclasses
+
+        for k in changes:
+            if k not in self.__dataclass_fields__:
+                raise ConfigError(f"options has no field {k!r}; fields: {', '.join(self.__dataclass_fields__)}")
+        return dataclasses.replace(self, **changes)

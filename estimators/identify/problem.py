@@ -1,0 +1,826 @@
+"""The identification problem: which parameters, which data, which equations.
+
+:class:`IdentificationProblem` takes a rig (any rig file), one or several logs, an initial
+parameter set and :class:`~estimators.identify.options.IdentifyOptions`, checks them, and
+builds the multiple-shooting least-squares problem:
+
+- **Model**: the rig's regularised model (:meth:`models.rig.RigModel.smooth_rhs`, tanh friction
+  of width ``eps``), RK4 with ``nsub`` substeps per DAQ sample, the input held over the sample.
+- **Inputs**: the model's inputs (``model.inputs``) read from the log columns of the same
+  names (their quantity checked), low-passed where ``input_cutoff`` says, and corrected through
+  the rig's load cells inside the model (:meth:`~models.rig.RigModel.input_from_measured`), so
+  a load cell's ``<channel>_offset`` / ``_gain`` can be freed like any parameter.  Row convention
+  ``input_row``: "end" (our plant: row k+1 holds the input over [t_k, t_k+1)) or "start".
+- **Outputs**: the rig's sensor channels found in the log (:mod:`~estimators.identify.outputs`),
+  each shifted back by its sensor delay, each weighted by its noise level
+  (:mod:`~estimators.identify.noise`); encoder angle differences with a per-log encoder zero.
+- **Decision variables**: the free parameters, the encoder zeros, the state at every
+  ``shoot_every``-th sample of every log (continuity between consecutive intervals is a
+  constraint), and with errors in the variables a correction per interval and noisy input.
+- **Constraints**: the parameters' bounds, ``mu_k <= mu_s`` for every Stribeck-type contact
+  whose two levels are free, and ``options.constraints``.
+
+:meth:`IdentificationProblem.solve` returns a :class:`~estimators.identify.result.FitResult`
+that keeps the problem; :meth:`IdentificationProblem.refit` solves a derived problem (other
+logs, other options, a warm start) — the systematic refit, the delay detection and the
+bootstrap replicates are such refits.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+import warnings
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import casadi as ca
+import numpy as np
+
+from models.errors import ConfigError, DataError, SolverFailure
+from models.logs import Log
+from models.params import ParameterSet
+from models.rig import RigModel, get_model
+from models.signals import lowpass, moving_average
+from models.status import Status
+from estimators.identify.covariance import uncertainty
+from estimators.identify.gauss_newton import solve_gn
+from estimators.identify.guess import LEVELS, initial_guess
+from estimators.identify.ipopt import solve_ipopt
+from estimators.identify.noise import detect_input_noise, input_noise_hints, output_noise
+from estimators.identify.options import IdentifyOptions, LinearConstraint
+from estimators.identify.outputs import input_delays, output_function, plan_channels
+from estimators.identify.result import FitResult, IdentifiabilityWarning, convergence_message
+from estimators.identify.shooting import ShootingProblem, compiled_or_none, sample_function
+from estimators.identify.validation import validate
+
+__all__ = ["IdentificationProblem", "auto_nsub"]
+
+_KEEP = object()
+_FN_CACHE: dict = {}
+_KIND = {"speed": "speed", "torque": "torque", "force": "force"}
+
+
+@dataclass(frozen=True)
+class LogData:
+    """One log, aligned: row k of ``U`` (logged inputs) and ``Y`` (compared channels) belongs to
+    time ``t[k]`` after every channel is shifted back by its delay.  ``nint`` shooting intervals
+    of the training part (the first ``ntr`` rows) are fitted."""
+
+    log: Log
+    t: np.ndarray
+    U: np.ndarray
+    Y: np.ndarray
+    n: int
+    ntr: int
+    nint: int
+
+
+class StiffRate:
+    """The largest eigenvalue magnitude [1/s] of the regularised model's Jacobian at zero contact
+    speed (its stiffest point), as a function of the parameter vector, for inputs ``u``."""
+
+    def __init__(self, model, params: ParameterSet, u, eps: float):
+        f = model.ode(eps)
+        x = ca.SX.sym("x", model.nx)
+        p = ca.SX.sym("p", model.n_p)
+        self._J = ca.Function("jf", [x, p], [ca.jacobian(f(x, ca.DM(u), p), x)])
+        try:
+            x0 = np.asarray(model.sliding_guess(u, params), dtype=float)
+        except Exception:  # noqa: BLE001 - any finite point will do
+            x0 = np.zeros(model.nx)
+        x0 = np.where(np.isfinite(x0), x0, 0.0)
+        for idx in model.contacts:
+            x0[idx] = 0.0
+        self.x0 = x0
+
+    def __call__(self, p) -> float:
+        J = np.array(self._J(self.x0, np.asarray(p, float)))
+        if not np.all(np.isfinite(J)):
+            return float("inf")
+        lam = np.linalg.eigvals(J)
+        return float(np.max(np.abs(lam))) if lam.size else 0.0
+
+
+def auto_nsub(model, params: ParameterSet, u, dt: float, eps: float, rho_h: float = 3.5) -> int:
+    """RK4 substeps so that ``h |lambda|max <= rho_h`` at zero contact speed (the stiffest point).
+
+    ``u`` are model inputs (e.g. the largest logged ones).  RK4 is stable to 2.8 on the real
+    axis, but the stiff rate holds only for ``|v| < eps``; fits were unchanged up to 3.5.
+    """
+    rho = StiffRate(model, params, u, eps)(params.vector())
+    return max(1, int(math.ceil(dt * rho / rho_h)))
+
+
+def _functions(model, nsub: int, channels, avg, free_idx, input_jac: bool, compile_: bool):
+    """(sensitivity function to run, values function to run, values function uncompiled, compiled?), cached."""
+    key = (model.key, id(model.spec), nsub, tuple((c.name, c.kind) for c in channels), tuple(avg), tuple(free_idx),
+           input_jac, compile_)
+    if key not in _FN_CACHE:
+        h = output_function(model, channels)
+        S = sample_function(model, nsub, h, avg, free_idx, input_jac=input_jac)
+        Sv = sample_function(model, nsub, h, avg, free_idx, values_only=True)
+        S_run, Sv_run = S, Sv
+        if compile_:
+            S_run = compiled_or_none(S) or S
+            if S_run is not S:
+                Sv_run = compiled_or_none(Sv) or Sv
+        _FN_CACHE[key] = (S_run, Sv_run, Sv, S_run is not S)
+    return _FN_CACHE[key]
+
+
+def _model_from(spec, key: str) -> RigModel:
+    try:
+        m = get_model(key)
+        if m.spec == spec:
+            return m
+    except Exception:  # noqa: BLE001 - an in-memory rig: rebuild it from its spec
+        pass
+    return RigModel(spec, key)
+
+
+def _rebuild(spec, key, logs, initial, options, holdout):
+    return IdentificationProblem(_model_from(spec, key), logs, initial, options, holdout=holdout)
+
+
+class IdentificationProblem:
+    """A multiple-shooting identification problem (see the module docstring).
+
+    Parameters
+    ----------
+    model : a rig name, rig-file path or :class:`models.rig.RigModel`
+    logs : a :class:`models.logs.Log` or a sequence of them (one sample period)
+    initial : the starting values and the fixed parameters; None: the rig's published set with
+        the free parameters guessed from the data (:func:`~estimators.identify.guess.initial_guess`)
+    options : :class:`~estimators.identify.options.IdentifyOptions`
+    holdout : fraction in [0, 0.9) of the end of each log kept out of the fit; the first log's
+        is predicted afterwards with the exact plant (:class:`~estimators.identify.validation.Validation`)
+
+    Raises
+    ------
+    ConfigError : unknown parameter or channel, bad bounds or constraints, an initial value
+        outside them
+    DataError : a log lacks an input or output column, has another sample period, or is too short
+    """
+
+    def __init__(self, model, logs, initial: ParameterSet | None = None, options: IdentifyOptions | None = None, *,
+                 holdout: float = 0.0):
+        if not isinstance(options, IdentifyOptions):
+            raise ConfigError(f"options must be IdentifyOptions (at least the free parameters), "
+                              f"got {type(options).__name__}")
+        m = get_model(model)
+        self.model, self.options = m, options
+        if isinstance(holdout, bool) or not (isinstance(holdout, (int, float)) and 0 <= holdout < 0.9):
+            raise ConfigError(f"holdout must be a fraction in [0, 0.9), got {holdout!r}")
+        self.holdout = float(holdout)
+        logs = [logs] if isinstance(logs, Log) else list(logs) if isinstance(logs, Sequence) else None
+        if not logs:
+            raise DataError("logs must be a Log or a non-empty sequence of Logs, got none")
+        for lg in logs:
+            if not isinstance(lg, Log):
+                raise DataError(f"logs must hold models.logs.Log objects, got {type(lg).__name__}")
+        self.logs = tuple(logs)
+        o = options
+        for n in o.free:
+            if n not in m.param_names:
+                raise ConfigError(f"options.free: {n!r} is not a parameter of rig {m.name!r}; expected some of "
+                                  f"{', '.join(m.param_names)}")
+        for n in (o.bounds or {}):
+            if n not in o.free:
+                raise ConfigError(f"options.bounds.{n}: not a free parameter (free: {', '.join(o.free)})")
+        for what, table in (("input_cutoff", o.input_cutoff or {}),
+                            ("input_noise", o.input_noise if isinstance(o.input_noise, dict) else {})):
+            for n in table:
+                if n not in m.inputs:
+                    raise ConfigError(f"options.{what}.{n}: not an input of rig {m.name!r} "
+                                      f"(inputs: {', '.join(m.inputs)})")
+        # ---- data checks
+        self.dt = logs[0].dt
+        for lg in logs:
+            if abs(lg.dt - self.dt) > 1e-9 * max(1.0, self.dt):
+                raise DataError(f"{lg.source}: sample period {lg.dt:g} s differs from {self.dt:g} s of "
+                                f"{logs[0].source}; resample the logs to one period")
+            for name, kind in zip(m.inputs, m.input_kinds):
+                if name not in lg.channels:
+                    raise DataError(f"{lg.source}: missing input column {name!r} needed by rig {m.name!r} "
+                                    f"(inputs: {', '.join(m.inputs)})")
+                lg.require_kind(name, _KIND[kind])
+        for n, fc in (o.input_cutoff or {}).items():
+            if not fc < 0.5 / self.dt:
+                raise ConfigError(f"options.input_cutoff.{n} must be below the Nyquist frequency {0.5 / self.dt:g} Hz, "
+                                  f"got {fc:g}")
+        # ---- initial set (data-derived guess if none)
+        self._initial_arg = initial
+        self.guess_notes: tuple[str, ...] = ()
+        self._alternative = None
+        if initial is None:
+            g = initial_guess(m, logs, o.free, m.published(), encoder_zero=o.encoder_zero, input_row=o.input_row)
+            initial = g.params
+            self.guess_notes = g.notes
+            if g.values:
+                self._alternative = m.published()   # compared with the guess in _shooting()
+        else:
+            m.check_params(initial, "initial")
+        self.initial = initial
+        self.free = o.free
+        self.free_idx = [m.param_names.index(n) for n in o.free]
+        nf = len(o.free)
+        self.theta0 = initial.vector(o.free)
+        self.lo, self.hi = np.empty(nf), np.empty(nf)
+        law_lo, law_hi = self._law_bounds()
+        for i, n in enumerate(o.free):
+            b = (o.bounds or {}).get(n)
+            if b is None:
+                b = initial.bounds(n)
+                b = (max(b[0], law_lo.get(n, -math.inf)), min(b[1], law_hi.get(n, math.inf)))
+            self.lo[i], self.hi[i] = float(b[0]), float(b[1])
+            if not self.lo[i] < self.hi[i]:
+                raise ConfigError(f"bounds.{n} must have lower < upper, got [{self.lo[i]:g}, {self.hi[i]:g}]")
+            if not self.lo[i] <= self.theta0[i] <= self.hi[i]:
+                if initial is not self._initial_arg:    # a guessed value: clip it
+                    self.theta0[i] = min(max(self.theta0[i], self.lo[i]), self.hi[i])
+                else:
+                    raise ConfigError(f"initial {n} = {self.theta0[i]:g} lies outside its bounds "
+                                      f"[{self.lo[i]:g}, {self.hi[i]:g}]")
+        self.constraints = self._constraints()
+        Gp, hp = self._constraint_rows()
+        if Gp.shape[0]:
+            viol = Gp @ self.theta0 - hp
+            j = int(np.argmax(viol))
+            if viol[j] > 1e-9 * max(1.0, abs(hp[j])):
+                c = self.constraints[j]
+                vals = ", ".join(f"{n} = {self.theta0[o.free.index(n)]:g}" for n in c.names if n in o.free)
+                raise ConfigError(f"initial {vals} violates the constraint {c.text}")
+        # ---- channels, delays, alignment
+        self.channels = plan_channels(m, logs[0], o)
+        for lg in logs[1:]:
+            for c in self.channels:
+                for p in c.parts:
+                    if p not in lg.channels:
+                        raise DataError(f"{lg.source}: missing output column {p!r} (present in {logs[0].source})")
+        self.input_delays = input_delays(m, o.extra_delay)
+        D = max([c.max_delay for c in self.channels] + list(self.input_delays))
+        M = o.shoot_every
+        data = []
+        for lg in logs:
+            n = len(lg.t) - D
+            ntr = n if self.holdout == 0 else int(round(n * (1 - self.holdout)))
+            nint = (ntr - 1) // M
+            if nint < 1:
+                raise DataError(f"{lg.source}: needs at least {M + 1 + D} samples for shoot_every = {M}"
+                                f"{f' and a delay of {D} samples' if D else ''}, got {len(lg.t)}"
+                                f"{' (after the hold-out)' if self.holdout else ''}")
+            cols = []
+            for name, d in zip(m.inputs, self.input_delays):
+                x = np.asarray(lg[name], float)
+                if name in (o.input_cutoff or {}):
+                    x = lowpass(x, lg.dt, o.input_cutoff[name])
+                cols.append(x[d:d + n])
+            U = np.column_stack(cols) if cols else np.zeros((n, 0))
+            Y = np.column_stack([c.measured(lg, 0, n) for c in self.channels])
+            data.append(LogData(lg, np.asarray(lg.t[:n], float), U, Y, n, ntr, nint))
+        self.data = tuple(data)
+        self.noise, self.noise_source = {}, {}
+        for c in self.channels:
+            self.noise[c.name], self.noise_source[c.name] = output_noise(m, c, logs[0], o, self.dt)
+        # ---- errors in the variables
+        if o.input_noise == "auto":
+            self.input_noise = {k: v for k, v in detect_input_noise(logs, m).items()
+                                if k not in (o.input_cutoff or {})} if o.solver == "gn" else {}
+        elif o.input_noise in ("off", None):
+            self.input_noise = {}
+        else:
+            self.input_noise = dict(o.input_noise)
+        self.hints = input_noise_hints(logs, m, o.input_cutoff, self.input_noise) if o.solver == "gn" else []
+        # ---- substeps
+        umax = np.max(np.abs(np.concatenate([d.U for d in self.data])), axis=0) if m.nu else np.zeros(0)
+        self._umax = np.array(m.input_from_measured(list(umax), m.unpack(initial.vector())), float).ravel()
+        self.nsub = auto_nsub(m, initial, self._umax, self.dt, o.eps) if o.nsub is None else o.nsub
+        self._stiff = None
+        self._h_lambda0 = None
+        self._sh = None
+
+    # ------------------------------------------------------------------ pickling, derived problems
+    def __reduce__(self):
+        return (_rebuild, (self.model.spec, self.model.key, self.logs, self._initial_arg, self.options, self.holdout))
+
+    def __repr__(self) -> str:
+        return (f"IdentificationProblem({self.model.name!r}: {len(self.logs)} log(s), free {', '.join(self.free)}, "
+                f"outputs {', '.join(c.name for c in self.channels)})")
+
+    def derive(self, *, logs=None, initial=_KEEP, holdout: float | None = None, **changes) -> "IdentificationProblem":
+        """The same problem with other logs, another initial set (None: guess from the data), another
+        hold-out or other options (``changes`` are :class:`IdentifyOptions` fields)."""
+        return IdentificationProblem(self.model, self.logs if logs is None else logs,
+                                     self._initial_arg if initial is _KEEP else initial,
+                                     self.options.replace(**changes) if changes else self.options,
+                                     holdout=self.holdout if holdout is None else holdout)
+
+    def refit(self, warm: FitResult | None = None, *, logs=None, initial=_KEEP, holdout: float | None = None,
+              **changes) -> FitResult:
+        """Solve :meth:`derive` ``(logs=..., initial=..., holdout=..., **changes)``, warm-started
+        from ``warm`` (its parameters, and its node states and encoder zeros where they fit)."""
+        return self.derive(logs=logs, initial=initial, holdout=holdout, **changes).solve(warm)
+
+    # ------------------------------------------------------------------ constraints
+    def _law_bounds(self):
+        """Physical bounds the friction laws declare for their parameters (e.g. levels >= 0),
+        ``({name: lower}, {name: upper})`` for the rig parameters that feed them."""
+        from models.friction import get_law
+
+        lo, hi = {}, {}
+        for c in self.model.spec.contacts:
+            law = get_law(c.law)
+            refs = dict(c.params)
+            for prm in law.params:
+                ref = refs.get(prm.name)
+                if ref is None or ref.kind != "param":
+                    continue
+                lo[ref.name] = max(lo.get(ref.name, -math.inf), prm.lower)
+                hi[ref.name] = min(hi.get(ref.name, math.inf), prm.upper)
+        return lo, hi
+
+    def _constraints(self) -> tuple[LinearConstraint, ...]:
+        """Bounds excluded: ``mu_k <= mu_s`` per Stribeck-type contact with both levels free, and the options'."""
+        m, o = self.model, self.options
+        out = []
+        if o.order_friction:
+            seen = set()
+            for c in m.spec.contacts:
+                if c.law not in LEVELS:
+                    continue
+                pr = dict(c.params)
+                s, k = pr.get(LEVELS[c.law][0]), pr.get(LEVELS[c.law][1])
+                if s is not None and k is not None and s.kind == k.kind == "param" and s.name in o.free \
+                        and k.name in o.free and (k.name, s.name) not in seen:
+                    seen.add((k.name, s.name))
+                    out.append(LinearConstraint(((k.name, 1.0), (s.name, -1.0)), 0.0,
+                                                f"{k.name} <= {s.name} (contact {c.name})"))
+        for c in o.constraints:
+            fixed = [n for n in c.names if n not in o.free]
+            for n in fixed:
+                if n not in m.param_names:
+                    raise ConfigError(f"options.constraints: {n!r} in {c.text!r} is not a parameter of rig {m.name!r}")
+            if len(fixed) == len(c.names):
+                raise ConfigError(f"options.constraints: {c.text!r} involves no free parameter "
+                                  f"(free: {', '.join(o.free)})")
+            out.append(c)
+        return tuple(out)
+
+    def _constraint_rows(self):
+        """``G theta <= h`` for the non-bound constraints (fixed parameters moved to the right-hand side)."""
+        nf = len(self.free)
+        G, h = np.zeros((len(self.constraints), nf)), np.zeros(len(self.constraints))
+        for i, c in enumerate(self.constraints):
+            h[i] = c.upper
+            for n, coef in c.terms:
+                if n in self.free:
+                    G[i, self.free.index(n)] += coef
+                else:
+                    h[i] -= coef * self.initial[n]
+        return G, h
+
+    # ------------------------------------------------------------------ the numerical problem
+    def _shooting(self) -> ShootingProblem:
+        if self._sh is not None:
+            return self._sh
+        m, o = self.model, self.options
+        M = o.shoot_every
+        avg = [c.kind == "speed" for c in self.channels]
+        eiv = self.input_noise
+        use_c = o.compile if o.compile is not None else (o.solver == "gn")
+        S_run, Sv_run, Sv, self.compiled = _functions(m, self.nsub, self.channels, avg, self.free_idx, bool(eiv), use_c)
+        self._S_val = Sv
+        Ub, Yb, starts, zmap = [], [], [], []
+        node_off = 0
+        nz = 0
+        self.zero_index: list[dict] = []
+        zidx_ch = [j for j, c in enumerate(self.channels) if c.zero]
+        for d in self.data:
+            rows = slice(1, d.nint * M + 1)
+            Uint = d.U[1:d.nint * M + 1] if o.input_row == "end" else d.U[:d.nint * M]
+            Ub.append(Uint.reshape(d.nint, M, m.nu))
+            Yb.append(d.Y[rows].reshape(d.nint, M, len(self.channels)))
+            starts.append(node_off + np.arange(d.nint))
+            node_off += d.nint + 1
+            zm = np.full((d.nint, len(self.channels)), -1, int)
+            zi = {}
+            for j in zidx_ch:
+                zm[:, j] = nz
+                zi[self.channels[j].name] = nz
+                nz += 1
+            zmap.append(zm)
+            self.zero_index.append(zi)
+        U, Y = np.concatenate(Ub), np.concatenate(Yb)
+        sig = np.array([self.noise[c.name] for c in self.channels])
+        if self._alternative is not None:
+            self._choose_start(Sv_run, U, Y, sig, np.concatenate(starts), np.concatenate(zmap), nz)
+        init_nodes, z0 = self._initial_nodes(Sv_run)
+        x_abs = np.max(np.abs(np.concatenate(init_nodes)), axis=0)
+        x_scale = np.where(x_abs > 1e-6, x_abs, 1.0)
+        self.x_scale = np.maximum(x_scale, 1e-3 * np.max(x_scale))
+        th0 = self.theta0
+        ths = np.where(np.abs(th0) > 0, np.abs(th0), np.maximum(self.hi - self.lo, 1e-6) * 0.1)
+        self.th_scale = np.where(np.isfinite(ths), ths, 1.0)
+        zs = np.ones(nz)
+        for d, zi in zip(self.data, self.zero_index):
+            for name, j in zi.items():
+                col = [c.name for c in self.channels].index(name)
+                zs[j] = max(abs(z0[j]), float(np.ptp(d.Y[:, col])), 1e-3)
+        self._init_nodes, self._z0 = init_nodes, z0
+        self._sh = ShootingProblem(S_run, m.nx, m.n_p, self.initial.vector(), self.free_idx, self.th_scale,
+                                   self.x_scale, U, Y, 1.0 / sig, np.concatenate(starts), self.dt, o.eps,
+                                   zmap=np.concatenate(zmap), z_scale=zs, S_val=Sv_run,
+                                   eiv_idx=[m.inputs.index(n) for n in eiv],
+                                   eiv_scale=[eiv[n] / math.sqrt(M) for n in eiv])
+        return self._sh
+
+    def _one_interval_cost(self, Sv, U, Y, sig, starts, zmap, nz) -> float:
+        """``0.5 |r|^2`` of the current initial set's predictions over one shooting interval from
+        the data-initialised nodes (how well it predicts the log)."""
+        m = self.model
+        nodes, z0 = self._initial_nodes(Sv)
+        sh = ShootingProblem(Sv, m.nx, m.n_p, self.initial.vector(), self.free_idx, np.ones(len(self.free)),
+                             np.ones(m.nx), U, Y, 1.0 / sig, starts, self.dt, self.options.eps, zmap=zmap,
+                             z_scale=np.ones(nz), S_val=Sv)
+        w = np.concatenate([self.theta0, z0] + [n.ravel() for n in nodes])
+        r = sh.evaluate(w, jac=False)[0]
+        return 0.5 * float(r @ r) if np.all(np.isfinite(r)) else float("inf")
+
+    def _choose_start(self, Sv, U, Y, sig, starts, zmap, nz) -> None:
+        """Start from the data-derived guess or from the rig file's values, whichever predicts the
+        log better over one shooting interval."""
+        guess, theta_g = self.initial, self.theta0.copy()
+        c_guess = self._one_interval_cost(Sv, U, Y, sig, starts, zmap, nz)
+        alt = self._alternative
+        theta_a = np.clip(alt.vector(self.free), self.lo, self.hi)
+        Gp, hp = self._constraint_rows()
+        self.initial, self.theta0 = alt, theta_a
+        c_alt = self._one_interval_cost(Sv, U, Y, sig, starts, zmap, nz) \
+            if not Gp.shape[0] or np.all(Gp @ theta_a <= hp + 1e-12) else float("inf")
+        if c_guess <= c_alt:
+            self.initial, self.theta0 = guess, theta_g
+            self.guess_notes = self.guess_notes + (f"started from the guess: it predicts the log over one shooting "
+                                                   f"interval with cost {c_guess:.4g}, the rig file's values "
+                                                   f"{c_alt:.4g}",)
+        else:
+            self.guess_notes = (f"started from the rig file's values: they predict the log over one shooting "
+                                f"interval with cost {c_alt:.4g}, the data-derived guess {c_guess:.4g} "
+                                f"(guess not used: " + "; ".join(self.guess_notes) + ")",)
+        self._alternative = None
+
+    def _initial_nodes(self, S_val):
+        """Node states from the data (measured speeds and twists) and a smooth simulation with the
+        initial parameters for the unmeasured states; the encoder zeros' starting values."""
+        m, o = self.model, self.options
+        M = o.shoot_every
+        p0 = self.initial.vector()
+        P0 = m.unpack(p0)
+        chan_names = [c.name for c in self.channels]
+        # which states the data measure: speeds (speed channels), twists (single-twist angle differences)
+        speed_of = {}
+        for b in m.bodies:
+            ch = m.speed_channel(b)
+            if ch in chan_names:
+                speed_of[m.speed_index(b)] = chan_names.index(ch)
+        twist_of = {}
+        for j, c in enumerate(self.channels):
+            if c.kind == "twist":
+                v = np.asarray(c.coefficients)
+                nz = np.flatnonzero(np.abs(v) > 1e-12)
+                if nz.size == 1 and abs(abs(v[nz[0]]) - 1) < 1e-12:
+                    twist_of[int(nz[0])] = (j, float(v[nz[0]]))
+        nodes_all, z0 = [], []
+        for d in self.data:
+            n_used = d.nint * M + 1
+            Um = np.array(m.input_from_measured([d.U[:, j] for j in range(m.nu)], P0), float).T.reshape(d.n, m.nu)
+            try:
+                xs = np.asarray(m.sliding_guess(np.mean(Um[:n_used], axis=0), self.initial), float)
+                if not np.all(np.isfinite(xs)):
+                    raise ValueError
+            except Exception:  # noqa: BLE001 - a failed solve only worsens the start
+                xs = np.zeros(m.nx)
+            # encoder zero guesses: the mean measured difference matches the steady-sliding twist
+            zlog = {}
+            for j, c in enumerate(self.channels):
+                if c.zero:
+                    zlog[j] = float(np.dot(c.coefficients, xs) - np.mean(d.Y[:n_used, j]))
+                    z0.append(zlog[j])
+            known = {}
+            for idx, j in speed_of.items():
+                known[idx] = moving_average(d.Y[:, j], 5)
+                s = m.sensor_of(chan_names[j])
+                if s is not None and s.kind == "speed":
+                    known[idx] = (known[idx] - float(P0[s.offset.name] if s.offset.kind == "param" else s.offset.value)) \
+                        / float(P0[s.gain.name] if s.gain.kind == "param" else s.gain.value)
+            for idx, (j, sgn) in twist_of.items():
+                known[idx] = sgn * (moving_average(d.Y[:, j], 3) + zlog.get(j, 0.0))
+            row0 = 1 if o.input_row == "end" else 0
+            x = xs.copy() if abs(Um[row0, m.drive_speed_index()] if m.drive_speed_index() is not None else 1.0) > 0 \
+                else np.zeros(m.nx)
+            nodes = np.empty((d.nint + 1, m.nx))
+            for k in range(d.nint + 1):
+                for idx, v in known.items():
+                    x[idx] = v[k * M]
+                nodes[k] = x
+                if k < d.nint:
+                    Ub = d.U[(k * M + 1 if o.input_row == "end" else k * M):][:M]
+                    xn = x.copy()
+                    for Uk in Ub:
+                        xn = np.array(S_val(xn, Uk, self.theta0, p0, self.dt, o.eps)[0]).ravel()
+                    x = xn if np.all(np.isfinite(xn)) and np.max(np.abs(xn)) < 1e6 else nodes[k].copy()
+            nodes_all.append(nodes)
+        return nodes_all, np.array(z0)
+
+    def _start(self, warm: FitResult | None):
+        sh = self._shooting()
+        theta = self.theta0.copy()
+        nodes = [n.copy() for n in self._init_nodes]
+        z = self._z0.copy()
+        if warm is not None:
+            if tuple(warm.names) == tuple(self.free):
+                theta = np.clip(np.asarray(warm.estimate, float), self.lo, self.hi)
+            if [len(s) for s in warm.states] == [d.nint + 1 for d in self.data]:
+                nodes = [np.asarray(s, float).copy() for s in warm.states]
+            zw = [z_ for zl in warm.encoder_zero for z_ in zl.values()]
+            if len(zw) == z.size:
+                z = np.asarray(zw, float)
+        deltas = np.zeros((sh.Nint, sh.ne))
+        if warm is not None and warm.input_corrections and sh.ne:
+            dw = np.concatenate(warm.input_corrections) if len(warm.input_corrections) else np.zeros((0, sh.ne))
+            if dw.shape == deltas.shape and tuple(warm.input_noise) == tuple(self.input_noise):
+                deltas = dw
+        w0 = np.concatenate([theta / sh.th_scale, z / sh.z_scale]
+                            + [(n / sh.x_scale).ravel() for n in nodes]
+                            + [(deltas / sh.d_scale if sh.ne else deltas).ravel()])
+        return w0
+
+    def _scaled_constraints(self):
+        """All inequalities, bounds included, on the scaled border variables: ``G w[:nb] <= h``."""
+        sh = self._shooting()
+        nf, nb = sh.nf, sh.nb
+        Gp, hp = self._constraint_rows()
+        rows, rhs, labels = [], [], []
+        for i, n in enumerate(self.free):
+            if np.isfinite(self.lo[i]):
+                r = np.zeros(nb)
+                r[i] = -sh.th_scale[i]
+                rows.append(r)
+                rhs.append(-self.lo[i])
+                labels.append(("bound", n, "lower"))
+            if np.isfinite(self.hi[i]):
+                r = np.zeros(nb)
+                r[i] = sh.th_scale[i]
+                rows.append(r)
+                rhs.append(self.hi[i])
+                labels.append(("bound", n, "upper"))
+        for i, c in enumerate(self.constraints):
+            r = np.zeros(nb)
+            r[:nf] = Gp[i] * sh.th_scale
+            rows.append(r)
+            rhs.append(hp[i])
+            labels.append(("constraint", c.text, ""))
+        G = np.array(rows) if rows else np.zeros((0, nb))
+        return G, np.array(rhs, float), labels
+
+    # ------------------------------------------------------------------ solving
+    def solve(self, warm: FitResult | None = None) -> FitResult:
+        """Fit (see the module docstring): the delay search if ``detect_delay``, the systematic refit
+        if ``systematic``, the hold-out validation if ``holdout``.
+
+        Raises
+        ------
+        SolverFailure : the solver returned non-finite values.
+        """
+        if self.options.detect_delay and warm is None:
+            return self._detect_delay()
+        fit = self._fit(warm)
+        if self.options.nsub is None and np.all(np.isfinite(fit.estimate)):
+            # the fitted parameters may be stiffer than the initial ones: refit (warm) with the
+            # substeps they need, at most twice
+            prob, first = self, fit
+            for _ in range(2):
+                # refit only where RK4 leaves the range the fits were measured unchanged in
+                # (h |lambda| <= 3.5) by more than a margin (4.0): a 9 -> 10 substep refit of every
+                # rig3 fit doubled its time for nothing
+                if self.stiff_rate(fit.estimate) * self.dt / prob.nsub <= max(4.0, 1.25 * (self._h_lambda0 or 0.0)):
+                    break
+                need = auto_nsub(self.model, fit.params, self._umax, self.dt, self.options.eps)
+                if need <= prob.nsub:
+                    break
+                old = prob.nsub
+                prob = prob.derive(nsub=need)
+                fit = prob._fit(fit)
+                fit = replace(fit, initial=first.initial, guess_notes=first.guess_notes,
+                              warnings=fit.warnings + (f"RK4 substeps raised from {old} to {need} for the fitted "
+                                                       f"parameters (stiffer than the initial ones) and refitted",))
+            return prob._finish(fit)
+        return self._finish(fit)
+
+    def _feasible(self, theta):
+        """``theta`` moved onto the constraints it violates by round-off (the regularised KKT rows
+        leave ~1e-7) and clipped into the bounds."""
+        theta = np.clip(np.asarray(theta, float), self.lo, self.hi)
+        Gp, hp = self._constraint_rows()
+        for _ in range(5):
+            viol = Gp @ theta - hp if Gp.shape[0] else np.zeros(0)
+            if not np.any(viol > 0):
+                break
+            for i in np.flatnonzero(viol > 0):
+                theta = theta - Gp[i] * (viol[i] / float(Gp[i] @ Gp[i])) * (1 + 1e-12)
+            theta = np.clip(theta, self.lo, self.hi)
+        return theta
+
+    def stiff_rate(self, theta) -> float:
+        """The model's stiffest rate [1/s] with the free parameters at ``theta`` (largest logged inputs)."""
+        if self._stiff is None:
+            self._stiff = StiffRate(self.model, self.initial, self._umax, self.options.eps)
+        p = self.initial.vector()
+        p[self.free_idx] = theta
+        return self._stiff(p)
+
+    def _rk4_stable(self, w) -> bool:
+        """RK4 with ``nsub`` substeps stays usable for the trial parameters: ``h |lambda|max`` at the
+        stiffest point at most 4.5 (the substeps are chosen for 3.5; a disc fit blew up at 5.5, its
+        Jacobians reaching 1e16), or 1.25 times its value at the start where that is already higher
+        (the lead screw's regularised law has a positive 1e7 1/s eigenvalue right at zero speed,
+        which the fit crosses in no time)."""
+        if self._h_lambda0 is None:
+            self._h_lambda0 = self.stiff_rate(self.theta0) * self.dt / self.nsub
+        theta = np.asarray(w[:len(self.free)], float) * self._shooting().th_scale
+        return self.stiff_rate(theta) * self.dt / self.nsub <= max(4.5, 1.25 * self._h_lambda0)
+
+    def _finish(self, fit: FitResult) -> FitResult:
+        if self.options.systematic and fit.status is not Status.FAILED:
+            fit = self._systematic(fit)
+        if self.holdout > 0 and fit.status is not Status.FAILED:
+            fit = replace(fit, validation=validate(self, fit))
+        return fit
+
+    def _detect_delay(self) -> FitResult:
+        o = self.options
+        fits, probs, costs = {}, {}, {}
+        for dly in range(o.detect_delay + 1):
+            p = self.derive(extra_delay=o.extra_delay + dly, detect_delay=0, systematic=False)
+            f = p._fit(None)
+            probs[dly], fits[dly] = p, f
+            n_out = sum(d.nint * o.shoot_every for d in p.data) * len(p.channels)
+            costs[dly] = 2 * f.cost / max(n_out, 1)
+        best = min(costs, key=costs.get)
+        fit = fits[best]
+        note = (f"DAQ delay: an extra delay of {best} sample(s) fits best (cost per residual "
+                + ", ".join(f"{d}: {c:.4g}" for d, c in costs.items()) + ")")
+        fit = replace(fit, delay=o.extra_delay + best, delay_costs=costs, message=f"{fit.message}; {note}")
+        return probs[best]._finish(fit)
+
+    def _fit(self, warm: FitResult | None) -> FitResult:
+        t_start = time.perf_counter()
+        m, o = self.model, self.options
+        sh = self._shooting()
+        w0 = self._start(warm)
+        G, h, labels = self._scaled_constraints()
+        label = f"identify {m.name}"
+
+        def _progress(it, f, gmax, step):
+            sys.stderr.write(f"\r{label}: iteration {it:3d}, cost {f:.6g}, gap {gmax:.2e}, step {step:.2e}   ")
+            sys.stderr.flush()
+
+        if o.solver == "gn":
+            res = solve_gn(sh, w0, G, h, max_iter=o.max_iter, tol=o.tol, trust_radius=o.trust_radius,
+                           callback=_progress if o.progress else None, admissible=self._rk4_stable)
+            costs = res.costs
+        else:
+            res = solve_ipopt(sh, self._S_val, w0, G, h, max_iter=o.max_iter, tol=o.tol, progress=o.progress,
+                              label=label)
+            costs = ()
+        if o.progress and o.solver == "gn":
+            sys.stderr.write("\n")
+        w = res.w
+        if not np.all(np.isfinite(w)):
+            raise SolverFailure(f"identify {m.name}: the solver returned non-finite values ({res.reason})")
+        r, g, Jr, A, Ypred = sh.evaluate(w)
+        theta, z, nodes = sh.split(w)
+        theta = self._feasible(theta)
+        unc = uncertainty(sh, w, r, Jr, A, self.free, rse_warn=o.rse_warn)
+        se, corr = unc.stderr, unc.corr
+        tol_b = 1e-6 * sh.th_scale
+        at_bound = tuple(n for i, n in enumerate(self.free)
+                         if (theta[i] - self.lo[i]) <= tol_b[i] or (self.hi[i] - theta[i]) <= tol_b[i])
+        slack = h - G @ w[:sh.nb] if G.shape[0] else np.zeros(0)
+        active = tuple(lab[1] for lab, s, hi in zip(labels, slack, h)
+                       if lab[0] == "constraint" and s <= 1e-8 * max(1.0, abs(float(hi))))
+        # ---- warnings
+        warns = list(self.hints)
+        for i, n in enumerate(self.free):
+            if not np.isfinite(se[i]):
+                warns.append(f"{n}: standard error not available (singular information matrix): not identifiable")
+            elif abs(theta[i]) > 0 and se[i] / abs(theta[i]) > o.rse_warn:
+                warns.append(f"{n}: relative standard error {100 * se[i] / abs(theta[i]):.0f} % > "
+                             f"{100 * o.rse_warn:.0f} %: poorly identifiable")
+        nf = len(self.free)
+        for i in range(nf):
+            for j in range(i + 1, nf):
+                if np.isfinite(corr[i, j]) and abs(corr[i, j]) > o.corr_warn:
+                    warns.append(f"{self.free[i]} and {self.free[j]} are correlated (corr = {corr[i, j]:+.3f}): "
+                                 f"poorly identifiable separately")
+        warned = {n for n, s, v in zip(self.free, se, theta) if not np.isfinite(s) or abs(v) > 0 and s / abs(v) > o.rse_warn}
+        for d in unc.weak:
+            if d.rel_stderr > o.rse_warn and (len(d.coefficients) > 1 or not set(d.coefficients) <= warned):
+                warns.append(f"{d.text} is poorly determined (relative standard error {100 * d.rel_stderr:.0f} % "
+                             f"along that direction; condition number {unc.condition:.3g})")
+        for n in at_bound:
+            warns.append(f"{n}: estimate at its bound; the standard error is not meaningful")
+        for c in active:
+            warns.append(f"constraint {c} is active at the solution")
+        for msg in warns:
+            warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
+        if res.success:
+            status = Status.WARNING if warns else Status.OK
+        else:
+            status = Status.NOT_CONVERGED
+        message = convergence_message(res.reason, res.success, iterations=res.iterations, max_iter=o.max_iter,
+                                      costs=costs, at_bound=at_bound, max_gap=res.max_gap,
+                                      condition=unc.condition, weak=unc.weak, solver=o.solver,
+                                      shoot_every=o.shoot_every, eps=o.eps, n_free=nf)
+        # ---- fitted set and trajectories
+        fitted = self.initial.with_vector(self.free, theta).with_meta(
+            stderr=tuple((n, float(s)) for n, s in zip(self.free, se) if np.isfinite(s)))
+        dlt = sh.deltas(w) if sh.ne else np.zeros((sh.Nint, 0))
+        t_l, meas_l, sim_l, res_l, states, zeros, corr_l = [], [], [], [], [], [], []
+        iv = 0
+        col = 0
+        node = 0
+        M = o.shoot_every
+        names = [c.name for c in self.channels]
+        sig = np.array([self.noise[c] for c in names])
+        Yp = Ypred.reshape(-1, len(names))
+        Ym = sh.Ymeas.reshape(-1, len(names))
+        for d, zi in zip(self.data, self.zero_index):
+            ncol = d.nint * M
+            t_l.append(d.t[1:ncol + 1])
+            meas_l.append({c: Ym[col:col + ncol, j] for j, c in enumerate(names)})
+            sim_l.append({c: Yp[col:col + ncol, j] for j, c in enumerate(names)})
+            res_l.append({c: (Ym[col:col + ncol, j] - Yp[col:col + ncol, j]) / sig[j] for j, c in enumerate(names)})
+            states.append(nodes[node:node + d.nint + 1].copy())
+            zeros.append({c: float(z[j]) for c, j in zi.items()})
+            corr_l.append(dlt[iv:iv + d.nint].copy())
+            iv += d.nint
+            node += d.nint + 1
+            col += ncol
+        nrmse = {}
+        for j, c in enumerate(names):
+            span = float(np.ptp(Ym[:, j]))
+            nrmse[c] = float(np.sqrt(np.mean((Ym[:, j] - Yp[:, j]) ** 2)) / span) if span > 0 else float("nan")
+        return FitResult(
+            problem=self, model=m.name, names=tuple(self.free), estimate=theta, stderr=se,
+            initial=np.array(self.theta0 if warm is None else w0[:nf] * sh.th_scale), corr=corr, cov=unc.cov,
+            params=fitted, t=tuple(t_l), measured=tuple(meas_l), simulated=tuple(sim_l), residuals=tuple(res_l),
+            nrmse=nrmse, sigma2=unc.sigma2, tau=unc.tau, cost=0.5 * float(r @ r), nsub=self.nsub,
+            noise=dict(self.noise), noise_source=dict(self.noise_source), states=tuple(states),
+            encoder_zero=tuple(zeros), input_corrections=tuple(corr_l), status=status, message=message, reason=res.reason,
+            iterations=res.iterations, wall_time=time.perf_counter() - t_start, warnings=tuple(warns),
+            at_bound=at_bound, active_constraints=active, condition=unc.condition, weak_directions=unc.weak,
+            input_noise=dict(self.input_noise), delay=o.extra_delay, guess_notes=self.guess_notes)
+
+    def _systematic(self, fit: FitResult) -> FitResult:
+        """``|theta(eps) - theta(eps/2)|``: refit warm-started from ``fit`` with the regularisation
+        halved (a law with its own smoothing rate, such as the lead screw's r1: that rate doubled)."""
+        o, m = self.options, self.model
+        start, eps2, msg = fit.params, o.eps / 2, ""
+        smoothing = []
+        for c in m.spec.contacts:
+            from models.friction import get_law
+            sp_name = get_law(c.law).smoothing_param
+            ref = dict(c.params).get(sp_name) if sp_name else None
+            if ref is not None and ref.kind == "param":
+                smoothing.append(ref.name)
+        smoothing = sorted(set(smoothing))
+        if any(n in o.free for n in smoothing):
+            nan = np.full(len(self.free), np.nan)
+            msg = (f"systematic error not estimated: the regularisation rate {', '.join(smoothing)} is itself a free "
+                   f"parameter")
+            return replace(fit, syserr=nan, warnings=fit.warnings + (msg,))
+        if smoothing:
+            start = start.replace(**{n: 2 * start[n] for n in smoothing})
+            eps2 = o.eps
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                p2 = self.derive(initial=start, eps=eps2, nsub=None if o.nsub is None else 2 * o.nsub,
+                                 systematic=False, detect_delay=0, max_iter=o.systematic_iter, progress=False)
+                fit2 = p2._fit(fit)
+        except SolverFailure as exc:
+            fit2, msg = None, f"systematic error not estimated: the refit failed ({exc})"
+        if fit2 is None:
+            syserr = np.full(len(self.free), np.nan)
+        else:
+            syserr = np.abs(fit2.estimate - fit.estimate)
+            if not fit2.success:
+                msg = f"systematic error from an unconverged refit ({fit2.message.split('.')[0]})"
+        total = np.sqrt(fit.stderr ** 2 + syserr ** 2)
+        params = fit.params.with_meta(stderr=tuple((n, float(s)) for n, s in zip(self.free, total) if np.isfinite(s)))
+        w = fit.warnings + ((msg,) if msg else ())
+        if msg:
+            warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
+        return replace(fit, syserr=syserr, params=params, warnings=w)

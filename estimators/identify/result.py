@@ -1,0 +1,206 @@
+"""The result of a fit: :class:`FitResult`, and the plain-language account of how the fit ended.
+
+A result keeps the :class:`~estimators.identify.problem.IdentificationProblem` it solved
+(``fit.problem``), so a bootstrap, a refit or a validation needs nothing else.  Its ``status``
+(:class:`models.status.Status`) is OK, WARNING (converged, with identifiability warnings),
+NOT_CONVERGED or FAILED; ``message`` says why, and for an unconverged fit what to try.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from models.params import ParameterSet
+from models.status import Status
+
+__all__ = ["FitResult", "IdentifiabilityWarning", "convergence_message"]
+
+
+class IdentifiabilityWarning(UserWarning):
+    """Some parameters are poorly identifiable from the data (correlation, large SE, weak direction)."""
+
+
+_WHY = {
+    "small_step": "converged (small step)",
+    "no_predicted_decrease": "converged (no predicted decrease)",
+    "no_further_decrease": "converged (no further decrease)",
+    "max_iter": "stopped at the iteration limit",
+    "line_search": "the line search failed: no step along the Gauss-Newton direction reduced the cost",
+    "singular": "the KKT matrix was singular: the information matrix is singular (parameters not identifiable)",
+    "non_finite_start": "the model gave non-finite values at the initial guess",
+}
+
+
+def convergence_message(reason: str, success: bool, *, iterations: int, max_iter: int, costs=(), at_bound=(),
+                        max_gap: float = 0.0, condition: float = float("nan"), weak=(), solver: str = "gn",
+                        shoot_every: int = 10, eps: float = 0.005, n_free: int = 1) -> str:
+    """Why the fit stopped and, if it did not converge, what to try."""
+    why = _WHY.get(reason, reason if solver == "gn" else f"IPOPT: {reason}")
+    if success:
+        return why
+    hints = []
+    if reason == "max_iter":
+        why += f" ({iterations} iteration{'s' if iterations != 1 else ''}"
+        if len(costs) >= 3:
+            last = costs[-3:]
+            rate = (last[0] - last[-1]) / max(abs(last[0]), 1e-300) / 2
+            why += f"; the cost still fell by {100 * rate:.2g} % per iteration"
+        why += ")"
+        hints.append(f"more iterations (max_iter {2 * max_iter}, CLI --max-iter {2 * max_iter})")
+    if at_bound:
+        why += f"; at a bound: {', '.join(at_bound)}"
+        hints.append(f"wider bounds for {', '.join(at_bound)} or fix them")
+    if np.isfinite(condition) and condition > 1e8 or not np.isfinite(condition):
+        why += (f"; the information matrix is near-singular (condition number {condition:.2g})"
+                if np.isfinite(condition) else "; the information matrix is singular")
+        if weak:
+            why += f", weakest direction {weak[0].text}"
+        hints.append("freeing fewer parameters")
+    if max_gap > 1e-4:
+        why += f"; continuity gaps remain (largest {max_gap:.2g}, scaled)"
+        hints.append(f"a shorter shooting interval (shoot_every {max(1, shoot_every // 2)}, CLI --shoot-every)")
+    if reason in ("line_search", "non_finite_start", "max_iter"):
+        hints.append("a better initial guess (initial=None derives one from the data; CLI --params or --guess auto)")
+        hints.append(f"a larger regularisation (eps {2 * eps:g}, CLI --eps) or more substeps (--nsub)")
+        if reason == "line_search":
+            hints.append(f"a different shooting interval (CLI --shoot-every {max(1, shoot_every // 2)} or "
+                         f"{2 * shoot_every})")
+    hints.append("a longer log with more stick-slip cycles")
+    if n_free > 1 and "freeing fewer parameters" not in hints:
+        hints.append("freeing fewer parameters")
+    return why + ". Try: " + "; ".join(dict.fromkeys(hints)) + "."
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Result of :meth:`IdentificationProblem.solve` / :func:`identify` (SI units, ``names`` order).
+
+    Attributes
+    ----------
+    problem : the problem that was solved (its logs, options, initial set)
+    model : the rig's name
+    names : fitted parameter names
+    estimate, stderr : (n_free,) values and standard errors
+    initial : (n_free,) initial guess (after the data-derived guess, if any)
+    corr : (n_free, n_free) correlation matrix; cov : covariance
+    params : the full fitted :class:`models.params.ParameterSet` (with ``[stderr]``)
+    t, measured, simulated, residuals : per log: times (n,) and ``{channel: (n,)}`` (measured,
+        fitted trajectory, weighted residual (measured - fitted)/noise)
+    nrmse : per channel RMS error / range of the measured signal, over all logs
+    sigma2 : residual variance per degree of freedom (1 if the noise levels are right)
+    tau : integrated autocorrelation time of the residuals (inflates the covariance)
+    cost : ``0.5 |weighted residuals|^2`` at the solution
+    nsub : RK4 substeps; noise : ``{channel: std}`` used; noise_source : where each came from
+    states : per log: (n_nodes, nx) fitted node states
+    encoder_zero : per log ``{angle difference: fitted twist at power-on [rad]}`` (empty when
+        ``encoder_zero = "untwisted"``)
+    input_corrections : per log, (n_intervals, n_noisy_inputs) corrections of the inputs treated
+        as noisy (errors in the variables), SI units, in ``input_noise`` order
+    status : :class:`models.status.Status`; message : why the fit stopped (and what to try)
+    reason : the solver's stop reason (machine-readable)
+    iterations, wall_time [s], warnings, at_bound, active_constraints
+    condition : condition number of the information matrix of the free parameters, each relative to its
+        scale (the magnitude it started from)
+    weak_directions : the poorly determined parameter combinations (weakest first)
+    validation : hold-out prediction (:class:`~estimators.identify.validation.Validation`) or None
+    syserr : (n_free,) ``|theta(eps) - theta(eps/2)|`` or None
+    input_noise : ``{input channel: std}`` treated as errors in the variables
+    delay : extra whole-sample delay used; delay_costs : ``{delay: cost per residual}`` when detected
+    guess_notes : how the data-derived guess was obtained (empty if the initial set was given)
+    """
+
+    problem: Any = field(repr=False)
+    model: str
+    names: tuple
+    estimate: np.ndarray
+    stderr: np.ndarray
+    initial: np.ndarray
+    corr: np.ndarray
+    cov: np.ndarray
+    params: ParameterSet
+    t: tuple = field(repr=False, default=())
+    measured: tuple = field(repr=False, default=())
+    simulated: tuple = field(repr=False, default=())
+    residuals: tuple = field(repr=False, default=())
+    nrmse: dict = field(default_factory=dict)
+    sigma2: float = float("nan")
+    tau: float = 1.0
+    cost: float = float("nan")
+    nsub: int = 0
+    noise: dict = field(default_factory=dict)
+    noise_source: dict = field(default_factory=dict)
+    states: tuple = field(default=(), repr=False)
+    encoder_zero: tuple = ()
+    input_corrections: tuple = field(default=(), repr=False)
+    status: Status = Status.FAILED
+    message: str = ""
+    reason: str = ""
+    iterations: int = 0
+    wall_time: float = 0.0
+    warnings: tuple = ()
+    at_bound: tuple = ()
+    active_constraints: tuple = ()
+    condition: float = float("nan")
+    weak_directions: tuple = ()
+    validation: Any = None
+    syserr: np.ndarray | None = None
+    input_noise: dict = field(default_factory=dict)
+    delay: int = 0
+    delay_costs: dict = field(default_factory=dict)
+    guess_notes: tuple = ()
+
+    @property
+    def success(self) -> bool:
+        return self.status.success
+
+    @property
+    def error(self) -> np.ndarray:
+        """Total error ``sqrt(stderr^2 + syserr^2)`` (``stderr`` when no systematic error was estimated)."""
+        if self.syserr is None:
+            return self.stderr
+        return np.sqrt(self.stderr ** 2 + self.syserr ** 2)
+
+    def as_dict(self) -> dict:
+        """A JSON-friendly summary."""
+        params = {n: {"estimate": float(e), "stderr": float(s), "initial": float(i), "unit": self.params.spec(n).unit}
+                  for n, e, s, i in zip(self.names, self.estimate, self.stderr, self.initial)}
+        if self.syserr is not None:
+            for n, y, t in zip(self.names, self.syserr, self.error):
+                params[n].update({"syserr": float(y), "error": float(t)})
+        v = self.validation
+        return {
+            "model": self.model,
+            "parameters": params,
+            "corr": self.corr.tolist(),
+            "nrmse": dict(self.nrmse),
+            "sigma2": self.sigma2,
+            "tau": self.tau,
+            "cost": self.cost,
+            "nsub": self.nsub,
+            "noise": dict(self.noise),
+            "status": self.status.value,
+            "success": self.success,
+            "message": self.message,
+            "reason": self.reason,
+            "iterations": self.iterations,
+            "wall_time": self.wall_time,
+            "warnings": list(self.warnings),
+            "at_bound": list(self.at_bound),
+            "active_constraints": list(self.active_constraints),
+            "condition": self.condition,
+            "weak_directions": [{"direction": d.text, "coefficients": d.coefficients, "rel_stderr": d.rel_stderr}
+                                for d in self.weak_directions],
+            "encoder_zero": [dict(z) for z in self.encoder_zero],
+            "input_noise": dict(self.input_noise),
+            "delay": self.delay,
+            "delay_costs": {str(k): v for k, v in self.delay_costs.items()},
+            "guess_notes": list(self.guess_notes),
+            "validation": None if v is None else {
+                "nrmse": dict(v.nrmse), "period_measured": v.period_measured, "period_simulated": v.period_simulated,
+                "period_error": v.period_error, "amplitude_measured": v.amplitude_measured,
+                "amplitude_simulated": v.amplitude_simulated, "amplitude_error": v.amplitude_error,
+                "method": v.method},
+        }
