@@ -12,12 +12,6 @@ from models import get_model
 from models.plant import SimOptions, simulate
 
 
-@pytest.fixture(autouse=True)
-def only_estimate(monkeypatch):
-    """Only this command's parser: the test is about ``estimate``, whatever the state of the others."""
-    monkeypatch.setattr(cli, "COMMANDS", ("estimate",))
-
-
 @pytest.fixture(scope="module")
 def log_path(tmp_path_factory):
     """6 s of our plant's stick-slip from rest, with the true twists (``twist_shaft1/2``)."""

@@ -15,13 +15,6 @@ from models.rig import RIGS_DIR
 main = cli.main
 
 
-@pytest.fixture(autouse=True)
-def only_identify(monkeypatch):
-    # the parser imports every command; the others are migrated to the rig files elsewhere, and
-    # this test is about `identify` only
-    monkeypatch.setattr(cli, "COMMANDS", ("identify",))
-
-
 @pytest.fixture(scope="module")
 def disc_csv(tmp_path_factory):
     d = tmp_path_factory.mktemp("cli_id")

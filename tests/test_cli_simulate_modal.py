@@ -30,22 +30,12 @@ n1 = { kind = "constant", value = 20.0 }
 """
 
 
-def _identify_imports() -> bool:
-    try:
-        import mitigate.commands.estimate  # noqa: F401
-        import mitigate.commands.identify  # noqa: F401
-        return True
-    except Exception:  # noqa: BLE001 - another branch owns them; until it lands the full CLI cannot build
-        return False
 
 
-full_cli = pytest.mark.skipif(not _identify_imports(), reason="mitigate.commands.identify/estimate do not import yet")
 
 
 @pytest.fixture
-def main(monkeypatch):
-    """``mitigate.cli.main`` with only simulate and modal registered."""
-    monkeypatch.setattr(cli, "COMMANDS", ("simulate", "modal"))
+def main():
     return cli.main
 
 
@@ -125,7 +115,6 @@ def test_bad_scenarios_exit_2_and_write_nothing(main, tmp_path, capsys, text, ma
     assert not out.exists() or not any(out.iterdir())
 
 
-@full_cli
 def test_bad_scenario_subprocess_no_traceback(tmp_path):
     sc = tmp_path / "bad.toml"
     sc.write_text(SHORT + "[plant]\nparams = \"missing.toml\"\n")

@@ -29,9 +29,7 @@ def _cache(tmp_path_factory, monkeypatch):
 
 
 @pytest.fixture
-def main(monkeypatch):
-    """``mitigate.cli.main`` with only ``sweep`` registered (other commands are migrated elsewhere)."""
-    monkeypatch.setattr(cli, "COMMANDS", ("sweep",))
+def main():
     return cli.main
 
 
@@ -124,7 +122,6 @@ def test_leadscrew_threshold_and_speed_trend(tmp_path):
 
 def test_rig3_sliding_start_agrees_with_linear_stability(tmp_path):
     """From (kicked) steady sliding, a linearly unstable point develops stick-slip, a stable one does not."""
-    pytest.importorskip("models.modal")
     from models.modal import sliding_stability
     sc = load_scenario(RIG3)
     o = options_from_scenario(sc, duration=20.0, settle=10.0, start="sliding", backend="vm", chunk=2)
@@ -169,7 +166,6 @@ def test_closed_loop_pi_only_equals_open_loop():
     """Cross-check: the closed loop with the 'PI only' controller (programmed set-point, N2 = 0) gives
     the same map as the open-loop batched plant; the brake changes it (how well it mitigates is
     ``mitigate run``'s subject, not this test's)."""
-    pytest.importorskip("mitigate.closedloop")
     sc = load_scenario(RIG3)
     o = options_from_scenario(sc, duration=14.0, settle=10.0, start="rest", backend="vm", chunk=2)
     plan = plan_sweep(sc, [parse_axis("omega_ref=2.5:2.5:1"), parse_axis("n1=20:35:2")], o)

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-nptdms = pytest.importorskip("nptdms")
+import nptdms
 from nptdms import ChannelObject, TdmsWriter  # noqa: E402
 
 from models.errors import ConfigError, DataError  # noqa: E402
