@@ -30,7 +30,7 @@ TAUS = (0.0, 0.03)
 
 def _scenario(path: str, estimator: str | None):
     from estimators.base import EstimatorContext
-    from estimators.factory import make_estimator
+    from estimators.online.factory import make_estimator
     from mitigate.scenario import load_scenario
     from models.errors import ConfigError
 

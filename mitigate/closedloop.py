@@ -161,7 +161,7 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
                       drift=scenario.drift)
     if estimator is None:
         from estimators.base import EstimatorContext
-        from estimators.factory import make_estimator
+        from estimators.online.factory import make_estimator
         # the estimator's initial guess comes from the NOMINAL model, never from the plant
         x0 = model.steady_sliding(u0, scenario.model_params) if scenario.sim.start == "sliding" else np.zeros(model.nx)
         estimator = make_estimator(scenario.estimator, EstimatorContext(

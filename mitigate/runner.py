@@ -123,7 +123,7 @@ def validate_scenario(scenario) -> Scenario:
     """The scenario (loaded if a path), with every controller and the estimator built once
     (raises ConfigError naming the field of the first problem)."""
     from estimators.base import EstimatorContext
-    from estimators.factory import make_estimator
+    from estimators.online.factory import make_estimator
     from mitigate.controllers.factory import make_controller
 
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)

@@ -100,7 +100,7 @@ def test_the_controller_and_estimator_see_the_nominal_model_not_the_plant(monkey
     sc = _scenario(duration=0.5, start=0.0, mismatch={"k1": 1.2}, structure={"pi_error": "motor"})
     assert sc.plant_params["k1"] == pytest.approx(1.2 * sc.model_params["k1"])
     assert sc.plant_model.spec.drive.pi_error == "motor" and sc.model.spec.drive.pi_error == "disc"
-    import estimators.factory as ef
+    import estimators.online.factory as ef
     seen = {}
     real = ef.make_estimator
 

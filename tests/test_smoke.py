@@ -10,9 +10,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_the_public_api_resolves():
+    import estimators
     import mitigate
     import models
-    for pkg in (mitigate, models):
+    for pkg in (mitigate, models, estimators):
         missing = [n for n in pkg.__all__ if not hasattr(pkg, n)]
         assert not missing, (pkg.__name__, missing)
     assert set(mitigate.CONTROLLER_KINDS) >= {"pi", "brake", "supervisor", "softspeed", "ztorque", "doskil", "nmpc"}
