@@ -140,6 +140,8 @@ def test_bad_inputs(disc_logs):
         identify(a, "disc", published("disc"), opts, holdout=0.95)
     with pytest.raises(ConfigError, match="initial mu_k = 0.6, mu_s = 0.5 violates the constraint mu_k <= mu_s"):
         identify(a, "disc", published("disc").replace(mu_k=0.6), IdentifyOptions(free=("mu_k", "mu_s")))
+    with pytest.raises(ConfigError, match="the rig file's k = 1.1175 and the data-derived guess violate the constraint"):
+        identify(a, "disc", None, IdentifyOptions(free=("k",), constraints=("k >= 1.2",)))
     with pytest.raises(ConfigError, match="options.constraints: 'zz' in 'k \\+ zz <= 3' is not a parameter"):
         identify(a, "disc", published("disc"), IdentifyOptions(free=("k",), constraints=("k + zz <= 3",)))
     with pytest.raises(ConfigError, match="options.outputs: 'omega3' is not an output channel"):

@@ -245,12 +245,20 @@ class IdentificationProblem:
                                       f"[{self.lo[i]:g}, {self.hi[i]:g}]")
         self.constraints = self._constraints()
         Gp, hp = self._constraint_rows()
+        if Gp.shape[0] and self._initial_arg is None and np.any(Gp @ self.theta0 - hp > 1e-9 * np.maximum(1.0, np.abs(hp))):
+            # the data-derived guess breaks a constraint: start from the rig file's values instead
+            self.guess_notes = ("guess not used: it breaks a constraint; started from the rig file's values",)
+            self.initial, self._alternative = m.published(), None
+            self.theta0 = np.clip(self.initial.vector(o.free), self.lo, self.hi)
         if Gp.shape[0]:
             viol = Gp @ self.theta0 - hp
             j = int(np.argmax(viol))
             if viol[j] > 1e-9 * max(1.0, abs(hp[j])):
                 c = self.constraints[j]
                 vals = ", ".join(f"{n} = {self.theta0[o.free.index(n)]:g}" for n in c.names if n in o.free)
+                if self._initial_arg is None:
+                    raise ConfigError(f"the rig file's {vals} and the data-derived guess violate the constraint {c.text}; "
+                                      f"give a starting set that satisfies it (initial, CLI --params)")
                 raise ConfigError(f"initial {vals} violates the constraint {c.text}")
         # ---- channels, delays, alignment
         self.channels = plan_channels(m, logs[0], o)
