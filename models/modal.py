@@ -201,13 +201,11 @@ def operating_point(model, params: ParameterSet | None = None, *, omega: float |
     return u, None
 
 
-_FUNCS: dict = {}
-
-
 def _functions(model, eps: float, outputs: tuple[str, ...]):
-    """(ode, Newton equilibrium solver g(x; u, p), Jacobian Function), cached per model/eps/outputs."""
-    key = (id(model), model.key, eps, outputs)
-    if key not in _FUNCS:
+    """(ode, Newton equilibrium solver g(x; u, p), Jacobian Function), cached on the model per eps/outputs."""
+    key = ("modal", eps, outputs)
+    cache = model._fcache
+    if key not in cache:
         f = model.ode(eps)
         x, uu, p = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu), ca.SX.sym("p", model.n_p)
         xd = f(x, uu, p)
@@ -217,8 +215,8 @@ def _functions(model, eps: float, outputs: tuple[str, ...]):
         jac = ca.Function(f"{model.cname}_lin", [x, uu, p],
                           [ca.jacobian(xd, x), ca.jacobian(xd, uu), ca.jacobian(y, x), ca.jacobian(y, uu), xd],
                           ["x", "u", "p"], ["A", "B", "C", "D", "xdot"])
-        _FUNCS[key] = (f, solver, jac)
-    return _FUNCS[key]
+        cache[key] = (f, solver, jac)
+    return cache[key]
 
 
 def linearise(model, params: ParameterSet | None, u, eps: float | None = None, x_op=None,

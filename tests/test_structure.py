@@ -290,3 +290,27 @@ def test_realistic_scenario_runs_10_s_with_pi():
     # the N1 load cell reads 3 % high (sensor_gains), with 0.2 N of noise
     assert np.median(r.y["n1"]) == pytest.approx(1.03 * 20.0, abs=0.1)
     assert sc.messages == () or all("nsub" in m for m in sc.messages)
+
+
+def test_functions_are_cached_per_model_object_not_per_name(monkeypatch):
+    """A plant with lumped shaft elements has more states than its nominal model of the same
+    name.  A benchmark worker builds and frees such models in turn, and CPython reuses a freed
+    object's ``id``: a function cache keyed by ``id(model)`` once handed the 11-state plant the
+    7-state model's step ("could not broadcast (13,) into (7,)").  Here every object gets the same
+    id, which is what id reuse looks like to such a cache."""
+    import builtins
+
+    import models.modal as modal
+    import models.plant.simulator as simulator
+
+    for mod in (simulator, modal):
+        monkeypatch.setattr(mod, "id", lambda obj: 0, raising=False)
+    assert builtins.id is not simulator.id
+    sc = _sc({"shaft_elements": {"count": 2, "inertia": "5e-4 kg m^2"}})
+    assert sc.plant_model.nx > sc.model.nx and sc.plant_model.key == sc.model.key
+    for spec in (sc.model.spec, sc.plant_model.spec, sc.model.spec):
+        m = type(sc.model)(spec, sc.model.key)
+        F = simulator.step_function(m, SimOptions(dt=0.01))
+        assert F.size1_in(0) == m.nx
+        lin = modal.linearise(m, m.published(), sc.programme(0.0))
+        assert lin.A.shape == (m.nx, m.nx)

@@ -58,7 +58,6 @@ from estimators.identify.validation import validate
 __all__ = ["IdentificationProblem", "auto_nsub"]
 
 _KEEP = object()
-_FN_CACHE: dict = {}
 _KIND = {"speed": "speed", "torque": "torque", "force": "force"}
 
 
@@ -114,10 +113,12 @@ def auto_nsub(model, params: ParameterSet, u, dt: float, eps: float, rho_h: floa
 
 
 def _functions(model, nsub: int, channels, avg, free_idx, input_jac: bool, compile_: bool):
-    """(sensitivity function to run, values function to run, values function uncompiled, compiled?), cached."""
-    key = (model.key, id(model.spec), nsub, tuple((c.name, c.kind) for c in channels), tuple(avg), tuple(free_idx),
+    """(sensitivity function to run, values function to run, values function uncompiled, compiled?), cached on
+    the model object (never by ``id``: a freed rig's id is reused by the next one)."""
+    key = ("identify", nsub, tuple((c.name, c.kind) for c in channels), tuple(avg), tuple(free_idx),
            input_jac, compile_)
-    if key not in _FN_CACHE:
+    cache = model._fcache
+    if key not in cache:
         h = output_function(model, channels)
         S = sample_function(model, nsub, h, avg, free_idx, input_jac=input_jac)
         Sv = sample_function(model, nsub, h, avg, free_idx, values_only=True)
@@ -126,8 +127,8 @@ def _functions(model, nsub: int, channels, avg, free_idx, input_jac: bool, compi
             S_run = compiled_or_none(S) or S
             if S_run is not S:
                 Sv_run = compiled_or_none(Sv) or Sv
-        _FN_CACHE[key] = (S_run, Sv_run, Sv, S_run is not S)
-    return _FN_CACHE[key]
+        cache[key] = (S_run, Sv_run, Sv, S_run is not S)
+    return cache[key]
 
 
 def _model_from(spec, key: str) -> RigModel:

@@ -79,15 +79,17 @@ class SimOptions:
             raise ConfigError(f"sim.start must be 'rest' or 'sliding', got {self.start!r}")
 
 
-_CACHE: dict = {}
-
-
 def step_function(model, options: SimOptions) -> ca.Function:
-    """``F(x, theta_ref, u, p) -> (x_next, theta_ref_next)`` for one sample (cached per rig and options)."""
+    """``F(x, theta_ref, u, p) -> (x_next, theta_ref_next)`` for one sample.
+
+    Cached on the model object (its lifetime, never a key that another model could reuse: two
+    rigs of one name, e.g. a plant with ``[structure]`` changes and its nominal model, differ).
+    """
     model = get_model(model)
-    key = (id(model), model.key, options.method, options.dt, options.nsub, options.eps)
-    if key in _CACHE:
-        return _CACHE[key]
+    key = ("plant_step", options.method, options.dt, options.nsub, options.eps)
+    cache = model._fcache
+    if key in cache:
+        return cache[key]
     if options.method == "hybrid":
         F = hybrid_step_function(model, options.dt, options.nsub)
     else:
@@ -113,7 +115,7 @@ def step_function(model, options: SimOptions) -> ca.Function:
             xf = integ(x0=ca.vertcat(xs, ths), p=ca.vertcat(us, ps))["xf"]
             F = ca.Function(f"{model.cname}_cvodes_step", [xs, ths, us, ps], [xf[:model.nx], xf[model.nx]],
                             ["x", "theta_ref", "u", "p"], ["x_next", "theta_ref_next"])
-    _CACHE[key] = F
+    cache[key] = F
     return F
 
 
