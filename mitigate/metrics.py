@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from models.signals import dominant_frequency
+
 __all__ = ["severity", "windowed_severity", "moving_severity", "time_to_suppress", "stuck_fraction", "amplitude",
            "dominant_frequency", "rms", "contact_work", "solve_time_stats", "closed_loop_metrics", "METRIC_UNITS",
            "MetricOptions"]
@@ -77,18 +79,6 @@ def amplitude(omega: np.ndarray) -> float:
     """Half the peak-to-peak speed [rad/s]."""
     w = np.asarray(omega, dtype=float)
     return 0.5 * float(np.max(w) - np.min(w))
-
-
-def dominant_frequency(signal: np.ndarray, dt: float) -> float:
-    """Frequency [Hz] of the largest non-DC peak of the (mean-removed, Hann-windowed) spectrum."""
-    x = np.asarray(signal, dtype=float)
-    x = x - x.mean()
-    if len(x) < 4 or not np.any(x):
-        return 0.0
-    spec = np.abs(np.fft.rfft(x * np.hanning(len(x))))
-    freqs = np.fft.rfftfreq(len(x), dt)
-    spec[0] = 0.0
-    return float(freqs[int(np.argmax(spec))])
 
 
 def rms(x: np.ndarray) -> float:
