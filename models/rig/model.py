@@ -511,8 +511,8 @@ class RigModel:
         return {}
 
     def output_names(self) -> tuple[str, ...]:
-        x, u, p = self._syms()
-        return tuple(self.outputs(x, u, self.unpack(p), ca.SX.sym("th")).keys())
+        """Names of :meth:`outputs` (the measurement Function's outputs)."""
+        return tuple(self.meas().name_out())
 
     def meas(self) -> ca.Function:
         """Noise-free measurement function ``y = h(x, u, p, theta_ref)`` with named outputs."""
@@ -539,13 +539,38 @@ class RigModel:
         speed), or None for a torque drive."""
         return None if self.drive_kind == "torque" else self.inputs.index(self.spec.drive.input)
 
+    def _steady_function(self, eps, mode: str, other: tuple, spd_idx: tuple, ju: int) -> ca.Function:
+        """``ss(z, p, u, w) -> (residual, d residual / dz)`` of steady sliding (cached on the model).
+
+        ``z`` holds the non-speed states and one extra unknown: the drive's input torque
+        (``mode = "torque"``), the common speed (``"speed"``) or nothing (``"fixed"``); every body
+        turns at ``w`` unless the speed is the unknown."""
+        key = ("steady", eps, mode)
+        if key not in self._fcache:
+            f = self.ode(eps)
+            z = ca.SX.sym("z", len(other) + 1)
+            p_s, u_s, w_s = ca.SX.sym("p", self.n_p), ca.SX.sym("u", self.nu), ca.SX.sym("w")
+            x = [None] * self.nx
+            for k, j in enumerate(other):
+                x[j] = z[k]
+            extra = z[len(other)]
+            uu = [u_s[j] for j in range(self.nu)]
+            if mode == "torque":
+                uu[ju] = extra
+            w = extra if mode == "speed" else w_s
+            for j in spd_idx:
+                x[j] = w
+            keep = [j for j in range(self.nx) if j >= self._n_tw]          # accelerations and drive rows
+            r = f(ca.vertcat(*x), ca.vertcat(*uu), p_s)[keep]
+            self._fcache[key] = ca.Function(f"{self.cname}_steady", [z, p_s, u_s, w_s], [r, ca.jacobian(r, z)])
+        return self._fcache[key]
+
     def _steady_solve(self, u, params, speed: float | None, eps: float | None = None, iters: int = 30):
         """Gauss-Newton on the accelerations and drive rows with every body at one speed.
 
         Unknowns: the twists, the drive states and, for a torque drive, either the input torque
         (``speed`` given) or the common speed (``speed`` None).
         """
-        f = self.ode(eps)
         pv = np.asarray(params.vector(), float)
         u = np.asarray(u, float).copy()
         n_tw, nb = self._n_tw, len(self._bodies)
@@ -556,27 +581,10 @@ class RigModel:
         solve_speed = torque_drive and speed is None
         if speed is None:
             speed = float(u[ju]) if not torque_drive else 1.0
-        z = ca.SX.sym("z", len(other) + 1)
-        x = [None] * self.nx
-        for k, j in enumerate(other):
-            x[j] = z[k]
-        extra = z[len(other)]
-        uu = [ca.SX(float(v)) for v in u]
-        if torque_drive and not solve_speed:
-            uu[ju] = extra
-            w = ca.SX(speed)
-        elif solve_speed:
-            w = extra
-        else:
-            w = ca.SX(speed)
-        for j in spd_idx:
-            x[j] = w
-        xv = ca.vertcat(*x)
-        keep = [j for j in range(self.nx) if j >= n_tw]          # accelerations and drive rows
+        mode = "torque" if torque_drive and not solve_speed else ("speed" if solve_speed else "fixed")
+        F = self._steady_function(eps, mode, tuple(other), tuple(spd_idx), ju)
         zv = np.zeros(len(other) + 1)
-        if torque_drive and not solve_speed:
-            zv[-1] = 0.0
-        elif solve_speed:
+        if solve_speed:
             zv[-1] = speed
         free = np.ones(zv.size, bool)
         if not torque_drive:
@@ -596,12 +604,9 @@ class RigModel:
             loose = pv.copy()
             loose[limits] = 1e9
             pvs = [loose, pv]
-        p_s = ca.SX.sym("pp", self.n_p)
-        r_p = ca.vertcat(*[f(xv, ca.vertcat(*uu), p_s)[j] for j in keep])
-        F = ca.Function("ss", [z, p_s], [r_p, ca.jacobian(r_p, z)])
         for pcur in pvs:
             for _ in range(iters):
-                rv, Jv = (np.array(a, float) for a in F(zv, pcur))
+                rv, Jv = (np.array(a, float) for a in F(zv, pcur, u, speed))
                 rv = rv.ravel()
                 step = np.linalg.lstsq(Jv[:, free], -rv, rcond=None)[0]
                 zv[free] += step
