@@ -27,14 +27,13 @@ on them; a node only touches the residuals of its interval.
 
 from __future__ import annotations
 
-import sys
 
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from models.codegen import compiler, load_compiled
+from models import codegen
 
 __all__ = ["sample_function", "compiled_or_none", "ShootingProblem", "KKTFactor"]
 
@@ -119,19 +118,12 @@ def sample_function(model, nsub: int, h: ca.Function, avg, free_idx=None, *, val
 
 
 def compiled_or_none(fn: ca.Function) -> ca.Function | None:
-    """``fn`` as a gcc-built, disk-cached external Function, or None if that is not possible."""
+    """``fn`` gcc-built at -O1 (:func:`models.codegen.compiled_or_none`, cached on disk), memoised
+    in this process by the Function's serialisation; None without a compiler or when the build fails."""
     key = fn.serialize()
-    if key in _COMPILED:
-        return _COMPILED[key]
-    out = None
-    if compiler() is not None:
-        try:
-            out = load_compiled(fn, "-O1")[fn.name()]
-        except Exception as exc:  # noqa: BLE001 - fall back to the virtual machine
-            sys.stderr.write(f"identify: compiling {fn.name()} failed ({exc}); using the uncompiled function\n")
-            out = None
-    _COMPILED[key] = out
-    return out
+    if key not in _COMPILED:
+        _COMPILED[key] = codegen.compiled_or_none(fn, "-O1")
+    return _COMPILED[key]
 
 
 class ShootingProblem:
