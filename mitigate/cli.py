@@ -78,6 +78,12 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         sys.stderr.write(f"mitigate {args.command}: interrupted\n")
         return 130
+    except BrokenPipeError:   # the reader went away (``mitigate modal --json | head``): not an error of ours
+        try:
+            sys.stdout = open(os.devnull, "w")
+        except OSError:
+            pass
+        return 141
     except Exception as exc:  # an internal error: one line unless debugging
         if os.environ.get("MITIGATE_DEBUG"):
             raise

@@ -170,3 +170,13 @@ def test_help_has_examples(main, capsys):
         assert exc.value.code == 0
         out = capsys.readouterr().out
         assert "mitigate " + cmd in out and "example" in out
+
+
+def test_modal_without_out_prints_and_writes_nothing(main, tmp_path, monkeypatch, capsys):
+    """The issue's check, `mitigate modal --model models/rigs/four_disc.toml --json`, can be run twice."""
+    monkeypatch.chdir(tmp_path)
+    for _ in range(2):
+        assert main(["modal", "--model", str(ROOT / "models" / "rigs" / "four_disc.toml"), "--json"]) == 0
+        doc = json.loads(capsys.readouterr().out)
+        assert len(doc["variants"]["clamped"]["freq_hz"]) == 4 and "png" not in doc
+    assert list(tmp_path.iterdir()) == []

@@ -15,7 +15,8 @@ from models.params import load_params
 from models.rig import get_model, shipped_rigs
 
 EPILOG = """examples:
-  mitigate modal --out out/                      # rig3, all variants, published parameters
+  mitigate modal                                 # rig3, all variants, published parameters (printed)
+  mitigate modal --out out/                      # ... and the mode-shape and stability-map PNGs
   mitigate modal --variant closed --load 20 --omega 3.1416 --json
   mitigate modal --params fitted.toml --variant free --out out/ --force
   mitigate modal --model models/rigs/four_disc.toml --json
@@ -44,7 +45,10 @@ def register(subparsers) -> None:
     p.add_argument("--omega", type=float, default=None,
                    help="sliding speed [rad/s, output side] (default: the rig file's operating point; rig3 30 rpm)")
     p.add_argument("--no-map", action="store_true", help="skip the stability map PNG")
-    add_common(p)
+    add_common(p, out=False)
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="write the mode-shape and stability-map PNGs into DIR (default: print only, write nothing)")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.set_defaults(func=run)
 
 
@@ -106,12 +110,13 @@ def run(args) -> int:
             raise ConfigError(f"{name} must be a finite number, got {v}")
     if args.load is not None and args.load < 0:
         raise ConfigError(f"--load must be >= 0 N, got {args.load}")
-    out = Path(args.out)
-    shapes_png = out / f"modal_{model.cname}.png"
+    out = Path(args.out) if args.out is not None else None
     loads = [n for n, k in zip(model.inputs, model.input_kinds) if k == "force"]
-    do_map = (not args.no_map) and model.drive_kind != "torque" and bool(loads)
-    map_png = out / f"stability_map_{model.cname}.png"
-    check_outputs([shapes_png] + ([map_png] if do_map else []), args.force)
+    do_map = out is not None and (not args.no_map) and model.drive_kind != "torque" and bool(loads)
+    if out is not None:
+        shapes_png = out / f"modal_{model.cname}.png"
+        map_png = out / f"stability_map_{model.cname}.png"
+        check_outputs([shapes_png] + ([map_png] if do_map else []), args.force)
 
     results = [modes(model, params, v, omega=args.omega, load=args.load) for v in variants]
     measured = model.spec.extra.get("measured_modes_hz", ())
@@ -134,9 +139,10 @@ def run(args) -> int:
         if cmp:
             lines.append(format_table(["mode", "model [Hz]", "measured [Hz]", "error [%]"],
                                       [list(c) for c in cmp]))
-    out.mkdir(parents=True, exist_ok=True)
-    _plot_shapes(results, shapes_png, f"Mode shapes of {model.name} ({args.params or 'published parameters'})")
-    payload["png"] = str(shapes_png)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        _plot_shapes(results, shapes_png, f"Mode shapes of {model.name} ({args.params or 'published parameters'})")
+        payload["png"] = str(shapes_png)
     if do_map:
         from models.modal import operating_point
         u_op, _ = operating_point(model, params)
@@ -153,5 +159,6 @@ def run(args) -> int:
         print(f"modal analysis of {model.name} ({args.params or 'published parameters'})"
               + (f"; measured: {', '.join(f'{f:g}' for f in measured)} Hz" if measured else ""))
         print("\n".join(lines))
-        print(f"\nwrote {shapes_png}" + (f" and {map_png}" if do_map else ""))
+        if out is not None:
+            print(f"\nwrote {shapes_png}" + (f" and {map_png}" if do_map else ""))
     return 0
