@@ -13,7 +13,7 @@ import pytest
 from estimators.base import EstimatorContext
 from estimators.online.ekf import EKF
 from estimators.online.model import build_estimation_model
-from estimators.online.observability import _compress, linearisation_function, observability
+from estimators.online.observability import compress_channels, linearisation_function, observability
 from estimators.online.options import EKFOptions
 from models import get_model
 from models.errors import ConfigError
@@ -140,9 +140,9 @@ def test_observability_along_a_logged_trajectory_and_bad_input():
 
 
 def test_channel_lists_are_compressed_for_messages():
-    assert _compress(["theta1", "theta2", "theta3", "omega1", "omega3", "motor_torque"]) == \
+    assert compress_channels(["theta1", "theta2", "theta3", "omega1", "omega3", "motor_torque"]) == \
         "theta1..3, omega1, omega3, motor_torque"
-    assert _compress(["theta_drive", "theta_bit"]) == "theta_drive, theta_bit"
+    assert compress_channels(["theta_drive", "theta_bit"]) == "theta_drive, theta_bit"
 
 
 def test_disc_rig_verdicts():

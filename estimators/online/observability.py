@@ -54,7 +54,7 @@ import numpy as np
 from models.errors import ConfigError
 from models.status import Status
 
-__all__ = ["ObservabilityReport", "WeakDirection", "observability", "linearisation_function", "MIN_GAIN"]
+__all__ = ["ObservabilityReport", "WeakDirection", "observability", "linearisation_function", "compress_channels", "MIN_GAIN"]
 
 #: a direction whose information gain is below this is weak (see module docstring)
 MIN_GAIN = 10.0
@@ -145,7 +145,7 @@ def linearisation_function(em) -> ca.Function:
     return ca.Function(f"{em.model.cname}_obs_lin", [xp, x, uh, p], [A, C], ["x_prev", "x", "uh", "p"], ["A", "C"])
 
 
-def _compress(channels) -> str:
+def compress_channels(channels) -> str:
     """``theta1, theta2, theta3, omega1`` -> ``theta1..3, omega1``."""
     groups: dict[str, list[int]] = {}
     order: list[str] = []
@@ -290,7 +290,7 @@ def observability(em, X, UH, *, min_gain: float = MIN_GAIN, lin: ca.Function | N
         # only a torque channel carries the absolute level a twist trades off against
         suggest = [c for c in default_channels(em.model) if c not in em.channels
                    and em.model.sensor_of(c).kind == "torque"]
-    chans = _compress(em.channels)
+    chans = compress_channels(em.channels)
     where = f" at {regime}" if regime else ""
     if not twist_ok:
         bad = [t for t, r in zip(em.twist_names, twist_rel) if r > 1.0 / min_gain]
