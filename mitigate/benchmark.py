@@ -175,10 +175,10 @@ class BenchmarkResult:
 
 def _job(args):
     sc, i = args
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
     from mitigate.runner import run_one
     try:
-        make_controller(sc.controllers[i], sc, i)
+        make_controller(sc.controllers[i], context_for(sc, i))
     except ConfigError as exc:     # the rig lacks what the controller needs: not applicable here
         return sc.name, sc.controllers[i].name, None, str(exc)
     r = run_one(sc, i)

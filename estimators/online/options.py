@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any, ClassVar, Mapping
+from typing import Any, Mapping
 
 from models.errors import ConfigError
 
@@ -101,7 +101,6 @@ class EKFOptions:
     why"); the noise levels ``q_torque``, ``p0_*`` are in SI units and sized for it.
     """
 
-    kind_name: ClassVar[str] = "ekf"
 
     channels: tuple | None = None
     angles: str = "zeroed"
@@ -160,7 +159,6 @@ class MHEOptions(EKFOptions):
         weights of exact constraints (power-on twists, lagged states)
     """
 
-    kind_name: ClassVar[str] = "mhe"
 
     window: int = 20
     max_iter: int = 1
@@ -188,7 +186,6 @@ class FDOptions:
         twist of the context's ``x0``) or "absolute" (the differences are the twists)
     """
 
-    kind_name: ClassVar[str] = "fd"
 
     angles: str = "zeroed"
 
@@ -197,8 +194,8 @@ class FDOptions:
             raise ConfigError(f"{_W}.angles must be 'zeroed' or 'absolute', got {self.angles!r}")
 
 
-def options_from_mapping(cls, table: Mapping[str, Any], where: str = "estimator"):
-    """Options of class ``cls`` from a TOML table (without ``kind``).
+def options_from_mapping(cls, table: Mapping[str, Any], where: str = "estimator", kind: str = "?"):
+    """Options of class ``cls`` (of the estimator kind ``kind``) from a TOML table (without ``kind``).
 
     Raises
     ------
@@ -208,7 +205,7 @@ def options_from_mapping(cls, table: Mapping[str, Any], where: str = "estimator"
     allowed = [f.name for f in fields(cls)]
     unknown = [k for k in table if k not in allowed]
     if unknown:
-        raise ConfigError(f"{where}: unknown key {unknown[0]!r} for kind {cls.kind_name!r}; "
+        raise ConfigError(f"{where}: unknown key {unknown[0]!r} for kind {kind!r}; "
                           f"expected some of {', '.join(sorted(allowed))}")
     try:
         return cls(**dict(table))
