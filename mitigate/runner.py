@@ -186,14 +186,16 @@ def run_one(scenario: Scenario, index: int) -> ControllerRun:
         res = run_closed_loop(scenario, ctrl, progress=report)
     except PluginError as exc:
         return failed_run(spec, f"{exc}", time.perf_counter() - t0)
-    try:
-        met = closed_loop_metrics(res, scenario)
-    except Exception as exc:  # noqa: BLE001 - a run that ended too early to measure (it is FAILED/DIVERGED)
-        if res.success:
-            raise
-        met = {k: float("nan") for k in METRIC_UNITS}
-        met.update({k: v for k, v in (("controller_steps", res.controller_counts.get("steps", 0)),)})
+    if len(res.t) < 2:                 # failed at its first sample (in reset): nothing to measure or log
+        return failed_run(spec, res.message, time.perf_counter() - t0)
+    met = closed_loop_metrics(res, scenario)
+    if res.status is Status.FAILED:    # what it did until it failed is no result: only the counts stay
+        met = {k: (v if k.startswith(COUNT_PREFIXES) else float("nan")) for k, v in met.items()}
     return ControllerRun(spec.name, spec.kind, res, met, time.perf_counter() - t0, res.status, res.message)
+
+
+#: metrics that stay in a FAILED run's row (counts of what happened); the others are NaN there
+COUNT_PREFIXES = ("controller_", "estimator_", "plan_calls")
 
 
 def failed_run(spec, why: str, elapsed: float = 0.0) -> ControllerRun:
@@ -263,7 +265,7 @@ def _write_set(result: RunResult, w) -> None:
     staged = {k: w.path(p.name) for k, p in files.items()}
     names = slugs([r.name for r in result.runs])
     for s, r in zip(names, result.runs):
-        if r.result is None:
+        if r.result is None:      # failed before it ran: nothing to log or plot
             continue
         r.result.to_log().write_csv(staged[f"log_{s}"], overwrite=True)
         plot_run(sc, r.result, f"{sc.name}: {r.name} (true speeds and twists, applied inputs)",

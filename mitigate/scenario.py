@@ -42,7 +42,8 @@ same fields as keyword arguments.  Schema (only ``[scenario]`` and ``[inputs]`` 
     [control]
     start = 20.0                     # [s] controllers act from here (< duration); before, the programme alone
     every = 1                        # a controller runs every k DAQ samples
-    deadline = "5 ms"                # optional: a later answer is a counted deadline miss, the fallback acts
+    deadline = "5 ms"                # optional ("period": one control period; default off): a later answer
+                                     # is a counted deadline miss and the fallback acts (on in the benchmark)
     timeout = "2 s"                  # a call not returned by then fails its run (default max(2 s, 100 periods))
     latency = "measured"             # optional: each answer applied after its measured time, or "3 ms" (fixed)
 
@@ -241,7 +242,7 @@ def _control_timing(ctl: Mapping, period: float, where: str) -> tuple[float | No
     unless given; timeout default ``max(DEFAULT_TIMEOUT, TIMEOUT_PERIODS x period)``, "off" for none;
     latency 0, a fixed time [s], or "measured"."""
     d = ctl.get("deadline", "off")
-    deadline = None if d == "off" else _time(d, f"{where}.deadline")
+    deadline = None if d == "off" else period if d == "period" else _time(d, f"{where}.deadline")
     tv = ctl.get("timeout")
     if tv == "off":
         timeout = None

@@ -26,6 +26,7 @@ pool), which calls ``on_progress(index, count)``.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import multiprocessing as mp
 import os
@@ -203,7 +204,8 @@ class WorkerPool:
             for i, args in enumerate(tasks):
                 _reporter = (lambda k, i=i: on_progress(i, k)) if on_progress is not None else None
                 try:
-                    value = fn(*args)
+                    with contextlib.redirect_stdout(sys.stderr):     # as as in a worker: stdout is for --json
+                        value = fn(*args)
                 except KeyboardInterrupt:
                     raise
                 except Exception as exc:  # noqa: BLE001 - a task's failure is its outcome

@@ -14,9 +14,9 @@ which
 
 - checks the location first: ``out`` an existing file, a parent that is a file, a folder that
   cannot be created or written: one-line :class:`ConfigError` naming ``--out`` (exit 2);
-- takes a lock on ``out`` (``out/.mitigate.lock``, ``fcntl.flock``; released by the kernel when the
-  process dies, even by ``kill -9``): a second command into the same folder is refused at once with
-  the first one's process id, so two runs never mix their files;
+- takes a lock on ``out`` (``out/.mitigate.lock``, ``fcntl.flock``, removed when done; a lock of a
+  killed process is released by the kernel, even after ``kill -9``): a second command into the same
+  folder is refused at once with the first one's process id, so two runs never mix their files;
 - refuses names that exist unless ``force`` (or unless a previous run was killed while committing
   them, below), and names that would leave ``out`` (absolute, ``..``);
 - writes every file into a staging folder inside ``out`` (``.mitigate-staging-<pid>``) and moves
@@ -191,32 +191,44 @@ class OutputSet:
 
 
 def _lock(out: Path):
+    """An exclusive, non-blocking ``flock`` on ``out/.mitigate.lock`` (holding this process's id);
+    ConfigError naming the holder if another process has it.  The file is removed again by
+    :func:`_unlock`; a lock taken on a file another process unlinked meanwhile is retaken."""
     import fcntl
     lock = out / LOCK_NAME
-    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError as exc:
-        if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-            os.close(fd)
-            raise
+    for _ in range(20):
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
         try:
-            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
-        except OSError:
-            holder = "?"
-        os.close(fd)
-        raise ConfigError(f"--out {out} is in use by another mitigate command (process {holder}); wait for it to "
-                          f"finish or choose another --out") from None
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, str(os.getpid()).encode(), 0)
-    return fd
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                os.close(fd)
+                raise
+            try:
+                holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            except OSError:
+                holder = "?"
+            os.close(fd)
+            raise ConfigError(f"--out {out} is in use by another mitigate command (process {holder}); wait for it "
+                              f"to finish or choose another --out") from None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(lock).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, str(os.getpid()).encode(), 0)
+            return fd, lock
+        os.close(fd)            # the holder removed that file as we took it: take the new one
+    raise ConfigError(f"--out {out}: could not take its lock (it keeps changing); try again")
 
 
-def _unlock(fd) -> None:
-    import fcntl
+def _unlock(held) -> None:
+    """Remove the lock file (while still holding it), then release it."""
+    fd, lock = held
     try:
-        os.ftruncate(fd, 0)
-        fcntl.flock(fd, fcntl.LOCK_UN)
+        with contextlib.suppress(OSError):
+            lock.unlink()
     finally:
         os.close(fd)
 
@@ -276,15 +288,13 @@ def output_set(out: str | os.PathLike, names: Iterable[str], *, force: bool = Fa
         if existing and not force:
             more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
             raise ConfigError(f"{out / existing[0]}: file exists{more}; refusing to overwrite (pass {arg}=True)")
+        staging.mkdir(exist_ok=True)
         yield w
         _commit(w, set(names) | incomplete)
         committed = True
     finally:
         shutil.rmtree(staging, ignore_errors=True)
         if fd is not None:
-            if created and not committed:
-                with contextlib.suppress(OSError):
-                    (out / LOCK_NAME).unlink()
             _unlock(fd)
         if created and not committed:
             with contextlib.suppress(OSError):
