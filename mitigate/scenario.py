@@ -187,7 +187,7 @@ def _check_keys(tab: Mapping, allowed, where: str):
             raise ConfigError(f"{where}.{k}: unknown key; expected one of {', '.join(sorted(allowed))}")
 
 
-def _memory_bytes() -> int | None:
+def memory_bytes() -> int | None:
     """This machine's physical memory, or its cgroup's limit if lower (None: unknown)."""
     total = None
     try:
@@ -211,7 +211,7 @@ def _check_size(duration: float, dt: float, runs: int, where: str) -> None:
     head = f"{where}: scenario.duration / scenario.dt = {duration:g} s / {dt:g} s = {shown} samples"
     if samples > MAX_SAMPLES:
         raise ConfigError(f"{head}; the limit is {MAX_SAMPLES:,} samples (shorten the duration or raise dt)")
-    need, have = samples * runs * BYTES_PER_SAMPLE, _memory_bytes()
+    need, have = samples * runs * BYTES_PER_SAMPLE, memory_bytes()
     if have is not None and need > have:
         fit = int(have // (runs * BYTES_PER_SAMPLE))
         raise ConfigError(f"{head}; the limit is {fit:,} samples here: {runs} controller run(s) need about "
