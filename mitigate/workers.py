@@ -156,7 +156,17 @@ class WorkerPool:
         parent, child = self._ctx.Pipe(duplex=True)
         p = self._ctx.Process(target=_worker_main, args=(child, os.getpid()), daemon=True,
                               name="stickslip-worker")
-        p.start()
+        # the worker starts with SIGINT ignored (inherited through exec; Python keeps an ignored SIGINT),
+        # so a Ctrl-C while it is still importing does not print a traceback from it
+        try:
+            old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except ValueError:              # not the main thread: nothing to do
+            old = None
+        try:
+            p.start()
+        finally:
+            if old is not None:
+                signal.signal(signal.SIGINT, old)
         child.close()
         w = {"proc": p, "conn": parent, "task": None, "last": time.monotonic()}
         self._workers.append(w)
