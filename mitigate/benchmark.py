@@ -194,7 +194,7 @@ def _job(sc, i):
 
 def run_benchmark(suite: Suite, *, jobs: int = 2, progress: bool = False) -> BenchmarkResult:
     """Run every controller of ``suite`` on every scenario (in ``jobs`` processes) and rank them."""
-    from mitigate.runner import failed_run
+    from mitigate.runner import STALL_TIMEOUT, failed_run
     from mitigate.workers import WorkerPool
 
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
@@ -207,7 +207,7 @@ def run_benchmark(suite: Suite, *, jobs: int = 2, progress: bool = False) -> Ben
         from tqdm import tqdm
         bar = tqdm(total=len(tasks), desc=f"benchmark {suite.name}", unit="run")
     try:
-        with WorkerPool(jobs) as pool:      # a run that fails (or whose worker dies) fails alone
+        with WorkerPool(jobs, stall_timeout=STALL_TIMEOUT) as pool:   # a run that fails (its worker dies, hangs) fails alone
             for out in pool.map(_job, tasks):
                 sc, i = tasks[out.index]
                 results[out.index] = out.value if out.ok else (sc.name, sc.controllers[i].name,

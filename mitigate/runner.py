@@ -194,6 +194,10 @@ def run_one(scenario: Scenario, index: int) -> ControllerRun:
     return ControllerRun(spec.name, spec.kind, res, met, time.perf_counter() - t0, res.status, res.message)
 
 
+#: a worker that reports nothing for this long [s] (it reports every 100 samples; a controller stuck in C
+#: code that the per-call timeout cannot interrupt) is killed and its run FAILED (mitigate.workers)
+STALL_TIMEOUT = 600.0
+
 #: metrics that stay in a FAILED run's row (counts of what happened); the others are NaN there
 COUNT_PREFIXES = ("controller_", "estimator_", "plan_calls")
 
@@ -222,7 +226,7 @@ def _execute(sc: Scenario, jobs: int, progress: bool, broken: dict[int, str] | N
         last[j] = k
 
     try:
-        with WorkerPool(min(jobs, max(len(todo), 1))) as pool:
+        with WorkerPool(min(jobs, max(len(todo), 1)), stall_timeout=STALL_TIMEOUT) as pool:
             for out in pool.map(run_one, [(sc, i) for i in todo], on_progress=tick):
                 i = todo[out.index]
                 done[i] = out.value if out.ok else failed_run(sc.controllers[i], out.error)

@@ -88,6 +88,10 @@ def _worker_main(conn, parent_pid: int) -> None:
     except OSError:
         pass
     sys.stdout = sys.stderr
+    try:
+        conn.send(("ready", None, None))               # the stall clock starts now, not at the spawn
+    except OSError:
+        return
     while True:
         try:
             msg = conn.recv()
@@ -96,6 +100,7 @@ def _worker_main(conn, parent_pid: int) -> None:
         if msg is None:
             return
         index, fn, args = msg
+        conn.send(("start", index, None))
         _reporter = lambda k, i=index: conn.send(("progress", i, k))  # noqa: E731
         try:
             value = fn(*args)
@@ -168,7 +173,7 @@ class WorkerPool:
             if old is not None:
                 signal.signal(signal.SIGINT, old)
         child.close()
-        w = {"proc": p, "conn": parent, "task": None, "last": time.monotonic()}
+        w = {"proc": p, "conn": parent, "task": None, "last": time.monotonic(), "ready": False}
         self._workers.append(w)
         return w
 
@@ -258,9 +263,9 @@ class WorkerPool:
                             kind, idx, payload = w["conn"].recv()
                         except (EOFError, OSError):
                             kind = None
-                        if kind == "progress":
-                            w["last"] = time.monotonic()
-                            if on_progress is not None:
+                        if kind in ("progress", "ready", "start"):
+                            w["last"], w["ready"] = time.monotonic(), True
+                            if kind == "progress" and on_progress is not None:
                                 on_progress(idx, payload)
                             continue
                         if kind in ("done", "error"):
@@ -275,7 +280,8 @@ class WorkerPool:
                         self._retire(w, kill=True)
                         left -= 1
                         yield Outcome(i, False, error=why)
-                    elif self.stall_timeout is not None and time.monotonic() - w["last"] > self.stall_timeout:
+                    elif self.stall_timeout is not None and w["ready"] \
+                            and time.monotonic() - w["last"] > self.stall_timeout:
                         self._retire(w, kill=True)
                         left -= 1
                         yield Outcome(i, False, error=f"its worker sent nothing for {self.stall_timeout:g} s "

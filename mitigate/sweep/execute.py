@@ -10,6 +10,7 @@ from typing import Callable
 import numpy as np
 
 from models.errors import ConfigError
+from models.plugins import describe
 from models.status import Status
 from mitigate.sweep.chunks import METRICS, ChunkTask, run_chunk
 from mitigate.sweep.plan import Axis, SweepPlan
@@ -155,7 +156,12 @@ def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None,
                 from distributed import as_completed
                 futs = {client.submit(run_chunk, t, pure=False, key=f"sweep-{store.hash}-{t.key}"): t for t in pending}
                 for fut in as_completed(futs):
-                    finish(futs[fut], fut.result())
+                    try:
+                        value = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - a chunk's failure is counted, the others go on
+                        failed.append(f"{futs[fut].key}: {describe(exc)}")
+                    else:
+                        finish(futs[fut], value)
             finally:
                 if own:
                     client.close()
