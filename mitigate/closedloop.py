@@ -286,7 +286,7 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
         if k >= k_start:
             if (k - k_start) % every == 0:
                 try:
-                    a = plugins.call(controller.step, t, y, est, timeout=timeout, what="step")
+                    a = plugins.call(controller.step, t, dict(y), est, timeout=timeout, what="step")   # its own copy
                     if not isinstance(a, Action):
                         raise PluginError(f"TypeError: step must return an Action, got {type(a).__name__}")
                 except PluginError as exc:

@@ -104,9 +104,8 @@ def _worker_main(conn, parent_pid: int) -> None:
         _reporter = lambda k, i=index: conn.send(("progress", i, k))  # noqa: E731
         try:
             value = fn(*args)
-        except KeyboardInterrupt:
-            return
         except BaseException as exc:  # noqa: BLE001 - a task's failure is its outcome, never the pool's
+            # (also KeyboardInterrupt: a worker ignores SIGINT, so only the task's own code can raise it)
             out = ("error", index, describe(exc))
         else:
             out = ("done", index, value)
@@ -234,9 +233,9 @@ class WorkerPool:
         left = len(tasks)
         try:
             while left:
-                while todo and sum(w["task"] is None for w in self._workers) == 0 \
+                while todo and sum(w["task"] is None for w in self._workers) < len(todo) \
                         and len(self._workers) < min(self.jobs, left):
-                    self._spawn()
+                    self._spawn()                    # every worker needed, at once
                 for w in list(self._workers):
                     if w["task"] is None and todo:
                         i = todo.pop()

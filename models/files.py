@@ -115,7 +115,9 @@ def _first_existing(path: Path) -> Path:
 
 def check_output_dir(out: str | os.PathLike, what: str = "--out") -> Path:
     """``Path(out)`` if it is, or can become, a writable folder; else one ConfigError naming ``what``
-    (an existing file, a parent that is a file, a folder that is not writable).  Creates nothing."""
+    (empty, an existing file, a parent that is a file, a folder that is not writable).  Creates nothing."""
+    if isinstance(out, str) and not out.strip():
+        raise ConfigError(f"{what} must name a folder, got an empty string")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"{what} {out} is a file, expected a folder (choose another {what})")

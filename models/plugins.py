@@ -130,30 +130,35 @@ class StepTimeout(BaseException):
 
 
 _armed = threading.local()
+_previous = {"handler": None}          # SIGALRM's handler before ours, called for alarms that are not ours
 
 
 def _on_alarm(signum, frame):
-    raise StepTimeout()
+    if getattr(_armed, "on", False):
+        raise StepTimeout()
+    prev = _previous["handler"]
+    if callable(prev):
+        prev(signum, frame)
 
 
 def _arm(timeout: float | None) -> bool:
-    """Arm SIGALRM for ``timeout`` seconds if this is the main thread and no outer call armed it."""
-    if timeout is None or getattr(_armed, "prev", None) is not None \
-            or threading.current_thread() is not threading.main_thread():
+    """Arm SIGALRM for ``timeout`` seconds if this is the main thread and no outer call armed it
+    (our handler is installed once per process; arming is one ``setitimer``)."""
+    if timeout is None or getattr(_armed, "on", False) or threading.current_thread() is not threading.main_thread():
         return False
     try:
-        prev = signal.signal(signal.SIGALRM, _on_alarm)
+        if signal.getsignal(signal.SIGALRM) is not _on_alarm:
+            _previous["handler"] = signal.signal(signal.SIGALRM, _on_alarm)
         signal.setitimer(signal.ITIMER_REAL, timeout)
     except (ValueError, OSError, AttributeError):   # no SIGALRM here (not POSIX, or embedded)
         return False
-    _armed.prev = prev if prev is not None else signal.SIG_DFL
+    _armed.on = True
     return True
 
 
 def _disarm() -> None:
     signal.setitimer(signal.ITIMER_REAL, 0)
-    signal.signal(signal.SIGALRM, _armed.prev)
-    _armed.prev = None
+    _armed.on = False
 
 
 def call(fn: Callable, *args, timeout: float | None = None, what: str = "call"):

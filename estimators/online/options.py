@@ -212,3 +212,5 @@ def options_from_mapping(cls, table: Mapping[str, Any], where: str = "estimator"
     except ConfigError as exc:
         msg = str(exc)
         raise ConfigError(where + msg[len(_W):] if msg.startswith(_W) else f"{where}: {msg}") from None
+    except Exception as exc:  # noqa: BLE001 - a plug-in's options class may check with anything: still bad input
+        raise ConfigError(f"{where}: {type(exc).__name__}: {exc}") from None

@@ -49,7 +49,12 @@ def controller_class(kind: str, where: str = "controller") -> type:
 def parse_options(cls, options: Mapping[str, Any], where: str):
     """``cls(**options)`` with one-line errors naming ``where.<field>``."""
     if hasattr(cls, "from_mapping"):
-        return cls.from_mapping(options, where)
+        try:
+            return cls.from_mapping(options, where)
+        except ConfigError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - as below
+            raise ConfigError(f"{where}: {plugins.describe(exc)}") from None
     names = [f.name for f in fields(cls)]
     for k in options:
         if k not in names:
@@ -59,8 +64,8 @@ def parse_options(cls, options: Mapping[str, Any], where: str):
     except ConfigError as exc:
         msg = str(exc)
         raise ConfigError(msg if msg.startswith(where) else f"{where}.{msg}") from None
-    except TypeError as exc:
-        raise ConfigError(f"{where}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - a plug-in's options class may check with anything: still bad input
+        raise ConfigError(f"{where}: {plugins.describe(exc)}") from None
 
 
 def options_of(cls, options: Mapping[str, Any], where: str):
