@@ -6,7 +6,8 @@
 2. **Worker pool** (:class:`mitigate.workers.WorkerPool`): the time from creating the pool to the result
    of two trivial tasks in two spawned workers (the start-up every ``run``/``sweep``/``benchmark`` pays).
 3. **Main job** (``mitigate run scenarios/stick_slip_30rpm.toml --out DIR --force``): the command's wall
-   time with this tree against a reference tree (``--reference``, e.g. an export of ``main``:
+   time, and the CPU time of it and its workers (less sensitive to other load), with this tree against a
+   reference tree (``--reference``, e.g. an export of ``main``:
    ``git archive main | tar -x -C /tmp/main_src``), alternating the two so that machine load hits
    both alike; medians and their ratio.
 
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -63,14 +65,18 @@ def pool_startup(repeats: int) -> list[float]:
     return times
 
 
-def main_job(tree: Path, out: Path) -> float:
+def main_job(tree: Path, out: Path) -> tuple[float, float]:
+    """``(wall time, CPU time of the command and its workers)`` [s] of one main job."""
     env = dict(os.environ, PYTHONPATH=str(tree))
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     p = subprocess.run([sys.executable, "-m", "mitigate.cli", "run", str(ROOT / "scenarios/stick_slip_30rpm.toml"),
                         "--out", str(out), "--force", "--json"], env=env, cwd=tree, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if p.returncode != 0:
         raise SystemExit(f"{tree}: the main job failed: {p.stderr.strip()[-300:]}")
-    return time.perf_counter() - t0
+    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
 
 
 def main(argv=None) -> int:
@@ -91,16 +97,19 @@ def main(argv=None) -> int:
     if a.quick:
         return 0
     trees = [("this tree", ROOT)] + ([("reference", a.reference.resolve())] if a.reference else [])
-    times: dict[str, list[float]] = {name: [] for name, _ in trees}
+    times: dict[str, list[tuple[float, float]]] = {name: [] for name, _ in trees}
     with tempfile.TemporaryDirectory() as tmp:
         for _ in range(a.repeats):
             for name, tree in trees:
                 times[name].append(main_job(tree, Path(tmp) / name.replace(" ", "_")))
+    med = {}
     for name, ts in times.items():
-        print(f"main job, {name}: median {statistics.median(ts):.1f} s ({', '.join(f'{x:.1f}' for x in ts)})")
+        med[name] = (statistics.median(w for w, _ in ts), statistics.median(c for _, c in ts))
+        print(f"main job, {name}: wall median {med[name][0]:.1f} s ({', '.join(f'{w:.1f}' for w, _ in ts)}); "
+              f"CPU median {med[name][1]:.1f} s ({', '.join(f'{c:.1f}' for _, c in ts)})")
     if a.reference:
-        r = statistics.median(times["this tree"]) / statistics.median(times["reference"])
-        print(f"ratio this tree / reference: {r:.2f}")
+        print(f"ratio this tree / reference: wall {med['this tree'][0] / med['reference'][0]:.2f}, "
+              f"CPU {med['this tree'][1] / med['reference'][1]:.2f}")
     return 0
 
 

@@ -19,6 +19,10 @@ spawned processes (``jobs = 1``: in this process, the same API) and yields each 
 - **Clean output.**  A worker's stdout is its stderr: a plug-in that prints cannot corrupt
   ``--json`` on the parent's stdout.
 
+A program read from stdin (``python - < script.py``) cannot be imported again by a spawned worker;
+its tasks run in its own process.  A script file that starts a pool must guard its top level with
+``if __name__ == "__main__":`` (multiprocessing's spawn rule).
+
 Each worker talks to the parent over its own pipe (a killed worker cannot corrupt a shared
 queue).  Inside a task, :func:`report` sends a progress count to the parent (a no-op outside a
 pool), which calls ``on_progress(index, count)``.
@@ -118,6 +122,17 @@ def _worker_main(conn, parent_pid: int) -> None:
             conn.send(("error", index, f"the result could not be sent back: {describe(exc)}"))
 
 
+def _main_importable() -> bool:
+    """Whether a spawned worker can import this program's ``__main__`` as it must (a module run with
+    ``-m``, a script file, or an interactive session); not a script read from stdin: then the tasks
+    run in this process."""
+    main = sys.modules.get("__main__")
+    if getattr(getattr(main, "__spec__", None), "name", None):
+        return True
+    path = getattr(main, "__file__", None)
+    return path is None or os.path.isfile(path)
+
+
 def _exit_reason(code: int | None) -> str:
     if code is None:
         return "did not exit"
@@ -214,7 +229,7 @@ class WorkerPool:
         as it finishes (``Outcome.index``: its position in ``tasks``)."""
         global _reporter
         tasks = list(tasks)
-        if self.jobs == 1 or len(tasks) <= 1 and self.stall_timeout is None:
+        if self.jobs == 1 or len(tasks) <= 1 and self.stall_timeout is None or not _main_importable():
             for i, args in enumerate(tasks):
                 _reporter = (lambda k, i=i: on_progress(i, k)) if on_progress is not None else None
                 try:
