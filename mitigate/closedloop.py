@@ -388,7 +388,11 @@ def _warnings(scenario, controller, estimator, commands, active, first_fallback)
             chatter.append(f"set-point chatter on {name}: {why}")
     if chatter:
         warn = True
-        tv = controller.tuning_values() if hasattr(controller, "tuning_values") else {}
+        try:
+            tv = plugins.call(controller.tuning_values, timeout=getattr(scenario, "control_timeout", None)) \
+                if hasattr(controller, "tuning_values") else {}
+        except PluginError:
+            tv = {}
         tune = f" (derived tuning: {', '.join(f'{k} = {v:.4g}' for k, v in tv.items())})" if tv else ""
         notes += [c + tune for c in chatter]
     if not notes:

@@ -93,6 +93,8 @@ BYTES_PER_SAMPLE = 2048     # per sample and controller run, with room for the l
 #: TIMEOUT_PERIODS control periods (``[control] timeout``)
 DEFAULT_TIMEOUT = 2.0
 TIMEOUT_PERIODS = 100
+#: the longest deadline, timeout or latency a scenario may give [s] (a day; longer is "off")
+MAX_CALL_TIME = 86400.0
 
 _SECTIONS = {"scenario", "plant", "mismatch", "structure", "sensors", "actuators", "inputs", "control", "estimator",
              "controllers", "sweep"}
@@ -230,10 +232,10 @@ def _si(v: Any, kind: str, where: str) -> float:
 
 
 def _time(v: Any, where: str) -> float:
-    """A positive time [s]: a number or a quantity such as ``"5 ms"``."""
+    """A positive time [s] of at most a day: a number or a quantity such as ``"5 ms"``."""
     t = _si(v, "time", where)
-    if not t > 0:
-        raise ConfigError(f"{where} must be > 0 s, got {quote(v)}")
+    if not 0 < t <= MAX_CALL_TIME:
+        raise ConfigError(f"{where} must be > 0 s and at most {MAX_CALL_TIME:g} s (or \"off\"), got {quote(v)}")
     return t
 
 
@@ -260,7 +262,7 @@ def _control_timing(ctl: Mapping, period: float, where: str) -> tuple[float | No
         latency = _si(lv, "time", f"{where}.latency")
     except ConfigError:
         raise ConfigError(bad) from None
-    if latency < 0:
+    if not 0 <= latency <= MAX_CALL_TIME:
         raise ConfigError(bad)
     return deadline, timeout, latency
 

@@ -135,6 +135,8 @@ def check_output_file(path: str | os.PathLike, force: bool, what: str = "--out")
     path = Path(path)
     if path.is_dir():
         raise ConfigError(f"{what} {path} is a folder, expected a file name")
+    if len(os.fsencode(path.name)) > 255 or not path.name:
+        raise ConfigError(f"{what} {path}: not a usable file name (empty, or longer than 255 bytes)")
     check_output_dir(path.parent if str(path.parent) else Path("."), what)
     if path.exists() and not force:
         raise ConfigError(f"{what} {path}: file exists; refusing to overwrite (pass force=True)")

@@ -40,7 +40,7 @@ from typing import Any, Callable, Mapping
 
 from models.errors import ConfigError, PluginError, SolverFailure
 
-__all__ = ["load_class", "construct", "call", "describe", "StepTimeout"]
+__all__ = ["load_class", "construct", "construction_timeout", "call", "describe", "StepTimeout", "CONSTRUCT_FACTOR"]
 
 _REF = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
 
@@ -81,6 +81,19 @@ def _check_class(obj, base: type, label: str, where: str) -> type:
     return obj
 
 
+def construction_timeout(kind: Any, registry: Mapping[str, str], timeout: float | None) -> float | None:
+    """How long a plug-in's constructor may take [s]: built-in kinds are not timed (the NMPC may
+    compile C for minutes on a cold cache); a user's (``module:Class``, entry point) gets
+    ``CONSTRUCT_FACTOR`` per-call timeouts (60 s by default)."""
+    if timeout is None or (isinstance(kind, str) and kind in registry):
+        return None
+    return CONSTRUCT_FACTOR * timeout
+
+
+#: a user plug-in's constructor may take this many per-call timeouts
+CONSTRUCT_FACTOR = 30
+
+
 def load_class(kind: Any, *, registry: Mapping[str, str], group: str, base: type, where: str) -> type:
     """The class of a ``kind``: a built-in of ``registry`` (name -> ``"module:Class"``), an entry
     point of ``group``, or ``"module:Class"``.
@@ -110,11 +123,19 @@ def load_class(kind: Any, *, registry: Mapping[str, str], group: str, base: type
                       f"or 'module:Class', got {kind!r}")
 
 
-def construct(cls: type, options: Any, context: Any, where: str):
+def construct(cls: type, options: Any, context: Any, where: str, timeout: float | None = None):
     """``cls(options, context)``: a ConfigError from the constructor stays a ConfigError (bad
-    input, prefixed with ``where``); anything else is a :class:`PluginError` (a broken plug-in)."""
+    input, prefixed with ``where``); anything else -- also not returning within ``timeout`` [s] --
+    is a :class:`PluginError` (a broken plug-in)."""
     try:
-        return cls(options, context)
+        return call(cls, options, context, timeout=timeout, what=f"{cls.__name__}(options, context)")
+    except PluginError as exc:
+        if isinstance(exc.__cause__, ConfigError):
+            msg = str(exc.__cause__)
+            raise ConfigError(msg if msg.startswith(where) else f"{where}: {msg}") from None
+        if str(exc).startswith("TimeoutError"):
+            raise
+        raise PluginError(f"{cls.__name__}(options, context) failed: {exc}") from exc.__cause__
     except ConfigError as exc:
         msg = str(exc)
         raise ConfigError(msg if msg.startswith(where) else f"{where}: {msg}") from None
@@ -150,7 +171,7 @@ def _arm(timeout: float | None) -> bool:
         if signal.getsignal(signal.SIGALRM) is not _on_alarm:
             _previous["handler"] = signal.signal(signal.SIGALRM, _on_alarm)
         signal.setitimer(signal.ITIMER_REAL, timeout)
-    except (ValueError, OSError, AttributeError):   # no SIGALRM here (not POSIX, or embedded)
+    except (ValueError, OSError, AttributeError, OverflowError):   # no SIGALRM here (not POSIX, embedded)
         return False
     _armed.on = True
     return True

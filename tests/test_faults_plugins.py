@@ -75,6 +75,15 @@ def test_a_misbehaving_controller_fails_its_run_with_the_reason_and_the_others_c
     assert {c["name"]: c["message"] for c in doc["controllers"]}["bad"] == why
 
 
+def test_a_plug_in_constructor_that_sleeps_is_stopped_at_30_timeouts():
+    from mitigate.controllers.factory import make_controller as mk
+    sc = scenario("SleepsInInit", control={"timeout": "0.05 s"}, seconds=10.0)
+    t0 = time.perf_counter()
+    with pytest.raises(PluginError, match=r"^TimeoutError: SleepsInInit\(options, context\) did not return within 1\.5 s$"):
+        mk(sc.controllers[1], context_for(sc, 1))
+    assert time.perf_counter() - t0 < 5
+
+
 def test_a_step_that_sleeps_far_too_long_is_stopped_at_the_timeout():
     t0 = time.perf_counter()
     res, bad = run_bad("Sleeps", control={"timeout": "0.3 s"}, seconds=10.0)
@@ -231,7 +240,9 @@ def test_measured_latency_delays_a_slow_answer_by_its_own_time():
 
 
 @pytest.mark.parametrize("control, match", [
-    ({"deadline": "-5 ms"}, r"control\.deadline must be > 0 s, got '-5 ms'"),
+    ({"deadline": "-5 ms"}, r"control\.deadline must be > 0 s and at most 86400 s \(or \"off\"\), got '-5 ms'"),
+    ({"timeout": 1e308}, r"control\.timeout must be > 0 s and at most 86400 s"),
+    ({"latency": "100000 s"}, r"control\.latency must be \"measured\" or a time >= 0"),
     ({"deadline": "5 ms", "timeout": "1 ms"}, r"control\.timeout must be >= control\.deadline"),
     ({"latency": "soon"}, r'control\.latency must be "measured" or a time >= 0 such as "3 ms", got \'soon\''),
     ({"start": 3.0}, r"control\.start must be < scenario\.duration = 2 s \(the controllers would never act\), got 3 s"),

@@ -67,4 +67,5 @@ def make_estimator(spec: Mapping[str, Any], context: EstimatorContext) -> StateE
     table = {k: v for k, v in spec.items() if k != "kind"}
     oc = getattr(cls, "options_class", None)
     options = options_from_mapping(oc, table, context.where, kind) if oc is not None and is_dataclass(oc) else table
-    return plugins.construct(cls, options, context, context.where)
+    return plugins.construct(cls, options, context, context.where,
+                             timeout=plugins.construction_timeout(kind, ESTIMATOR_KINDS, context.timeout))

@@ -113,4 +113,5 @@ def make_controller(spec, context: ControlContext) -> Controller:
                           f"{type(context).__name__}")
     kind, options = _split(spec)
     cls = controller_class(kind, context.where)
-    return plugins.construct(cls, options_of(cls, options, context.where), context, context.where)
+    return plugins.construct(cls, options_of(cls, options, context.where), context, context.where,
+                             timeout=plugins.construction_timeout(kind, CONTROLLER_KINDS, context.timeout))

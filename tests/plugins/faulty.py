@@ -31,6 +31,12 @@ class InitRaises(Follow):
         raise RuntimeError("boom in __init__")
 
 
+class SleepsInInit(Follow):
+    def __init__(self, options, context):
+        time.sleep(float(options.get("seconds", 10.0)))
+        super().__init__(options, context)
+
+
 class InitExits(Follow):
     def __init__(self, options, context):
         sys.exit(4)
