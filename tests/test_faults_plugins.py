@@ -201,13 +201,15 @@ def test_a_late_answer_is_a_counted_deadline_miss_and_the_fallback_acts():
     res = run(sc, jobs=1)
     bad = res.run("bad")
     r = bad.result
-    assert r.controller_counts["deadline_misses"] == 50 == r.controller_counts["fallbacks"]
+    # every second call sleeps 30 ms: a miss; a 10 us call may miss too on a loaded machine (wall clock)
+    misses = r.controller_counts["deadline_misses"]
+    assert 50 <= misses == r.controller_counts["fallbacks"] <= 60
     on = r.t >= 1.0
     late = ~r.controller_ok & on
-    assert late.sum() == 50
+    assert late.sum() == misses and late[np.flatnonzero(on)[1::2]].all()       # the sleeping calls
     np.testing.assert_allclose(r.commands["omega_ref"][late], math.pi)          # the fallback: the programme
     np.testing.assert_allclose(r.commands["omega_ref"][on & ~late], math.pi + 1.0)
-    assert bad.status is Status.WARNING and "50 deadline miss(es)" in bad.message
+    assert bad.status is Status.WARNING and f"{misses} deadline miss(es)" in bad.message
     assert "deadline miss: the answer took" in bad.message
 
 
@@ -234,9 +236,11 @@ def test_measured_latency_delays_a_slow_answer_by_its_own_time():
     r = run_closed_loop(sc, make_controller(sc.controllers[1], context_for(sc, 1)), )
     k0 = int(round(1.0 / sc.dt))
     w = r.commands["omega_ref"]
-    assert np.all(r.solve_times > 0.025)
-    np.testing.assert_allclose(w[:k0 + 3], math.pi)          # 25+ ms: three 10 ms samples late
-    np.testing.assert_allclose(w[k0 + 3:], math.pi + 1.0)
+    delays = np.ceil(r.solve_times / sc.dt - 1e-9).astype(int)   # each answer from the first sample after it
+    assert np.all(r.solve_times > 0.025) and np.all(delays >= 3)  # 25+ ms: at least three 10 ms samples late
+    first = k0 + int(np.min(np.arange(len(delays)) + delays))
+    np.testing.assert_allclose(w[:first], math.pi)
+    np.testing.assert_allclose(w[first:], math.pi + 1.0)
 
 
 @pytest.mark.parametrize("control, match", [

@@ -8,6 +8,7 @@ Cases run through ``mitigate.cli.main`` in this process (fast) unless they need 
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -283,6 +284,22 @@ def test_an_abstract_plug_in_is_exit_2_before_anything_runs(ws, capsys):
     assert main("run", "s.toml", "--out", "o") == 2
     one_line_error(capsys, "controllers[1].kind: 'tests.plugins.faulty:Abstract' is abstract")
     assert not (ws / "o").exists()
+
+
+def test_a_failing_plug_in_in_the_benchmark_fails_its_cell_and_the_command_exits_1(ws, capsys):
+    assert main("benchmark", "suite.toml", "--out", "o", "--jobs", "1", "--json",
+                "--controller", "Bad=tests.plugins.faulty:StepRaises",
+                "--controller", "Late=tests.plugins.faulty:SlowEvery,every=5,seconds=0.03") == 1
+    doc = json.loads(capsys.readouterr().out)
+    cells = {c["controller"]: c for c in doc["cells"]}
+    assert cells["Bad"]["status"] == "failed" and cells["Bad"]["failed"] == 1
+    assert cells["Bad"]["message"] == "controller failed at t = 1.000 s in step: ValueError: boom in step"
+    # the benchmark turns the deadline on (one control period): a late answer is a counted miss
+    misses = int(re.search(r"(\d+) deadline miss\(es\)", cells["Late"]["message"]).group(1))
+    assert cells["Late"]["status"] == "ok, with warnings" and 20 <= misses <= 30      # (wall clock: >= the 20 slow)
+    assert cells["PI only"]["status"] == "ok" and doc["status"] == "failed"
+    assert "- Bad on tiny: controller failed at t = 1.000 s in step: ValueError: boom in step" in \
+        (ws / "o" / "ranking.md").read_text()
 
 
 def _cli(ws, *args, timeout=120):
