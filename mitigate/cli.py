@@ -23,7 +23,7 @@ import sys
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from models.errors import ConfigError, DataError, PluginError, SolverFailure, shorten
+from models.errors import QUOTE_LIMIT, ConfigError, DataError, PluginError, SolverFailure, shorten
 
 COMMANDS = ("simulate", "modal", "identify", "estimate", "run", "sweep", "benchmark")
 
@@ -84,9 +84,18 @@ def main(argv=None) -> int:
         parser.print_help()
         return 2
     try:
-        signal.signal(signal.SIGTERM, _on_sigterm)
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
     except ValueError:          # not the main thread (main() called from a thread): keep the default
-        pass
+        previous = None
+    try:
+        return _dispatch(args)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _dispatch(args) -> int:
+    """Run the sub-command; every failure becomes one line and an exit code (module docstring)."""
     try:
         return int(args.func(args) or 0)
     except (ConfigError, DataError, SolverFailure) as exc:
@@ -114,8 +123,9 @@ def main(argv=None) -> int:
 
 
 def _line(text: str) -> str:
-    """One line, its quoted values capped (models.errors.shorten)."""
-    return shorten(" ".join(text.split()))
+    """One line; a long one has its quoted values capped (models.errors.shorten, as the errors do)."""
+    text = " ".join(text.split())
+    return shorten(text) if len(text) > 4 * QUOTE_LIMIT else text
 
 
 if __name__ == "__main__":  # pragma: no cover
