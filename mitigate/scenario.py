@@ -68,11 +68,12 @@ import numpy as np
 
 from models.checks import finite_number as _num, read_toml
 from models.errors import ConfigError
-from models.params import ParameterSet, load_params
+from models.params import ParameterSet
+from models.rig import load_params
 from models.plant import SimOptions
 from models.rig import RigModel, get_model
 from models.rig import variants
-from models.rig.spec import _quantity
+from models.units import parse_quantity
 from models.sensors import SensorOptions
 from models.units import factor as unit_factor
 from mitigate.profiles import Profile, parse_profile
@@ -209,7 +210,7 @@ def _check_size(duration: float, dt: float, runs: int, where: str) -> None:
 def _si(v: Any, kind: str, where: str) -> float:
     """A number (SI) or a quantity string converted to SI."""
     if isinstance(v, str):
-        q = _quantity(v)
+        q = parse_quantity(v)
         if q is None:
             raise ConfigError(f"{where} must be a number or a quantity such as \"1.5 N m\", got {v!r}")
         return q[0] * unit_factor(q[1] or "-", kind, where)

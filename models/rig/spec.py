@@ -70,7 +70,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from models.errors import ConfigError
-from models.units import DIMENSIONS, factor
+from models.units import DIMENSIONS, factor, parse_quantity
 
 __all__ = ["Ref", "ParamDecl", "BodySpec", "ConnectionSpec", "ContactSpec", "DriveSpec", "ActuatorSpec",
            "SensorSpec", "RigSpec", "parse_rig", "SI_UNITS", "DRIVE_KINDS", "SENSOR_KINDS"]
@@ -97,7 +97,6 @@ DC_MOTOR_FIELDS: dict[str, tuple[str, bool, float]] = {
 }
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-_QTY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*)$")
 
 
 # ----------------------------------------------------------------------------- data
@@ -290,13 +289,6 @@ def _number(v: Any, field_: str, ctx: _Ctx) -> float:
     return float(v)
 
 
-def _quantity(text: str) -> tuple[float, str] | None:
-    m = _QTY.match(text)
-    if not m:
-        return None
-    return float(m.group(1)), m.group(2).strip()
-
-
 def _value(v: Any, kind: str, field_: str, ctx: _Ctx, *, allow_input: bool = False) -> Ref:
     """Resolve a field value to a parameter, a constant (SI) or (if allowed) an input channel."""
     if isinstance(v, bool):
@@ -306,7 +298,7 @@ def _value(v: Any, kind: str, field_: str, ctx: _Ctx, *, allow_input: bool = Fal
             raise ctx.err(field_, f"must be finite, got {v!r}")
         return Ref("const", value=float(v))
     if isinstance(v, str):
-        q = _quantity(v)
+        q = parse_quantity(v)
         if q is not None:
             return Ref("const", value=q[0] * factor(q[1] or "-", kind, f"{ctx.where}: {field_}"))
         if v in ctx.raw:
