@@ -49,7 +49,6 @@ import scipy.linalg
 from models.errors import ConfigError
 from models.params import ParameterSet
 from models.rig import get_model
-from models.rig.model import _val
 from models.rig.spec import NODE_DRIVE, NODE_GROUND
 from models.status import Status
 
@@ -297,17 +296,13 @@ def chain_matrices(model, params: ParameterSet | None = None, *, clamped: bool =
     M = np.zeros((n, n))
     K = np.zeros((n, n))
     Cd = np.zeros((n, n))
-    d = model.spec.drive
     for b in bodies:
-        J = _val(model.spec.body(b).inertia, P, {})
-        if d.kind == "dc_motor" and d.body == b:
-            J += _val(d.param("ratio"), P, {}) ** 2 * _val(d.param("Jm"), P, {})
-        M[idx[b], idx[b]] = J
+        M[idx[b], idx[b]] = model.inertia(b, P)
     for c in model.spec.connections:
         for mat, ref in ((K, c.stiffness), (Cd, c.damping if damped else None)):
             if ref is None:
                 continue
-            v = _val(ref, P, {})
+            v = ref.value(P)
             ia, ib = idx.get(c.a), idx.get(c.b)
             for i in (ia, ib):
                 if i is not None:
@@ -319,7 +314,7 @@ def chain_matrices(model, params: ParameterSet | None = None, *, clamped: bool =
     if clamped:
         if model.drive_kind == "speed":
             return M, Cd, K, dofs
-        keep = [i for i, b in enumerate(bodies) if b != d.body]
+        keep = [i for i, b in enumerate(bodies) if b != model.drive_body]
         sel = np.ix_(keep, keep)
         return M[sel], Cd[sel], K[sel], tuple(dofs[i] for i in keep)
     return M, Cd, K, dofs

@@ -40,8 +40,8 @@ def _substep(model, x, th, u, P, h):
         v = x[idx]
         J = model.contact_inertia(i, x, u, P, 1.0)
         T_ext = J * xd0[idx]
-        T_plus = model.contact_torque(i, ca.SX(0), 1.0, x, u, P)    # static limit opposing +motion (<= 0)
-        T_minus = model.contact_torque(i, ca.SX(0), -1.0, x, u, P)  # static limit opposing -motion (>= 0)
+        T_plus = model.contact_friction(i, ca.SX(0), u, P, s=1.0)    # static limit opposing +motion (<= 0)
+        T_minus = model.contact_friction(i, ca.SX(0), u, P, s=-1.0)  # static limit opposing -motion (>= 0)
         at_rest = v == 0
         st = ca.logic_and(at_rest, ca.logic_and(T_ext + T_plus <= 0, T_ext + T_minus >= 0))
         s_rest = ca.if_else(T_ext + T_plus > 0, 1, -1)
@@ -49,7 +49,7 @@ def _substep(model, x, th, u, P, h):
         s.append(ca.if_else(at_rest, s_rest, ca.sign(v)))
 
     def rhs(xx):
-        Tc = [model.contact_torque(i, ca.fmax(s[i] * xx[idx], 0), s[i], xx, u, P)
+        Tc = [model.contact_friction(i, ca.fmax(s[i] * xx[idx], 0), u, P, s=s[i])
               for i, idx in enumerate(model.contacts)]
         xd = model.dynamics(xx, u, P, Tc, s)
         xd = [ca.if_else(stuck[model.contacts.index(j)], 0, xd[j]) if j in model.contacts else xd[j]

@@ -25,8 +25,8 @@ The rest of the workbench uses the same interface for every rig:
 
 - ``dynamics(x, u, P, Tc, s)``: state derivative for given contact torques ``Tc`` (one per
   contact body) and sliding directions ``s``;
-- ``contact_torque(i, v_abs, s, x, u, P)``: friction on contact body ``i`` sliding in
-  direction ``s`` at speed ``v_abs``; ``contact_torque_smooth(i, v, x, u, P, eps)``;
+- ``contact_friction(i, v, u, P, eps=None, s=...)``: friction on contact body ``i``, the exact
+  law sliding in direction ``s`` at speed ``v >= 0``, or regularised with ``eps`` at signed ``v``;
   ``contact_inertia(i, x, u, P, s)``;
 - ``ode(eps)``: the regularised model as a named Function ``xdot = f(x, u, p)``;
 - ``outputs(x, u, P, theta_ref)``: what every sensor reads without noise, quantisation or
@@ -53,17 +53,6 @@ __all__ = ["RigModel"]
 
 def _sym(x) -> bool:
     return isinstance(x, (ca.SX, ca.MX, ca.DM))
-
-
-def _val(ref, P, u_named):
-    """The value of a spec reference: a parameter (symbolic or numeric), a constant or an input."""
-    if ref is None:
-        return None
-    if ref.kind == "param":
-        return P[ref.name]
-    if ref.kind == "input":
-        return u_named[ref.name]
-    return ref.value
 
 
 def _dead_zone(phi, half):
@@ -251,10 +240,10 @@ class RigModel:
         if c.stiffness is not None:
             phi = x[self._springs.index(c)]
             if c.backlash is not None:
-                phi = _dead_zone(phi, 0.5 * _val(c.backlash, P, u_named))
-            T = T + _val(c.stiffness, P, u_named) * phi
+                phi = _dead_zone(phi, 0.5 * c.backlash.value(P, u_named))
+            T = T + c.stiffness.value(P, u_named) * phi
         if c.damping is not None:
-            T = T + _val(c.damping, P, u_named) * (wa - wb)
+            T = T + c.damping.value(P, u_named) * (wa - wb)
         return T
 
     def motor_voltage(self, x, u_named, P):
@@ -267,19 +256,19 @@ class RigModel:
         """
         d = self.spec.drive
         wb = x[self._speed_index[d.body]]
-        eta = _val(d.param("ratio"), P, u_named)
+        eta = d.param("ratio").value(P, u_named)
         G = eta if d.pi_error == "motor" else 1.0
         e = u_named[d.input] - wb
         z = x[self.nx - 1]
-        V = G * (_val(d.param("kp"), P, u_named) * e + _val(d.param("ki"), P, u_named) * z)
+        V = G * (d.param("kp").value(P, u_named) * e + d.param("ki").value(P, u_named) * z)
         hi, lo = None, None
         vmax = d.param("v_max")
         if vmax is not None:
-            hi, lo = _val(vmax, P, u_named), -_val(vmax, P, u_named)
+            hi, lo = vmax.value(P, u_named), -vmax.value(P, u_named)
         imax = d.param("i_max")
         if imax is not None:
             wm = eta * wb
-            Rr, KE, im = _val(d.param("R"), P, u_named), _val(d.param("KE"), P, u_named), _val(imax, P, u_named)
+            Rr, KE, im = d.param("R").value(P, u_named), d.param("KE").value(P, u_named), imax.value(P, u_named)
             ih, il = Rr * im + KE * wm, -Rr * im + KE * wm
             hi = ih if hi is None else ca.fmin(hi, ih)
             lo = il if lo is None else ca.fmax(lo, il)
@@ -292,27 +281,83 @@ class RigModel:
         """Torque the DC motor's rotor delivers through the gearbox, output side [N m]:
         ``ratio (KT i - Tf tanh(w_m/eps_m) - Cm w_m)`` (``friction=False``: ``ratio KT i``)."""
         d = self.spec.drive
-        eta = _val(d.param("ratio"), P, u_named)
+        eta = d.param("ratio").value(P, u_named)
         i = x[self.nx - 2]
-        T = eta * _val(d.param("KT"), P, u_named) * i
+        T = eta * d.param("KT").value(P, u_named) * i
         if friction:
             wm = eta * x[self._speed_index[d.body]]
             tanh = ca.tanh if _sym(wm) or _sym(T) else np.tanh
-            T = T - eta * (_val(d.param("Tf"), P, u_named) * tanh(wm / d.eps_motor) + _val(d.param("Cm"), P, u_named) * wm)
+            T = T - eta * (d.param("Tf").value(P, u_named) * tanh(wm / d.eps_motor) + d.param("Cm").value(P, u_named) * wm)
         return T
 
-    def _body_inertia(self, b: str, P, u_named):
-        J = _val(self.spec.body(b).inertia, P, u_named)
+    def inertia(self, body: str, P) -> float:
+        """The body's total inertia [kg m^2]: its own, plus ``ratio^2 Jm`` when a DC motor drives
+        it (the rotor reflected through the gearbox; thesis eq. 3-3), without what a contact adds.
+
+        Parameters
+        ----------
+        body : a body name
+        P : parameter name -> value (symbolic or numeric), e.g. ``rig.unpack(p)`` or a ParameterSet
+        """
+        self.speed_index(body)
+        J = self.spec.body(body).inertia.value(P)
         d = self.spec.drive
-        if d.kind == "dc_motor" and d.body == b:
-            J = J + _val(d.param("ratio"), P, u_named) ** 2 * _val(d.param("Jm"), P, u_named)
+        if d.kind == "dc_motor" and d.body == body:
+            J = J + d.param("ratio").value(P) ** 2 * d.param("Jm").value(P)
         return J
 
-    def _contact_args(self, c, P, u_named):
-        N = _val(c.normal, P, u_named) if c.normal is not None else 1.0
-        r = _val(c.radius, P, u_named) if c.radius is not None else 1.0
-        LP = {k: _val(ref, P, u_named) for k, ref in c.params}
+    def _named_inputs(self, u):
+        if u is None or isinstance(u, dict):
+            return u
+        return self._u_named(u)
+
+    def contact(self, name: str):
+        """The contact spec called ``name``."""
+        for c in self.spec.contacts:
+            if c.name == name:
+                return c
+        raise ConfigError(f"{self.name}: no contact {name!r} (contacts: "
+                          f"{', '.join(c.name for c in self.spec.contacts) or 'none'})")
+
+    def law(self, contact: str):
+        """The friction law (:class:`models.friction.FrictionLaw`) of the contact ``contact``."""
+        self.contact(contact)
+        return self._laws[contact]
+
+    def contact_args(self, contact, P, u=None) -> tuple:
+        """``(N, r, law_params)`` of a contact: its normal force [N] (1 if it gives none), radius
+        [m] (1 if none) and ``{law parameter: value}``, what :class:`models.friction.FrictionLaw`
+        takes.
+
+        Parameters
+        ----------
+        contact : a contact's name or its spec
+        P : parameter name -> value (symbolic or numeric)
+        u : the inputs, named (dict) or in ``inputs`` order; needed when the normal force is an input
+        """
+        c = self.contact(contact) if isinstance(contact, str) else contact
+        un = self._named_inputs(u)
+        N = c.normal.value(P, un) if c.normal is not None else 1.0
+        r = c.radius.value(P, un) if c.radius is not None else 1.0
+        LP = {k: ref.value(P, un) for k, ref in c.params}
         return N, r, LP
+
+    def contact_friction(self, i: int, v, u, P, eps: float | None = None, *, s=None, factors=None):
+        """Friction torque on contact body ``i`` [N m], the sum over its contacts.
+
+        With ``eps`` the law's regularised torque at the signed speed ``v``
+        (:meth:`models.friction.FrictionLaw.smooth`); without, the exact law sliding in direction
+        ``s`` (+1/-1) at the speed ``v >= 0``.  ``factors`` ({contact name: factor}) scale single
+        contacts' torques (estimators' friction-level states).
+        """
+        un = self._named_inputs(u)
+        T = 0.0
+        for c in self._contact_groups[i]:
+            N, r, LP = self.contact_args(c, P, un)
+            law = self._laws[c.name]
+            Tk = law.smooth(v, N, r, LP, eps) if eps is not None else law.torque(v, s, N, r, LP)
+            T = T + (factors[c.name] * Tk if factors and c.name in factors else Tk)
+        return T
 
     def dynamics(self, x, u, P, Tc, s):
         """State derivative (list) for contact torques ``Tc`` and sliding directions ``s`` per contact body."""
@@ -335,18 +380,18 @@ class RigModel:
         for c in self._springs:
             out.append(self._node_speed(c.a, x, un) - self._node_speed(c.b, x, un))
         for b in self._bodies:
-            J = self._body_inertia(b, P, un)
+            J = self.inertia(b, P)
             if b in self.contact_bodies:
                 i = self.contact_bodies.index(b)
                 J = J + self._added_inertia(i, x, un, P, s[i])
             out.append(torque[b] / J)
         if d.kind == "dc_motor":
-            eta = _val(d.param("ratio"), P, un)
+            eta = d.param("ratio").value(P, un)
             wb = x[self._speed_index[d.body]]
             V, Vs = self.motor_voltage(x, un, P)
             e = un[d.input] - wb
-            di = (Vs - _val(d.param("R"), P, un) * x[self.nx - 2] - _val(d.param("KE"), P, un) * eta * wb) \
-                / _val(d.param("L"), P, un)
+            di = (Vs - d.param("R").value(P, un) * x[self.nx - 2] - d.param("KE").value(P, un) * eta * wb) \
+                / d.param("L").value(P, un)
             if d.param("v_max") is not None or d.param("i_max") is not None:
                 # anti-windup: the integral stops while the limit holds the voltage against the error
                 sat = ca.logic_and(ca.fabs(V - Vs) > 1e-9, ca.sign(V - Vs) == ca.sign(e))
@@ -360,32 +405,14 @@ class RigModel:
         for c in self._contact_groups[i]:
             law = self._laws[c.name]
             if law.inertia is not None:
-                N, r, LP = self._contact_args(c, P, un)
+                N, r, LP = self.contact_args(c, P, un)
                 J = J + law.added_inertia(v_abs, s, N, r, LP)
         return J
-
-    def contact_torque(self, i, v_abs, s, x, u, P):
-        """Friction torque on contact body ``i`` sliding in direction ``s`` at speed ``v_abs`` [N m]."""
-        un = self._u_named(u)
-        T = 0.0
-        for c in self._contact_groups[i]:
-            N, r, LP = self._contact_args(c, P, un)
-            T = T + self._laws[c.name].torque(v_abs, s, N, r, LP)
-        return T
-
-    def contact_torque_smooth(self, i, v, x, u, P, eps):
-        """Regularised friction torque on contact body ``i`` at signed speed ``v``."""
-        un = self._u_named(u)
-        T = 0.0
-        for c in self._contact_groups[i]:
-            N, r, LP = self._contact_args(c, P, un)
-            T = T + self._laws[c.name].smooth(v, N, r, LP, eps)
-        return T
 
     def contact_inertia(self, i, x, u, P, s):
         b = self.contact_bodies[i]
         un = self._u_named(u)
-        return self._body_inertia(b, P, un) + self._added_inertia(i, x, un, P, s)
+        return self.inertia(b, P) + self._added_inertia(i, x, un, P, s)
 
     def ref_rate(self, x, u, P):
         """Speed of the reference node (the drive body, or a speed drive's input) [rad/s]."""
@@ -421,7 +448,7 @@ class RigModel:
     def acceleration(self, x, u, P, body: str, eps: float | None = None):
         """``omega_<body>'`` of the regularised model (contact friction smoothed with ``eps``)."""
         eps = self.eps_default if eps is None else eps
-        Tc = [self.contact_torque_smooth(i, x[idx], x, u, P, eps) for i, idx in enumerate(self.contacts)]
+        Tc = [self.contact_friction(i, x[idx], u, P, eps) for i, idx in enumerate(self.contacts)]
         s = [fr.smooth_sign(x[idx], eps) for idx in self.contacts]
         return self.dynamics(x, u, P, Tc, s)[self._speed_index[body]]
 
@@ -439,12 +466,12 @@ class RigModel:
                 if s.definition == "electromagnetic":
                     return [self.motor_torque_em(x, un, P, friction=False)]
                 d = self.spec.drive
-                eta, Jm = _val(d.param("ratio"), P, un), _val(d.param("Jm"), P, un)
+                eta, Jm = d.param("ratio").value(P, un), d.param("Jm").value(P, un)
                 return [self.motor_torque_em(x, un, P) - eta * (eta - 1) * Jm * self.acceleration(x, u, P, d.body)]
             c = next(c for c in self.spec.connections if c.name == s.target)
             return [self.connection_torque(c, x, un, P)]
         c = next(c for c in self.spec.contacts if c.name == s.target)
-        return [_val(c.normal, P, un)]
+        return [c.normal.value(P, un)]
 
     def outputs(self, x, u, P, theta_ref) -> dict:
         """Noise-free readings of every sensor channel (gain and offset applied), the inputs,
@@ -456,7 +483,7 @@ class RigModel:
         for s in self.sensors:
             vals = self._ideal(s, x, u, P, theta_ref, un)
             if s.offset is not None:
-                vals = [_val(s.gain, P, un) * v + _val(s.offset, P, un) for v in vals]
+                vals = [s.gain.value(P, un) * v + s.offset.value(P, un) for v in vals]
             out.update(zip(s.channels, vals))
         for n in self.inputs:
             out.setdefault(n, un[n])
@@ -466,7 +493,7 @@ class RigModel:
             out[f"omega_{b}"] = x[self._speed_index[b]]
         d = self.spec.drive
         if d.kind == "dc_motor":
-            eta = _val(d.param("ratio"), P, un)
+            eta = d.param("ratio").value(P, un)
             out["current"] = x[self.nx - 2]
             out["voltage"] = self.motor_voltage(x, un, P)[1]
             out["motor_speed"] = eta * x[self._speed_index[d.body]]
@@ -480,7 +507,7 @@ class RigModel:
         for s in self.sensors:
             if s.kind in ("load_cell", "torque") and s.channels[0] in self.inputs:
                 j = self.inputs.index(s.channels[0])
-                out[j] = (out[j] - _val(s.offset, P, {})) / _val(s.gain, P, {})
+                out[j] = (out[j] - s.offset.value(P, {})) / s.gain.value(P, {})
         return out
 
     # ------------------------------------------------------------------ CasADi Functions
@@ -489,7 +516,7 @@ class RigModel:
 
     def smooth_rhs(self, x, u, p, eps):
         P = self.unpack(p)
-        Tc = [self.contact_torque_smooth(i, x[idx], x, u, P, eps) for i, idx in enumerate(self.contacts)]
+        Tc = [self.contact_friction(i, x[idx], u, P, eps) for i, idx in enumerate(self.contacts)]
         s = [fr.smooth_sign(x[idx], eps) for idx in self.contacts]
         return self.dynamics(x, u, P, Tc, s)
 
@@ -594,7 +621,7 @@ class RigModel:
         Pn = dict(zip(self.param_names, pv))
         for j, c in enumerate(self._springs):
             if c.backlash is not None:
-                zv[other.index(j)] = np.sign(speed or 1.0) * float(_val(c.backlash, Pn, {}))
+                zv[other.index(j)] = np.sign(speed or 1.0) * float(c.backlash.value(Pn, {}))
         # a drive's voltage and current limits are flat outside their range: solve without them
         # first (they bind only in transients), then polish with them
         limits = [self.param_names.index(r.name) for r in (self.spec.drive.param("v_max"), self.spec.drive.param("i_max"))

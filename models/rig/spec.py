@@ -102,15 +102,39 @@ _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 # ----------------------------------------------------------------------------- data
 @dataclass(frozen=True)
 class Ref:
-    """Where a numeric field of the rig gets its value: a named parameter, a constant (SI) or an input."""
+    """Where a numeric field of the rig gets its value: a named parameter, a constant (SI) or an input.
 
-    kind: str          # "param" | "const" | "input"
-    name: str = ""     # parameter or input name
-    value: float = 0.0
+    Attributes
+    ----------
+    kind : "param" | "const" | "input"
+    name : the parameter's or input's name
+    constant : the value of a "const" reference (SI)
+    """
+
+    kind: str
+    name: str = ""
+    constant: float = 0.0
 
     @property
     def is_param(self) -> bool:
         return self.kind == "param"
+
+    def value(self, P: Mapping, u: Mapping | None = None):
+        """The value: ``P[name]`` for a parameter (symbolic or numeric), ``u[name]`` for an input,
+        the constant otherwise.
+
+        Parameters
+        ----------
+        P : parameter name -> value (e.g. :meth:`models.rig.RigModel.unpack` of a vector)
+        u : input name -> value; needed only by input references (a contact's normal force)
+        """
+        if self.kind == "param":
+            return P[self.name]
+        if self.kind == "input":
+            if u is None:
+                raise ConfigError(f"the value of input {self.name!r} is needed here but no inputs were given")
+            return u[self.name]
+        return self.constant
 
 
 @dataclass(frozen=True)
@@ -296,11 +320,11 @@ def _value(v: Any, kind: str, field_: str, ctx: _Ctx, *, allow_input: bool = Fal
     if isinstance(v, (int, float)):
         if not math.isfinite(v):
             raise ctx.err(field_, f"must be finite, got {v!r}")
-        return Ref("const", value=float(v))
+        return Ref("const", constant=float(v))
     if isinstance(v, str):
         q = parse_quantity(v)
         if q is not None:
-            return Ref("const", value=q[0] * factor(q[1] or "-", kind, f"{ctx.where}: {field_}"))
+            return Ref("const", constant=q[0] * factor(q[1] or "-", kind, f"{ctx.where}: {field_}"))
         if v in ctx.raw:
             prev = ctx.kinds.get(v)
             if prev is not None and prev[0] != kind and not {prev[0], kind} <= {"damping", "viscous_torque"}:
@@ -323,7 +347,7 @@ def _const(ref: Ref | None, ctx: _Ctx, decl: Mapping[str, ParamDecl] | None = No
     if ref is None:
         return None
     if ref.kind == "const":
-        return ref.value
+        return ref.constant
     if ref.kind == "param" and decl is not None and ref.name in decl:
         return decl[ref.name].value
     return None
@@ -548,7 +572,7 @@ def parse_rig(data: Mapping[str, Any], path: str = "<rig>") -> RigSpec:
             r = _value(a[key], kk, f"{f}.{key}", ctx)
             if r.kind != "const":
                 raise ctx.err(f"{f}.{key}", "must be a value (a number in SI units or a quantity string), not a parameter")
-            vals[key] = r.value
+            vals[key] = r.constant
         if vals["n_min"] < 0:
             raise ctx.err(f"{f}.n_min", f"must be >= 0 N, got {vals['n_min']:g}")
         if not vals["n_max"] > vals["n_min"]:
@@ -589,9 +613,9 @@ def parse_rig(data: Mapping[str, Any], path: str = "<rig>") -> RigSpec:
         noise = 0.0
         if "noise" in s:
             r = _value(s["noise"], noise_kind, f"{f}.noise", ctx)
-            if r.kind != "const" or r.value < 0:
+            if r.kind != "const" or r.constant < 0:
                 raise ctx.err(f"{f}.noise", f"must be a standard deviation >= 0 (a value), got {s['noise']!r}")
-            noise = r.value
+            noise = r.constant
         kw: dict[str, Any] = dict(delay=delay, noise=noise)
         if sk in ("encoder", "speed"):
             target = s.get("body")
@@ -668,8 +692,8 @@ def parse_rig(data: Mapping[str, Any], path: str = "<rig>") -> RigSpec:
                     if auto in raw_params or auto in auto_params:
                         raise ctx.err(f"{f}.{key}", f"parameter {auto!r} already exists; refer to it by name")
                     lo = 0.0 if key == "gain" else -math.inf
-                    auto_params[auto] = ParamDecl(auto, r.value, kk, SI_UNITS[kk], lo, math.inf, key == "gain",
-                                                  f"sensor {sname} ({'nominal' if r.value == default else 'rig file'})",
+                    auto_params[auto] = ParamDecl(auto, r.constant, kk, SI_UNITS[kk], lo, math.inf, key == "gain",
+                                                  f"sensor {sname} ({'nominal' if r.constant == default else 'rig file'})",
                                                   f"{key} of channel {chans[0]}")
                     r = Ref("param", name=auto)
                 kw[key] = r
@@ -774,7 +798,7 @@ def parse_rig(data: Mapping[str, Any], path: str = "<rig>") -> RigSpec:
         r = _value(v, k2, f"rig.operating_point.{key}", ctx)
         if r.kind != "const":
             raise ctx.err(f"rig.operating_point.{key}", "must be a value, not a parameter")
-        opv[key] = r.value
+        opv[key] = r.constant
     extra["operating_point"] = opv
     if "measured_modes_hz" in rig:
         mm = rig["measured_modes_hz"]
