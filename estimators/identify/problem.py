@@ -46,7 +46,7 @@ from models.signals import lowpass, moving_average
 from models.status import Status
 from estimators.identify.covariance import uncertainty
 from estimators.identify.gauss_newton import solve_gn
-from estimators.identify.guess import LEVELS, initial_guess
+from estimators.identify.guess import initial_guess
 from estimators.identify.ipopt import solve_ipopt
 from estimators.identify.noise import detect_input_noise, input_noise_hints, output_noise
 from estimators.identify.options import IdentifyOptions, LinearConstraint
@@ -351,16 +351,18 @@ class IdentificationProblem:
         return lo, hi
 
     def _constraints(self) -> tuple[LinearConstraint, ...]:
-        """Bounds excluded: ``mu_k <= mu_s`` per Stribeck-type contact with both levels free, and the options'."""
+        """Bounds excluded: ``kinetic <= static`` level per contact whose law declares both (e.g. Stribeck's
+        ``mu_k <= mu_s``) with both free, and the options'."""
         m, o = self.model, self.options
         out = []
         if o.order_friction:
             seen = set()
             for c in m.spec.contacts:
-                if c.law not in LEVELS:
+                order = m.law(c.name).level_order
+                if order is None:
                     continue
                 pr = dict(c.params)
-                s, k = pr.get(LEVELS[c.law][0]), pr.get(LEVELS[c.law][1])
+                k, s = pr.get(order[0]), pr.get(order[1])
                 if s is not None and k is not None and s.kind == k.kind == "param" and s.name in o.free \
                         and k.name in o.free and (k.name, s.name) not in seen:
                     seen.add((k.name, s.name))
@@ -521,8 +523,7 @@ class IdentificationProblem:
                 known[idx] = moving_average(d.Y[:, j], 5)
                 s = m.sensor_of(chan_names[j])
                 if s is not None and s.kind == "speed":
-                    known[idx] = (known[idx] - float(P0[s.offset.name] if s.offset.kind == "param" else s.offset.value)) \
-                        / float(P0[s.gain.name] if s.gain.kind == "param" else s.gain.value)
+                    known[idx] = (known[idx] - float(s.offset.value(P0))) / float(s.gain.value(P0))
             for idx, (j, sgn) in twist_of.items():
                 known[idx] = sgn * (moving_average(d.Y[:, j], 3) + zlog.get(j, 0.0))
             row0 = 1 if o.input_row == "end" else 0

@@ -62,12 +62,6 @@ def resolve_inputs(inputs, model, where: str) -> tuple[str, ...]:
     return tuple(n for n in model.commands if n in inputs)
 
 
-def _ref_value(ref, params) -> float | None:
-    if ref is None:
-        return None
-    return float(params[ref.name]) if ref.kind == "param" else float(ref.value)
-
-
 class NMPC(Controller):
     """Nonlinear MPC of any rig (module docstring).
 
@@ -158,8 +152,8 @@ class NMPC(Controller):
         contact = m.contact_of_input(name)
         for s in m.sensors:
             if s.kind == "load_cell" and contact is not None and s.target == contact.name:
-                off = _ref_value(s.offset, self.params) or 0.0
-                gain = _ref_value(s.gain, self.params)
+                off = float(s.offset.value(self.params)) if s.offset is not None else 0.0
+                gain = float(s.gain.value(self.params)) if s.gain is not None else None
                 return s.channels[0], off, 1.0 if gain is None else gain
         return name, 0.0, 1.0
 
