@@ -337,7 +337,6 @@ def _equation_error(model, P, data, body, free, values, notes, thr, encoder_zero
         if encoder_zero == "free" and c.stiffness is not None:
             cols["(encoder zero)"] = cols.get("(encoder zero)", 0) + s * np.ones_like(w)
     sg = np.sign(w)
-    aw = np.abs(w)
     no_use: set[str] = set()      # static levels: barely seen by sliding samples, taken from the cycle
     for ct in model.spec.contacts:
         if ct.body != body:

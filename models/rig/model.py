@@ -277,6 +277,31 @@ class RigModel:
             Vs = ca.fmin(ca.fmax(V, lo), hi)
         return V, Vs
 
+    @property
+    def current_index(self) -> int | None:
+        """Index of a DC motor's armature current in the state, or None."""
+        return self.nx - 2 if self.drive_kind == "dc_motor" else None
+
+    def quasi_static_current(self, x, u, P):
+        """The armature current with the inductance neglected, ``i = (V - KE ratio w_b) / R`` [A]
+        (``V`` the limited PI voltage, :meth:`motor_voltage`): what ``L i' = V - R i - KE w_m``
+        settles to when ``L/R`` is far below the time scales of interest
+        (:func:`models.discretise.integration`).  ``u`` in ``inputs`` order or named."""
+        d = self.spec.drive
+        un = self._named_inputs(u)
+        _, Vs = self.motor_voltage(x, un, P)
+        wm = d.param("ratio").value(P) * x[self._speed_index[d.body]]
+        return (Vs - d.param("KE").value(P) * wm) / d.param("R").value(P)
+
+    def electrical_time_constant(self, params) -> float:
+        """A DC motor's ``L/R`` [s] (0 for other drives)."""
+        if self.drive_kind != "dc_motor":
+            return 0.0
+        P = params if isinstance(params, dict) else dict(zip(self.param_names, np.asarray(
+            params.vector() if hasattr(params, "vector") else params, float)))
+        d = self.spec.drive
+        return float(d.param("L").value(P)) / float(d.param("R").value(P))
+
     def motor_torque_em(self, x, u_named, P, *, friction: bool = True):
         """Torque the DC motor's rotor delivers through the gearbox, output side [N m]:
         ``ratio (KT i - Tf tanh(w_m/eps_m) - Cm w_m)`` (``friction=False``: ``ratio KT i``)."""
