@@ -40,7 +40,7 @@ import numpy as np
 from models.errors import ConfigError
 
 __all__ = ["RHO", "QS_FACTOR", "MAX_SUBSTEPS", "Integration", "integration", "rk4", "rk4_function",
-           "stiff_rates"]
+           "stiff_rates", "rate_jacobian"]
 
 #: RK4 substeps keep ``h |lambda|max`` at most this
 RHO = 2.5
@@ -126,7 +126,7 @@ def rk4(f, x, u, p, h, nsub: int):
     return x
 
 
-def _jacobians(model, eps: float, reduced: bool) -> ca.Function:
+def rate_jacobian(model, eps: float, reduced: bool = False) -> ca.Function:
     """``J(x, u, p)`` of the regularised model, or of the model with the current quasi-static
     (cached on the model)."""
     key = ("stiff_jac", eps, reduced)
@@ -161,7 +161,7 @@ def stiff_rates(model, params, u, *, eps: float | None = None, speed: float | No
     """
     pv = np.asarray(params.vector() if hasattr(params, "vector") else params, float)
     u = np.asarray(u, float).ravel()
-    J = _jacobians(model, model.eps_default if eps is None else float(eps), reduced)
+    J = rate_jacobian(model, model.eps_default if eps is None else float(eps), reduced)
     try:
         with np.errstate(all="ignore"):
             xs = np.asarray(model.sliding_guess(u, params), float)
@@ -194,7 +194,8 @@ def _ms(t: float) -> str:
 
 
 def integration(model, params, dt: float, *, u=None, eps: float | None = None, speed: float | None = None,
-                min_nsub: int = 1, rates=(), where: str = "integration") -> Integration:
+                min_nsub: int = 1, rates=(), max_nsub: int | None = MAX_SUBSTEPS,
+                where: str = "integration") -> Integration:
     """The rule: how ``model`` is advanced over ``dt`` [s] (module docstring).
 
     Parameters
@@ -206,6 +207,7 @@ def integration(model, params, dt: float, *, u=None, eps: float | None = None, s
     speed : sliding speed [rad/s] of the sliding points (default: the drive's, >= 1 rad/s)
     min_nsub : substeps at least (a consumer's accuracy floor, e.g. the plant's ``nsub``)
     rates : extra rates [1/s] the consumer's own augmented states have (servo lags ``1/tau``)
+    max_nsub : refuse more substeps than this (None: the consumer checks its own limit)
     where : prefix of error messages
 
     Returns
@@ -214,7 +216,7 @@ def integration(model, params, dt: float, *, u=None, eps: float | None = None, s
 
     Raises
     ------
-    ConfigError : the rig is too stiff for the step (more than :data:`MAX_SUBSTEPS` substeps), or
+    ConfigError : the rig is too stiff for the step (more than ``max_nsub`` substeps), or
         its rates are not finite.
     """
     if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
@@ -244,9 +246,9 @@ def integration(model, params, dt: float, *, u=None, eps: float | None = None, s
                     f"(RK4, {n_red} substep(s); the full model would need {n_full})")
         elif n_full > n_red:
             note += f"; set by the motor's L/R = {_ms(tau_e)}"
-    if n > MAX_SUBSTEPS:
+    if max_nsub is not None and n > max_nsub:
         raise ConfigError(f"{where}: rig {model.name!r} needs {n} RK4 substeps per {dt:g} s step (fastest rate "
-                          f"{lam:.3g} 1/s); more than {MAX_SUBSTEPS}: shorten the step or check the rig's stiffness")
+                          f"{lam:.3g} 1/s); more than {max_nsub}: shorten the step or check the rig's stiffness")
     return Integration(float(dt), int(n), fast, float(lam), float(tau_e), note)
 
 

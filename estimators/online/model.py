@@ -107,7 +107,7 @@ from models.params import ParameterSet
 from models.rig import RigModel
 from models.rig.spec import NODE_DRIVE
 from models.sensors import FLOOR, SensorOptions, channel_variance
-from models.discretise import rk4
+from models.discretise import Integration, integration
 
 __all__ = ["EstimationModel", "build_estimation_model", "default_channels", "default_augment", "state_units",
            "angle_combination"]
@@ -189,6 +189,8 @@ class EstimationModel:
     meas_names : internal measurements (whitened angle differences, then the other channels)
     delay : samples of input history the model needs (``uh`` holds ``u_k, u_{k-1}, ...``)
     F : Function ``(x, uh, p) -> x_next`` over one sample (RK4 with substeps)
+    integration : how ``F`` integrates the rig (:func:`models.discretise.integration`: substeps,
+        a fast motor's current quasi-static); its ``note`` says so
     h : Function ``(x, uh, p) -> y`` internal measurements
     to_internal : Function ``(y_raw, m_raw) -> (y, m)`` raw channels and their masks (1 present,
         0 missing) to internal measurements and masks
@@ -227,6 +229,7 @@ class EstimationModel:
     p: np.ndarray
     angles: str = "zeroed"
     augment: tuple = ()
+    integration: Integration | None = None
 
     @property
     def nx(self) -> int:
@@ -423,7 +426,9 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
     f_rhs = ca.Function("rhs", [xr_s, ur_s, ps, fa_s], [rig_rhs(model, xr_s, ur_s, model.unpack(ps), options.eps, fac)])
     fvec = ca.vertcat(*factors.values()) if factors else ca.SX.zeros(1)
     u0 = ca.vertcat(*u_at(0))
-    xr_next = rk4(lambda a, b, c: f_rhs(a, b, c, fvec), x[:nxr], u0, p, dt, int(options.nsub))
+    integ = integration(model, params, dt, eps=options.eps, min_nsub=int(options.nsub), where=where)
+    xr_next = integ.advance(lambda a, b, c: f_rhs(a, b, c, fvec), x[:nxr], u0, p,
+                            lambda a, b, c: model.quasi_static_current(a, b, model.unpack(c)))
     nxt = [xr_next]
     if nx > nxr:
         held = [x[idx[n]] for n in names[nxr:] if not n.startswith("lag")]
@@ -504,7 +509,7 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
     lb, ub = _bounds(names)
     return EstimationModel(model, params, dt, names, state_units(model, names), nxr, chans, tuple(meas), D, F, h,
                            to_internal, np.array(dep_rows, bool).reshape(len(meas), len(chans)), q, stick, float(options.eps), r, x0v, P0, lb,
-                           ub, np.array([P_num[n] for n in model.param_names]), options.angles, aug)
+                           ub, np.array([P_num[n] for n in model.param_names]), options.angles, aug, integ)
 
 
 def _prod(terms):
