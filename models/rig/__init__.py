@@ -17,7 +17,8 @@ from models.checks import read_toml
 from models.errors import ConfigError
 from models.params import ParameterSet
 from models.rig.model import RigModel
-from models.rig.spec import RigSpec, parse_rig
+from models.rig.parse import parse_rig
+from models.rig.spec import RigSpec
 
 __all__ = ["RigModel", "RigSpec", "parse_rig", "load_rig", "get_model", "rig_key", "shipped_rigs", "RIGS_DIR",
            "load_params", "published"]
