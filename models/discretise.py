@@ -38,6 +38,7 @@ import casadi as ca
 import numpy as np
 
 from models.errors import ConfigError
+from models.rig.steady import nominal_operating_point
 
 __all__ = ["RHO", "QS_FACTOR", "MAX_SUBSTEPS", "Integration", "integration", "rk4", "rk4_function",
            "stiff_rates", "rate_jacobian"]
@@ -202,7 +203,7 @@ def integration(model, params, dt: float, *, u=None, eps: float | None = None, s
     ----------
     model : the rig; params : the parameter set the consumer uses
     dt : the consumer's step [s]
-    u : (nu,) its largest inputs (default: the rig file's operating point)
+    u : (nu,) its largest inputs (default: the rig's nominal operating point)
     eps : its friction regularisation [rad/s]; None for the exact stick/slip plant
     speed : sliding speed [rad/s] of the sliding points (default: the drive's, >= 1 rad/s)
     min_nsub : substeps at least (a consumer's accuracy floor, e.g. the plant's ``nsub``)
@@ -222,8 +223,7 @@ def integration(model, params, dt: float, *, u=None, eps: float | None = None, s
     if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
         raise ConfigError(f"{where}: dt must be a finite number > 0 s, got {dt!r}")
     if u is None:
-        op = model.spec.extra.get("operating_point", {})
-        u = np.array([op.get(n, 1.0 if n == model.drive_input else 0.0) for n in model.inputs], float)
+        u = nominal_operating_point(model, params)[0]
     extra = max([float(r) for r in rates], default=0.0)
     lam_full = max(stiff_rates(model, params, u, eps=eps, speed=speed), extra)
     tau_e = model.electrical_time_constant(params) if model.drive_kind == "dc_motor" else 0.0

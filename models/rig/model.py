@@ -35,9 +35,7 @@ The rest of the workbench uses the same interface for every rig:
 
 from __future__ import annotations
 
-import math
 import re
-from collections import deque
 from functools import cached_property
 
 import casadi as ca
@@ -46,6 +44,8 @@ import numpy as np
 from models import friction as fr
 from models.errors import ConfigError
 from models.params import ParameterSet, Spec
+from models.rig import steady
+from models.rig.outputs import RigOutputs
 from models.rig.spec import NODE_DRIVE, NODE_GROUND, RigSpec, SI_UNITS
 
 __all__ = ["RigModel"]
@@ -62,7 +62,7 @@ def _dead_zone(phi, half):
     return phi - min(max(phi, -half), half)
 
 
-class RigModel:
+class RigModel(RigOutputs):
     """A rig built from a :class:`models.rig.spec.RigSpec` (see module docstring).
 
     Attributes
@@ -444,97 +444,6 @@ class RigModel:
         un = self._u_named(u)
         return self._node_speed(self.spec.reference_node, x, un)
 
-    # ------------------------------------------------------------------ angles and outputs
-    def _angle_paths(self) -> dict[str, list[tuple[int, float]]]:
-        """For every node reachable by springs from the reference node: [(twist index, sign)] so
-        that ``theta_node = theta_ref + sum(sign * twist)``."""
-        ref = self.spec.reference_node
-        adj: dict[str, list] = {}
-        for j, c in enumerate(self._springs):
-            adj.setdefault(c.a, []).append((c.b, j, -1.0))   # theta_b = theta_a - phi
-            adj.setdefault(c.b, []).append((c.a, j, +1.0))   # theta_a = theta_b + phi
-        paths = {ref: []}
-        q = deque([ref])
-        while q:
-            n = q.popleft()
-            for m, j, sgn in adj.get(n, []):
-                if m not in paths:
-                    paths[m] = paths[n] + [(j, sgn)]
-                    q.append(m)
-        return paths
-
-    def angle(self, body: str, x, theta_ref):
-        """Absolute angle of ``body`` from the reference angle and the twists [rad]."""
-        th = theta_ref
-        for j, sgn in self._ang_path[body]:
-            th = th + sgn * x[j]
-        return th
-
-    def acceleration(self, x, u, P, body: str, eps: float | None = None):
-        """``omega_<body>'`` of the regularised model (contact friction smoothed with ``eps``)."""
-        eps = self.eps_default if eps is None else eps
-        Tc = [self.contact_friction(i, x[idx], u, P, eps) for i, idx in enumerate(self.contacts)]
-        s = [fr.smooth_sign(x[idx], eps) for idx in self.contacts]
-        return self.dynamics(x, u, P, Tc, s)[self._speed_index[body]]
-
-    def _ideal(self, s, x, u, P, theta_ref, un):
-        """A sensor's ideal reading, before gain and offset."""
-        if s.kind == "encoder":
-            th = theta_ref if s.target == NODE_DRIVE else self.angle(s.target, x, theta_ref)
-            return [th, self._node_speed(s.target, x, un)]
-        if s.kind == "speed":
-            return [self._node_speed(s.target, x, un)]
-        if s.kind == "torque":
-            if s.target == NODE_DRIVE and self.drive_kind == "torque":
-                return [un[self.spec.drive.input]]
-            if s.target == NODE_DRIVE:
-                if s.definition == "electromagnetic":
-                    return [self.motor_torque_em(x, un, P, friction=False)]
-                d = self.spec.drive
-                eta, Jm = d.param("ratio").value(P, un), d.param("Jm").value(P, un)
-                return [self.motor_torque_em(x, un, P) - eta * (eta - 1) * Jm * self.acceleration(x, u, P, d.body)]
-            c = next(c for c in self.spec.connections if c.name == s.target)
-            return [self.connection_torque(c, x, un, P)]
-        c = next(c for c in self.spec.contacts if c.name == s.target)
-        return [c.normal.value(P, un)]
-
-    def outputs(self, x, u, P, theta_ref) -> dict:
-        """Noise-free readings of every sensor channel (gain and offset applied), the inputs,
-        and physical quantities: twists (state names), body speeds, friction torques
-        (``friction_<contact>``, regularised), and for a DC motor ``current``, ``voltage``,
-        ``motor_speed`` and ``motor_torque_em``."""
-        un = self._u_named(u)
-        out: dict = {}
-        for s in self.sensors:
-            vals = self._ideal(s, x, u, P, theta_ref, un)
-            if s.offset is not None:
-                vals = [s.gain.value(P, un) * v + s.offset.value(P, un) for v in vals]
-            out.update(zip(s.channels, vals))
-        for n in self.inputs:
-            out.setdefault(n, un[n])
-        for j, c in enumerate(self._springs):
-            out[f"twist_{c.name}"] = x[j]
-        for b in self._bodies:
-            out[f"omega_{b}"] = x[self._speed_index[b]]
-        d = self.spec.drive
-        if d.kind == "dc_motor":
-            eta = d.param("ratio").value(P, un)
-            out["current"] = x[self.nx - 2]
-            out["voltage"] = self.motor_voltage(x, un, P)[1]
-            out["motor_speed"] = eta * x[self._speed_index[d.body]]
-            out["motor_torque_em"] = self.motor_torque_em(x, un, P, friction=False)
-        return out
-
-    def input_from_measured(self, u_meas, P):
-        """Model inputs from logged ones: a normal force logged through a load cell is corrected
-        for the cell's gain and offset, ``N = (reading - offset) / gain``."""
-        out = [u_meas[i] for i in range(self.nu)]
-        for s in self.sensors:
-            if s.kind in ("load_cell", "torque") and s.channels[0] in self.inputs:
-                j = self.inputs.index(s.channels[0])
-                out[j] = (out[j] - s.offset.value(P, {})) / s.gain.value(P, {})
-        return out
-
     # ------------------------------------------------------------------ CasADi Functions
     def _syms(self, kind=ca.SX):
         return kind.sym("x", self.nx), kind.sym("u", self.nu), kind.sym("p", self.n_p)
@@ -562,141 +471,23 @@ class RigModel:
     def _fcache(self) -> dict:
         return {}
 
-    def output_names(self) -> tuple[str, ...]:
-        """Names of :meth:`outputs` (the measurement Function's outputs)."""
-        return tuple(self.meas().name_out())
+    # ------------------------------------------------------------------ steady sliding (models.rig.steady)
+    def nominal_speed(self) -> float:
+        """:func:`models.rig.steady.nominal_speed`."""
+        return steady.nominal_speed(self)
 
-    def meas(self) -> ca.Function:
-        """Noise-free measurement function ``y = h(x, u, p, theta_ref)`` with named outputs."""
-        if "meas" not in self._fcache:
-            x, u, p = self._syms()
-            th = ca.SX.sym("theta_ref")
-            out = self.outputs(x, u, self.unpack(p), th)
-            self._fcache["meas"] = ca.Function(f"{self.cname}_meas", [x, u, p, th], [ca.SX(v) for v in out.values()],
-                                               ["x", "u", "p", "theta_ref"], list(out.keys()))
-        return self._fcache["meas"]
-
-    def meas_vector(self, names) -> ca.Function:
-        """``y = h(x, u, p)`` stacking the named outputs that need no absolute angle."""
-        x, u, p = self._syms()
-        out = self.outputs(x, u, self.unpack(p), ca.SX(0))
-        missing = [n for n in names if n not in out]
-        if missing:
-            raise ConfigError(f"{self.name}: unknown output(s) {missing}; expected some of {list(out)}")
-        return ca.Function(f"{self.cname}_h", [x, u, p], [ca.vertcat(*[out[n] for n in names])], ["x", "u", "p"], ["y"])
-
-    # ------------------------------------------------------------------ steady sliding
     def drive_speed_index(self) -> int | None:
-        """Index of the input that sets the sliding speed (a speed set-point or a prescribed
-        speed), or None for a torque drive."""
-        return None if self.drive_kind == "torque" else self.inputs.index(self.spec.drive.input)
-
-    def _steady_function(self, eps, mode: str, other: tuple, spd_idx: tuple, ju: int) -> ca.Function:
-        """``ss(z, p, u, w) -> (residual, d residual / dz)`` of steady sliding (cached on the model).
-
-        ``z`` holds the non-speed states and one extra unknown: the drive's input torque
-        (``mode = "torque"``), the common speed (``"speed"``) or nothing (``"fixed"``); every body
-        turns at ``w`` unless the speed is the unknown."""
-        key = ("steady", eps, mode)
-        if key not in self._fcache:
-            f = self.ode(eps)
-            z = ca.SX.sym("z", len(other) + 1)
-            p_s, u_s, w_s = ca.SX.sym("p", self.n_p), ca.SX.sym("u", self.nu), ca.SX.sym("w")
-            x = [None] * self.nx
-            for k, j in enumerate(other):
-                x[j] = z[k]
-            extra = z[len(other)]
-            uu = [u_s[j] for j in range(self.nu)]
-            if mode == "torque":
-                uu[ju] = extra
-            w = extra if mode == "speed" else w_s
-            for j in spd_idx:
-                x[j] = w
-            keep = [j for j in range(self.nx) if j >= self._n_tw]          # accelerations and drive rows
-            r = f(ca.vertcat(*x), ca.vertcat(*uu), p_s)[keep]
-            self._fcache[key] = ca.Function(f"{self.cname}_steady", [z, p_s, u_s, w_s], [r, ca.jacobian(r, z)])
-        return self._fcache[key]
-
-    def _steady_solve(self, u, params, speed: float | None, eps: float | None = None, iters: int = 30):
-        """Gauss-Newton on the accelerations and drive rows with every body at one speed.
-
-        Unknowns: the twists, the drive states and, for a torque drive, either the input torque
-        (``speed`` given) or the common speed (``speed`` None).
-        """
-        pv = np.asarray(params.vector(), float)
-        u = np.asarray(u, float).copy()
-        n_tw, nb = self._n_tw, len(self._bodies)
-        spd_idx = list(range(n_tw, n_tw + nb))
-        other = [j for j in range(self.nx) if j not in spd_idx]
-        torque_drive = self.drive_kind == "torque"
-        ju = self.inputs.index(self.spec.drive.input)
-        solve_speed = torque_drive and speed is None
-        if speed is None:
-            speed = float(u[ju]) if not torque_drive else 1.0
-        mode = "torque" if torque_drive and not solve_speed else ("speed" if solve_speed else "fixed")
-        F = self._steady_function(eps, mode, tuple(other), tuple(spd_idx), ju)
-        zv = np.zeros(len(other) + 1)
-        if solve_speed:
-            zv[-1] = speed
-        free = np.ones(zv.size, bool)
-        if not torque_drive:
-            free[-1] = False
-        # a spring with backlash carries torque only outside its dead zone: start there, on the side
-        # that drives the load forward
-        Pn = dict(zip(self.param_names, pv))
-        for j, c in enumerate(self._springs):
-            if c.backlash is not None:
-                zv[other.index(j)] = np.sign(speed or 1.0) * float(c.backlash.value(Pn, {}))
-        # a drive's voltage and current limits are flat outside their range: solve without them
-        # first (they bind only in transients), then polish with them
-        limits = [self.param_names.index(r.name) for r in (self.spec.drive.param("v_max"), self.spec.drive.param("i_max"))
-                  if r is not None and r.kind == "param"]
-        pvs = [pv]
-        if limits:
-            loose = pv.copy()
-            loose[limits] = 1e9
-            pvs = [loose, pv]
-        for pcur in pvs:
-            for _ in range(iters):
-                rv, Jv = (np.array(a, float) for a in F(zv, pcur, u, speed))
-                rv = rv.ravel()
-                step = np.linalg.lstsq(Jv[:, free], -rv, rcond=None)[0]
-                zv[free] += step
-                if np.max(np.abs(step)) < 1e-12:
-                    break
-        xs = np.empty(self.nx)
-        for k, j in enumerate(other):
-            xs[j] = zv[k]
-        xs[spd_idx] = zv[-1] if solve_speed else speed
-        if torque_drive and not solve_speed:
-            u[ju] = zv[-1]
-        return xs, u
+        """:func:`models.rig.steady.drive_speed_index`."""
+        return steady.drive_speed_index(self)
 
     def sliding_guess(self, u, params) -> np.ndarray:
-        """A state of steady sliding at the drive's speed (every body at that speed), from a
-        Gauss-Newton solve of the force balance; a torque drive slides at the speed its
-        torque sustains."""
-        u = np.asarray(u, float)
-        if self.drive_kind == "torque":
-            return self._steady_solve(u, params, None)[0]
-        return self._steady_solve(u, params, float(u[self.inputs.index(self.spec.drive.input)]))[0]
+        """:func:`models.rig.steady.sliding_guess`."""
+        return steady.sliding_guess(self, u, params)
 
     def operating_point(self, speed: float, u, params) -> tuple[np.ndarray, np.ndarray]:
-        """``(u, x)`` of steady sliding at ``speed`` [rad/s]: the drive input is set to it
-        (a torque drive's input torque is solved for) and the state solved as in
-        :meth:`sliding_guess`, then polished by Newton on the regularised model."""
-        u = np.asarray(u, float).copy()
-        if self.drive_kind != "torque":
-            u[self.inputs.index(self.spec.drive.input)] = speed
-            return u, self.steady_sliding(u, params)
-        x, u = self._steady_solve(u, params, float(speed))
-        return u, x
+        """:func:`models.rig.steady.operating_point`."""
+        return steady.operating_point(self, speed, u, params)
 
     def steady_sliding(self, u, params: ParameterSet, x0=None) -> np.ndarray:
-        """Equilibrium of the regularised model for a constant input (steady sliding)."""
-        f = self.ode()
-        x = ca.SX.sym("x", self.nx)
-        g = f(x, ca.DM(np.asarray(u, float)), ca.DM(params.vector()))
-        solver = ca.rootfinder("ss", "newton", ca.Function("g", [x], [g]), {"abstol": 1e-12})
-        guess = self.sliding_guess(u, params) if x0 is None else x0
-        return np.array(solver(ca.DM(guess))).ravel()
+        """:func:`models.rig.steady.steady_sliding`."""
+        return steady.steady_sliding(self, u, params, x0)
