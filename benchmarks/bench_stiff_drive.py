@@ -42,84 +42,8 @@ from models import get_model
 from models.discretise import RHO, Integration, integration, stiff_rates
 from models.plant import SimOptions, hybrid_step_function, plant_integration
 
-RIG = """
-[rig]
-name = "tworig_{tag}"
-description = "two discs on a shaft, small DC gear motor (L/R = {lr_ms} ms), brake pin on disc B"
-operating_point = {{ omega_ref = "30 rpm", brake_force = "10 N" }}
-
-[parameters]
-JA = {{ value = 0.01, unit = "kg m^2" }}
-JB = {{ value = 0.012, unit = "kg m^2" }}
-k = {{ value = 0.5, unit = "N m/rad" }}
-d = {{ value = 0.005, unit = "N m s/rad" }}
-L = {{ value = {L}, unit = "H" }}
-R = {{ value = 2.0, unit = "ohm" }}
-KT = {{ value = 0.03, unit = "N m/A" }}
-KE = {{ value = 0.03, unit = "V s/rad" }}
-Tf = {{ value = 0.002, unit = "N m" }}
-Cm = {{ value = 1e-6, unit = "N m s/rad" }}
-Jm = {{ value = 2e-6, unit = "kg m^2" }}
-ratio = {{ value = 30.0 }}
-kp = {{ value = 1.0, unit = "V s/rad" }}
-ki = {{ value = 2.0, unit = "V/rad" }}
-mu_s = {{ value = 0.5 }}
-mu_k = {{ value = 0.3 }}
-v_s = {{ value = 0.5, unit = "rad/s" }}
-rb = {{ value = 0.04, unit = "m" }}
-
-[bodies.A]
-inertia = "JA"
-[bodies.B]
-inertia = "JB"
-
-[connections.shaft]
-between = ["A", "B"]
-stiffness = "k"
-damping = "d"
-
-[contacts.pin]
-body = "B"
-law = "stribeck"
-normal = "brake_force"
-radius = "rb"
-mu_s = "mu_s"
-mu_k = "mu_k"
-v_s = "v_s"
-
-[drive]
-kind = "dc_motor"
-body = "A"
-input = "omega_ref"
-L = "L"
-R = "R"
-KT = "KT"
-KE = "KE"
-Tf = "Tf"
-Cm = "Cm"
-Jm = "Jm"
-ratio = "ratio"
-kp = "kp"
-ki = "ki"
-v_max = "12 V"
-
-[sensors.encA]
-kind = "encoder"
-body = "A"
-ticks = 2000
-angle = "thetaA"
-speed = "omegaA"
-[sensors.encB]
-kind = "encoder"
-body = "B"
-ticks = 2000
-angle = "thetaB"
-speed = "omegaB"
-[sensors.tq]
-kind = "torque"
-at = "drive"
-noise = "0.002 N m"
-"""
+#: the rig (L = 1 mH in the file; this script varies L)
+RIG = Path(__file__).resolve().parents[1] / "tests" / "data" / "small_motor.toml"
 
 EPS = 0.05
 DURATION = 3.0
@@ -129,7 +53,8 @@ def write_rig(folder: Path, lr_ms: float) -> Path:
     """The benchmark's rig file with L/R = ``lr_ms`` [ms] (R = 2 ohm)."""
     tag = f"{lr_ms:g}".replace(".", "p")
     path = folder / f"tworig_{tag}.toml"
-    path.write_text(RIG.format(tag=tag, lr_ms=f"{lr_ms:g}", L=repr(lr_ms * 1e-3 * 2.0)))
+    text = RIG.read_text().replace('name = "tworig"', f'name = "tworig_{tag}"')
+    path.write_text(text.replace('L = { value = 1.0, unit = "mH" }', f'L = {{ value = {lr_ms * 2.0!r}, unit = "mH" }}'))
     return path
 
 

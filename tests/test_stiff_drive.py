@@ -22,86 +22,14 @@ from models.plant import SimOptions, hybrid_step_function, plant_integration
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_stiff_drive.py"
 
 
+SMALL_MOTOR = Path(__file__).resolve().parent / "data" / "small_motor.toml"
+
+
 def _rig_text(L_henry: float) -> str:
-    # the benchmark's rig (benchmarks/bench_stiff_drive.py), written out here as a user would
-    return f"""
-[rig]
-name = "tworig"
-description = "two discs on a shaft, small DC gear motor, brake pin on disc B"
-operating_point = {{ omega_ref = "30 rpm", brake_force = "10 N" }}
-
-[parameters]
-JA = {{ value = 0.01, unit = "kg m^2" }}
-JB = {{ value = 0.012, unit = "kg m^2" }}
-k = {{ value = 0.5, unit = "N m/rad" }}
-d = {{ value = 0.005, unit = "N m s/rad" }}
-L = {{ value = {L_henry!r}, unit = "H" }}
-R = {{ value = 2.0, unit = "ohm" }}
-KT = {{ value = 0.03, unit = "N m/A" }}
-KE = {{ value = 0.03, unit = "V s/rad" }}
-Tf = {{ value = 0.002, unit = "N m" }}
-Cm = {{ value = 1e-6, unit = "N m s/rad" }}
-Jm = {{ value = 2e-6, unit = "kg m^2" }}
-ratio = {{ value = 30.0 }}
-kp = {{ value = 1.0, unit = "V s/rad" }}
-ki = {{ value = 2.0, unit = "V/rad" }}
-mu_s = {{ value = 0.5 }}
-mu_k = {{ value = 0.3 }}
-v_s = {{ value = 0.5, unit = "rad/s" }}
-rb = {{ value = 0.04, unit = "m" }}
-
-[bodies.A]
-inertia = "JA"
-[bodies.B]
-inertia = "JB"
-
-[connections.shaft]
-between = ["A", "B"]
-stiffness = "k"
-damping = "d"
-
-[contacts.pin]
-body = "B"
-law = "stribeck"
-normal = "brake_force"
-radius = "rb"
-mu_s = "mu_s"
-mu_k = "mu_k"
-v_s = "v_s"
-
-[drive]
-kind = "dc_motor"
-body = "A"
-input = "omega_ref"
-L = "L"
-R = "R"
-KT = "KT"
-KE = "KE"
-Tf = "Tf"
-Cm = "Cm"
-Jm = "Jm"
-ratio = "ratio"
-kp = "kp"
-ki = "ki"
-v_max = "12 V"
-
-[sensors.encA]
-kind = "encoder"
-body = "A"
-ticks = 2000
-angle = "thetaA"
-speed = "omegaA"
-[sensors.encB]
-kind = "encoder"
-body = "B"
-ticks = 2000
-angle = "thetaB"
-speed = "omegaB"
-[sensors.tq]
-kind = "torque"
-at = "drive"
-noise = "0.002 N m"
-"""
+    """The user's rig (tests/data/small_motor.toml) with the armature inductance ``L_henry`` [H]."""
+    text = SMALL_MOTOR.read_text()
+    assert 'L = { value = 1.0, unit = "mH" }' in text
+    return text.replace('L = { value = 1.0, unit = "mH" }', f'L = {{ value = {L_henry!r}, unit = "H" }}')
 
 
 def _rig(tmp_path, lr_ms: float):

@@ -12,7 +12,7 @@ from models.errors import ConfigError
 from models.rig.spec import SI_UNITS, ParamDecl, Ref
 from models.units import factor, parse_quantity
 
-__all__ = ["Context", "NAME", "table", "check_keys", "check_name", "number", "value_ref", "const_value",
+__all__ = ["Context", "NAME", "table", "entries", "check_keys", "check_name", "number", "value_ref", "const_value",
            "parse_parameters", "positive_check"]
 
 NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -41,6 +41,17 @@ def table(data: Mapping, key: str, ctx: Context, required: bool = False) -> Mapp
     if not isinstance(v, Mapping):
         raise ctx.err(key, f"must be a table, got {type(v).__name__}")
     return v
+
+
+def entries(data: Mapping, key: str, ctx: Context):
+    """``(name, field, table)`` of every entry of the section ``key`` (``[bodies.X]``, ...), the name
+    checked and the entry a table; ``field`` is ``"<key>.<name>"`` for messages."""
+    for name, tab in table(data, key, ctx).items():
+        f = f"{key}.{name}"
+        check_name(name, f, ctx)
+        if not isinstance(tab, Mapping):
+            raise ctx.err(f, "must be a table")
+        yield name, f, tab
 
 
 def check_keys(tab: Mapping, allowed, field_: str, ctx: Context) -> None:

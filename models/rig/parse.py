@@ -15,7 +15,8 @@ from typing import Any, Mapping
 from models.errors import ConfigError
 from models.friction import get_law
 from models.rig.checks import check_massless, check_rates, check_values, reference_node
-from models.rig.fields import (Context, check_keys, check_name, number, parse_parameters, table, value_ref)
+from models.rig.fields import (Context, check_keys, check_name, entries, number, parse_parameters, table,
+                               value_ref)
 from models.rig.spec import (DC_MOTOR_FIELDS, DRIVE_KINDS, NODE_DRIVE, NODE_GROUND, SENSOR_KINDS, SI_UNITS,
                              ActuatorSpec, BodySpec, ConnectionSpec, ContactSpec, DriveSpec, ParamDecl, Ref,
                              RigSpec, SensorSpec)
@@ -111,11 +112,7 @@ def _parse_connections(data, ctx: Context, body_names, kind: str) -> list[Connec
     # ---- connections
     nodes = set(body_names) | {NODE_GROUND} | ({NODE_DRIVE} if kind == "speed" else set())
     conns = []
-    for cname, c in table(data, "connections", ctx).items():
-        f = f"connections.{cname}"
-        check_name(cname, f, ctx)
-        if not isinstance(c, Mapping):
-            raise ctx.err(f, "must be a table")
+    for cname, f, c in entries(data, "connections", ctx):
         check_keys(c, {"between", "stiffness", "damping", "backlash", "doc"}, f, ctx)
         btw = c.get("between")
         if not (isinstance(btw, list) and len(btw) == 2 and all(isinstance(x, str) for x in btw)):
@@ -143,11 +140,7 @@ def _parse_connections(data, ctx: Context, body_names, kind: str) -> list[Connec
 def _parse_contacts(data, ctx: Context, body_names, where: str) -> list[ContactSpec]:
     # ---- contacts
     contacts = []
-    for cname, c in table(data, "contacts", ctx).items():
-        f = f"contacts.{cname}"
-        check_name(cname, f, ctx)
-        if not isinstance(c, Mapping):
-            raise ctx.err(f, "must be a table")
+    for cname, f, c in entries(data, "contacts", ctx):
         law = get_law(c.get("law"), f"{where}: {f}.law")
         check_keys(c, {"body", "law", "normal", "radius", "doc"} | set(law.param_names), f, ctx)
         if c.get("body") not in body_names:
@@ -175,11 +168,7 @@ def _parse_contacts(data, ctx: Context, body_names, where: str) -> list[ContactS
 def _parse_actuators(data, ctx: Context, contacts) -> list[ActuatorSpec]:
     # ---- actuators
     acts = []
-    for aname, a in table(data, "actuators", ctx).items():
-        f = f"actuators.{aname}"
-        check_name(aname, f, ctx)
-        if not isinstance(a, Mapping):
-            raise ctx.err(f, "must be a table")
+    for aname, f, a in entries(data, "actuators", ctx):
         check_keys(a, {"kind", "input", "n_min", "n_max", "rate_max", "tau", "doc"}, f, ctx)
         if a.get("kind") != "servo":
             raise ctx.err(f"{f}.kind", f"must be 'servo', got {a.get('kind')!r}")
@@ -223,11 +212,7 @@ def _parse_sensors(data, ctx: Context, body_names, drive: DriveSpec, conns, cont
     channels_seen: dict[str, str] = {}
     conn_names = [c.name for c in conns]
     contact_by_name = {c.name: c for c in contacts}
-    for sname, s in table(data, "sensors", ctx).items():
-        f = f"sensors.{sname}"
-        check_name(sname, f, ctx)
-        if not isinstance(s, Mapping):
-            raise ctx.err(f, "must be a table")
+    for sname, f, s in entries(data, "sensors", ctx):
         sk = s.get("kind")
         if sk not in SENSOR_KINDS:
             raise ctx.err(f"{f}.kind", f"must be one of {', '.join(SENSOR_KINDS)}, got {sk!r}")
