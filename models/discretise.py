@@ -195,7 +195,7 @@ def _ms(t: float) -> str:
 
 
 def integration(model, params, dt: float, *, u=None, eps: float | None = None, speed: float | None = None,
-                min_nsub: int = 1, rates=(), max_nsub: int | None = MAX_SUBSTEPS,
+                min_nsub: int = 1, nsub: int | None = None, rates=(), max_nsub: int | None = MAX_SUBSTEPS,
                 where: str = "integration") -> Integration:
     """The rule: how ``model`` is advanced over ``dt`` [s] (module docstring).
 
@@ -207,6 +207,9 @@ def integration(model, params, dt: float, *, u=None, eps: float | None = None, s
     eps : its friction regularisation [rad/s]; None for the exact stick/slip plant
     speed : sliding speed [rad/s] of the sliding points (default: the drive's, >= 1 rad/s)
     min_nsub : substeps at least (a consumer's accuracy floor, e.g. the plant's ``nsub``)
+    nsub : substeps fixed by the consumer's options (identification's ``nsub``, the NMPC's
+        ``substeps``): the rule then only decides whether the current is quasi-static, for that
+        substep, and says so
     rates : extra rates [1/s] the consumer's own augmented states have (servo lags ``1/tau``)
     max_nsub : refuse more substeps than this (None: the consumer checks its own limit)
     where : prefix of error messages
@@ -232,19 +235,24 @@ def integration(model, params, dt: float, *, u=None, eps: float | None = None, s
                           f"(check its parameters)")
 
     def count(lam):
+        if nsub is not None:
+            return int(nsub)
         return max(int(min_nsub), int(math.ceil(dt * lam / RHO - 1e-9)), 1)
 
     n_full = count(lam_full)
     fast, lam, n = None, lam_full, n_full
     note = f"RK4, {n_full} substep(s) of {_ms(dt / n_full)} (fastest rate {lam_full:.3g} 1/s)"
+    if nsub is not None:
+        note = f"RK4, {n_full} substep(s) of {_ms(dt / n_full)} as asked (fastest rate {lam_full:.3g} 1/s)"
     if tau_e > 0:
         lam_red = max(stiff_rates(model, params, u, eps=eps, speed=speed, reduced=True), extra)
         n_red = count(lam_red)
-        if math.isfinite(lam_red) and n_full > n_red and tau_e <= dt / n_red / QS_FACTOR:
+        stiffer = n_full > n_red or (nsub is not None and dt / nsub * lam_full > RHO >= dt / nsub * lam_red)
+        if math.isfinite(lam_red) and stiffer and tau_e <= dt / n_red / QS_FACTOR:
             fast, lam, n = model.current_index, lam_red, n_red
             note = (f"current treated quasi-statically: L/R = {_ms(tau_e)} << {_ms(dt / n_red)} substep "
                     f"(RK4, {n_red} substep(s); the full model would need {n_full})")
-        elif n_full > n_red:
+        elif stiffer:
             note += f"; set by the motor's L/R = {_ms(tau_e)}"
     if max_nsub is not None and n > max_nsub:
         raise ConfigError(f"{where}: rig {model.name!r} needs {n} RK4 substeps per {dt:g} s step (fastest rate "

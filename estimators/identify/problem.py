@@ -47,7 +47,7 @@ from models.status import Status
 from estimators.identify.covariance import uncertainty
 from estimators.identify.gauss_newton import solve_gn
 from estimators.identify.guess import initial_guess
-from models.discretise import integration, rate_jacobian
+from models.discretise import MAX_SUBSTEPS, integration, rate_jacobian
 from estimators.identify.ipopt import solve_ipopt
 from estimators.identify.noise import detect_input_noise, input_noise_hints, output_noise
 from estimators.identify.options import IdentifyOptions, LinearConstraint
@@ -297,8 +297,8 @@ class IdentificationProblem:
         umax = np.max(np.abs(np.concatenate([d.U for d in self.data])), axis=0) if m.nu else np.zeros(0)
         self._umax = np.array(m.input_from_measured(list(umax), m.unpack(initial.vector())), float).ravel()
         #: how a sample is integrated (:func:`models.discretise.integration`; ``nsub`` a floor)
-        self.integration = integration(m, initial, self.dt, u=self._umax, eps=o.eps, min_nsub=o.nsub or 1,
-                                       where="options.nsub")
+        self.integration = integration(m, initial, self.dt, u=self._umax, eps=o.eps, nsub=o.nsub,
+                                       max_nsub=None if o.nsub is not None else MAX_SUBSTEPS, where="options.nsub")
         self.nsub = self.integration.nsub
         self._stiff = None
         self._h_lambda0 = None

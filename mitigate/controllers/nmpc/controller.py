@@ -162,7 +162,7 @@ class NMPC(Controller):
         return name, 0.0, 1.0
 
     def _integration(self, u0, nom0: float, taus):
-        """The integration rule at the largest inputs the plan may use; ``substeps`` as a floor."""
+        """The integration rule at the largest inputs the plan may use (``substeps`` fixes the count)."""
         m, o = self.model, self.options
         umax = np.abs(u0).astype(float)
         for j, n in enumerate(m.inputs):
@@ -174,7 +174,7 @@ class NMPC(Controller):
             elif m.input_kinds[j] == "force":
                 umax[j] = 2.0 * abs(u0[j])  # a held normal force may double (load factor, ramps)
         return integration(m, self.params, o.dt, u=umax, eps=o.eps, speed=max(abs(nom0) + o.setpoint_band, 1.0),
-                           min_nsub=o.substeps or 1, rates=[1.0 / t for t in taus if t > 0], max_nsub=None)
+                           nsub=o.substeps or None, rates=[1.0 / t for t in taus if t > 0], max_nsub=None)
 
     def _nominal(self, t: float, u_prog) -> float:
         """Nominal speed of the objective body [rad/s]."""
