@@ -155,3 +155,35 @@ def test_benchmark_script_has_help_and_quick_mode():
 
     out = subprocess.run([sys.executable, str(BENCH), "--help"], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and "--quick" in out.stdout
+
+
+def test_mhe_on_a_0_05_ms_motor_tracks_without_failures(tmp_path):
+    from mitigate.closedloop import run_closed_loop
+    from mitigate.controllers.factory import make_controller
+    from mitigate.scenario import make_scenario
+
+    m = _rig(tmp_path, 0.05)
+    sc = make_scenario(name="mhe_fast", model=m, duration=3.0, inputs={"omega_ref": "30 rpm", "brake_force": 15},
+                       controllers=["pi"], estimator="mhe")
+    r = run_closed_loop(sc, make_controller(sc.controllers[0], sc, 0))
+    assert r.status.success and r.estimator_counts["failures"] == 0 and r.estimator_counts["fallbacks"] == 0
+    i, j = r.xhat_names.index("omega_B"), m.speed_index("B")
+    late = r.t > 1.5
+    assert np.max(np.abs(r.xhat[late, i] - r.x[late, j])) < 0.05 * np.max(np.abs(r.x[:, j]))
+
+
+def test_identification_on_a_0_05_ms_motor_recovers_the_friction(tmp_path):
+    import warnings
+
+    from estimators.identify import IdentifiabilityWarning, IdentifyOptions, identify
+    from models.plant import simulate
+
+    m = _rig(tmp_path, 0.05)
+    true = m.published().replace(mu_k=0.27)
+    r = simulate(m, true, np.array([2.0, 15.0]), 6.0, SimOptions(seed=2))
+    assert r.success and np.mean(r.state("omega_B") == 0.0) > 0.1
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IdentifiabilityWarning)
+        fit = identify(r.to_log(), m, m.published(), IdentifyOptions(free=("mu_k",), encoder_zero="untwisted"))
+    assert fit.problem.integration.quasi_static and "quasi-statically" in fit.problem.integration.note
+    assert fit.success and fit.estimate[0] == pytest.approx(0.27, rel=0.02), fit.message
