@@ -13,7 +13,7 @@ from mitigate.cliutil import add_common, emit_json, format_table, savefig_atomic
 from models.files import check_output_dir, output_set
 from models.errors import ConfigError
 from models.modal import VARIANTS, compare_measured, modes, stability_map
-from models.params import load_params
+from models.rig import load_params
 from models.rig import get_model, shipped_rigs
 
 EPILOG = """examples:
