@@ -258,84 +258,85 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
     last = n
     X[0] = plant.x
     TW[0] = plant.x @ twist_map
-    try:
-        plugins.call(controller.reset, timeout=timeout, what="reset")
-    except PluginError as exc:
-        status, message, last = Status.FAILED, f"controller failed at t = 0.000 s in reset: {exc}", -1
-    for k in range(n + 1) if last == n else ():
-        t = T[k]
-        ys.append(y)
-        u_est = u_prev.copy()
-        for j in measured_inputs:
-            v = y.get(model.inputs[j], np.nan)
-            if np.isfinite(v):
-                u_est[j] = v
-        u = scenario.programme(t)
+    with plugins.watchdog(timeout):       # one periodic alarm for every guarded call of the run
         try:
-            est = estimator.update(t, y, u_est)
+            plugins.call(controller.reset, timeout=timeout, what="reset")
         except PluginError as exc:
-            status, message, last = Status.FAILED, f"estimator failed at t = {t:.3f} s in update: {exc}", k
-            xh.append(np.full(len(xh[-1]) if xh else 0, np.nan))
-            CMD[k], U[k] = u, (U[k - 1] if k > 0 else u)
-            break
-        if est.status is Status.FALLBACK and not first_fallback["estimator"]:
-            first_fallback["estimator"] = f"t = {t:.3f} s: {est.message}"
-        names = est.names
-        xh.append(np.asarray(est.x, dtype=float))
-        est_times[k] = est.solve_time
-        if k >= k_start:
-            if (k - k_start) % every == 0:
-                try:
-                    a = plugins.call(controller.step, t, dict(y), est, timeout=timeout, what="step")   # its own copy
-                    if not isinstance(a, Action):
-                        raise PluginError(f"TypeError: step must return an Action, got {type(a).__name__}")
-                except PluginError as exc:
-                    status, message, last = Status.FAILED, f"controller failed at t = {t:.3f} s in step: {exc}", k
-                    CMD[k], U[k] = u, (U[k - 1] if k > 0 else u)
-                    break
-                if a.status is Status.FALLBACK and not first_fallback["controller"]:
-                    first_fallback["controller"] = f"t = {t:.3f} s: {a.message}"
-                solve_times.append(a.solve_time)
-                plan_calls.append(a.status is not Status.HOLD)
-                pending.append((k + _latency_samples(latency, a, deadline, dt), len(solve_times), a))
-            due = [p for p in pending if p[0] <= k]
-            if due:
-                newest = max(due, key=lambda p: p[1])
-                held = newest[2]
-                pending = [p for p in pending if p[1] > newest[1]]
-            active[k] = True
-            if held is not None:
-                ok[k] = held.success
-                for name, v in held.u.items():
-                    u[model.inputs.index(name)] = v
-        CMD[k] = u
-        if k == n:
-            U[k] = U[k - 1] if k > 0 else u
-            break
-        try:
-            y = plant.step(u)
-            xk = np.asarray(plant.x, dtype=float)
-        except Exception as exc:  # noqa: BLE001 - the plant is the one thing that may end a run
-            status, message, last = Status.FAILED, f"plant step failed at t = {T[k + 1]:.3f} s: " \
-                                                   f"{type(exc).__name__}: {exc}", k
-            U[k] = u
-            break
-        U[k] = plant.u_applied
-        X[k + 1] = xk
-        TW[k + 1] = xk @ twist_map
-        u_prev = u
-        if not np.all(np.isfinite(xk)):
-            status, message, last = Status.DIVERGED, f"diverged at t = {T[k + 1]:.3f} s: non-finite plant state", k + 1
-            break
-        fast = np.abs(xk[speed_idx])
-        if np.any(fast > scenario.max_speed):
-            b = pm.bodies[int(np.argmax(fast))]
-            status, message, last = Status.DIVERGED, (
-                f"diverged at t = {T[k + 1]:.3f} s: |omega_{b}| = {float(np.max(fast)):.3g} rad/s exceeds "
-                f"plant.max_speed = {scenario.max_speed:g} rad/s"), k + 1
-            break
-        if progress is not None and (k + 1) % 100 == 0:
-            progress(k + 1)
+            status, message, last = Status.FAILED, f"controller failed at t = 0.000 s in reset: {exc}", -1
+        for k in range(n + 1) if last == n else ():
+            t = T[k]
+            ys.append(y)
+            u_est = u_prev.copy()
+            for j in measured_inputs:
+                v = y.get(model.inputs[j], np.nan)
+                if np.isfinite(v):
+                    u_est[j] = v
+            u = scenario.programme(t)
+            try:
+                est = estimator.update(t, y, u_est)
+            except PluginError as exc:
+                status, message, last = Status.FAILED, f"estimator failed at t = {t:.3f} s in update: {exc}", k
+                xh.append(np.full(len(xh[-1]) if xh else 0, np.nan))
+                CMD[k], U[k] = u, (U[k - 1] if k > 0 else u)
+                break
+            if est.status is Status.FALLBACK and not first_fallback["estimator"]:
+                first_fallback["estimator"] = f"t = {t:.3f} s: {est.message}"
+            names = est.names
+            xh.append(np.asarray(est.x, dtype=float))
+            est_times[k] = est.solve_time
+            if k >= k_start:
+                if (k - k_start) % every == 0:
+                    try:
+                        a = plugins.call(controller.step, t, dict(y), est, timeout=timeout, what="step")   # its own copy
+                        if not isinstance(a, Action):
+                            raise PluginError(f"TypeError: step must return an Action, got {type(a).__name__}")
+                    except PluginError as exc:
+                        status, message, last = Status.FAILED, f"controller failed at t = {t:.3f} s in step: {exc}", k
+                        CMD[k], U[k] = u, (U[k - 1] if k > 0 else u)
+                        break
+                    if a.status is Status.FALLBACK and not first_fallback["controller"]:
+                        first_fallback["controller"] = f"t = {t:.3f} s: {a.message}"
+                    solve_times.append(a.solve_time)
+                    plan_calls.append(a.status is not Status.HOLD)
+                    pending.append((k + _latency_samples(latency, a, deadline, dt), len(solve_times), a))
+                due = [p for p in pending if p[0] <= k]
+                if due:
+                    newest = max(due, key=lambda p: p[1])
+                    held = newest[2]
+                    pending = [p for p in pending if p[1] > newest[1]]
+                active[k] = True
+                if held is not None:
+                    ok[k] = held.success
+                    for name, v in held.u.items():
+                        u[model.inputs.index(name)] = v
+            CMD[k] = u
+            if k == n:
+                U[k] = U[k - 1] if k > 0 else u
+                break
+            try:
+                y = plant.step(u)
+                xk = np.asarray(plant.x, dtype=float)
+            except Exception as exc:  # noqa: BLE001 - the plant is the one thing that may end a run
+                status, message, last = Status.FAILED, f"plant step failed at t = {T[k + 1]:.3f} s: " \
+                                                       f"{type(exc).__name__}: {exc}", k
+                U[k] = u
+                break
+            U[k] = plant.u_applied
+            X[k + 1] = xk
+            TW[k + 1] = xk @ twist_map
+            u_prev = u
+            if not np.all(np.isfinite(xk)):
+                status, message, last = Status.DIVERGED, f"diverged at t = {T[k + 1]:.3f} s: non-finite plant state", k + 1
+                break
+            fast = np.abs(xk[speed_idx])
+            if np.any(fast > scenario.max_speed):
+                b = pm.bodies[int(np.argmax(fast))]
+                status, message, last = Status.DIVERGED, (
+                    f"diverged at t = {T[k + 1]:.3f} s: |omega_{b}| = {float(np.max(fast)):.3g} rad/s exceeds "
+                    f"plant.max_speed = {scenario.max_speed:g} rad/s"), k + 1
+                break
+            if progress is not None and (k + 1) % 100 == 0:
+                progress(k + 1)
     if last < 0:          # reset failed: the first sample only, the programme, no estimate
         last = 0
         ys.append(y)

@@ -60,10 +60,19 @@ class Outcome:
     error: str = ""
 
 
+#: a worker sends progress at most this often [s] (each message wakes the parent: fewer switches)
+REPORT_EVERY = 0.25
+_last_report = [0.0]
+
+
 def report(count: int) -> None:
-    """Tell the parent how far the current task is (e.g. samples done); a no-op outside a pool."""
+    """Tell the parent how far the current task is (e.g. samples done); a no-op outside a pool.
+    In a worker at most every :data:`REPORT_EVERY` seconds (a heartbeat for the stall watchdog)."""
     if _reporter is not None:
-        _reporter(int(count))
+        now = time.monotonic()
+        if now - _last_report[0] >= REPORT_EVERY:
+            _last_report[0] = now
+            _reporter(int(count))
 
 
 def die_with_parent(parent_pid: int) -> None:
