@@ -38,7 +38,7 @@ import shutil
 from pathlib import Path, PurePath
 from typing import Iterable, Iterator
 
-from models.errors import ConfigError
+from models.errors import ConfigError, quote
 
 __all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_path", "refuse_overwrite", "check_output_dir",
            "check_output_file", "output_set", "OutputSet", "file_stem", "LOCK_NAME", "MARKER_NAME"]
@@ -98,7 +98,6 @@ def file_stem(name: str, where: str) -> str:
     """``name`` if it can be a file name inside an output folder (one path component, no ``/``,
     ``\\``, NUL, not ``.`` or ``..``, at most 200 characters), else a one-line ConfigError naming
     ``where`` (e.g. a scenario ``name`` used for ``<name>.csv``)."""
-    from models.errors import quote
     if not isinstance(name, str) or not name.strip() or name.strip() in (".", "..") or len(name) > 200 \
             or any(c in name for c in "/\\\0") or any(ord(c) < 32 for c in name):
         raise ConfigError(f"{where} must be usable as a file name (no '/', '\\', control characters, not '.' "

@@ -170,6 +170,17 @@ def test_a_run_killed_while_writing_leaves_the_folder_as_it_was_and_the_rerun_ne
     assert (ws / "o" / "metrics.json").is_file() and (ws / "o" / "metrics.png").is_file()
 
 
+def test_a_forced_rerun_leaves_no_file_of_the_older_set_mixed_in(ws, capsys):
+    (ws / "s.toml").write_text(tiny(extra=bad("Follow")))
+    assert main("run", "s.toml", "--out", "o", "--jobs", "1") == 0
+    assert (ws / "o" / "log_bad.csv").is_file()
+    (ws / "s.toml").write_text(tiny(extra=bad("InitRaises")))      # now "bad" fails before it has a log
+    assert main("run", "s.toml", "--out", "o", "--jobs", "1", "--force") == 1
+    assert not (ws / "o" / "log_bad.csv").exists() and not (ws / "o" / "timeseries_bad.png").exists()
+    doc = json.loads((ws / "o" / "metrics.json").read_text())
+    assert {c["name"]: c["status"] for c in doc["controllers"]} == {"PI only": "ok", "bad": "failed"}
+
+
 def test_a_set_marked_incomplete_by_a_killed_commit_is_replaced_without_force(ws, capsys):
     out = ws / "o"
     assert main("run", "tiny.toml", "--out", out) == 0
