@@ -333,8 +333,19 @@ def test_in_worker_processes_a_dying_worker_or_a_hang_fails_only_its_run(ws):
 
 # ----------------------------------------------------------------------------- kills and Ctrl-C
 def _group(pgid):
-    out = subprocess.run(["ps", "-eo", "pid=,pgid=,stat="], capture_output=True, text=True).stdout.split("\n")
-    return [ln.split() for ln in out if ln.split() and int(ln.split()[1]) == pgid and not ln.split()[2].startswith("Z")]
+    """Live (not zombie) processes of the process group ``pgid``, from /proc."""
+    found = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue                       # gone meanwhile
+        state, pgrp = fields[0], int(fields[2])
+        if pgrp == pgid and state != "Z":
+            found.append((int(d.name), state))
+    return found
 
 
 def _start(ws, args):
@@ -357,6 +368,10 @@ def _gone(pgid, within=5.0):
     return not _group(pgid)
 
 
+linux = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc (and PR_SET_PDEATHSIG)")
+
+
+@linux
 @pytest.mark.parametrize("command", ["run", "sweep", "benchmark"])
 def test_sigkill_leaves_no_process_of_the_command_after_5_s(ws, command):
     (ws / "long.toml").write_text(tiny(name="long", duration=60.0, extra=bad("Follow")))
@@ -373,6 +388,7 @@ def test_sigkill_leaves_no_process_of_the_command_after_5_s(ws, command):
         assert not [n for n in os.listdir(ws / "o") if not n.startswith(".mitigate")] if (ws / "o").exists() else True
 
 
+@linux
 def test_ctrl_c_ends_cleanly_with_no_process_and_nothing_written(ws):
     (ws / "long.toml").write_text(tiny(name="long", duration=60.0, extra=bad("Follow")))
     p = _start(ws, ["run", "long.toml", "--out", "o", "--jobs", "2"])
