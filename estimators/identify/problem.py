@@ -45,13 +45,14 @@ from models.rig import RigModel, get_model
 from models.signals import lowpass, moving_average
 from models.status import Status
 from estimators.identify.covariance import uncertainty
-from estimators.identify.gauss_newton import solve_gn
+from estimators.identify.continuation import Attempt, solve_globalised
+from estimators.identify.diagnostics import diagnose, gap_locator
 from estimators.identify.guess import LEVELS, initial_guess
 from estimators.identify.ipopt import solve_ipopt
 from estimators.identify.noise import detect_input_noise, input_noise_hints, output_noise
 from estimators.identify.options import IdentifyOptions, LinearConstraint
 from estimators.identify.outputs import input_delays, output_function, plan_channels
-from estimators.identify.result import FitResult, IdentifiabilityWarning, convergence_message
+from estimators.identify.result import FitResult, IdentifiabilityWarning, convergence_message, fit_status
 from estimators.identify.shooting import ShootingProblem, compiled_or_none, sample_function
 from estimators.identify.validation import validate
 
@@ -696,13 +697,18 @@ class IdentificationProblem:
             sys.stderr.flush()
 
         if o.solver == "gn":
-            res = solve_gn(sh, w0, G, h, max_iter=o.max_iter, tol=o.tol, trust_radius=o.trust_radius,
-                           callback=_progress if o.progress else None, admissible=self._rk4_stable)
+            res, method, attempts = solve_globalised(
+                sh, w0, G, h, strategy=o.globalise, dt=self.dt, on_misses=warm is None, max_iter=o.max_iter,
+                tol=o.tol, trust_radius=o.trust_radius, callback=_progress if o.progress else None,
+                admissible=self._rk4_stable)
             costs = res.costs
         else:
             res = solve_ipopt(sh, self._S_val, w0, G, h, max_iter=o.max_iter, tol=o.tol, progress=o.progress,
                               label=label)
             costs = ()
+            method = "IPOPT (Gauss-Newton Hessian, MUMPS)"
+            attempts = (Attempt(method, res.reason, res.success, float("nan"), res.max_gap, res.iterations,
+                                time.perf_counter() - t_start),)
         if o.progress and o.solver == "gn":
             sys.stderr.write("\n")
         w = res.w
@@ -744,10 +750,6 @@ class IdentificationProblem:
             warns.append(f"constraint {c} is active at the solution")
         for msg in warns:
             warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
-        if res.success:
-            status = Status.WARNING if warns else Status.OK
-        else:
-            status = Status.NOT_CONVERGED
         message = convergence_message(res.reason, res.success, iterations=res.iterations, max_iter=o.max_iter,
                                       costs=costs, at_bound=at_bound, max_gap=res.max_gap,
                                       condition=unc.condition, weak=unc.weak, solver=o.solver,
@@ -777,6 +779,11 @@ class IdentificationProblem:
             iv += d.nint
             node += d.nint + 1
             col += ncol
+        structure = diagnose(res_l, meas_l, self.dt, sigma2=unc.sigma2, gaps=g,
+                             gap_locator=gap_locator([d.nint for d in self.data], [d.t for d in self.data], M,
+                                                     m.states))
+        status, message = fit_status(res.reason, res.success, message, warned=bool(warns), structure=structure,
+                                     history=getattr(res, "history", ()), cost=0.5 * float(r @ r))
         nrmse = {}
         for j, c in enumerate(names):
             span = float(np.ptp(Ym[:, j]))
@@ -788,9 +795,11 @@ class IdentificationProblem:
             nrmse=nrmse, sigma2=unc.sigma2, tau=unc.tau, cost=0.5 * float(r @ r), nsub=self.nsub,
             noise=dict(self.noise), noise_source=dict(self.noise_source), states=tuple(states),
             encoder_zero=tuple(zeros), input_corrections=tuple(corr_l), status=status, message=message, reason=res.reason,
-            iterations=res.iterations, wall_time=time.perf_counter() - t_start, warnings=tuple(warns),
+            iterations=sum(a.iterations for a in attempts), wall_time=time.perf_counter() - t_start,
+            warnings=tuple(warns),
             at_bound=at_bound, active_constraints=active, condition=unc.condition, weak_directions=unc.weak,
-            input_noise=dict(self.input_noise), delay=o.extra_delay, guess_notes=self.guess_notes)
+            input_noise=dict(self.input_noise), delay=o.extra_delay, guess_notes=self.guess_notes, method=method,
+            attempts=attempts, structure=structure)
 
     def _systematic(self, fit: FitResult) -> FitResult:
         """``|theta(eps) - theta(eps/2)|``: refit warm-started from ``fit`` with the regularisation
