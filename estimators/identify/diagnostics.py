@@ -19,8 +19,8 @@ The tests, on every compared channel (all logs), in units of the channel's noise
   torque offset 0.88.  At least :data:`SLOW_ABOVE_NOISE` (1.0) noise levels: the structure
   misses something the sensors resolve.
 - **the spectrum**: the largest peak of the residual's Welch spectrum and the share of the
-  residual energy within +-10 % of it (at least +-2 bins); a white residual puts about
-  ``5 / n_bins`` there.  Dominant when the share is at least :data:`SHARE_DOMINANT`.
+  residual energy within +-5 % of it (at least +-2 bins); a white residual puts 5 bins' worth
+  there, or +-5 % of the spectrum's width at high frequencies.  Dominant when the share is at least :data:`SHARE_DOMINANT`.
 - **whiteness**: the lag-1 autocorrelation of the residual (white: ``0 +- 2/sqrt(n)``; encoder
   speeds, differences of quantised angles, give negative values), and the Ljung-Box statistic over
   ``min(20, n/5)`` lags with its p-value (reported; with thousands of samples it rejects any
@@ -49,7 +49,7 @@ from estimators.identify.gauss_newton import GAP_OK
 __all__ = ["StructureDiagnostics", "diagnose", "gap_locator", "residual_peak", "lag1", "ljung_box", "SHARE_DOMINANT",
            "LAG1_CORRELATED", "SLOW_ABOVE_NOISE"]
 
-#: share of the residual energy within +-10 % of its spectral peak that makes the peak dominant
+#: share of the residual energy within +-5 % of its spectral peak that makes the peak dominant
 SHARE_DOMINANT = 0.25
 #: lag-1 autocorrelation of the residual above which it is called correlated (not white)
 LAG1_CORRELATED = 0.5
@@ -71,7 +71,7 @@ class StructureDiagnostics:
     cutoff : ``{channel: low-pass frequency [Hz]}`` of the slow residual (5x signal_frequency)
     signal_frequency : ``{channel: dominant frequency [Hz] of the measured signal}``
     peak_frequency : frequency [Hz] of the largest peak of ``channel``'s residual spectrum
-    peak_share : share of that residual's energy within +-10 % of ``peak_frequency``
+    peak_share : share of that residual's energy within +-5 % of ``peak_frequency``
     lag1 : lag-1 autocorrelation of ``channel``'s residual
     ljung_box_p : Ljung-Box p-value of ``channel``'s residual (small: not white)
     sigma2 : residual variance per degree of freedom (noise units)
@@ -162,7 +162,7 @@ def _welch(x, dt):
 
 def residual_peak(residuals, dt: float) -> tuple[float, float]:
     """``(frequency [Hz], share)``: the largest non-DC peak of the summed Welch spectra of the
-    residual segments (one per log) and the share of their energy within +-10 % of it (at least
+    residual segments (one per log) and the share of their energy within +-5 % of it (at least
     +-2 bins)."""
     psd, freqs = None, None
     for r in residuals:
@@ -183,7 +183,7 @@ def residual_peak(residuals, dt: float) -> tuple[float, float]:
     k = int(np.argmax(psd))
     f0 = float(freqs[k])
     df = float(freqs[1] - freqs[0])
-    half = max(0.1 * f0, 2.0 * df)
+    half = max(0.05 * f0, 2.0 * df)
     band = np.abs(freqs - f0) <= half + 1e-12
     total = float(np.sum(psd))
     return f0, float(np.sum(psd[band]) / total) if total > 0 else 0.0
