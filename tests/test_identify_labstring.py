@@ -24,6 +24,7 @@ import pytest
 import mitigate.cli as cli
 from estimators.identify import IdentifiabilityWarning, IdentifyOptions, identify
 from estimators.identify.gauss_newton import GAP_OK
+from models import get_model, load_params
 from models.logs import Log, read_csv
 from models.plant import SimOptions, simulate
 from models.signals import moving_average, stick_slip_cycles
@@ -88,8 +89,6 @@ def test_1dof_fit_of_the_lab_string_ends_with_a_usable_best_fit(cli_fit, log):
     assert abs(v["period_error"]) <= 0.10, v
     # the fitted model free-running over the whole log (from rest, the logged inputs): its
     # stick-slip period against the log's
-    from models.params import load_params
-    from models.rig import get_model
     m = get_model(str(RIG))
     U = np.column_stack([log[n] for n in m.inputs])[1:]
     sim = simulate(m, load_params(out, m), U, log.dt * len(U), SimOptions(dt=log.dt, nsub=10))
