@@ -7,21 +7,23 @@ than the rig cannot follow every stick and slip of the log, and each one it miss
 surface of the regularised model (width ``eps``): the direct fit may stop at a poor point (a
 degenerate corner where a friction parameter lost its effect) or not converge at all.
 
-:func:`solve_globalised` then solves the same problem again along a path in ``eps``, from
-``10 eps`` (a smooth friction law, a nearly convex problem) down to ``eps`` in half-decades, each
-stage warm-started from the last, and keeps whichever of the two final fits, both at the target
-``eps``, is better: converged before unconverged, then the lower cost.  The continuation runs
-when the direct fit did not converge (at its iteration limit: only if it stalled, the cost falling
-by less than 0.1 % over five iterations), or when it converged but its residual shows that the
-structure misses (:func:`~estimators.identify.diagnostics.diagnose`; cold starts only: a refit
-warm-started from a solution keeps its direct fit); ``strategy = "always"``
-runs it every time, ``"off"`` never.  Every stage uses the same substeps (chosen for the target
-``eps``, the stiffest) and the same compiled function: ``eps`` is one of its inputs.
+The problem then solves itself again (cold, from the same start, with the substeps the direct
+fit ended with) along a path in ``eps``: :func:`solve_continuation` runs Gauss-Newton at ``10 eps``
+(a smooth friction law, a nearly convex problem), then down to ``eps`` in half-decades, each stage
+warm-started from the last, all with the same compiled function (``eps`` is one of its inputs).
+:func:`choose` keeps whichever of the two fits, both at the target ``eps`` and the same substeps,
+ends better: converged before unconverged, gaps closed before open, then the lower cost.
+:func:`wants_continuation` says when: the direct fit did not converge (at its iteration limit:
+only if it stalled, the cost falling by less than 0.1 % over five iterations; a budget that cut a
+progressing fit short is the user's), or it converged but its residual shows that the structure
+misses (:mod:`~estimators.identify.diagnostics`).  Never after a warm start (a refit from a
+solution, a bootstrap replicate stays cheap); ``globalise = "always"`` every time, ``"off"`` never.
 
-Measured on the synthetic lab string of ``tests/lab_drillstring.py`` fitted with a user's 1-DOF
-rig (``benchmarks/bench_identify.py labstring``): freeing k, d, mu_s, mu_k the direct fit
-converges; freeing the Stribeck speed as well, the direct fit stopped at v_s = 0, mu_s = mu_k (cost
-8.8e7) or at its iteration limit (cost 6.7e6), the continuation converged at cost 3.5e6.  IPOPT
+Measured on the synthetic lab string of ``tests/lab_drillstring.py`` fitted with the user's 1-DOF
+rig ``tests/data/lab_string_1dof.toml`` (``benchmarks/bench_identify.py labstring``): freeing k, d,
+mu_s, mu_k the direct fit converges (the continuation ends at the same cost); freeing the Stribeck
+speed as well, the direct fit stopped at v_s = 0, mu_s = mu_k (cost 8.8e7, a degenerate corner) or
+at its iteration limit (cost 6.7e6), the continuation converged at cost 2.6e6 / 3.5e6.  IPOPT
 (``solver = "ipopt"``) on that problem stopped after 241 s on a non-finite Hessian (cost 2.4e8):
 no automatic switch to it.
 """
@@ -30,14 +32,14 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from estimators.identify.diagnostics import diagnose
-from estimators.identify.gauss_newton import GAP_OK, GNResult, solve_gn
+from estimators.identify.gauss_newton import CONVERGED, GAP_OK, GNResult, solve_gn
 
-__all__ = ["Attempt", "solve_globalised", "solve_continuation", "EPS_FACTORS", "STRATEGIES", "GN_METHOD"]
+__all__ = ["Attempt", "attempt", "solve_continuation", "continuation_method", "wants_continuation", "choose",
+           "EPS_FACTORS", "STRATEGIES", "GN_METHOD"]
 
 #: the continuation's path: eps times these factors, the last one the target
 EPS_FACTORS = (10.0, math.sqrt(10.0), 1.0)
@@ -56,37 +58,23 @@ class Attempt:
     max_gap: float
     iterations: int
     wall_time: float
+    stalled: bool = False
 
     def as_dict(self) -> dict:
         return {"method": self.method, "reason": self.reason, "success": self.success, "cost": self.cost,
-                "max_gap": self.max_gap, "iterations": self.iterations, "wall_time": self.wall_time}
+                "max_gap": self.max_gap, "iterations": self.iterations, "wall_time": self.wall_time,
+                "stalled": self.stalled}
 
 
-def _cost(res: GNResult) -> float:
-    return float(res.costs[-1]) if res.costs else float("inf")
-
-
-def _stalled(res: GNResult) -> bool:
-    """At its iteration limit, the cost fell by less than 0.1 % over the last five iterations (an
-    iteration limit that cut a progressing fit short is the user's budget, not a failure)."""
-    c = np.asarray(res.costs, float)
-    return c.size >= 7 and bool(np.all(np.isfinite(c[-6:]))) and c[-6] - c[-1] < 1e-3 * abs(c[-1])
-
-
-def _better(a: GNResult, b: GNResult) -> bool:
-    """``a`` is a better end of the fit than ``b``: converged first, then gaps closed, then the lower cost."""
-    if a.success != b.success:
-        return a.success
-    fa, fb = a.max_gap < GAP_OK, b.max_gap < GAP_OK
-    if fa != fb:
-        return fa
-    return _cost(a) < _cost(b)
+def continuation_method(eps: float, factors=EPS_FACTORS) -> str:
+    path = " -> ".join(f"{eps * f:.3g}" for f in factors)
+    return f"{GN_METHOD} along a continuation in eps {path} rad/s"
 
 
 def solve_continuation(prob, w0, G, h, eps: float, factors=EPS_FACTORS, **gn) -> tuple[GNResult, list]:
     """Gauss-Newton at ``eps * f`` for ``f`` in ``factors`` (the last should be 1), each stage
-    warm-started from the previous one; returns the last stage's result and every stage's
-    ``(eps, GNResult)``.  ``prob.eps`` is restored."""
+    warm-started from the previous one; returns the last stage's result (its iterations: all
+    stages') and every stage's ``(eps, GNResult)``.  ``prob.eps`` is restored."""
     stages = []
     w = np.asarray(w0, float)
     old = prob.eps
@@ -99,78 +87,56 @@ def solve_continuation(prob, w0, G, h, eps: float, factors=EPS_FACTORS, **gn) ->
                 w = res.w
     finally:
         prob.eps = old
-    total = sum(r.iterations for _, r in stages)
     last = stages[-1][1]
-    return GNResult(last.w, total, last.reason, last.success, last.costs, last.max_gap, last.active, last.radius,
-                    last.lm, last.history), stages
+    return replace(last, iterations=sum(r.iterations for _, r in stages)), stages
 
 
-def structure_misses(prob, w, dt: float) -> bool:
-    """Does the residual at ``w`` show that the structure misses (the quick check behind "auto")?"""
-    r, g, _, _, _ = prob.evaluate(w, jac=False)
-    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(g))):
-        return False
-    n = prob.Nint * prob.M * prob.ny
-    res = r[:n].reshape(-1, prob.ny)
-    meas = prob.Ymeas.reshape(-1, prob.ny)
-    dof = max(r.size - prob.nw + g.size, 1)
-    d = diagnose([{j: res[:, j] for j in range(prob.ny)}], [{j: meas[:, j] for j in range(prob.ny)}], dt,
-                 sigma2=float(r @ r) / dof, gaps=g)
-    return not d.structure_ok
+def _stalled(costs) -> bool:
+    c = np.asarray(costs, float)
+    return bool(c.size >= 7 and np.all(np.isfinite(c[-6:])) and c[-6] - c[-1] < 1e-3 * abs(c[-1]))
 
 
-def solve_globalised(prob, w0, G=None, h=None, *, strategy: str = "auto", dt: float = 1.0, on_misses: bool = True,
-                     **gn):
-    """Fit ``prob`` from ``w0`` (see the module docstring).
-
-    Parameters
-    ----------
-    prob : :class:`~estimators.identify.shooting.ShootingProblem` (its ``eps`` is the target)
-    w0, G, h : start and linear inequalities, as for :func:`~estimators.identify.gauss_newton.solve_gn`
-    strategy : "auto", "always" or "off"
-    dt : sample period [s] (the structure check's spectra)
-    on_misses : "auto" also runs the continuation after a converged direct fit whose structure
-        misses (False for warm starts: a refit from a solution, a bootstrap replicate, stays cheap)
-    gn : keyword arguments of :func:`~estimators.identify.gauss_newton.solve_gn`
-
-    Returns
-    -------
-    ``(GNResult, method, attempts)``: the chosen end, how it was reached (text), and every
-    :class:`Attempt` in order.
-    """
+def wants_continuation(fit, strategy: str, warm: bool) -> str | None:
+    """Why ``fit`` (a direct fit) should be repeated along the continuation, or None (see the module
+    docstring)."""
     if strategy not in STRATEGIES:
         raise ValueError(f"strategy must be one of {', '.join(STRATEGIES)}, got {strategy!r}")
-    eps = prob.eps
-    t0 = time.perf_counter()
-    direct = solve_gn(prob, w0, G, h, **gn)
-    attempts = [Attempt(GN_METHOD, direct.reason, direct.success, _cost(direct), direct.max_gap, direct.iterations,
-                        time.perf_counter() - t0)]
-    if strategy == "off":
-        return direct, GN_METHOD, tuple(attempts)
-    why = None
+    if strategy == "off" or warm:
+        return None
     if strategy == "always":
-        why = "always"
-    elif not direct.success and (direct.reason != "max_iter" or _stalled(direct)):
-        why = f"the direct fit ended: {direct.reason}"
-    elif on_misses and direct.success and structure_misses(prob, direct.w, dt):
-        why = "the direct fit's residual shows that the structure misses"
-    if why is None:
-        return direct, GN_METHOD, tuple(attempts)
-    t1 = time.perf_counter()
-    cont, stages = solve_continuation(prob, w0, G, h, eps, **gn)
-    path = " -> ".join(f"{e:.3g}" for e, _ in stages)
-    cmethod = f"{GN_METHOD} along a continuation in eps {path} rad/s"
-    attempts.append(Attempt(cmethod, cont.reason, cont.success, _cost(cont), cont.max_gap, cont.iterations,
-                            time.perf_counter() - t1))
-    iters = direct.iterations + cont.iterations
-    if _better(cont, direct):
-        chosen = cont
-        method = (f"{cmethod} ({why}; the direct fit stopped ({direct.reason}) at cost {_cost(direct):.4g}, the "
-                  f"continuation ({cont.reason}) at cost {_cost(cont):.4g})")
-    else:
-        chosen = direct
-        method = (f"{GN_METHOD} ({why}; a continuation in eps {path} rad/s stopped ({cont.reason}) at cost "
-                  f"{_cost(cont):.4g}, the direct fit ({direct.reason}) at cost {_cost(direct):.4g})")
-    out = GNResult(chosen.w, iters, chosen.reason, chosen.success, chosen.costs, chosen.max_gap, chosen.active,
-                   chosen.radius, chosen.lm, chosen.history)
-    return out, method, tuple(attempts)
+        return "always"
+    if fit.reason not in CONVERGED:
+        if fit.reason != "max_iter" or (fit.attempts and fit.attempts[-1].stalled):
+            return f"the direct fit did not converge ({fit.reason})"
+        return None
+    if fit.structure is not None and fit.structure.misses:
+        return "the direct fit's residual shows that the structure misses"
+    return None
+
+
+def _rank(fit):
+    gap = fit.structure.max_gap if fit.structure is not None else 0.0
+    cost = fit.cost if np.isfinite(fit.cost) else math.inf
+    return (fit.reason not in CONVERGED, gap >= GAP_OK, cost)
+
+
+def choose(direct, cont, why: str):
+    """The better of two fits of one problem (direct, continuation) with ``method`` and ``attempts``
+    telling both; iterations and wall time add up."""
+    a, b = direct.attempts[-1] if direct.attempts else None, cont.attempts[-1] if cont.attempts else None
+    pick = cont if _rank(cont) < _rank(direct) else direct
+    other = direct if pick is cont else cont
+    what = "the continuation" if pick is cont else "the direct fit"
+    base = cont.method if pick is cont else direct.method
+    method = (f"{base} ({why}; kept {what}: the direct fit stopped ({direct.reason}) at cost {direct.cost:.4g}, "
+              f"the continuation ({cont.reason}) at cost {cont.cost:.4g})")
+    attempts = tuple(x for x in (a, b) if x is not None)
+    return replace(pick, method=method, attempts=attempts, iterations=direct.iterations + cont.iterations,
+                   wall_time=direct.wall_time + cont.wall_time,
+                   guess_notes=other.guess_notes if not pick.guess_notes else pick.guess_notes)
+
+
+def attempt(method: str, res: GNResult, t_start: float) -> Attempt:
+    costs = getattr(res, "costs", ())
+    return Attempt(method, res.reason, res.success, float(costs[-1]) if costs else float("nan"),
+                   float(res.max_gap), int(res.iterations), time.perf_counter() - t_start, _stalled(costs))

@@ -45,7 +45,9 @@ from models.rig import RigModel, get_model
 from models.signals import lowpass, moving_average
 from models.status import Status
 from estimators.identify.covariance import uncertainty
-from estimators.identify.continuation import Attempt, solve_globalised
+from estimators.identify.continuation import (GN_METHOD, attempt, choose, continuation_method, solve_continuation,
+                                              wants_continuation)
+from estimators.identify.gauss_newton import solve_gn
 from estimators.identify.diagnostics import diagnose, gap_locator
 from estimators.identify.guess import initial_guess
 from models.discretise import MAX_SUBSTEPS, integration, rate_jacobian
@@ -621,8 +623,8 @@ class IdentificationProblem:
                 fit = replace(fit, initial=first.initial, guess_notes=first.guess_notes,
                               warnings=fit.warnings + (f"RK4 substeps raised from {old} to {need} for the fitted "
                                                        f"parameters (stiffer than the initial ones) and refitted",))
-            return prob._finish(fit)
-        return self._finish(fit)
+            return prob._finish(prob._globalise(fit, warm))
+        return self._finish(self._globalise(fit, warm))
 
     def _feasible(self, theta):
         """``theta`` moved onto the constraints it violates by round-off (the regularised KKT rows
@@ -675,13 +677,20 @@ class IdentificationProblem:
             n_out = sum(d.nint * o.shoot_every for d in p.data) * len(p.channels)
             costs[dly] = 2 * f.cost / max(n_out, 1)
         best = min(costs, key=costs.get)
-        fit = fits[best]
+        fit = probs[best]._globalise(fits[best], None)
         note = (f"DAQ delay: an extra delay of {best} sample(s) fits best (cost per residual "
                 + ", ".join(f"{d}: {c:.4g}" for d, c in costs.items()) + ")")
         fit = replace(fit, delay=o.extra_delay + best, delay_costs=costs, message=f"{fit.message}; {note}")
         return probs[best]._finish(fit)
 
-    def _fit(self, warm: FitResult | None) -> FitResult:
+    def _globalise(self, fit: FitResult, warm: FitResult | None) -> FitResult:
+        """``fit`` (direct), or the better of it and a cold refit along a continuation in eps
+        (:mod:`~estimators.identify.continuation`)."""
+        o = self.options
+        why = wants_continuation(fit, o.globalise if o.solver == "gn" else "off", warm is not None)
+        return fit if why is None else choose(fit, self._fit(None, continuation=True), why)
+
+    def _fit(self, warm: FitResult | None, continuation: bool = False) -> FitResult:
         t_start = time.perf_counter()
         m, o = self.model, self.options
         sh = self._shooting()
@@ -694,18 +703,20 @@ class IdentificationProblem:
             sys.stderr.flush()
 
         if o.solver == "gn":
-            res, method, attempts = solve_globalised(
-                sh, w0, G, h, strategy=o.globalise, dt=self.dt, on_misses=warm is None, max_iter=o.max_iter,
-                tol=o.tol, trust_radius=o.trust_radius, callback=_progress if o.progress else None,
-                admissible=self._rk4_stable)
+            gn = dict(max_iter=o.max_iter, tol=o.tol, trust_radius=o.trust_radius,
+                      callback=_progress if o.progress else None, admissible=self._rk4_stable)
+            if continuation:
+                res, _ = solve_continuation(sh, w0, G, h, o.eps, **gn)
+                method = continuation_method(o.eps)
+            else:
+                res, method = solve_gn(sh, w0, G, h, **gn), GN_METHOD
             costs = res.costs
         else:
             res = solve_ipopt(sh, self._S_val, w0, G, h, max_iter=o.max_iter, tol=o.tol, progress=o.progress,
                               label=label)
             costs = ()
             method = "IPOPT (Gauss-Newton Hessian, MUMPS)"
-            attempts = (Attempt(method, res.reason, res.success, float("nan"), res.max_gap, res.iterations,
-                                time.perf_counter() - t_start),)
+        attempts = (attempt(method, res, t_start),)
         if o.progress and o.solver == "gn":
             sys.stderr.write("\n")
         w = res.w
