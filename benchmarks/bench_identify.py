@@ -316,7 +316,9 @@ def labstring():
     m = get_model(str(rig))
 
     def cyc_period(w, dt):
-        c = stick_slip_cycles(moving_average(w, 3), dt, 0.05, skip=2.0)
+        # speeds averaged over 10 ms: at 1 kHz one encoder count is 0.63 rad/s, and single samples
+        # read 0 while the bit creeps through a count (false stick onsets)
+        c = stick_slip_cycles(moving_average(w, max(3, int(round(0.01 / dt)))), dt, 0.05, skip=2.0)
         return c.period if c is not None else float("nan")
 
     frees = [("k", "d", "mu_s", "mu_k")] + ([] if S.quick else [("k", "d", "mu_s", "mu_k", "v_s")])

@@ -37,7 +37,9 @@ FREE = ("k", "d", "mu_s", "mu_k")
 
 
 def log_period(omega, dt, skip=0.0):
-    cyc = stick_slip_cycles(moving_average(omega, 3), dt, 0.05, skip=skip)
+    """Mean stick-slip cycle [s] of a speed averaged over 10 ms (one encoder count per sample would
+    read as stops)."""
+    cyc = stick_slip_cycles(moving_average(omega, max(3, int(round(0.01 / dt)))), dt, 0.05, skip=skip)
     assert cyc is not None and cyc.cycles >= 5
     return cyc.period
 
@@ -121,3 +123,21 @@ def test_shipped_disc_rig_on_the_speed_channels(log, tmp_path, capsys):
     assert rc == 0 and doc["success"], doc["message"]
     v = doc["validation"]
     assert v["nrmse"]["omega1"] <= 0.25 and abs(v["period_error"]) <= 0.10, v
+
+
+@pytest.mark.slow
+def test_continuation_rescues_a_fit_the_direct_solver_leaves_in_a_degenerate_corner(log):
+    """Freeing the Stribeck speed as well: the direct fit runs into v_s = 0 with mu_s = mu_k (where
+    neither has an effect: a stationary point of the regularised problem) at 30 times the cost; the
+    continuation in eps (0.05 -> 0.016 -> 0.005) converges lower, and the result says how."""
+    free = FREE + ("v_s",)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IdentifiabilityWarning)
+        off = identify(log, RIG, None, IdentifyOptions(free=free, globalise="off"), holdout=0.2)
+        auto = identify(log, RIG, None, IdentifyOptions(free=free), holdout=0.2)
+    assert auto.success and auto.cost < 0.1 * off.cost, (auto.cost, off.cost)
+    assert auto.method.startswith("Gauss-Newton (Levenberg-Marquardt damping, trust region, l1 merit line search) "
+                                  "along a continuation in eps 0.05 -> 0.0158 -> 0.005 rad/s")
+    assert "kept the continuation" in auto.method and len(auto.attempts) == 2
+    assert auto.attempts[0].cost == pytest.approx(off.cost, rel=1e-6)
+    assert auto.estimate[free.index("v_s")] > 0.5 and max(auto.validation.nrmse.values()) <= 0.25

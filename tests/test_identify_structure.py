@@ -80,11 +80,16 @@ class _Ok:
     # ... by 5 %: not converged, with advice, whatever the structure
     ("line_search", False, _Misses(), (("predicted_decrease", 5000.0),), Status.NOT_CONVERGED, "line search failed"),
     ("max_iter", False, _Misses(), (), Status.NOT_CONVERGED, "line search failed"),
+    # at the iteration limit with the cost no longer falling: the model's best (stalled=True below)
+    ("max_iter_stalled", False, _Misses(), (), Status.WARNING,
+     f"{BEST_FIT} (the solver stopped: line search failed; the cost fell by less than 0.1 % over its last five"),
     ("line_search", False, _Ok(), (("predicted_decrease", 50.0),), Status.NOT_CONVERGED, "line search failed"),
 ])
 def test_fit_status(reason, success, structure, hist, want, prefix):
     msg = "converged" if success else "line search failed. Try: more"
-    status, text = fit_status(reason, success, msg, warned=False, structure=structure, history=hist, cost=1e5)
+    stalled = reason.endswith("_stalled")
+    status, text = fit_status(reason.removesuffix("_stalled"), success, msg, warned=False, structure=structure,
+                              history=hist, cost=1e5, stalled=stalled)
     assert status is want and text.startswith(prefix)
     if want is Status.NOT_CONVERGED:
         assert text == msg

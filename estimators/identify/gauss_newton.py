@@ -7,7 +7,10 @@ problem with the Gauss-Newton Hessian ``J^T J``::
     [ A              0     0     ] [lam] = [ -g      ]
     [ G_a            0     0     ] [nu ]   [ h_a - G_a w ]
 
-(scipy SuperLU on a banded ordering with a border), where ``A`` is the Jacobian of the
+(scipy SuperLU on a banded ordering with a border; the zero block is regularised to ``-1e-12 I`` so
+that the factorisation may pivot in that order, and every solve is refined iteratively against the
+exact matrix: the multipliers of stuck intervals reach 1e8, and the regularisation alone left their
+``1e-12 lambda`` behind as continuity gaps no step could close), where ``A`` is the Jacobian of the
 continuity gaps ``g`` and ``G_a w <= h_a`` the *active* linear inequalities on the border
 variables (the parameters' bounds, ``mu_k <= mu_s``, user constraints).  The active set is
 updated inside the iteration: a row whose multiplier has the wrong sign is released, the most

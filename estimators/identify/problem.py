@@ -791,7 +791,8 @@ class IdentificationProblem:
                              gap_locator=gap_locator([d.nint for d in self.data], [d.t for d in self.data], M,
                                                      m.states))
         status, message = fit_status(res.reason, res.success, message, warned=bool(warns), structure=structure,
-                                     history=getattr(res, "history", ()), cost=0.5 * float(r @ r))
+                                     history=getattr(res, "history", ()), cost=0.5 * float(r @ r),
+                                     stalled=attempts[0].stalled)
         nrmse = {}
         for j, c in enumerate(names):
             span = float(np.ptp(Ym[:, j]))
@@ -803,8 +804,7 @@ class IdentificationProblem:
             nrmse=nrmse, sigma2=unc.sigma2, tau=unc.tau, cost=0.5 * float(r @ r), nsub=self.nsub,
             noise=dict(self.noise), noise_source=dict(self.noise_source), states=tuple(states),
             encoder_zero=tuple(zeros), input_corrections=tuple(corr_l), status=status, message=message, reason=res.reason,
-            iterations=sum(a.iterations for a in attempts), wall_time=time.perf_counter() - t_start,
-            warnings=tuple(warns),
+            iterations=res.iterations, wall_time=time.perf_counter() - t_start, warnings=tuple(warns),
             at_bound=at_bound, active_constraints=active, condition=unc.condition, weak_directions=unc.weak,
             input_noise=dict(self.input_noise), delay=o.extra_delay, guess_notes=self.guess_notes, method=method,
             attempts=attempts, structure=structure)

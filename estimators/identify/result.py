@@ -11,7 +11,8 @@ residual frequency, gaps left at the nodes) is the best fit the model allows, no
 explains the log: its status is WARNING and its message starts with ``"best fit within the model
 (...); structure misses: ..."``.  So is a fit whose solver stopped without meeting its tolerance
 (a failed line search) where the cost would fall by less than 0.1 % more and the structure
-misses.  Every other unconverged fit is NOT_CONVERGED, with advice.
+misses, and a fit stopped at its iteration limit whose cost fell by less than 0.1 % over the last
+five iterations.  Every other unconverged fit is NOT_CONVERGED, with advice.
 """
 
 from __future__ import annotations
@@ -86,7 +87,7 @@ def convergence_message(reason: str, success: bool, *, iterations: int, max_iter
 
 
 def fit_status(reason: str, success: bool, message: str, *, warned: bool, structure=None, history=(),
-               cost: float = float("nan")):
+               cost: float = float("nan"), stalled: bool = False):
     """``(Status, message)`` of a fit (see the module docstring).
 
     Parameters
@@ -97,6 +98,7 @@ def fit_status(reason: str, success: bool, message: str, *, warned: bool, struct
     structure : :class:`~estimators.identify.diagnostics.StructureDiagnostics` or None
     history : the solver's diagnostics at a failed line search (``(("predicted_decrease", x), ...)``)
     cost : ``0.5 |r|^2`` at the end
+    stalled : at the iteration limit, the cost fell by less than 0.1 % over the last five iterations
     """
     misses = tuple(structure.misses) if structure is not None else ()
     if success:
@@ -104,10 +106,13 @@ def fit_status(reason: str, success: bool, message: str, *, warned: bool, struct
             return Status.WARNING, f"{BEST_FIT} ({message}); structure misses: " + "; ".join(misses)
         return (Status.WARNING if warned else Status.OK), message
     pred = dict(history).get("predicted_decrease", float("inf"))
+    why = message.split(". Try:")[0]
     if misses and reason == "line_search" and np.isfinite(cost) and 0 <= pred <= 1e-3 * cost:
-        why = message.split(". Try:")[0]
         return Status.WARNING, (f"{BEST_FIT} (the solver stopped: {why}; the cost would fall by less than 0.1 % "
                                 f"more); structure misses: " + "; ".join(misses))
+    if misses and reason == "max_iter" and stalled:
+        return Status.WARNING, (f"{BEST_FIT} (the solver stopped: {why}; the cost fell by less than 0.1 % over "
+                                f"its last five iterations); structure misses: " + "; ".join(misses))
     return Status.NOT_CONVERGED, message
 
 
