@@ -37,7 +37,7 @@ from models.actuators import Servo
 from models.errors import ConfigError, SolverFailure
 from models.status import Status
 
-__all__ = ["NMPC", "make_nmpc", "resolve_inputs"]
+__all__ = ["NMPC", "resolve_inputs"]
 
 #: clip of the load factor taken from an estimate (a diverging estimator must not wreck the plan)
 LOAD_FACTOR_RANGE = (0.2, 5.0)
@@ -330,14 +330,3 @@ class NMPC(Controller):
             self._u_prev = np.array([u_prog[self.model.inputs.index(n)] for n in self.inputs], float)
         return a
 
-
-def make_nmpc(options: Mapping | NMPCOptions, context: ControlContext) -> NMPC:
-    """Validate raw scenario options (``context.where`` names them in errors) and build the NMPC.
-
-    Raises
-    ------
-    ConfigError : one line naming ``<where>.<field>``.
-    """
-    if isinstance(options, Mapping):
-        options = NMPCOptions.from_mapping(options, context.where)
-    return NMPC(options, context)
