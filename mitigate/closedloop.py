@@ -46,7 +46,7 @@ import numpy as np
 
 from models import plugins
 from models.errors import ConfigError, PluginError
-from models.logs import Log
+from models.logs import TRUTH_PREFIX, Log
 from models.plant import Plant
 from models.status import Status
 from mitigate.controllers.base import Action
@@ -82,6 +82,7 @@ class ClosedLoopResult:
     estimator_times : (m,) wall time of each estimator update [s]
     controller_counts, estimator_counts : counts from the base classes
     observability : the estimator's observability report (or None)
+    units : SI unit of every measured channel and input (the rig's names, free or not)
     status : Status.OK, or Status.DIVERGED / FAILED; message : the reason
     """
 
@@ -109,6 +110,7 @@ class ClosedLoopResult:
     observability: object = None
     status: Status = Status.OK
     message: str = "ok"
+    units: dict = field(default_factory=dict, repr=False)
 
     @property
     def success(self) -> bool:
@@ -135,14 +137,17 @@ class ClosedLoopResult:
         return self.state(f"omega_{self.objective_body}")
 
     def to_log(self) -> Log:
-        """Measured channels, the commands sent, plus the TRUE twists and speeds, as a log."""
+        """Measured channels, the commands sent, plus the TRUE twists and speeds as
+        ``true_twist_<spring>`` / ``true_omega_<body>`` columns (:data:`models.logs.TRUTH_PREFIX`), as a log."""
         chans = dict(self.y)
         chans.update(self.commands)
-        chans.update(self.twists)
+        for n, v in self.twists.items():
+            chans[TRUTH_PREFIX + n] = v
         for j, n in enumerate(self.states):
             if n.startswith("omega_"):
-                chans[n] = self.x[:, j]
-        return Log(self.t, chans, f"closed loop: {self.controller}")
+                chans[TRUTH_PREFIX + n] = self.x[:, j]
+        units = {k: self.units[k] for k in chans if k in self.units}
+        return Log(self.t, chans, f"closed loop: {self.controller}", (), units)
 
 
 def model_twists(model, plant_model) -> np.ndarray:
@@ -364,7 +369,7 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
         estimator_counts=estimator.counts.as_dict(), controller=getattr(controller, "name", type(controller).__name__),
         model=model.name, objective_body=model.objective_body, states=pm.states, inputs=pm.inputs,
         control_start=float(k_start * dt), observability=getattr(estimator, "observability", None),
-        status=status, message=message)
+        status=status, message=message, units={**pm.output_units(), **model.output_units()})
 
 
 def _warnings(scenario, controller, estimator, commands, active, first_fallback) -> tuple[Status, str]:

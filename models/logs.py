@@ -4,7 +4,9 @@ Everything a rig records, the simulator writes and the estimators read uses this
 The first row holds ``name [unit]`` columns; ``t [s]`` is required, the other names are the
 channels of the rig file's sensors and inputs (the reference rig: ``theta1..3 [rad]``,
 ``omega1..3 [rad/s]``, ``motor_torque [N m]``, ``n1``, ``n2 [N]``, ``omega_ref [rad/s]``), and
-true states written by the simulator (``twist_<connection> [rad]``, ``omega_<body> [rad/s]``)::
+true states written by the simulator and the closed loop (``true_twist_<connection> [rad]``,
+``true_omega_<body> [rad/s]``: the prefix :data:`TRUTH_PREFIX` keeps a true state apart from a
+sensor channel of the same name, e.g. an encoder's default speed channel ``omega_<body>``)::
 
     t [s], theta1 [rad], omega1 [rpm], n1 [kN], motor_torque [N mm], ...
 
@@ -33,10 +35,10 @@ import numpy as np
 
 from models.errors import ConfigError, DataError
 from models.files import atomic_write_text
-from models.rig.spec import SI_UNITS
+from models.rig.spec import SI_UNITS, TRUTH_PREFIX
 from models.units import DIMENSIONS, parse_unit
 
-__all__ = ["Log", "read_csv", "parse_header", "channel_kind", "convert_unit", "atomic_write_text"]
+__all__ = ["TRUTH_PREFIX", "Log", "read_csv", "parse_header", "channel_kind", "convert_unit", "atomic_write_text"]
 
 _HEADER = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*\[([^\]]*)\]\s*$")
 
@@ -56,7 +58,10 @@ _BY_DIM = ("angle", "speed", "torque", "force", "time", "current", "voltage", "a
 
 
 def channel_kind(name: str) -> str | None:
-    """The quantity kind the vocabulary gives a channel name, or None for a free name."""
+    """The quantity kind the vocabulary gives a channel name, or None for a free name
+    (a true-state column ``true_<state>`` takes its state's kind)."""
+    if name.startswith(TRUTH_PREFIX):
+        name = name[len(TRUTH_PREFIX):]
     for pat, kind in _VOCAB:
         if pat.search(name):
             return kind
@@ -204,10 +209,10 @@ class Log:
         return Log(self.t[m], {k: v[m] for k, v in self.channels.items()}, self.source, self.derived, self.units)
 
     def with_channels(self, **channels) -> "Log":
-        """A copy with channels added or replaced (vocabulary units)."""
+        """A copy with channels added (vocabulary units) or replaced (keeping their units)."""
         ch = dict(self.channels)
         ch.update(channels)
-        return Log(self.t, ch, self.source, self.derived, {k: v for k, v in self.units.items() if k not in channels})
+        return Log(self.t, ch, self.source, self.derived, dict(self.units))
 
     def to_csv_text(self, precision: int = 9) -> str:
         names = [n for n in self.channels if n != "t"]

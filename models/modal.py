@@ -99,6 +99,7 @@ class LinearModel:
     model: str
     status: Status = Status.OK
     message: str = "ok"
+    rig: str = ""
 
     @property
     def success(self) -> bool:
@@ -137,6 +138,8 @@ class ModalResult:
     eigenvalues : (n,) all eigenvalues [1/s], sorted by magnitude
     max_real : largest real part [1/s] (excluding the rigid-body zero)
     status : Status; message : detail
+    rig : how the rig is referred to in files (its shipped name or its file's absolute path;
+        :func:`compare_measured` reloads the rig from it)
     """
 
     model: str
@@ -151,6 +154,7 @@ class ModalResult:
     max_real: float
     status: Status = Status.OK
     message: str = "ok"
+    rig: str = ""
 
     @property
     def success(self) -> bool:
@@ -302,7 +306,7 @@ def _second_order_ss(M, Cd, K) -> np.ndarray:
     return np.block([[np.zeros((n, n)), np.eye(n)], [-Minv @ K, -Minv @ Cd]])
 
 
-def _modes_from_A(A: np.ndarray, dof_index: list[int], dof_names, model: str, variant: str,
+def _modes_from_A(A: np.ndarray, dof_index: list[int], dof_names, model, variant: str,
                   zero_tol: float = 1e-6) -> ModalResult:
     """One mode per complex pair (Im > 0) and per real eigenvalue; the zero cluster is one
     rigid-body mode."""
@@ -333,10 +337,10 @@ def _modes_from_A(A: np.ndarray, dof_index: list[int], dof_names, model: str, va
     max_real = float(np.max(nonzero.real)) if nonzero.size else 0.0
     ok = bool(np.all(np.isfinite(lam)))
     return ModalResult(
-        model, variant,
+        model.name, variant,
         np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), np.array([r[2] for r in rows]),
         np.array([r[3] for r in rows], dtype=bool), np.array([r[4] for r in rows]), tuple(dof_names),
-        lam, max_real, Status.OK if ok else Status.FAILED, "ok" if ok else "non-finite eigenvalues")
+        lam, max_real, Status.OK if ok else Status.FAILED, "ok" if ok else "non-finite eigenvalues", rig=model.key)
 
 
 def modes(model="rig3", params: ParameterSet | None = None, variant: str = "closed", *, u=None,
@@ -368,13 +372,13 @@ def modes(model="rig3", params: ParameterSet | None = None, variant: str = "clos
     if variant in ("free", "clamped"):
         M, Cd, K, dofs = chain_matrices(model, params, clamped=(variant == "clamped"), damped=damped)
         A = _second_order_ss(M, Cd, K)
-        return _modes_from_A(A, list(range(len(dofs))), dofs, model.name, variant)
+        return _modes_from_A(A, list(range(len(dofs))), dofs, model, variant)
     x_op = None
     if u is None:
         u, x_op = operating_point(model, params, omega=omega, load=load)
     lin = linearise(model, params, u, eps=eps, x_op=x_op)
     speed_idx = [i for i, s in enumerate(model.states) if s.startswith("omega_")]
-    res = _modes_from_A(lin.A, speed_idx, [model.states[i] for i in speed_idx], model.name, "closed")
+    res = _modes_from_A(lin.A, speed_idx, [model.states[i] for i in speed_idx], model, "closed")
     if not lin.success:
         res = replace(res, status=lin.status, message=lin.message)
     return res
@@ -388,7 +392,7 @@ def compare_measured(result: ModalResult, measured=None) -> list[tuple[str, floa
     the variant has one (no relative error), the others take the lowest *oscillatory* modes.
     """
     if measured is None:
-        measured = get_model(result.model).spec.extra.get("measured_modes_hz", ())
+        measured = get_model(result.rig or result.model).spec.extra.get("measured_modes_hz", ())
     rows = []
     osc = [f for f, o in zip(result.freq_hz, result.oscillatory) if o]
     k = 0

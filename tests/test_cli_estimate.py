@@ -14,7 +14,7 @@ from models.plant import SimOptions, simulate
 
 @pytest.fixture(scope="module")
 def log_path(tmp_path_factory):
-    """6 s of our plant's stick-slip from rest, with the true twists (``twist_shaft1/2``)."""
+    """6 s of our plant's stick-slip from rest, with the true twists (``true_twist_shaft1/2``)."""
     m = get_model("rig3")
     sim = simulate(m, m.published(), np.array([math.pi, 20.0, 0.0]), 6.0, SimOptions(seed=2))
     p = tmp_path_factory.mktemp("est") / "stick.csv"

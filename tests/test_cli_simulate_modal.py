@@ -71,8 +71,8 @@ def test_simulate_writes_log_and_png(main, tmp_path, capsys):
     assert main(["simulate", str(sc), "--out", str(out), "--truth", "--json"]) == 0
     payload = json.loads(capsys.readouterr().out)
     assert payload["status"] == "ok" and 0 < payload["stuck_fraction_true"] < 1 and payload["body"] == "R1"
-    log = read_csv(out / "short.csv", required=("omega1", "omega2", "omega3", "motor_torque", "twist_shaft1",
-                                                "twist_shaft2", "omega_R1"))
+    log = read_csv(out / "short.csv", required=("omega1", "omega2", "omega3", "motor_torque", "true_twist_shaft1",
+                                                "true_twist_shaft2", "true_omega_R1"))
     assert log.t[-1] == pytest.approx(4.0)
     assert (out / "short.png").stat().st_size > 10_000
     # the log is the measured one: quantised R1 angle

@@ -70,8 +70,9 @@ def test_pi_equals_the_open_loop_simulation_with_the_same_seed():
     np.testing.assert_array_equal(r.estimate("omega_R1"), r.y["omega1"])
     assert np.max(r.state("omega_R3")) > 2.0        # the rig did start turning
     log = r.to_log()
-    assert {"twist_shaft1", "twist_shaft2", "omega1", "theta1", "motor_torque", "omega_ref", "n2"} <= set(log.channels)
-    np.testing.assert_array_equal(log["twist_shaft1"], r.state("twist_shaft1"))
+    assert {"true_twist_shaft1", "true_twist_shaft2", "omega1", "theta1", "motor_torque", "omega_ref",
+            "n2"} <= set(log.channels)
+    np.testing.assert_array_equal(log["true_twist_shaft1"], r.state("twist_shaft1"))
 
 
 def test_the_controller_never_sees_the_true_state():

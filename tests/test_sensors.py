@@ -120,7 +120,7 @@ def test_reaction_torque_reads_the_load_not_the_motor_friction():
     w, n1, n2 = math.pi, 20.0, 5.0
     u = np.array([w, n1, n2])
     x = m.steady_sliding(u, p)
-    out = m.meas()(x=x, u=u, p=p.vector(), theta_ref=0.0)
+    out = dict(zip(m.meas().name_out(), m.meas()(x, u, p.vector(), 0.0)))
     mu = p.mu_k + (p.mu_s - p.mu_k) * math.exp(-w / p.v_s)
     load = n1 * p.r1 * mu + n2 * p.r2 * mu
     assert float(out["motor_torque"]) == pytest.approx(load, rel=1e-5)   # |v| is smoothed at 5e-5 rad/s

@@ -31,7 +31,7 @@ from estimators.online.model import angle_combination, default_channels
 from mitigate.cliutil import check_outputs, emit_json, format_table
 from models.errors import ConfigError, DataError
 from models.files import atomic_write_text
-from models.logs import read_csv
+from models.logs import TRUTH_PREFIX, read_csv
 from models.rig import load_params
 from models.rig import get_model
 from models.sensors import SensorOptions
@@ -128,13 +128,15 @@ def _spec(args, model, log) -> dict:
 
 
 def _true_twists(log, model) -> dict[str, np.ndarray]:
-    """True twists in the log, by estimator state name: ``twist_<spring>`` columns, or
-    ``twist<a><b>`` meaning ``theta<a> - theta<b>`` when that difference is one spring's twist."""
+    """True twists in the log, by estimator state name: ``true_twist_<spring>`` columns (what
+    ``simulate --truth`` writes; ``twist_<spring>`` in older logs), or ``twist<a><b>`` meaning
+    ``theta<a> - theta<b>`` when that difference is one spring's twist."""
     out = {}
     twists = [s for s in model.states if s.startswith("twist_")]
     for name in twists:
-        if name in log:
-            out[name] = log[name]
+        for col in (TRUTH_PREFIX + name, name):
+            if col in log and name not in out:
+                out[name] = log[col]
 
     def comb(ch):
         s = model.sensor_of(ch)

@@ -40,7 +40,8 @@ def register(subparsers) -> None:
     p.add_argument("--ideal", action="store_true",
                    help="record ideal measurements (no encoder quantisation, no load-cell noise)")
     p.add_argument("--truth", action="store_true",
-                   help="also write the true twists and body speeds (twist_<connection>, omega_<body>) as columns")
+                   help="also write the true twists and body speeds as columns true_twist_<connection>, "
+                        "true_omega_<body> (apart from a sensor's omega_<body>)")
     p.add_argument("--no-plot", action="store_true", help="do not write the PNG")
     p.set_defaults(func=run)
 

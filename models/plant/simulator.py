@@ -28,7 +28,7 @@ from models.checks import finite_number
 from models.codegen import FastFunction
 from models.discretise import Integration, integration
 from models.errors import ConfigError
-from models.logs import Log, channel_kind
+from models.logs import TRUTH_PREFIX, Log
 from models.params import ParameterSet
 from models.plant.hybrid import hybrid_step_function
 from models.rig import get_model
@@ -258,6 +258,7 @@ class SimResult:
     u : (n+1, nu) applied inputs (names in ``inputs``; the last row repeats the previous one)
     y : measured channels, each (n+1,)
     truth : noise-free readings and physical quantities, each (n+1,)
+    units : SI unit of every channel and state (:meth:`models.rig.RigModel.output_units`)
     status : :class:`models.status.Status`; message : detail; success : bool
     """
 
@@ -271,6 +272,7 @@ class SimResult:
     inputs: tuple = ()
     status: Status = Status.OK
     message: str = "ok"
+    units: dict = field(default_factory=dict, repr=False)
 
     @property
     def success(self) -> bool:
@@ -285,17 +287,18 @@ class SimResult:
 
     def to_log(self, *, measured: bool = True, include_truth: bool = False) -> Log:
         """The run as a :class:`models.logs.Log`: the measured channels (or their noise-free
-        values), plus the true twists and speeds of the states if ``include_truth``."""
+        values) in their SI units, plus the true twists and speeds of the states if
+        ``include_truth``, as ``true_twist_<connection>`` / ``true_omega_<body>`` columns (the
+        prefix keeps them apart from a sensor channel of the same name, such as an encoder's
+        default speed channel ``omega_<body>``)."""
         src = self.y if measured else self.truth
         chans = {k: v for k, v in src.items() if k in self.y}
-        units = {}
+        units = {k: self.units[k] for k in chans if k in self.units}
         if include_truth:
             for j, n in enumerate(self.states):
                 if n.startswith(("twist_", "omega_")):
-                    chans[n] = self.x[:, j]
-        for k in chans:
-            if channel_kind(k) is None:
-                units[k] = "-"
+                    chans[TRUTH_PREFIX + n] = self.x[:, j]
+                    units[TRUTH_PREFIX + n] = self.units.get(n) or ("rad" if n.startswith("twist_") else "rad/s")
         return Log(self.t, chans, f"simulation:{self.model}", (), units)
 
 
@@ -360,4 +363,5 @@ def simulate(model, params: ParameterSet | None = None,
     keys = ys[-1].keys()
     y = {k: np.array([d.get(k, np.nan) for d in ys]) for k in keys}
     truth = {k: np.array([d[k] for d in truths]) for k in truths[-1].keys()}
-    return SimResult(t, X[:m], UA[:m], y, truth, model.name, model.states, model.inputs, status, msg)
+    return SimResult(t, X[:m], UA[:m], y, truth, model.name, model.states, model.inputs, status, msg,
+                     units=model.output_units())

@@ -110,18 +110,39 @@ class RigOutputs:
                 out[j] = (out[j] - s.offset.value(P, {})) / s.gain.value(P, {})
         return out
 
+    def output_units(self) -> dict[str, str]:
+        """SI unit of every name :meth:`outputs` gives: a sensor channel takes its sensor's quantity
+        (an encoder's angle and speed, a torque sensor's N m, a load cell's N), an input the unit of
+        the quantity it drives (a drive's speed or torque, a contact's normal force in N), whatever
+        the user named it."""
+        units: dict[str, str] = {}
+        for s in self.sensors:
+            kinds = {"encoder": ("rad", "rad/s"), "speed": ("rad/s",), "torque": ("N m",),
+                     "load_cell": ("N",)}[s.kind]
+            units.update(zip(s.channels, kinds))
+        for n, u in zip(self.inputs, self.input_units):
+            units.setdefault(n, u)
+        units.update(zip(self.states, self.state_units))
+        if self.spec.drive.kind == "dc_motor":
+            units.update(current="A", voltage="V", motor_speed="rad/s", motor_torque_em="N m")
+        return units
+
     def output_names(self) -> tuple[str, ...]:
         """Names of :meth:`outputs` (the measurement Function's outputs)."""
         return tuple(self.meas().name_out())
 
     def meas(self) -> ca.Function:
-        """Noise-free measurement function ``y = h(x, u, p, theta_ref)`` with named outputs."""
+        """Noise-free measurement function ``y = h(x, u, p, theta_ref)`` with named outputs.
+
+        The outputs carry the channel names; the inputs are named ``in:x``, ``in:u``, ``in:p``,
+        ``in:theta_ref`` so that no channel a user names (``u``, ``x``, ``p``, ``theta_ref`` are
+        legal channel and input names) collides with them (CasADi refuses duplicate IO names)."""
         if "meas" not in self._fcache:
             x, u, p = self._syms()
             th = ca.SX.sym("theta_ref")
             out = self.outputs(x, u, self.unpack(p), th)
             self._fcache["meas"] = ca.Function(f"{self.cname}_meas", [x, u, p, th], [ca.SX(v) for v in out.values()],
-                                               ["x", "u", "p", "theta_ref"], list(out.keys()))
+                                               [f"in:{a}" for a in ("x", "u", "p", "theta_ref")], list(out.keys()))
         return self._fcache["meas"]
 
     def meas_vector(self, names) -> ca.Function:

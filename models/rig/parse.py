@@ -18,7 +18,7 @@ from models.rig.checks import check_massless, check_rates, check_values, referen
 from models.rig.fields import (Context, check_keys, check_name, entries, number, parse_parameters, table,
                                value_ref)
 from models.rig.spec import (DC_MOTOR_FIELDS, DRIVE_KINDS, NODE_DRIVE, NODE_GROUND, SENSOR_KINDS, SI_UNITS,
-                             ActuatorSpec, BodySpec, ConnectionSpec, ContactSpec, DriveSpec, ParamDecl, Ref,
+                             TRUTH_PREFIX, ActuatorSpec, BodySpec, ConnectionSpec, ContactSpec, DriveSpec, ParamDecl, Ref,
                              RigSpec, SensorSpec)
 
 __all__ = ["parse_rig"]
@@ -288,6 +288,9 @@ def _parse_sensors(data, ctx: Context, body_names, drive: DriveSpec, conns, cont
             chans = (s.get("channel", default),)
         for ch in chans:
             check_name(ch, f"{f} channel", ctx)
+            if ch.startswith(TRUTH_PREFIX):
+                raise ctx.err(f, f"channel {ch!r} starts with {TRUTH_PREFIX!r}, which marks the true-state columns "
+                                 "of a simulated log; give the sensor another channel name")
             if ch in channels_seen:
                 raise ctx.err(f, f"channel {ch!r} is already written by sensor {channels_seen[ch]!r}")
             # a sensor may write an input's channel only when it measures that input: a load cell its

@@ -73,6 +73,10 @@ __all__ = ["Ref", "ParamDecl", "BodySpec", "ConnectionSpec", "ContactSpec", "Dri
            "SensorSpec", "RigSpec", "SI_UNITS", "DRIVE_KINDS", "SENSOR_KINDS", "DC_MOTOR_FIELDS", "NODE_DRIVE",
            "NODE_GROUND"]
 
+#: prefix of the true-state columns a simulation writes (``true_twist_<connection>``, ``true_omega_<body>``);
+#: a rig file may not name a sensor channel with it
+TRUTH_PREFIX = "true_"
+
 #: the SI unit shown for each quantity kind
 SI_UNITS: dict[str, str] = {
     "inertia": "kg m^2", "stiffness": "N m/rad", "damping": "N m s/rad", "torque": "N m", "force": "N",

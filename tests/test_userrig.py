@@ -1,0 +1,104 @@
+"""The first rig a user writes (issue 18): every command works on it, or says in one line what is
+missing.  The fixture ``tests/data/userrig/pin_rig.toml`` is a student-style 2-disc rig on a DC
+gear motor with a freely named brake-pin input ``f_pin`` and default sensor channel names."""
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mitigate.cli import main
+from mitigate.closedloop import run_closed_loop
+from mitigate.controllers.factory import context_for, make_controller
+from mitigate.scenario import load_scenario, make_scenario
+from models import get_model
+from models.errors import ConfigError
+from models.logs import read_csv
+from models.modal import compare_measured, modes
+from models.plant import SimOptions, simulate
+from models.rig import RIGS_DIR
+from models.status import Status
+
+DATA = Path(__file__).parent / "data" / "userrig"
+RIG = DATA / "pin_rig.toml"
+
+
+def _rig_text(**subs) -> str:
+    text = RIG.read_text()
+    for old, new in subs.items():
+        text = text.replace(old, new)
+    return text
+
+
+# ------------------------------------------------------------------ item 1: modal on a rig file path
+def test_compare_measured_reloads_a_rig_picked_by_path_not_by_its_name(tmp_path):
+    """The rig's name is not a shipped rig: compare_measured used to look the name up and fail."""
+    text = (RIGS_DIR / "rig3.toml").read_text().replace('name = "rig3"', 'name = "my_copy"')
+    p = tmp_path / "lab" / "copy.toml"
+    p.parent.mkdir()
+    p.write_text(text)
+    r = modes(str(p), variant="clamped")
+    assert r.model == "my_copy" and r.rig == str(p.resolve())
+    rows = compare_measured(r)
+    assert [row[2] for row in rows] == [0.0, 0.396, 1.781]
+    assert 7.0 < rows[1][3] < 8.5
+    assert compare_measured(modes(str(RIG))) == []      # no measured modes in the file: no rows
+
+
+def test_modal_command_on_a_user_rig_path(capsys):
+    assert main(["modal", "--model", str(RIG)]) == 0
+    out = capsys.readouterr().out
+    assert "pin_rig / closed" in out
+
+
+# ------------------------------------------------------------------ item 2: free names with units
+def test_simulate_writes_free_named_inputs_with_their_units_and_prefixed_truth(tmp_path):
+    m = get_model(str(RIG))
+    assert m.output_units()["f_pin"] == "N" and m.output_units()["torque_drive"] == "N m"
+    r = simulate(m, None, np.array([50 * 2 * math.pi / 60, 12.0]), 1.0, SimOptions(seed=1))
+    log = r.to_log(include_truth=True)
+    assert log.units["f_pin"] == "N"
+    # the encoder's default speed channel and the true speed of the same body are both there
+    assert {"omega_low", "true_omega_low", "true_omega_up", "true_twist_shaft1"} <= set(log.channels)
+    assert not np.allclose(log["omega_low"], log["true_omega_low"])       # quantised vs true
+    np.testing.assert_array_equal(log["true_omega_low"], r.state("omega_low"))
+    p = log.write_csv(tmp_path / "s.csv")
+    header = p.read_text().splitlines()[0]
+    assert "f_pin [N]" in header and "true_omega_low [rad/s]" in header
+    back = read_csv(p)
+    np.testing.assert_allclose(back["f_pin"], 12.0)
+
+
+def test_closed_loop_log_carries_free_named_channels():
+    sc = make_scenario(name="t", model=str(RIG), duration=1.0, seed=1,
+                       inputs={"omega_ref": "50 rpm", "f_pin": 12.0}, controllers=["pi"], estimator="fd",
+                       control_start=0.5)
+    r = run_closed_loop(sc, make_controller(sc.controllers[0], context_for(sc, 0)))
+    assert r.status is Status.OK
+    log = r.to_log()
+    assert log.units["f_pin"] == "N" and "true_omega_low" in log and "true_twist_shaft2" in log
+
+
+@pytest.mark.parametrize("names", [("u", "x"), ("p", "theta_ref")])
+def test_names_of_the_measurement_functions_arguments_are_legal_user_names(names, tmp_path):
+    """An input ``u`` or a channel ``x`` used to collide with h(x, u, p, theta_ref): 'Duplicate IO name'."""
+    inp, chan = names
+    text = _rig_text(f_pin=inp).replace('kind = "torque"\nat = "drive"', f'kind = "torque"\nat = "drive"\nchannel = "{chan}"')
+    m = get_model_text(text, tmp_path)
+    assert inp in m.inputs and chan in m.output_names()
+    r = simulate(m, None, np.array([3.0, 10.0]), 0.2, SimOptions(seed=1))
+    assert r.success and r.to_log().units[inp] == "N" and r.to_log().units[chan] == "N m"
+
+
+def get_model_text(text, where: Path):
+    p = where / "rig.toml"
+    p.write_text(text)
+    return get_model(str(p))
+
+
+def test_a_sensor_channel_may_not_take_the_truth_prefix(tmp_path):
+    text = _rig_text().replace('ticks = 1024', 'ticks = 1024\nspeed = "true_omega_low"')
+    with pytest.raises(ConfigError, match=r"sensors\.enc_low.*'true_omega_low'.*true-state columns"):
+        get_model_text(text, tmp_path)
