@@ -142,10 +142,19 @@ def _build_all(sc: Scenario) -> dict[int, str]:
     for the controllers whose run cannot start (a broken plug-in: PluginError)."""
     from estimators.base import EstimatorContext
     from estimators.online.factory import make_estimator
-    from mitigate.controllers.factory import context_for, make_controller
+    from mitigate.controllers.factory import context_for, controller_class, make_controller
 
     if not sc.controllers:
         raise ConfigError(f"{sc.where}: controllers: missing; list at least one [[controllers]] table")
+    # what every controller needs of the rig, all of it at once (not one run at a time)
+    lacks: dict[str, list[str]] = {}
+    for i, spec in enumerate(sc.controllers):
+        ctx = context_for(sc, i)
+        for item in ctx.missing(getattr(controller_class(spec.kind, ctx.where), "needs", ())):
+            lacks.setdefault(item, []).append(ctx.where.removeprefix(f"{sc.where}: "))
+    if lacks:
+        raise ConfigError(f"{sc.where}: rig {sc.model.name!r} lacks what the controllers need: "
+                          + "; ".join(f"{item}, for {', '.join(who)}" for item, who in lacks.items()))
     broken: dict[int, str] = {}
     try:
         make_estimator(sc.estimator, EstimatorContext(sc.model, sc.model_params, sc.dt, sc.sensors, None,

@@ -100,6 +100,13 @@ _SECTIONS = {"scenario", "plant", "mismatch", "structure", "sensors", "actuators
              "controllers", "sweep"}
 
 
+def controller_where(where: str, index: int, name=None) -> str:
+    """How messages name the ``index``-th (0-based) ``[[controllers]]`` table: counted from 1 as a
+    reader of the file counts, with its name (``"sc.toml: controller 2 'SoftSpeed'"``)."""
+    label = f" {name!r}" if isinstance(name, str) and name else ""
+    return f"{where}: controller {index + 1}{label}"
+
+
 @dataclass(frozen=True)
 class ControllerSpec:
     """One ``[[controllers]]`` entry: a display name, a kind and its raw options."""
@@ -474,7 +481,7 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
                           f"got {type(ctrls_raw).__name__}")
     ctrls, seen = [], set()
     for i, c in enumerate(ctrls_raw):
-        cw = f"{where}: controllers[{i}]"
+        cw = controller_where(where, i, c.get("name") if isinstance(c, Mapping) else None)
         if not isinstance(c, Mapping):
             raise ConfigError(f"{cw} must be a table, got {c!r}")
         for req in ("name", "kind"):

@@ -124,14 +124,14 @@ def test_factory_builds_each_kind():
 
 
 @pytest.mark.parametrize("spec, match", [
-    ({"name": "b", "kind": "brake", "gain_overspeed": -1.0}, r"controllers\[0\]\.gain_overspeed must be >= 0"),
-    ({"name": "b", "kind": "brake", "gain": 1.0}, r"controllers\[0\]\.gain: unknown option"),
-    ({"name": "b", "kind": "brake", "use_estimate": "yes"}, r"controllers\[0\]\.use_estimate must be true or false"),
-    ({"name": "b", "kind": "brake", "input": "n1"}, r"controllers\[0\].*n1"),
-    ({"name": "s", "kind": "supervisor", "on": 0.1, "off": 0.2}, r"controllers\[0\]\.off must be < on"),
-    ({"name": "s", "kind": "supervisor", "detect": "x"}, r"controllers\[0\]\.detect must be"),
-    ({"name": "p", "kind": "pi", "gain": 1}, r"controllers\[0\]\.gain: unknown option"),
-    ({"name": "p", "kind": "lqr"}, r"controllers\[0\]\.kind must be one of"),
+    ({"name": "b", "kind": "brake", "gain_overspeed": -1.0}, r"controller 1 '[^']*'\.gain_overspeed must be >= 0"),
+    ({"name": "b", "kind": "brake", "gain": 1.0}, r"controller 1 '[^']*'\.gain: unknown option"),
+    ({"name": "b", "kind": "brake", "use_estimate": "yes"}, r"controller 1 '[^']*'\.use_estimate must be true or false"),
+    ({"name": "b", "kind": "brake", "input": "n1"}, r"controller 1 '[^']*'.*n1"),
+    ({"name": "s", "kind": "supervisor", "on": 0.1, "off": 0.2}, r"controller 1 '[^']*'\.off must be < on"),
+    ({"name": "s", "kind": "supervisor", "detect": "x"}, r"controller 1 '[^']*'\.detect must be"),
+    ({"name": "p", "kind": "pi", "gain": 1}, r"controller 1 '[^']*'\.gain: unknown option"),
+    ({"name": "p", "kind": "lqr"}, r"controller 1 '[^']*'\.kind must be one of"),
 ])
 def test_factory_one_line_errors(spec, match):
     sc = _scenario([spec])
@@ -144,7 +144,7 @@ def test_a_brake_needs_a_servo():
     sc = parse_scenario({"scenario": {"name": "t", "duration": 1.0, "model": "rig2"},
                          "inputs": {"motor_torque": 0.0}, "estimator": {"kind": "fd"},
                          "controllers": [{"name": "b", "kind": "brake"}]}, "t.toml")
-    with pytest.raises(ConfigError, match=r"^t\.toml: controllers\[0\]: a brake needs a servo pin; rig 'rig2'"):
+    with pytest.raises(ConfigError, match=r"^t\.toml: controller 1 '[^']*': needs a servo on a contact's normal force .*; rig 'rig2' lacks it$"):
         make_controller(sc.controllers[0], context_for(sc, 0))
 
 
@@ -153,8 +153,8 @@ def test_the_supervisor_refuses_a_torque_drive():
     sc = parse_scenario({"scenario": {"name": "t", "duration": 1.0, "model": "rig2"},
                          "inputs": {"motor_torque": 0.0}, "estimator": {"kind": "fd"},
                          "controllers": [{"name": "s", "kind": "supervisor"}]}, "t.toml")
-    with pytest.raises(ConfigError, match=r"^t\.toml: controllers\[0\]: the supervisor raises a speed set-point; "
-                                          r"rig 'rig2' has a torque drive \('motor_torque' \[N m\]\)"):
+    with pytest.raises(ConfigError, match=r"^t\.toml: controller 1 '[^']*': needs a speed-setting drive \(rig 'rig2' has a "
+                                          r"torque drive, input 'motor_torque' \[N m\]\); rig 'rig2' lacks it$"):
         make_controller(sc.controllers[0], context_for(sc, 0))
 
 

@@ -299,7 +299,7 @@ def test_a_module_whose_import_exits_is_a_one_line_error(tmp_path, monkeypatch):
     (tmp_path / "exits_on_import.py").write_text("import sys\nsys.exit(5)\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     sc = scenario("exits_on_import:C")
-    with pytest.raises(ConfigError, match=r"^t\.toml: controllers\[1\]\.kind: module 'exits_on_import' could not be "
+    with pytest.raises(ConfigError, match=r"^t\.toml: controller 2 '[^']*'\.kind: module 'exits_on_import' could not be "
                                           r"imported: SystemExit: exit code 5$"):
         make_controller(sc.controllers[1], context_for(sc, 1))
 
@@ -322,7 +322,7 @@ gain = -1.0
     monkeypatch.setenv("PYTHONPATH", str(ROOT))
     assert cli.main(["run", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "controllers[0].gain must be >= 0 rad/s per N m, got -1.0" in err
+    assert err.count("\n") == 1 and "controller 1 'mine'.gain must be >= 0 rad/s per N m, got -1.0" in err
     assert not (tmp_path / "o").exists()
 
 

@@ -236,7 +236,7 @@ BIG = "[" + ", ".join(f"{1.5 * i}" for i in range(100_000)) + "]"
     ("inputs.n1", "n1 = 20.0", f"n1 = {BIG}"),
     ("control.start", "start = 1.0", f"start = {BIG}"),
     ("estimator.q_stick", 'kind = "fd"', f'kind = "ekf"\nq_stick = {BIG}'),
-    ("controllers[1].gain_overspeed", 'kind = "pi"', f'kind = "pi"\n[[controllers]]\nname = "b"\nkind = "brake"\n'
+    ("controller 2 'b'.gain_overspeed", 'kind = "pi"', f'kind = "pi"\n[[controllers]]\nname = "b"\nkind = "brake"\n'
                                                      f'gain_overspeed = {BIG}'),
 ])
 def test_a_huge_array_in_the_wrong_place_is_quoted_in_80_characters(ws, capsys, field, old, new):
@@ -291,7 +291,7 @@ def test_a_misbehaving_plug_in_fails_its_run_and_the_command_exits_1(ws, capsys,
 def test_an_abstract_plug_in_is_exit_2_before_anything_runs(ws, capsys):
     (ws / "s.toml").write_text(tiny(extra=bad("Abstract")))
     assert main("run", "s.toml", "--out", "o") == 2
-    one_line_error(capsys, "controllers[1].kind: 'tests.plugins.faulty:Abstract' is abstract")
+    one_line_error(capsys, "controller 2 'bad'.kind: 'tests.plugins.faulty:Abstract' is abstract")
     assert not (ws / "o").exists()
 
 

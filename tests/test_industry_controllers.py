@@ -147,12 +147,12 @@ def test_without_the_torque_cell_or_the_motor_encoder_softspeed_and_ztorque_say_
     with pytest.raises(ConfigError) as ei:
         make_controller(sc.controllers[0], context_for(sc, 0))
     msg = str(ei.value)
-    assert "\n" not in msg and msg.startswith("t.toml: controllers[0]: needs the torque at the drive")
+    assert "\n" not in msg and msg.startswith("t.toml: controller 1 'c': needs the torque at the drive")
     assert "'rig3_no_torque'" in msg
     rig = _rig_without(tmp_path, "sensors.enc3", "rig3_no_motor_encoder")
     sc = _scenario_on(rig, kind, tmp_path)
-    with pytest.raises(ConfigError, match=r"^t\.toml: controllers\[0\]: needs the drive's speed, which rig "
-                                          r"'rig3_no_motor_encoder' does not measure \(add an encoder"):
+    with pytest.raises(ConfigError, match=r"^t\.toml: controller 1 '[^']*': needs the drive's speed \(add an encoder "
+                                          r"or speed sensor on body 'R3'\); rig 'rig3_no_motor_encoder' lacks it$"):
         make_controller(sc.controllers[0], context_for(sc, 0))
 
 
@@ -160,8 +160,8 @@ def test_without_a_servo_doskil_says_so(tmp_path):
     rig = _rig_without(tmp_path, "actuators.servo2", "rig3_no_servo")
     assert get_model(rig).servo_inputs == ()
     sc = _scenario_on(rig, "doskil", tmp_path)
-    with pytest.raises(ConfigError, match=r"^t\.toml: controllers\[0\]: D-OSKIL needs a servo on a contact's normal "
-                                          r"force; rig 'rig3_no_servo' has no actuator$"):
+    with pytest.raises(ConfigError, match=r"^t\.toml: controller 1 '[^']*': needs a servo on a contact's normal "
+                                          r"force \(add an \[actuators\] entry of kind \"servo\"\); rig 'rig3_no_servo' lacks it$"):
         make_controller(sc.controllers[0], context_for(sc, 0))
     # the speed laws need no servo
     make_controller(_scenario_on(rig, "softspeed", tmp_path).controllers[0], context_for(sc, 0))

@@ -74,7 +74,7 @@ def test_run_writes_all_outputs(main, tiny, tmp_path, capsys):
         assert (out / f).stat().st_size > 0, f
     text = capsys.readouterr().out
     assert "PI only" in text and "SSS" in text and "report.md" in text
-    log = read_csv(out / "log_r2_brake.csv", required=("twist_shaft1", "twist_shaft2", "omega1", "n2", "omega_ref"))
+    log = read_csv(out / "log_r2_brake.csv", required=("true_twist_shaft1", "true_twist_shaft2", "omega1", "n2", "omega_ref"))
     assert log.t[-1] == pytest.approx(2.0) and len(log.t) == 201
     rep = (out / "report.md").read_text()
     assert "comparison.png" in rep and "log_supervisor.csv" in rep and "## Metrics (after the control start)" in rep
@@ -109,8 +109,8 @@ def test_jobs_and_the_same_numbers_in_any_process(tiny, tmp_path):
 
 
 @pytest.mark.parametrize("edit, match", [
-    (('kind = "brake"', 'kind = "brake"\ngain_overspeed = -3'), "controllers[1].gain_overspeed must be >= 0"),
-    (('kind = "pi"', 'kind = "pid"'), "controllers[0].kind must be one of"),
+    (('kind = "brake"', 'kind = "brake"\ngain_overspeed = -3'), "controller 2 'R2 brake'.gain_overspeed must be >= 0"),
+    (('kind = "pi"', 'kind = "pid"'), "controller 1 'PI only'.kind must be one of"),
     (("duration = 2.0", "duration = -2.0"), "scenario.duration must be > 0"),
     (('kind = "fd"', 'kind = "kalman"'), "estimator.kind must be one of"),
     (("[control]", "[control]\nevery = 0"), "control.every must be an integer >= 1"),
@@ -145,7 +145,7 @@ def test_a_diverged_run_is_reported_and_exits_1(main, tiny, tmp_path, capsys):
     assert doc["status"] == Status.FAILED.value
     assert all(c["status"] == "diverged" and c["metrics"]["diverged"] == 1 for c in doc["controllers"])
     log = read_csv(out / "log_pi_only.csv")
-    assert 1 < len(log.t) < 201 and np.max(np.abs(log["omega_R3"])) > 2.0
+    assert 1 < len(log.t) < 201 and np.max(np.abs(log["true_omega_R3"])) > 2.0
 
 
 def test_mitigate_run_as_a_subprocess(tiny, tmp_path):

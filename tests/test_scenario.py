@@ -178,8 +178,8 @@ def _with(path, value):
     (("actuators", "servo9"), {"n_max": 10}, r"actuators\.servo9: rig 'rig3' has no such actuator"),
     (("actuators", "servo2"), {"n_max": -5}, r"actuators\.servo2: need 0 <= n_min < n_max"),
     (("controllers",), [{"name": "a", "kind": "pi"}, {"name": "a", "kind": "pi"}],
-     r"controllers\[1\]\.name: duplicate controller name 'a'"),
-    (("controllers",), [{"kind": "pi"}], r"controllers\[0\]\.name: missing field"),
+     r"controller 2 '[^']*'\.name: duplicate controller name 'a'"),
+    (("controllers",), [{"kind": "pi"}], r"controller 1\.name: missing field"),
     (("estimator", "kind"), 3, r"estimator\.kind must be a string"),
     (("wobble",), {}, r"wobble: unknown section"),
 ])

@@ -86,27 +86,27 @@ def _scenario(kind, **options):
 
 def test_its_options_are_validated_like_the_built_in_ones():
     sc = _scenario(REF, gain=-1.0)
-    with pytest.raises(ConfigError, match=r"^t\.toml: controllers\[1\]\.gain must be >= 0 rad/s per N m, got -1\.0$"):
+    with pytest.raises(ConfigError, match=r"^t\.toml: controller 2 '[^']*'\.gain must be >= 0 rad/s per N m, got -1\.0$"):
         make_controller(sc.controllers[1], context_for(sc, 1))
     sc = _scenario(REF, gian=1.0)
-    with pytest.raises(ConfigError, match=r"^t\.toml: controllers\[1\]\.gian: unknown option; expected one of gain, tau"):
+    with pytest.raises(ConfigError, match=r"^t\.toml: controller 2 '[^']*'\.gian: unknown option; expected one of gain, tau"):
         make_controller(sc.controllers[1], context_for(sc, 1))
 
 
 @pytest.mark.parametrize("kind, match", [
-    ("no_such_module:X", r"controllers\[1\]\.kind: module 'no_such_module' not found"),
-    ("tests.plugins.my_controller:Nope", r"controllers\[1\]\.kind: module 'tests\.plugins\.my_controller' has no 'Nope'"),
+    ("no_such_module:X", r"controller 2 '[^']*'\.kind: module 'no_such_module' not found"),
+    ("tests.plugins.my_controller:Nope", r"controller 2 '[^']*'\.kind: module 'tests\.plugins\.my_controller' has no 'Nope'"),
     ("tests.plugins.my_controller:HighPassTorqueOptions",
-     r"controllers\[1\]\.kind: 'tests\.plugins\.my_controller:HighPassTorqueOptions' is not a Controller subclass"),
-    ("os:system", r"controllers\[1\]\.kind: 'os:system' is not a Controller subclass"),
-    ("a b c", r"controllers\[1\]\.kind must be one of pi, brake, .* or 'module:Class', got 'a b c'"),
-    ("__import__('os').getcwd()", r"controllers\[1\]\.kind must be one of"),
+     r"controller 2 '[^']*'\.kind: 'tests\.plugins\.my_controller:HighPassTorqueOptions' is not a Controller subclass"),
+    ("os:system", r"controller 2 '[^']*'\.kind: 'os:system' is not a Controller subclass"),
+    ("a b c", r"controller 2 '[^']*'\.kind must be one of pi, brake, .* or 'module:Class', got 'a b c'"),
+    ("__import__('os').getcwd()", r"controller 2 '[^']*'\.kind must be one of"),
 ])
 def test_a_bad_reference_is_a_one_line_error_naming_the_kind(kind, match):
     sc = _scenario(kind)
     with pytest.raises(ConfigError, match=match) as ei:
         make_controller(sc.controllers[1], context_for(sc, 1))
-    assert "\n" not in str(ei.value) and str(ei.value).startswith("t.toml: controllers[1].kind")
+    assert "\n" not in str(ei.value) and str(ei.value).startswith("t.toml: controller 2 'b'.kind")
 
 
 def test_a_module_that_fails_to_import_is_a_one_line_error(tmp_path, monkeypatch):
@@ -119,7 +119,7 @@ def test_a_module_that_fails_to_import_is_a_one_line_error(tmp_path, monkeypatch
         with pytest.raises(ConfigError) as ei:
             make_controller(sc.controllers[1], context_for(sc, 1))
         msg = str(ei.value)
-        assert msg.startswith(f"t.toml: controllers[1].kind: module '{mod}' could not be imported: {why}")
+        assert msg.startswith(f"t.toml: controller 2 'b'.kind: module '{mod}' could not be imported: {why}")
         assert "\n" not in msg
 
 

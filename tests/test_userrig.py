@@ -102,3 +102,35 @@ def test_a_sensor_channel_may_not_take_the_truth_prefix(tmp_path):
     text = _rig_text().replace('ticks = 1024', 'ticks = 1024\nspeed = "true_omega_low"')
     with pytest.raises(ConfigError, match=r"sensors\.enc_low.*'true_omega_low'.*true-state columns"):
         get_model_text(text, tmp_path)
+
+
+# ------------------------------------------------------------------ item 3: what each controller needs
+def test_every_missing_channel_of_every_controller_in_one_line_before_anything_runs(tmp_path, capsys):
+    # no torque sensor, no encoder on the motor: SoftSpeed, Z-Torque and D-OSKIL each lack something
+    text = _rig_text().replace('[sensors.tq]\nkind = "torque"\nat = "drive"\n', "")
+    text = text.replace('[sensors.enc_mot]\nkind = "encoder"\nbody = "mot"\nticks = 512\n', "")
+    (tmp_path / "pin_rig.toml").write_text(text)
+    sc = (DATA / "pin_all.toml").read_text() + '[[controllers]]\nname = "D-OSKIL"\nkind = "doskil"\n'
+    (tmp_path / "sc.toml").write_text(sc)
+    assert main(["run", str(tmp_path / "sc.toml"), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert ("rig 'pin_rig' lacks what the controllers need: the drive's speed (add an encoder or speed sensor "
+            "on body 'mot'), for controller 2 'SoftSpeed', controller 3 'Z-Torque', controller 5 'D-OSKIL'; "
+            "the torque at the drive (add a torque sensor with at = \"drive\"), for controller 2 'SoftSpeed', "
+            "controller 3 'Z-Torque'") in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_readme_table_says_what_each_controller_declares():
+    from mitigate.controllers.base import NEEDS
+    from mitigate.controllers.factory import CONTROLLER_KINDS, controller_class
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    table = readme.split("<!-- needs-table")[1].split("\n\n")[0]
+    rows = dict(re.findall(r"^\| `(\w+)` \| (.*) \|$", table, re.M))
+    assert set(rows) == set(CONTROLLER_KINDS)
+    for kind in CONTROLLER_KINDS:
+        needs = controller_class(kind).needs
+        assert set(needs) <= set(NEEDS)
+        said = re.findall(r"`(\w+)`", rows[kind].split("(")[0])
+        assert said == list(needs), (kind, said, needs)

@@ -47,7 +47,19 @@ from models.params import ParameterSet
 from models.sensors import SensorOptions
 from models.status import Status
 
-__all__ = ["Action", "Controller", "ControllerCounts", "ControlContext", "reading"]
+__all__ = ["Action", "Controller", "ControllerCounts", "ControlContext", "NEEDS", "reading"]
+
+#: what a controller may declare in ``Controller.needs`` (a class attribute), and what it means
+#: on a rig; :meth:`ControlContext.missing` says which of them a rig lacks (README, "What each
+#: controller needs")
+NEEDS: dict[str, str] = {
+    "drive_speed": "the drive's measured speed (an encoder or speed sensor on the drive's body)",
+    "drive_torque": "the torque at the drive (a torque sensor with at = \"drive\")",
+    "speed_drive": "a drive that sets a speed (its set-point is offset in rad/s; not a torque drive)",
+    "servo": "a servo on a contact's normal force ([actuators] kind = \"servo\")",
+    "servo_body_speed": "the measured speed of the body the servo's contact acts on",
+    "objective_speed": "the measured speed of the objective body",
+}
 
 
 def reading(measurement: Mapping[str, float] | None, channel: str) -> float:
@@ -126,6 +138,41 @@ class ControlContext:
             return float(f(t))
         return float(self.programme(t)[self.model.inputs.index(name)])
 
+    def missing(self, needs) -> list[str]:
+        """What of ``needs`` (names of :data:`NEEDS`) the rig lacks, each said for this rig
+        (which body, which sensor to add); empty when it has everything."""
+        m, out = self.model, []
+        unknown = [n for n in needs if n not in NEEDS]
+        if unknown:
+            raise ConfigError(f"{self.where}: unknown need(s) {', '.join(map(repr, unknown))}; expected some of "
+                              f"{', '.join(NEEDS)}")
+        drive = m.drive_body if m.drive_kind != "speed" else "drive"
+        for n in needs:
+            if n == "drive_speed" and m.speed_channel(drive) is None:
+                out.append(f"the drive's speed (add an encoder or speed sensor on body {drive!r})")
+            elif n == "drive_torque" and not any(s.kind == "torque" and s.target == "drive" for s in m.sensors):
+                out.append("the torque at the drive (add a torque sensor with at = \"drive\")")
+            elif n == "speed_drive" and m.drive_kind == "torque":
+                out.append(f"a speed-setting drive (rig {m.name!r} has a torque drive, input {m.drive_input!r} [N m])")
+            elif n == "servo" and not m.servo_inputs:
+                out.append("a servo on a contact's normal force (add an [actuators] entry of kind \"servo\")")
+            elif n == "servo_body_speed" and m.servo_inputs:
+                body = m.contact_of_input(m.servo_inputs[0]).body
+                if m.speed_channel(body) is None:
+                    out.append(f"the speed of {body!r}, the body its servo's contact acts on (add an encoder or "
+                               f"speed sensor on {body!r})")
+            elif n == "objective_speed" and m.speed_channel(m.objective_body) is None:
+                out.append(f"the speed of the objective body {m.objective_body!r} (add an encoder or speed sensor "
+                           f"on {m.objective_body!r})")
+        return out
+
+    def require(self, needs) -> None:
+        """A one-line ConfigError listing everything of ``needs`` the rig lacks (:meth:`missing`)."""
+        miss = self.missing(needs)
+        if miss:
+            raise ConfigError(f"{self.where}: needs {'; '.join(miss)}; rig {self.model.name!r} lacks "
+                              f"{'it' if len(miss) == 1 else 'them'}")
+
     def require_channels(self, *channels: str) -> None:
         """A one-line ConfigError unless the rig's sensors write every channel named."""
         missing = [c for c in channels if c not in self.model.measured]
@@ -159,18 +206,23 @@ class Controller(ABC):
 
     Subclasses set ``kind`` (the scenario name) and ``options_class`` (a frozen, keyword-only
     dataclass that validates itself; None to take the raw options table as a dict), optionally
-    ``derived`` (attributes that hold self-derived tuning values).
+    ``derived`` (attributes that hold self-derived tuning values) and ``needs`` (what the rig
+    must provide: names of :data:`NEEDS`; checked before anything runs).
     """
 
     kind: ClassVar[str] = "controller"
     options_class: ClassVar[type | None] = None
     #: names of attributes holding values the controller derived (reported with a set-point chatter warning)
     derived: ClassVar[tuple[str, ...]] = ()
+    #: what it needs of a rig (names of :data:`NEEDS`): checked for every controller of a
+    #: scenario before anything runs, all missing items listed at once
+    needs: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, options: Any, context: ControlContext):
         self.options = options
         self.context = context
         self.counts = ControllerCounts()
+        context.require(type(self).needs)
 
     @property
     def name(self) -> str:

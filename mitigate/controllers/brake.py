@@ -77,6 +77,7 @@ class BrakeController(Controller):
 
     kind = "brake"
     options_class = BrakeOptions
+    needs = ("servo", "servo_body_speed")
 
     def __init__(self, options: BrakeOptions, context: ControlContext):
         super().__init__(options, context)

@@ -67,6 +67,7 @@ class DOSKIL(Controller):
 
     kind = "doskil"
     options_class = DOSKILOptions
+    needs = ("servo", "servo_body_speed", "drive_speed")
     derived = ("gain", "tau", "n_min", "n_max")
 
     def __init__(self, options: DOSKILOptions, context: ControlContext):

@@ -77,6 +77,7 @@ class SoftSpeed(Controller):
 
     kind = "softspeed"
     options_class = SoftSpeedOptions
+    needs = ("drive_speed", "drive_torque")
     derived = ("Z", "J_v", "Kp", "Ki", "f_t")
 
     def __init__(self, options: SoftSpeedOptions, context: ControlContext):

@@ -85,6 +85,7 @@ class SpeedSupervisor(Controller):
 
     kind = "supervisor"
     options_class = SupervisorOptions
+    needs = ("speed_drive", "objective_speed")
 
     def __init__(self, options: SupervisorOptions, context: ControlContext):
         super().__init__(options, context)

@@ -69,6 +69,7 @@ class ZTorque(Controller):
 
     kind = "ztorque"
     options_class = ZTorqueOptions
+    needs = ("drive_speed", "drive_torque")
     derived = ("Z", "gain", "tau_hp", "Kp", "Ki")
 
     def __init__(self, options: ZTorqueOptions, context: ControlContext):
