@@ -46,6 +46,8 @@ same fields as keyword arguments.  Schema (only ``[scenario]`` and ``[inputs]`` 
                                      # is a counted deadline miss and the fallback acts (on in the benchmark)
     timeout = "2 s"                  # a call not returned by then fails its run (default max(2 s, 100 periods))
     latency = "measured"             # optional: each answer applied after its measured time, or "3 ms" (fixed)
+    speed = "60 rpm"                 # a torque drive only: the drive speed a speed-holding law (softspeed,
+                                     # ztorque) aims at, a profile (default: the rig's operating_point.speed)
 
     [estimator]
     kind = "ekf"                     # ekf | mhe | fd, and their options
@@ -131,6 +133,7 @@ class Scenario:
     messages : notes made while building it (e.g. substeps raised for a stiff plant)
     control_deadline, control_timeout : [s] or None (``[control] deadline`` / ``timeout``)
     control_latency : [s] applied to each controller answer, or "measured" (its own wall time)
+    control_speed : a torque drive's target speed (``[control] speed``, a Profile [rad/s]) or None
     """
 
     name: str
@@ -150,6 +153,7 @@ class Scenario:
     control_deadline: float | None = None
     control_timeout: float | None = None
     control_latency: float | str = 0.0
+    control_speed: Any = None
     estimator: Mapping[str, Any] = field(default_factory=lambda: {"kind": "ekf"})
     controllers: tuple[ControllerSpec, ...] = ()
     mismatch: Mapping[str, float] = field(default_factory=dict)
@@ -461,7 +465,13 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
                                   nonnegative=(kind == "force"), base=base)
 
     ctl = _table(data, "control", where)
-    _check_keys(ctl, {"start", "every", "deadline", "timeout", "latency"}, f"{where}: control")
+    _check_keys(ctl, {"start", "every", "deadline", "timeout", "latency", "speed"}, f"{where}: control")
+    control_speed = None
+    if "speed" in ctl:
+        if model.drive_kind != "torque":
+            raise ConfigError(f"{where}: control.speed applies to a torque drive; rig {model.name!r} sets its speed "
+                              f"through input {model.drive_input!r} (give it in [inputs])")
+        control_speed = parse_profile(ctl["speed"], f"{where}: control.speed", duration, quantity="speed")
     cstart = _num(ctl.get("start", 0.0), f"{where}: control.start", nonneg=True, unit="s")
     if cstart >= duration:
         raise ConfigError(f"{where}: control.start must be < scenario.duration = {duration:g} s (the controllers "
@@ -503,7 +513,7 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
                     plant_params=plant_params, duration=duration, dt=dt, seed=seed, inputs=inputs, sim=sim,
                     sensors=sensors, description=str(sc.get("description", "")), control_start=cstart,
                     control_every=every, control_deadline=deadline, control_timeout=timeout,
-                    control_latency=latency, estimator=est, controllers=tuple(ctrls), mismatch=factors,
+                    control_latency=latency, control_speed=control_speed, estimator=est, controllers=tuple(ctrls), mismatch=factors,
                     structure=structure, drift=drift, max_speed=max_speed, sweep=sweep, path=str(path or ""),
                     messages=tuple(notes))
 

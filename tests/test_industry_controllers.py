@@ -44,7 +44,8 @@ def test_auto_tuning_on_rig3_hand_computed():
     assert t.J_drive == pytest.approx(8.0 ** 2 * 0.370e-3, rel=1e-12)      # eta^2 Jm: R3 itself has none
     sc = make_scenario(duration=1.0, controllers=list(LAWS), estimator="fd")
     ss, zt, dk = (make_controller(c, context_for(sc, i)) for i, c in enumerate(sc.controllers))
-    assert ss.Kp == pytest.approx(2 * t.Z) and ss.Ki == pytest.approx((2 * math.pi * t.f_ss) ** 2 * t.J_drive)
+    assert ss.f_t == pytest.approx(0.4172, abs=1e-4)        # the absorber's mode, near the drive-held 0.4285 Hz
+    assert ss.Kp == pytest.approx(2 * t.Z) and ss.Ki == pytest.approx((2 * math.pi * ss.f_t) ** 2 * t.J_drive)
     assert zt.gain == pytest.approx(0.35 / t.Z) and zt.tau_hp == pytest.approx(2.0 / t.f_ss)
     assert dk.gain == pytest.approx(2 * t.Z / (0.040 * 0.306), rel=1e-12) and dk.gain == pytest.approx(17.96, abs=0.01)
     assert (dk.input, dk.body_ch, dk.top_ch, dk.n_max) == ("n2", "omega2", "omega3", 40.0)
@@ -161,7 +162,8 @@ def test_without_a_servo_doskil_says_so(tmp_path):
     assert get_model(rig).servo_inputs == ()
     sc = _scenario_on(rig, "doskil", tmp_path)
     with pytest.raises(ConfigError, match=r"^t\.toml: controller 1 '[^']*': needs a servo on a contact's normal "
-                                          r"force \(add an \[actuators\] entry of kind \"servo\"\); rig 'rig3_no_servo' lacks it$"):
+                                          r"force \(rig 'rig3_no_servo' has no actuator: add an \[actuators\] entry of kind \"servo\"\); "
+                                          r"rig 'rig3_no_servo' lacks it$"):
         make_controller(sc.controllers[0], context_for(sc, 0))
     # the speed laws need no servo
     make_controller(_scenario_on(rig, "softspeed", tmp_path).controllers[0], context_for(sc, 0))
@@ -182,3 +184,36 @@ def test_on_a_torque_drive_the_law_commands_the_torque(kind):
     tail = r.t > 25.0
     assert np.mean(r.state("omega_motor")[tail]) == pytest.approx(1.0, abs=0.05)
     assert np.mean(r.commands["motor_torque"][tail]) == pytest.approx(0.222, rel=0.05)   # it carries the friction
+
+
+def test_softspeed_tuning_frequency_is_the_mode_of_the_string_with_the_law_at_the_top():
+    """At f_t SoftSpeed makes the drive a pure damper Kp.  rig2 is one disc (Jd) on a shaft (k, c) from
+    the motor: with the motor a massless damper, Jd s^2 (Kp + c) s + k ... written out by hand (the
+    cubic of the disc angle and the top angle); without the shaft's damper the mode is exactly
+    sqrt(k/Jd) for any Kp (a mass on a spring ended by a damper), here within 1 %."""
+    from mitigate.controllers.tuning import absorber_frequency
+    m = get_model("rig2")
+    p = m.published()
+    t = tuning_for(m, p)
+    Jd, k, c = 0.01496, 0.3482, 0.0022
+    for Kp in (0.5 * t.Z, 2 * t.Z, 8 * t.Z):
+        # Jd th'' = -(k + c s)(th - top);  Kp top' = (k + c s)(th - top)
+        # => Jd (Kp + c) s^3 + (Jd k + Kp c) s^2 + Kp k s = 0 after eliminating top
+        roots = np.roots([Jd * (Kp + c), Jd * k + Kp * c, Kp * k])
+        f_hand = max(abs(r) for r in roots if abs(r.imag) > 1e-12) / (2 * math.pi)
+        assert absorber_frequency(m, p, Kp) == pytest.approx(f_hand, rel=1e-6)
+        assert f_hand == pytest.approx(math.sqrt(k / Jd) / (2 * math.pi), rel=0.03)
+
+
+def test_softspeed_virtual_drive_is_stable_for_a_tiny_drive_inertia():
+    """Kp dt / J_v = 60: the explicit Euler step it replaced made the set-point jump between the ends
+    of its band every 10 ms (issue 18: 0.14 / 6.14 rad/s on a student rig); the exact step holds it."""
+    sc = make_scenario(name="s", duration=6.0, seed=1, inputs={"omega_ref": "30 rpm", "n1": 20.0},
+                       controllers=[{"name": "s", "kind": "softspeed", "J_v": 2 * 0.1099 * 0.01 / 60}],
+                       estimator="fd", control_start=3.0)
+    c = make_controller(sc.controllers[0], context_for(sc, 0))
+    assert c.Kp * 0.01 / c.J_v == pytest.approx(60, rel=1e-3)
+    r = run_closed_loop(sc, c)
+    assert r.status is Status.OK, r.message
+    w = r.commands["omega_ref"][r.t > 3.5]
+    assert np.max(np.abs(np.diff(w))) < 0.2 and 0.0 < np.min(w) and np.max(w) < 2 * math.pi

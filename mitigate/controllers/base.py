@@ -117,6 +117,8 @@ class ControlContext:
         fallback acts instead (None: no deadline; ``[control] deadline``)
     timeout : wall time after which a call that has not returned fails the run [s]
         (``[control] timeout``; None: never)
+    speed : a torque drive's target speed ``t -> [rad/s]`` (the scenario's ``[control] speed``), or
+        None (:meth:`target_speed`)
     """
 
     model: Any
@@ -129,6 +131,21 @@ class ControlContext:
     schedule: Mapping[str, Callable[[float], float]] = field(default_factory=dict)
     deadline: float | None = None
     timeout: float | None = None
+    speed: Callable[[float], float] | None = None
+
+    def target_speed(self, t: float) -> float:
+        """The drive speed the programme asks for at ``t`` [rad/s]: a speed-setting drive's scheduled
+        input; a torque drive's ``[control] speed`` profile, else the rig file's operating-point
+        ``speed`` (a torque programme sets no speed)."""
+        m = self.model
+        if m.drive_kind != "torque":
+            return self.scheduled(t, m.drive_input)
+        return float(self.speed(t)) if self.speed is not None else m.nominal_speed()
+
+    @property
+    def torque_max(self) -> float:
+        """A torque drive's torque limit [N m] (``[drive] torque_max``; inf: none)."""
+        return float(self.model.spec.drive.torque_max)
 
     def scheduled(self, t: float, name: str) -> float:
         """The programme's value of input ``name`` at ``t`` (one input's profile when the context
@@ -155,7 +172,8 @@ class ControlContext:
             elif n == "speed_drive" and m.drive_kind == "torque":
                 out.append(f"a speed-setting drive (rig {m.name!r} has a torque drive, input {m.drive_input!r} [N m])")
             elif n == "servo" and not m.servo_inputs:
-                out.append("a servo on a contact's normal force (add an [actuators] entry of kind \"servo\")")
+                out.append(f"a servo on a contact's normal force (rig {m.name!r} has no actuator: add an "
+                           "[actuators] entry of kind \"servo\")")
             elif n == "servo_body_speed" and m.servo_inputs:
                 body = m.contact_of_input(m.servo_inputs[0]).body
                 if m.speed_channel(body) is None:

@@ -83,7 +83,8 @@ def context_for(scenario, index: int | None = None) -> ControlContext:
     return ControlContext(model=scenario.model, params=scenario.model_params, dt=scenario.dt,
                           period=scenario.dt * scenario.control_every, programme=scenario.programme,
                           sensors=scenario.sensors, where=where, schedule=dict(scenario.inputs),
-                          deadline=scenario.control_deadline, timeout=scenario.control_timeout)
+                          deadline=scenario.control_deadline, timeout=scenario.control_timeout,
+                          speed=getattr(scenario, "control_speed", None))
 
 
 def _split(spec) -> tuple[Any, dict]:

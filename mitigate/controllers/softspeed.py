@@ -20,12 +20,27 @@ and drive speed (:class:`mitigate.controllers.tuning.PipeTorque`), ``J_v`` the d
 makes the drive follow ``w_v`` (its bandwidth, ~57 Hz on rig3, is far above ``f_t``).  On a rig whose
 drive is a torque input, the law IS the speed loop: the torque ``T`` is commanded directly.
 
-Defaults come from the rig (:mod:`mitigate.controllers.tuning`): ``Z = sqrt(k J)`` of the string
-and ``f_t`` its lowest torsional mode with the drive held.  ``kp_factor`` is 2: the derivation's
+Defaults come from the rig (:mod:`mitigate.controllers.tuning`): ``Z = sqrt(k J)`` of the string;
+``f_t`` the lowest mode of the string with the drive acting as the law makes it (inertia ``J_v``, the
+damper ``Kp``, the integral's spring; :func:`~mitigate.controllers.tuning.absorber_frequency`: near
+the drive-held mode, rig3 0.414 Hz, the field string 0.062 Hz -- not its 0.12 Hz stick-slip limit
+cycle, whose stick phase is no property of the string: the wave the law must absorb is the linear
+mode that the friction's negative damping makes grow).  ``kp_factor`` is 2: the derivation's
 matched damper is ``Kp = Z`` (``kp_factor = 1``), and the gain sweep on the main scenario
 (``benchmarks/industry_tuning.py``, results/industry_tuning.md) found the severity flat from 1.5 to 3
-with its minimum at 2 (0.678 against 0.724 at 1 and 0.763 at NORCE's 4); every value can be
-overridden.
+with its minimum at 2 (0.678 against 0.724 at 1 and 0.763 at NORCE's 4).  The set-point's band is the
+programme's speed (the set-point stays in ``[0, 2 w_nom]``), the torque filters follow the stick-slip
+period (``tau_torque = T/100``, the acceleration's ``T/80`` but at least 3 DAQ periods); every value
+can be overridden.
+
+Discretisation: the virtual drive is integrated exactly over each control period
+(:class:`~mitigate.controllers.tuning.VirtualDrive`); an explicit Euler step diverges when
+``Kp dt / J_v > 2`` (a small geared motor at a 10 ms DAQ) and the set-point then chatters between the
+ends of its band.  A torque drive's law commands the torque within ``[drive] torque_max`` (the
+integral stops while the command is at the limit), aims at the scenario's target speed
+(:meth:`~mitigate.controllers.base.ControlContext.target_speed`: ``[control] speed``, else the rig's
+operating point), and keeps ``Kp dt <= J_drive`` (a sampled P loop on the drive's inertia is stable
+only below ``2 J/dt``).
 """
 
 from __future__ import annotations
@@ -36,7 +51,8 @@ from typing import Mapping
 
 from mitigate.controllers._opts import check_number
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
-from mitigate.controllers.tuning import PipeTorque, drive_speed_channel, np_clip, tuning_for
+from mitigate.controllers.tuning import PipeTorque, VirtualDrive, absorber_frequency, drive_speed_channel, np_clip, \
+    tuning_for
 from models.errors import ConfigError
 
 __all__ = ["SoftSpeedOptions", "SoftSpeed"]
@@ -50,11 +66,12 @@ class SoftSpeedOptions:
     ----------
     kp_factor : ``Kp = kp_factor Z`` [-] (2: the sweep's best; 1 is the matched damper, NORCE uses 4)
     Z : string impedance [N m s/rad] (0: ``sqrt(k J)`` from the rig)
-    f_t : tuning frequency [Hz] (0: the rig's lowest mode with the drive held)
+    f_t : tuning frequency [Hz] (0: the string's lowest mode with the drive acting as the law makes it)
     J_v : virtual drive inertia [kg m^2] (0: the drive's inertia; a torque drive: its body's)
     J_comp : inertia compensated by the drive, subtracted from ``J_v`` in ``Ki`` [kg m^2]
-    band : the set-point stays within the programme +- band [rad/s]
-    tau_torque : low-pass of the pipe-torque estimate [s]
+    band : the set-point stays within the programme +- band [rad/s] (0: the programme's speed, so
+        the set-point stays in ``[0, 2 w_nom]``)
+    tau_torque : low-pass of the pipe-torque estimate [s] (0: 1/100 of the period ``1/f_t``)
     """
 
     kp_factor: float = 2.0
@@ -62,8 +79,8 @@ class SoftSpeedOptions:
     f_t: float = 0.0
     J_v: float = 0.0
     J_comp: float = 0.0
-    band: float = 3.0
-    tau_torque: float = 0.02
+    band: float = 0.0
+    tau_torque: float = 0.0
 
     def __post_init__(self):
         check_number(self, "kp_factor", lo=0.0, lo_open=True)
@@ -78,24 +95,28 @@ class SoftSpeed(Controller):
     kind = "softspeed"
     options_class = SoftSpeedOptions
     needs = ("drive_speed", "drive_torque")
-    derived = ("Z", "J_v", "Kp", "Ki", "f_t")
+    derived = ("Z", "J_v", "Kp", "Ki", "f_t", "tau_torque")
 
     def __init__(self, options: SoftSpeedOptions, context: ControlContext):
         super().__init__(options, context)
         m = context.model
         context.require_input(m.drive_input, "the drive's input")
-        self.pipe = PipeTorque(context, tau=options.tau_torque)
         self.speed_ch = drive_speed_channel(context)
         t = tuning_for(m, context.params)
         self.tuning = t
         self.Z = options.Z or t.Z
-        self.f_t = options.f_t or t.f_ss
         self.J_v = options.J_v or t.J_drive
         if not self.J_v > 0:
             raise ConfigError(f"{context.where}.J_v: the drive has no inertia to derive it from; give J_v > 0 kg m^2")
-        self.Kp = options.kp_factor * self.Z
-        self.Ki = (2 * math.pi * self.f_t) ** 2 * max(self.J_v - options.J_comp, 0.0)
         self.torque_drive = m.drive_kind == "torque"
+        self.Kp = options.kp_factor * self.Z
+        if self.torque_drive:
+            self.Kp = min(self.Kp, self.J_v / context.period)
+        self.f_t = options.f_t or absorber_frequency(m, context.params, self.Kp)
+        self.Ki = (2 * math.pi * self.f_t) ** 2 * max(self.J_v - options.J_comp, 0.0)
+        self.tau_torque = options.tau_torque or 1.0 / (100.0 * self.f_t)
+        self.pipe = PipeTorque(context, tau=self.tau_torque, tau_acc=max(1.0 / (80.0 * self.f_t), 3.0 * context.period))
+        self.drive = VirtualDrive(self.J_v, self.Kp, self.Ki, context.period)
         self.reset()
 
     def reset(self) -> None:
@@ -104,25 +125,27 @@ class SoftSpeed(Controller):
         self._I = None
 
     def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
-        m, dt = self.context.model, self.context.period
-        w_nom = self.context.scheduled(t, m.drive_input) if not self.torque_drive else self._w_nominal(t)
+        ctx = self.context
+        m, dt = ctx.model, ctx.period
+        w_nom = ctx.target_speed(t)
         T_pipe = self.pipe.update(measurement)
         w_meas = reading(measurement, self.speed_ch)
         if self.torque_drive:
             if self._I is None:
                 self._I = T_pipe
             e = w_nom - w_meas
-            self._I += self.Ki * e * dt
-            return Action({m.drive_input: self.Kp * e + self._I})
+            lim = ctx.torque_max
+            I = self._I + self.Ki * e * dt
+            T = self.Kp * e + I
+            if abs(T) <= lim:          # the integral stops while the command is at the limit
+                self._I = I
+            return Action({m.drive_input: np_clip(self.Kp * e + self._I, -lim, lim)})
         if self._w is None:            # bumpless start: the virtual drive where the real one is, loaded
             self._w, self._I = w_meas, T_pipe
-        e = w_nom - self._w
-        self._I += self.Ki * e * dt
-        self._w += dt * (self.Kp * e + self._I - T_pipe) / self.J_v
-        self._w = np_clip(self._w, max(0.0, w_nom - self.options.band), w_nom + self.options.band)
+        band = self.options.band or abs(w_nom)
+        w, I = self.drive.step(self._w, self._I, w_nom, T_pipe)
+        lo, hi = max(0.0, w_nom - band), w_nom + band
+        if lo <= w <= hi:
+            self._I = I                # (the integral holds while the set-point is at the band's edge)
+        self._w = np_clip(w, lo, hi)
         return Action({m.drive_input: self._w})
-
-    def _w_nominal(self, t: float) -> float:
-        """A torque drive's speed set-point: the scenario's ``speed`` programme if it has one, else the
-        operating point's speed of the rig file."""
-        return self.context.model.nominal_speed()

@@ -31,7 +31,8 @@ import numpy as np
 from mitigate.controllers.base import reading
 from models.errors import ConfigError
 
-__all__ = ["DriveTuning", "string_impedance", "stick_slip_frequency", "drive_inertia", "tuning_for"]
+__all__ = ["DriveTuning", "string_impedance", "stick_slip_frequency", "drive_inertia", "tuning_for",
+           "absorber_frequency", "VirtualDrive"]
 
 
 def _path(model, start: str, end: str) -> list:
@@ -91,6 +92,60 @@ def stick_slip_frequency(model, params) -> float:
     if not osc:
         raise ConfigError(f"rig {model.name!r} has no torsional mode with its drive held")
     return float(osc[0])
+
+
+def absorber_frequency(model, params, Kp: float) -> float:
+    """The tuning frequency ``f_t`` [Hz] of a SoftSpeed drive: the lowest torsional mode of the string
+    with the drive acting as the law makes it at ``f_t``, a pure damper ``Kp`` (its inertia cancelled
+    by the integral's spring).
+
+    The wave that grows into stick-slip is a linear mode of the string that the friction law's
+    negative damping destabilises; the law must absorb it, so it is tuned to that mode with the top
+    it creates (the stick-slip limit cycle's own frequency, with its stick phase, is no property of
+    the string).  Computed from the chain's matrices (:func:`models.modal.chain_matrices`) with the
+    drive body massless and held by ``Kp`` (a generalised eigenproblem).  For one mass ``J`` on a
+    spring ``k`` ended by a damper, ``|lambda| = sqrt(k/J)`` for any damper: the drive-held mode.
+    A speed drive (no drive body) gives the drive-held mode.
+    """
+    import scipy.linalg
+    from models.modal import chain_matrices
+    body = model.spec.drive.body
+    if model.drive_kind == "speed" or body not in model.bodies:
+        return stick_slip_frequency(model, params)
+    M, Cd, K, _ = chain_matrices(model, params, clamped=False, damped=True)
+    d = list(model.bodies).index(body)
+    M, Cd = M.copy(), Cd.copy()
+    M[d, d] = 0.0
+    Cd[d, d] += Kp
+    n = M.shape[0]
+    A = np.block([[np.zeros((n, n)), np.eye(n)], [-K, -Cd]])
+    E = np.block([[np.eye(n), np.zeros((n, n))], [np.zeros((n, n)), M]])
+    lam = scipy.linalg.eigvals(A, E)
+    lam = lam[np.isfinite(lam)]
+    osc = sorted(abs(x) for x in lam if x.imag > 1e-9 * max(1.0, abs(x)))
+    if not osc:
+        raise ConfigError(f"rig {model.name!r} has no torsional mode with a damper of {Kp:.4g} N m s/rad at its drive")
+    return float(osc[0] / (2 * math.pi))
+
+
+class VirtualDrive:
+    """SoftSpeed's virtual drive ``J_v w' = Kp (w_nom - w) + I - T``, ``I' = Ki (w_nom - w)``,
+    integrated EXACTLY over one control period with ``w_nom`` and ``T`` held (zero-order hold,
+    ``scipy.linalg.expm``): stable for any ``J_v``, gains and period.  (The explicit Euler step it
+    replaces diverges when ``Kp dt / J_v > 2``, e.g. a small geared motor's ``J_v`` at a 10 ms DAQ:
+    the set-point then jumps between the ends of its band on every step.)"""
+
+    def __init__(self, J_v: float, Kp: float, Ki: float, dt: float):
+        import scipy.linalg
+        A = np.array([[-Kp / J_v, 1.0 / J_v], [-Ki, 0.0]])
+        B = np.array([[Kp / J_v, -1.0 / J_v], [Ki, 0.0]])
+        E = scipy.linalg.expm(np.block([[A, B], [np.zeros((2, 4))]]) * dt)
+        self.Ad, self.Bd = E[:2, :2], E[:2, 2:]
+
+    def step(self, w: float, I: float, w_nom: float, T: float) -> tuple[float, float]:
+        """``(w, I)`` one period later."""
+        z = self.Ad @ np.array([w, I]) + self.Bd @ np.array([w_nom, T])
+        return float(z[0]), float(z[1])
 
 
 @dataclass(frozen=True)
@@ -165,7 +220,7 @@ class PipeTorque:
     drive, whose torque channel logs it); the result is low-passed with ``tau`` [s].
     """
 
-    def __init__(self, context, tau: float = 0.02, tau_acc: float = 0.03):
+    def __init__(self, context, tau: float, tau_acc: float):
         m, P = context.model, context.params.as_dict()
         self.speed_ch = drive_speed_channel(context)
         self.torque_ch = drive_torque_channel(context)

@@ -19,7 +19,15 @@ mean load does not; ``Z = sqrt(k J)`` from the rig (:mod:`mitigate.controllers.t
 0.35: NORCE's 0.25 gave a severity of 0.733 on the main scenario, 0.35 the sweep's lowest, 0.666
 (``benchmarks/industry_tuning.py``).  On a rig
 whose drive is a torque input the law is the speed loop itself: ``T = Kp e + Ki int(e)`` with
-the error above and a stiff ``Kp = kp_factor Z`` (NORCE: 50 Z).
+the error above and a stiff ``Kp = kp_factor Z`` (NORCE: 50 Z), kept at ``Kp dt <= J_drive`` (a
+sampled P loop on the drive's inertia is stable only below ``2 J/dt``); it aims at the scenario's
+target speed (:meth:`~mitigate.controllers.base.ControlContext.target_speed`), commands within
+``[drive] torque_max`` (the integral stops at the limit), keeps the torque's noise from the speed
+channel (``Kp`` times its std) below 5 % of the steady torque at the target speed; its integral starts at the pipe torque.
+
+Scale-free defaults: the band of the set-point is the programme's speed (``[0, 2 w_nom]``), the
+torque's low-pass 1/100 of the stick-slip period (rig3: 23 ms), the acceleration's 1/80 of it but at
+least 3 DAQ periods (a backward difference needs that much averaging: 30 ms on rig3 and rig2).
 """
 
 from __future__ import annotations
@@ -32,7 +40,12 @@ from mitigate.controllers._opts import check_number
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.controllers.tuning import PipeTorque, drive_speed_channel, first_order, np_clip, tuning_for
 
-__all__ = ["ZTorqueOptions", "ZTorque"]
+__all__ = ["ZTorqueOptions", "ZTorque", "NOISE_TORQUE_FRACTION"]
+
+#: a torque drive's stiff loop is kept below the gain at which the speed channel's noise moves its
+#: torque by this fraction of the programme's torque (std): 50 Z on a field string's 4096-count
+#: encoder at 10 ms made 8 kN m steps on a 10 kN m drive, a set-point that chattered
+NOISE_TORQUE_FRACTION = 0.05
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -44,16 +57,16 @@ class ZTorqueOptions:
     z : the torque-feedback factor [-] (0.35: the gain sweep's best on the main scenario; NORCE uses 0.25)
     Z : string impedance [N m s/rad] (0: ``sqrt(k J)`` from the rig)
     tau_hp : high-pass time constant [s] (0: twice the rig's stick-slip period)
-    tau_lp : low-pass time constant [s]
-    band : the set-point stays within the programme +- band [rad/s]
+    tau_lp : low-pass time constant [s] (0: 1/100 of the stick-slip period)
+    band : the set-point stays within the programme +- band [rad/s] (0: the programme's speed)
     kp_factor, ki : a torque drive's stiff loop ``Kp = kp_factor Z`` [-], ``Ki`` [N m/rad] (0: ``5 J_drive``, NORCE)
     """
 
     z: float = 0.35
     Z: float = 0.0
     tau_hp: float = 0.0
-    tau_lp: float = 0.02
-    band: float = 3.0
+    tau_lp: float = 0.0
+    band: float = 0.0
     kp_factor: float = 50.0
     ki: float = 0.0
 
@@ -70,23 +83,38 @@ class ZTorque(Controller):
     kind = "ztorque"
     options_class = ZTorqueOptions
     needs = ("drive_speed", "drive_torque")
-    derived = ("Z", "gain", "tau_hp", "Kp", "Ki")
+    derived = ("Z", "gain", "tau_hp", "tau_lp", "Kp", "Ki")
 
     def __init__(self, options: ZTorqueOptions, context: ControlContext):
         super().__init__(options, context)
         m = context.model
         context.require_input(m.drive_input, "the drive's input")
-        self.pipe = PipeTorque(context, tau=options.tau_lp)
         self.speed_ch = drive_speed_channel(context)
         t = tuning_for(m, context.params)
         self.tuning = t
+        self.tau_lp = options.tau_lp or t.period / 100.0
+        self.pipe = PipeTorque(context, tau=self.tau_lp, tau_acc=max(t.period / 80.0, 3.0 * context.period))
         self.Z = options.Z or t.Z
         self.tau_hp = options.tau_hp or 2.0 * t.period
         self.gain = options.z / self.Z                 # [rad/s per N m]
         self.torque_drive = m.drive_kind == "torque"
         self.Kp = options.kp_factor * self.Z
+        if self.torque_drive:
+            self.Kp = min(self.Kp, t.J_drive / context.period, self._kp_noise_bound(context))
         self.Ki = options.ki or 5.0 * t.J_drive
         self.reset()
+
+    def _kp_noise_bound(self, context) -> float:
+        """A torque drive's ``Kp`` at which the speed channel's noise (encoder quantisation
+        differenced over a sample) moves the command by NOISE_TORQUE_FRACTION of the drive's
+        steady torque at the target speed (std) [N m s/rad]; inf for a noise-free channel."""
+        from models.modal import operating_point
+        from models.sensors import channel_std
+        m = context.model
+        u, _ = operating_point(m, context.params, omega=context.target_speed(0.0))
+        T_nom = abs(float(u[m.inputs.index(m.drive_input)]))
+        sd = channel_std(m, self.speed_ch, context.period, context.sensors)
+        return NOISE_TORQUE_FRACTION * T_nom / sd if T_nom > 0 and sd > 1e-9 else math.inf
 
     def reset(self) -> None:
         self.pipe.reset()
@@ -98,13 +126,16 @@ class ZTorque(Controller):
         T = self.pipe.update(measurement)
         self._lp = T if self._lp is None else first_order(self._lp, T, dt, self.tau_hp)
         hp = T - self._lp
+        w_nom = self.context.target_speed(t)
         if self.torque_drive:
-            w_nom = m.nominal_speed()
             e = w_nom - reading(measurement, self.speed_ch) - self.gain * hp
-            if self._I is None:
+            lim = self.context.torque_max
+            if self._I is None:          # the integral starts at the pipe torque
                 self._I = T
-            self._I += self.Ki * e * dt
-            return Action({m.drive_input: self.Kp * e + self._I})
-        w_nom = self.context.scheduled(t, m.drive_input)
-        w = np_clip(w_nom - self.gain * hp, max(0.0, w_nom - self.options.band), w_nom + self.options.band)
+            I = self._I + self.Ki * e * dt
+            if abs(self.Kp * e + I) <= lim:
+                self._I = I
+            return Action({m.drive_input: np_clip(self.Kp * e + self._I, -lim, lim)})
+        band = self.options.band or abs(w_nom)
+        w = np_clip(w_nom - self.gain * hp, max(0.0, w_nom - band), w_nom + band)
         return Action({m.drive_input: w})

@@ -17,6 +17,7 @@ Example
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
@@ -183,6 +184,9 @@ class Plant:
         self.sensor_options = sensors
         self.sensors = Sensors(model, sensors, options.dt, self.rng) if sensors is not None else None
         self.servos: dict[int, Servo] = {}
+        #: (input index, limit [N m]) of a torque drive with ``[drive] torque_max``: its input is clipped
+        tmax = model.spec.drive.torque_max
+        self._torque_max = (model.inputs.index(model.drive_input), tmax) if math.isfinite(tmax) else None
         if actuators:
             for a in model.actuators:
                 j = model.inputs.index(a.input)
@@ -232,6 +236,9 @@ class Plant:
         u = u.copy()
         for j, servo in self.servos.items():
             u[j] = servo.step(u[j])
+        if self._torque_max is not None:
+            j, lim = self._torque_max
+            u[j] = min(max(u[j], -lim), lim)
         return u
 
     def step(self, u) -> dict[str, float]:

@@ -80,7 +80,7 @@ def _parse_drive(data, ctx: Context, body_names) -> DriveSpec:
     elif kind == "speed":
         allowed_d = {"kind", "input", "doc"}
     else:
-        allowed_d = {"kind", "body", "input", "doc"}
+        allowed_d = {"kind", "body", "input", "torque_max", "doc"}
     check_keys(drv, allowed_d, "drive", ctx)
     d_input = drv.get("input")
     check_name(d_input, "drive.input", ctx)
@@ -104,7 +104,13 @@ def _parse_drive(data, ctx: Context, body_names) -> DriveSpec:
         if not eps_m > 0:
             raise ctx.err("drive.friction_smoothing", f"must be > 0 rad/s (motor side), got {eps_m:g}")
     ctx.inputs[d_input] = "torque" if kind == "torque" else "speed"
-    drive = DriveSpec(kind, d_input, d_body, tuple(d_params), pi_error, eps_m)
+    torque_max = math.inf
+    if "torque_max" in drv:
+        r = value_ref(drv["torque_max"], "torque", "drive.torque_max", ctx)
+        if r.kind != "const" or not r.constant > 0:
+            raise ctx.err("drive.torque_max", f"must be a torque > 0 (a value, e.g. \"25 kN m\"), got {drv['torque_max']!r}")
+        torque_max = r.constant
+    drive = DriveSpec(kind, d_input, d_body, tuple(d_params), pi_error, eps_m, torque_max)
     return drive
 
 

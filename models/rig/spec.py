@@ -187,6 +187,8 @@ class DriveSpec:
     params: tuple[tuple[str, Ref], ...] = ()
     pi_error: str = "disc"
     eps_motor: float = 0.05
+    #: a torque drive's torque limit [N m] (the plant clips its input to +-torque_max; inf: none)
+    torque_max: float = float("inf")
 
     def param(self, name: str) -> Ref | None:
         return dict(self.params).get(name)
