@@ -16,7 +16,8 @@ same fields as keyword arguments.  Schema (only ``[scenario]`` and ``[inputs]`` 
     method = "hybrid"                # hybrid (exact stick) | smooth | cvodes
     nsub = 10                        # substeps per sample, at least (raised automatically for stiff plants)
     start = "rest"                   # rest | sliding
-    max_speed = 100.0                # [rad/s] a body faster than this ends the run as diverged
+    max_speed = 100.0                # [rad/s] a body faster than this ends the run as diverged (default:
+                                     # 100/pi = 32 times the largest programmed drive speed; rig3: 100)
 
     [mismatch]                       # plant parameter = model parameter x factor
     mu_k = 1.2
@@ -64,6 +65,7 @@ at about :data:`BYTES_PER_SAMPLE` per sample and controller.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -100,6 +102,25 @@ MAX_CALL_TIME = 86400.0
 
 _SECTIONS = {"scenario", "plant", "mismatch", "structure", "sensors", "actuators", "inputs", "control", "estimator",
              "controllers", "sweep"}
+
+
+#: a body faster than this many times the largest programmed drive speed ends a run as diverged
+#: (``[plant] max_speed``'s default: 100 rad/s on rig3's 30 rpm)
+MAX_SPEED_FACTOR = 100.0 / math.pi
+
+
+def default_max_speed(model, inputs, control_speed, duration: float) -> float:
+    """``[plant] max_speed``'s default [rad/s]: MAX_SPEED_FACTOR times the largest drive speed the
+    scenario programmes (a torque drive: its ``[control] speed``, else the rig's nominal speed)."""
+    ts = np.linspace(0.0, duration, 201)
+    if model.drive_kind != "torque":
+        w = max(abs(float(inputs[model.drive_input](t))) for t in ts)
+    elif control_speed is not None:
+        w = max(abs(float(control_speed(t))) for t in ts)
+    else:
+        w = 0.0
+    w = max(w, abs(model.nominal_speed()))
+    return MAX_SPEED_FACTOR * w if w > 0 else 100.0
 
 
 def controller_where(where: str, index: int, name=None) -> str:
@@ -420,7 +441,8 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
         sim = SimOptions(**{"dt": dt, "seed": seed, **sim_kw})
     except (ConfigError, TypeError) as exc:
         raise ConfigError(f"{where}: plant: {exc}") from None
-    max_speed = _num(plant.get("max_speed", 100.0), f"{where}: plant.max_speed", positive=True, unit="rad/s")
+    max_speed = (_num(plant["max_speed"], f"{where}: plant.max_speed", positive=True, unit="rad/s")
+                 if "max_speed" in plant else None)
     sensors_tab = _table(data, "sensors", where)
     _check_keys(sensors_tab, {"noise_scale", "quantise"}, f"{where}: sensors")
     try:
@@ -503,6 +525,8 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
         ctrls.append(ControllerSpec(c["name"], c["kind"], {k: v for k, v in c.items() if k not in ("name", "kind")}))
     sweep = dict(_table(data, "sweep", where))
     u0 = np.array([inputs[n](0.0) for n in model.inputs])
+    if max_speed is None:
+        max_speed = default_max_speed(model, inputs, control_speed, duration)
     # the plant states how it integrates when the rule changes what the scenario asked for
     # (more substeps for a stiff rig, the current of a fast motor quasi-static)
     integ = plant_integration(plant_model, plant_params, sim, u0)

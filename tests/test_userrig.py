@@ -186,3 +186,37 @@ def test_the_student_rig_runs_every_law_ok_nmpc_below_pi():
     assert by["NMPC"].metrics["sss"] < by["PI"].metrics["sss"]
     steps = by["NMPC"].metrics["controller_steps"] if "controller_steps" in by["NMPC"].metrics else None
     assert by["NMPC"].metrics["controller_fallbacks"] <= 0.01 * (steps or 1400)
+
+
+def _rig2_scaled(tmp_path, s: float) -> Path:
+    """rig2 with every inertia, stiffness, damping and friction torque times ``s`` (and its torque
+    noise): the same motion in rad and rad/s under an ``s`` times larger torque."""
+    text = (RIGS_DIR / "rig2.toml").read_text().replace('name = "rig2"', f'name = "rig2_x{s:g}"')
+    for name, v in (("Jd", 0.01496), ("Jm", 0.02368), ("k", 0.3482), ("c", 0.0022), ("Tc", 0.222), ("Ts", 0.222)):
+        text, n = re.subn(rf"^{name} = {{ value = {v},", f"{name} = {{ value = {v * s!r},", text, flags=re.M)
+        assert n == 1, name
+    text = re.sub(r'max = [0-9e.]+, ', "", text)
+    text = text.replace('noise = "0.01 N m"', f'noise = "{0.01 * s!r} N m"')
+    p = tmp_path / f"rig2_x{s:g}.toml"
+    p.write_text(text)
+    return p
+
+
+def test_the_ekf_defaults_follow_the_rigs_scale(tmp_path):
+    """The same motion under torques 1e4 times larger: with defaults carried by the rig's scales the
+    EKF's twist estimates are the same (rig3's fixed q_torque = 0.02 N m would trust a 1e4 times
+    heavier rig's model 1e4 times more)."""
+    from estimators.online.options import EKFOptions, for_rig
+    xs = []
+    for s in (1.0, 1e4):
+        rig = _rig2_scaled(tmp_path, s)
+        m = get_model(str(rig))
+        o = for_rig(EKFOptions(), m, m.published())
+        assert o.q_torque == pytest.approx(0.02 * s * 0.222 / 0.29552088, rel=1e-3)
+        sc = make_scenario(name="t", model=str(rig), duration=6.0, seed=4, inputs={"motor_torque": 0.4 * s},
+                           controllers=["pi"], estimator="ekf", control_start=3.0)
+        r = run_closed_loop(sc, make_controller(sc.controllers[0], context_for(sc, 0)))
+        assert r.status is Status.OK, r.message
+        xs.append(r.estimate("twist_shaft"))
+    assert np.ptp(xs[0]) > 0.1
+    np.testing.assert_allclose(xs[1], xs[0], atol=1e-4 * np.ptp(xs[0]))

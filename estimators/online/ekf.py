@@ -35,7 +35,7 @@ import numpy as np
 from estimators.base import Estimate, EstimatorContext, StateEstimator
 from estimators.online.model import EstimationModel, build_estimation_model
 from estimators.online.observability import MIN_GAIN, ObservabilityReport, linearisation_function, observability
-from estimators.online.options import EKFOptions
+from estimators.online.options import EKFOptions, for_rig
 from models.codegen import CtypesFunction, compile_cached
 from models.errors import ConfigError, PluginError, SolverFailure
 from models.status import Status
@@ -228,6 +228,7 @@ class EKF(ObservabilityMixin, StateEstimator):
     def __init__(self, options: EKFOptions, context: EstimatorContext):
         if not isinstance(options, EKFOptions):
             raise ConfigError(f"{context.where}: EKF options must be EKFOptions, got {type(options).__name__}")
+        options = for_rig(options, context.model, context.params)      # unit-carrying defaults from the rig
         super().__init__(options, context)
         self.em = build_estimation_model(context.model, context.params, options, context.dt, context.sensors,
                                          context.x0, context.where)

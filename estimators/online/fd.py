@@ -21,7 +21,7 @@ import numpy as np
 
 from estimators.base import Estimate, EstimatorContext, StateEstimator
 from estimators.online.model import angle_combination, default_channels
-from estimators.online.options import EKFOptions, FDOptions
+from estimators.online.options import EKFOptions, FDOptions, for_rig
 from models.errors import ConfigError
 from models.rig import RigModel
 from models.sensors import channel_variance
@@ -80,7 +80,7 @@ class FiniteDifference(StateEstimator):
             if c == model.sensor_of(c).channels[-1] and body in model.bodies:
                 self._speeds.append((j, model.speed_index(body)))
         # covariance: quantisation through the least squares; held states keep the default prior
-        prior = EKFOptions()
+        prior = for_rig(EKFOptions(), model, context.params)
         P = np.diag([prior.p0_twist ** 2] * n_tw + [prior.p0_speed ** 2] * len(model.bodies)
                     + ([prior.p0_current ** 2, prior.p0_pi ** 2] if model.drive_kind == "dc_motor" else []))
         if self._pairs:

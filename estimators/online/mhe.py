@@ -49,7 +49,7 @@ import numpy as np
 
 from estimators.base import Estimate, EstimatorContext, StateEstimator
 from estimators.online.ekf import EKF, ObservabilityMixin
-from estimators.online.options import MHEOptions
+from estimators.online.options import MHEOptions, for_rig
 from models.codegen import compile_cached
 from models.errors import ConfigError, PluginError, SolverFailure
 from models.sensors import FLOOR
@@ -91,6 +91,7 @@ class MHE(ObservabilityMixin, StateEstimator):
     def __init__(self, options: MHEOptions, context: EstimatorContext):
         if not isinstance(options, MHEOptions):
             raise ConfigError(f"{context.where}: MHE options must be MHEOptions, got {type(options).__name__}")
+        options = for_rig(options, context.model, context.params)      # unit-carrying defaults from the rig
         super().__init__(options, context)
         from dataclasses import replace
         self.ekf = EKF(replace(options.ekf_options(), check_observability=False), context)

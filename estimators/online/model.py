@@ -108,6 +108,7 @@ from models.rig import RigModel
 from models.rig.spec import NODE_DRIVE
 from models.sensors import FLOOR, SensorOptions, channel_variance
 from models.discretise import Integration, integration
+from estimators.online.options import for_rig
 
 __all__ = ["EstimationModel", "build_estimation_model", "default_channels", "default_augment", "state_units",
            "angle_combination"]
@@ -367,6 +368,7 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
     ------
     ConfigError : one line naming ``<where>.<field>``.
     """
+    options = for_rig(options, model, params)      # the unit-carrying defaults from the rig
     if not isinstance(model, RigModel):
         raise ConfigError(f"{where}.model must be a RigModel, got {type(model).__name__}")
     model.check_params(params, f"{where}.params")

@@ -17,7 +17,8 @@ from typing import Any, Mapping
 
 from models.errors import ConfigError
 
-__all__ = ["EKFOptions", "MHEOptions", "FDOptions", "options_from_mapping", "ANGLES", "QP_SOLVERS"]
+__all__ = ["EKFOptions", "MHEOptions", "FDOptions", "options_from_mapping", "ANGLES", "QP_SOLVERS", "RigScales",
+           "rig_scales", "for_rig", "REFERENCE", "SCALED"]
 
 ANGLES = ("zeroed", "absolute")
 QP_SOLVERS = ("ldl", "osqp")
@@ -100,32 +101,35 @@ class EKFOptions:
     observability_window : length of the start-up trajectory [s]
 
     The defaults are rig3's measured choices (:mod:`estimators.online.model`, "Defaults, and
-    why"); the noise levels ``q_torque``, ``p0_*`` are in SI units and sized for it.
+    why").  Those that carry a unit (:data:`SCALED`) default to None: :func:`for_rig` carries
+    rig3's value to the rig at hand by the ratio of the rig's scale to rig3's (:class:`RigScales`:
+    nominal speed, load torque, twist, current, stick-slip period), so a field string 1e4 times
+    heavier gets noise levels 1e4 times larger, not rig3's grams.
     """
 
 
     channels: tuple | None = None
     angles: str = "zeroed"
     augment: tuple | None = None
-    eps: float = 0.05
+    eps: float | None = None
     nsub: int = 4
-    q_torque: float = 0.02
-    q_current: float = 0.05
-    q_twist: float = 1e-4
+    q_torque: float | None = None
+    q_current: float | None = None
+    q_twist: float | None = None
     q_load: float = 0.02
-    q_offset: float = 0.002
+    q_offset: float | None = None
     q_gain: float = 0.002
     q_stick: float = 2.0
-    p0_twist: float = 0.5
-    p0_speed: float = 1.0
-    p0_current: float = 2.0
-    p0_pi: float = 1.0
+    p0_twist: float | None = None
+    p0_speed: float | None = None
+    p0_current: float | None = None
+    p0_pi: float | None = None
     p0_load: float = 0.3
-    p0_offset: float = 0.05
+    p0_offset: float | None = None
     p0_gain: float = 0.05
     compile: bool = True
     check_observability: bool = True
-    observability_window: float = 4.0
+    observability_window: float | None = None
 
     def __post_init__(self):
         _names(self, "channels", "log channels of the rig", allow_empty=False)
@@ -137,14 +141,17 @@ class EKFOptions:
             if kind not in ("load", "offset", "gain") or not target:
                 raise ConfigError(f"{_W}.augment entries must be 'load:<contact>', 'offset:<channel>' or "
                                   f"'gain:<channel>', got {a!r}")
-        _number(self, "eps", positive=True)
+        if self.eps is not None:
+            _number(self, "eps", positive=True)
         _int(self, "nsub", 1)
         for name in ("q_torque", "q_current", "q_twist", "q_load", "q_offset", "q_gain", "q_stick", "p0_twist", "p0_speed",
                      "p0_current", "p0_pi", "p0_load", "p0_offset", "p0_gain"):
-            _number(self, name)
+            if getattr(self, name) is not None:
+                _number(self, name)
         _bool(self, "compile")
         _bool(self, "check_observability")
-        _number(self, "observability_window", positive=True)
+        if self.observability_window is not None:
+            _number(self, "observability_window", positive=True)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -216,3 +223,68 @@ def options_from_mapping(cls, table: Mapping[str, Any], where: str = "estimator"
         raise ConfigError(where + msg[len(_W):] if msg.startswith(_W) else f"{where}: {msg}") from None
     except Exception as exc:  # noqa: BLE001 - a plug-in's options class may check with anything: still bad input
         raise ConfigError(f"{where}: {type(exc).__name__}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class RigScales:
+    """The scales a rig's estimator defaults are carried by (:func:`rig_scales`).
+
+    speed : nominal speed [rad/s]; torque : largest steady shaft torque at the operating point
+    [N m]; twist : largest steady twist [rad]; current : a DC motor's current limit [A] (nan:
+    none); period : the drive-held chain's lowest period [s]
+    """
+
+    speed: float
+    torque: float
+    twist: float
+    current: float
+    period: float
+
+
+#: rig3's scales (30 rpm, N1 = 20 N): the defaults were measured there
+REFERENCE = RigScales(speed=math.pi, torque=0.29552088, twist=0.80765478, current=10.0, period=1.0 / 0.42854708)
+
+#: option -> (rig3's value, the scale that carries it)
+SCALED = {
+    "eps": (0.05, "speed"), "p0_speed": (1.0, "speed"),
+    "q_torque": (0.02, "torque"), "q_offset": (0.002, "torque"), "p0_offset": (0.05, "torque"),
+    "q_twist": (1e-4, "twist"), "p0_twist": (0.5, "twist"), "p0_pi": (1.0, "twist"),
+    "q_current": (0.05, "current"), "p0_current": (2.0, "current"),
+    "observability_window": (4.0, "period"),
+}
+
+
+def rig_scales(model, params) -> RigScales:
+    """The :class:`RigScales` of a rig at its nominal operating point (steady sliding)."""
+    from models.modal import operating_point, modes
+    P = params.as_dict()
+    u, x = operating_point(model, params)
+    if x is None:
+        x = model.steady_sliding(u, params)
+    springs = [c for c in model.spec.connections if c.stiffness is not None]
+    torque = max((abs(float(x[j]) * c.stiffness.value(P)) for j, c in enumerate(springs)), default=0.0)
+    twist = max((abs(float(x[j])) for j in range(len(springs))), default=0.0)
+    speed = abs(model.nominal_speed())
+    cur = model.spec.drive.param("i_max") if model.drive_kind == "dc_motor" else None
+    current = float(cur.value(P)) if cur is not None else math.nan
+    try:
+        r = modes(model, params, "clamped" if model.drive_kind != "speed" else "free")
+        osc = [f for f, o in zip(r.freq_hz, r.oscillatory) if o and f > 0]
+        period = 1.0 / osc[0] if osc else REFERENCE.period
+    except ConfigError:
+        period = REFERENCE.period
+    ref = REFERENCE
+    return RigScales(speed or ref.speed, torque or ref.torque, twist or ref.twist,
+                     current if current > 0 else ref.current, period)
+
+
+def for_rig(options, model, params):
+    """``options`` with every unset (None) option of :data:`SCALED` derived from the rig: rig3's
+    value times the rig's scale over rig3's (``q_torque = 0.02 N m x T / 0.2955 N m``, ...)."""
+    from dataclasses import replace
+    unset = [n for n in SCALED if hasattr(options, n) and getattr(options, n) is None]
+    if not unset:
+        return options
+    sc = rig_scales(model, params)
+    return replace(options, **{n: SCALED[n][0] * getattr(sc, SCALED[n][1]) / getattr(REFERENCE, SCALED[n][1])
+                               for n in unset})
