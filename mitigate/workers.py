@@ -19,9 +19,11 @@ spawned processes (``jobs = 1``: in this process, the same API) and yields each 
 - **Clean output.**  A worker's stdout is its stderr: a plug-in that prints cannot corrupt
   ``--json`` on the parent's stdout.
 
-A program read from stdin (``python - < script.py``) cannot be imported again by a spawned worker;
-its tasks run in its own process.  A script file that starts a pool must guard its top level with
-``if __name__ == "__main__":`` (multiprocessing's spawn rule).
+A program read from stdin (``python - < script.py``) cannot be imported again by a spawned worker,
+and a script file whose top level calls ``run()``/``benchmark()``/``sweep()`` outside an
+``if __name__ == "__main__":`` block would be run again by each spawned worker (multiprocessing's
+spawn rule): in both cases the tasks run in the program's own process (the same results, one
+core).  A guarded script, a module run with ``-m`` from its guard, and the CLI get the workers.
 
 Each worker talks to the parent over its own pipe (a killed worker cannot corrupt a shared
 queue).  Inside a task, :func:`report` sends a progress count to the parent (a no-op outside a
@@ -133,13 +135,43 @@ def _worker_main(conn, parent_pid: int) -> None:
 
 def _main_importable() -> bool:
     """Whether a spawned worker can import this program's ``__main__`` as it must (a module run with
-    ``-m``, a script file, or an interactive session); not a script read from stdin: then the tasks
-    run in this process."""
+    ``-m``, a script file, or an interactive session) without running the call that starts the pool
+    again; not a script read from stdin, nor a call from a script's unguarded top level: then the
+    tasks run in this process."""
     main = sys.modules.get("__main__")
-    if getattr(getattr(main, "__spec__", None), "name", None):
-        return True
     path = getattr(main, "__file__", None)
-    return path is None or os.path.isfile(path)
+    if path is None:
+        return True                                   # interactive: nothing to import again
+    if not os.path.isfile(path):
+        return False                                  # python - < script.py
+    return _called_from_main_guard(main, path)
+
+
+def _called_from_main_guard(main, path: str) -> bool:
+    """Whether ``__main__``'s top-level code is not running, or runs this call from inside an
+    ``if __name__ == "__main__":`` block (what a spawned worker, importing the file as
+    ``__mp_main__``, skips)."""
+    import ast
+
+    f = sys._getframe()
+    while f is not None and not (f.f_code.co_name == "<module>" and f.f_globals is vars(main)):
+        f = f.f_back
+    if f is None:
+        return True                                   # the script's top level has finished (or is not ours)
+    try:
+        with open(path, encoding="utf-8") as fh:
+            tree = ast.parse(fh.read(), path)
+    except (OSError, SyntaxError, ValueError):
+        return False
+
+    def is_main_test(t) -> bool:
+        return (isinstance(t, ast.Compare) and len(t.ops) == 1 and isinstance(t.ops[0], ast.Eq)
+                and {ast.dump(t.left), ast.dump(t.comparators[0])}
+                == {ast.dump(ast.Name("__name__", ast.Load())), ast.dump(ast.Constant("__main__"))})
+
+    line = f.f_lineno
+    return any(isinstance(n, ast.If) and is_main_test(n.test) and n.lineno <= line <= (n.end_lineno or n.lineno)
+               for n in tree.body)
 
 
 def _exit_reason(code: int | None) -> str:

@@ -84,7 +84,9 @@ def test_the_shipped_scenario_is_within_both_limits(tmp_path):
     n = len(sc.controllers)
     assert round(sc.duration / sc.dt) == 6000 and n >= 4
     have = scenario_mod.memory_bytes()
-    assert have is None or have > 100 * 6000 * n * BYTES_PER_SAMPLE
+    if have is None:
+        pytest.skip("this machine's memory is unknown (no sysconf, no cgroup limit): the memory limit is not checked")
+    assert have > 100 * 6000 * n * BYTES_PER_SAMPLE
 
 
 def test_nmpc_horizon_100000_is_refused(tmp_path, capsys):
@@ -92,7 +94,7 @@ def test_nmpc_horizon_100000_is_refused(tmp_path, capsys):
     p = _copy(tmp_path, ('name = "NMPC"\nkind = "nmpc"', 'name = "NMPC"\nkind = "nmpc"\nhorizon = 100000'))
     err = _refused(tmp_path, capsys, p)
     i = [c.kind for c in scenario_mod.load_scenario(SHIPPED).controllers].index("nmpc")
-    assert f"scenario.toml: controllers[{i}].horizon must be <= {MAX_HORIZON}" in err and "got 100000" in err
+    assert f"scenario.toml: controller {i + 1} 'NMPC'.horizon must be <= {MAX_HORIZON}" in err and "got 100000" in err
 
 
 def test_nmpc_horizon_limit_in_the_options():

@@ -70,9 +70,15 @@ def test_bit_rock_law_weakens_then_strengthens(v, mu_sb, frac, v_b, c_b):
     T = lambda w: law.magnitude(w, scale, **P)  # noqa: E731
     assert T(0.0) == pytest.approx(scale * mu_sb)
     assert T(v) >= scale * P["mu_cb"] + c_b * v - 1e-12
-    if c_b > 0 and frac < 1:
-        w_big = 50 * v_b + scale * mu_sb / c_b + 1.0
-        assert T(w_big) > T(v_b) or T(v_b) < T(0.0)
+    weakening = scale * (mu_sb - P["mu_cb"]) / v_b        # -dT/dw at 0+ without the viscous part
+    if 1e-3 * weakening < c_b < 0.9 * weakening:
+        # the torque falls from T(0), reaches a minimum (where c_b = weakening exp(-w/v_b), at
+        # w* = v_b ln(weakening / c_b)) and rises again (velocity strengthening)
+        w = np.linspace(0.0, v_b * (math.log(weakening / c_b) + 5.0), 4001)
+        Tw = np.array([T(x) for x in w])
+        k = int(np.argmin(Tw))
+        assert 0 < k < len(w) - 1 and Tw[k] < T(0.0) and Tw[-1] > Tw[k]
+        assert np.all(np.diff(Tw[: k + 1]) <= 1e-9) and np.all(np.diff(Tw[k:]) >= -1e-9)
 
 
 def test_registry_adds_a_law_and_rejects_duplicates():

@@ -220,3 +220,38 @@ def test_the_ekf_defaults_follow_the_rigs_scale(tmp_path):
         xs.append(r.estimate("twist_shaft"))
     assert np.ptp(xs[0]) > 0.1
     np.testing.assert_allclose(xs[1], xs[0], atol=1e-4 * np.ptp(xs[0]))
+
+
+# ------------------------------------------------------------------ item 4: the API in a plain script
+SCRIPT = '''
+from mitigate import make_scenario, run
+sc = make_scenario(name="demo", model="rig3", duration=1.5, inputs={"omega_ref": "30 rpm", "n1": 20},
+                   controllers=["pi", "brake"], estimator="fd", control_start=1.0)
+res = run(sc)
+print("RESULT", res.status.value, [r.status.value for r in res.runs])
+'''
+
+
+@pytest.mark.parametrize("how", ["file", "stdin", "guarded"])
+def test_run_works_in_a_script_without_a_main_guard(tmp_path, how):
+    """A script FILE whose top level calls run() used to have each spawned worker run it again
+    (multiprocessing's spawn rule: 'An attempt has been made to start a new process before ...'):
+    every run FAILED.  Unguarded, its tasks now run in its own process; guarded, in the workers."""
+    import os
+    import subprocess
+    import sys
+    text = SCRIPT if how != "guarded" else "def main():\n" + "\n".join("    " + ln for ln in SCRIPT.splitlines()) \
+        + '\n\nif __name__ == "__main__":\n    main()\n'
+    p = tmp_path / "step.py"
+    p.write_text(text)
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parent.parent))
+    if how == "stdin":
+        r = subprocess.run([sys.executable, "-"], stdin=p.open(), cwd=tmp_path, env=env, capture_output=True,
+                           text=True, timeout=300)
+    else:
+        r = subprocess.run([sys.executable, str(p)], cwd=tmp_path, env=env, capture_output=True, text=True,
+                           timeout=300)
+    assert r.returncode == 0, r.stderr[-1500:]
+    assert "RESULT ok ['ok', 'ok']" in r.stdout, (r.stdout[-500:], r.stderr[-1500:])
+    assert "bootstrapping phase" not in r.stderr
+
