@@ -12,7 +12,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from models.errors import ConfigError
+from models.errors import ConfigError, quote
 
 __all__ = ["finite_number", "read_toml"]
 
@@ -26,11 +26,11 @@ def finite_number(v: Any, where: str, *, positive: bool = False, nonneg: bool = 
     """
     u = f" {unit}" if unit else ""
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ConfigError(f"{where} must be a finite number{u}, got {v!r}")
+        raise ConfigError(f"{where} must be a finite number{u}, got {quote(v)}")
     if positive and not v > 0:
-        raise ConfigError(f"{where} must be > 0{u}, got {v!r}")
+        raise ConfigError(f"{where} must be > 0{u}, got {quote(v)}")
     if nonneg and v < 0:
-        raise ConfigError(f"{where} must be >= 0{u}, got {v!r}")
+        raise ConfigError(f"{where} must be >= 0{u}, got {quote(v)}")
     return float(v)
 
 

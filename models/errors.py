@@ -91,7 +91,11 @@ def shorten(text: str, limit: int = QUOTE_LIMIT, run_limit: int = 3 * QUOTE_LIMI
 
 
 def quote(value, limit: int = QUOTE_LIMIT) -> str:
-    """``repr(value)`` cut to about ``limit`` characters, with its size said when cut."""
+    """``repr(value)`` cut to about ``limit`` characters, with its size said when cut; a numpy
+    scalar shows as the plain number it holds (``-1.0``, not ``np.float64(-1.0)``)."""
+    item = getattr(value, "item", None)
+    if item is not None and getattr(value, "shape", None) == ():
+        value = item()
     return shorten(repr(value), limit, limit)
 
 

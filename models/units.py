@@ -105,6 +105,18 @@ _TOKEN = re.compile(r"^([A-Za-zΩ]+)(?:(?:\^|\*\*)?(-?\d+))?$")
 _CACHE: dict[str, Unit] = {}
 
 
+def _suggest(tok: str) -> str:
+    """`` (did you mean 'rpm'?)`` for a symbol that differs from a known one only in case (symbols
+    are case-sensitive: mN is milli-, MN mega-newton), else ""."""
+    m = _TOKEN.match(tok)
+    sym = m.group(1) if m else tok
+    near = sorted(s for s in _SYMBOLS if s.lower() == sym.lower() and s != sym)
+    if not near:
+        return ""
+    rest = tok[len(sym):]
+    return f" (did you mean {' or '.join(repr(s + rest) for s in near)}?)"
+
+
 def _parse_product(text: str, where: str, full: str) -> tuple[float, list[int]]:
     f, d = 1.0, [0] * len(_BASE)
     for tok in re.split(r"[\s*·.]+", text.strip()):
@@ -112,7 +124,7 @@ def _parse_product(text: str, where: str, full: str) -> tuple[float, list[int]]:
             continue
         m = _TOKEN.match(tok)
         if not m or m.group(1) not in _SYMBOLS:
-            raise ConfigError(f"{where}: unit [{full}] does not convert: unknown symbol {tok!r}")
+            raise ConfigError(f"{where}: unit [{full}] does not convert: unknown symbol {tok!r}{_suggest(tok)}")
         sf, sd = _SYMBOLS[m.group(1)]
         e = int(m.group(2)) if m.group(2) else 1
         f *= sf ** e

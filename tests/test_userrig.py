@@ -255,3 +255,25 @@ def test_run_works_in_a_script_without_a_main_guard(tmp_path, how):
     assert "RESULT ok ['ok', 'ok']" in r.stdout, (r.stdout[-500:], r.stderr[-1500:])
     assert "bootstrapping phase" not in r.stderr
 
+
+
+# ------------------------------------------------------------------ item 7: small ones
+def test_small_ones_messages_read_plainly(capsys):
+    from models.units import parse_unit
+    with pytest.raises(ConfigError, match=r"unknown symbol 'RPM' \(did you mean 'rpm'\?\)$"):
+        parse_unit("RPM", "x")
+    with pytest.raises(ConfigError, match=r"scenario\.duration must be > 0 s, got -1\.0$"):
+        make_scenario(name="t", duration=np.float64(-1.0), inputs={"omega_ref": 3.0, "n1": 20.0}, controllers=["pi"])
+    with pytest.raises(SystemExit):
+        main(["modal", "--help"])
+    out = capsys.readouterr().out
+    assert "error %" in out and "%%" not in out
+
+
+def test_the_readme_documents_descriptions_and_the_torque_channel():
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    rig_block = readme[readme.index("[rig]\nname = \"rig3\""):]
+    assert rig_block.index("description = ") < rig_block.index("[parameters]")
+    sc_block = readme[readme.index("[scenario]\nname = \"stick_slip_30rpm\""):]
+    assert sc_block.index("description = ") < sc_block.index("[plant]")
+    assert "`torque_drive`" in readme and "`torque_drive_offset`" in readme

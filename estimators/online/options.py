@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
-from models.errors import ConfigError
+from models.errors import ConfigError, quote
 
 __all__ = ["EKFOptions", "MHEOptions", "FDOptions", "options_from_mapping", "ANGLES", "QP_SOLVERS", "RigScales",
            "rig_scales", "for_rig", "REFERENCE", "SCALED"]
@@ -30,7 +30,7 @@ def _number(o, name: str, *, positive: bool = False) -> None:
     rel = "> 0" if positive else ">= 0"
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 \
             or (positive and v == 0):
-        raise ConfigError(f"{_W}.{name} must be a finite number {rel}, got {v!r}")
+        raise ConfigError(f"{_W}.{name} must be a finite number {rel}, got {quote(v)}")
 
 
 def _names(o, name: str, what: str, *, allow_none: bool = True, allow_empty: bool = True) -> None:
@@ -42,7 +42,7 @@ def _names(o, name: str, what: str, *, allow_none: bool = True, allow_empty: boo
         v = tuple(v)
         object.__setattr__(o, name, v)
     if not isinstance(v, tuple) or not all(isinstance(s, str) and s for s in v):
-        raise ConfigError(f"{_W}.{name} must be a list of {what}, got {v!r}")
+        raise ConfigError(f"{_W}.{name} must be a list of {what}, got {quote(v)}")
     if not v and not allow_empty:
         raise ConfigError(f"{_W}.{name} must be a non-empty list of {what}, got []")
     dup = [s for i, s in enumerate(v) if s in v[:i]]
@@ -53,13 +53,13 @@ def _names(o, name: str, what: str, *, allow_none: bool = True, allow_empty: boo
 def _int(o, name: str, lo: int) -> None:
     v = getattr(o, name)
     if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-        raise ConfigError(f"{_W}.{name} must be an integer >= {lo}, got {v!r}")
+        raise ConfigError(f"{_W}.{name} must be an integer >= {lo}, got {quote(v)}")
 
 
 def _bool(o, name: str) -> None:
     v = getattr(o, name)
     if not isinstance(v, bool):
-        raise ConfigError(f"{_W}.{name} must be true or false, got {v!r}")
+        raise ConfigError(f"{_W}.{name} must be true or false, got {quote(v)}")
 
 
 @dataclass(frozen=True, kw_only=True)

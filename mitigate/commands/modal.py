@@ -34,8 +34,8 @@ normal force = --load [N] (defaults: the rig file's operating point; rig3: 30 rp
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "modal", help="torsional modes (free / clamped / closed loop) vs the measured 0, 0.396, 1.781 Hz",
-        description="Linearised modal analysis of a rig: mode table (model vs measured, error %%), PNG of the "
-                    "mode shapes and of the stability of steady sliding over (N1, speed).",
+        description="Linearised modal analysis of a rig: mode table (model vs measured, error %), PNG of the "
+                    "mode shapes and of the stability of steady sliding over (normal force, speed).",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--params", metavar="FILE", help="parameter TOML (published or fitted); default: published")
     p.add_argument("--model", default="rig3", metavar="RIG",
