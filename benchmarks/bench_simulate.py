@@ -7,6 +7,7 @@ caches the CasADi step function); median and p95 over the repeats, real-time fac
 simulated time / wall time.
 
 Usage: python benchmarks/bench_simulate.py [--repeats 5] [--out benchmarks/results/simulate_modal.md]
+       python benchmarks/bench_simulate.py --quick     # 5 s, 1 repeat, hybrid and smooth (CI smoke run)
 """
 
 from __future__ import annotations
@@ -25,16 +26,16 @@ from models.plant import SimOptions, simulate
 DURATION = 60.0
 
 
-def bench(method: str, repeats: int) -> dict:
+def bench(method: str, repeats: int, duration: float = DURATION) -> dict:
     m = get_model("rig3")
     p = m.published()
     u = np.array([math.pi, 20.0, 0.0])
     opts = SimOptions(method=method)
-    simulate(m, p, u, DURATION, opts)  # warm-up (builds the step function)
+    simulate(m, p, u, duration, opts)  # warm-up (builds the step function)
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        r = simulate(m, p, u, DURATION, opts)
+        r = simulate(m, p, u, duration, opts)
         times.append(time.perf_counter() - t0)
     stuck = float(np.mean(r.state("omega_R1") == 0.0))
     return {"method": method, "median": float(np.median(times)), "p95": float(np.percentile(times, 95)),
@@ -42,11 +43,17 @@ def bench(method: str, repeats: int) -> dict:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], epilog="example: python benchmarks/"
+                                 "bench_simulate.py --repeats 5 --out benchmarks/results/simulate_modal.md")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--out", default=None, help="append the markdown table to this file")
+    ap.add_argument("--quick", action="store_true", help="5 s simulated, 1 repeat, hybrid and smooth (CI smoke run)")
     args = ap.parse_args(argv)
-    rows = [bench(mth, args.repeats) for mth in ("hybrid", "smooth", "cvodes")]
+    global DURATION
+    if args.quick:
+        args.repeats, DURATION = 1, 5.0
+    rows = [bench(mth, args.repeats, DURATION) for mth in (("hybrid", "smooth") if args.quick
+                                                           else ("hybrid", "smooth", "cvodes"))]
     base = rows[0]["median"]
     lines = ["| method | median wall [s] | p95 wall [s] | real-time factor | ratio to hybrid | R1 stuck fraction (true speed == 0) |",
              "|---|---|---|---|---|---|"]

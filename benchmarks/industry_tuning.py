@@ -18,6 +18,7 @@ Then each law at its default runs once more in this process alone, for the per-s
 Prints the tables and writes ``benchmarks/results/industry_tuning.md``::
 
     PYTHONPATH=. python benchmarks/industry_tuning.py [--jobs 2] [--out benchmarks/results/industry_tuning.md]
+    PYTHONPATH=. python benchmarks/industry_tuning.py --quick   # each law at its default, 25 s, prints only
 """
 
 from __future__ import annotations
@@ -50,11 +51,16 @@ COLUMNS = (("sss", "SSS", "{:.3f}"), ("sss_final", "SSS last 5 s", "{:.4f}"),
            ("step_mean_ms", "step mean [ms]", "{:.4f}"))
 
 
+#: --quick: the scenario's duration [s] (None: the scenario's own)
+QUICK_DURATION = None
+
+
 def scenario(kind: str, options: dict):
     """The main scenario with the FD estimator and one controller ``kind`` with ``options``."""
     from mitigate.scenario import ControllerSpec, load_scenario
     sc = load_scenario(SCENARIO)
-    return sc.replace(estimator={"kind": "fd"}, controllers=(ControllerSpec(kind, kind, dict(options)),))
+    sc = sc.replace(estimator={"kind": "fd"}, controllers=(ControllerSpec(kind, kind, dict(options)),))
+    return sc.replace(duration=QUICK_DURATION) if QUICK_DURATION else sc
 
 
 def run_one(args):
@@ -83,11 +89,21 @@ def _fmt(fmt: str, v) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    global QUICK_DURATION
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], epilog="example: PYTHONPATH=. python "
+                                 "benchmarks/industry_tuning.py --jobs 2 --out benchmarks/results/industry_tuning.md")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "industry_tuning.md"))
+    ap.add_argument("--quick", action="store_true",
+                    help="each law at its default only, the scenario cut to 25 s, in this process; prints only")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
+    if args.quick:
+        QUICK_DURATION = 25.0
+        for kind, *_ in GRIDS:
+            m = run_one((kind, {}))[2]
+            print(f"{kind}: status {m['status']}, SSS {m['sss']:.3f}, step mean {m['step_mean_ms']:.4f} ms")
+        return 0
     tasks = [("pi", {})]
     for kind, opt, values, _ in GRIDS:
         tasks += [(kind, {opt: v}) for v in values]
