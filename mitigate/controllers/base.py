@@ -131,6 +131,8 @@ class Controller(ABC):
 
     kind: ClassVar[str] = "controller"
     options_class: ClassVar[type | None] = None
+    #: ``{option: mitigate.tunables.Tunable}``: what a benchmark may tune (``mitigate tune``)
+    tunables: ClassVar[Mapping[str, Any]] = {}
 
     def __init__(self, options: Any, context: ControlContext):
         self.options = options
@@ -143,6 +145,11 @@ class Controller(ABC):
 
     def reset(self) -> None:
         """Forget internal state (called before a run)."""
+
+    def actuated_inputs(self) -> tuple[str, ...]:
+        """The rig inputs this controller sets (the benchmark's like-for-like class follows from
+        them); default: every input a controller may set.  Override it to say less."""
+        return tuple(self.context.model.commands)
 
     def step(self, t: float, measurement: Mapping[str, float], estimate=None) -> Action:
         """One control decision at time ``t`` [s] (module docstring)."""

@@ -37,6 +37,7 @@ from typing import Mapping
 from mitigate.controllers._opts import check_number
 from mitigate.controllers.base import Action, Controller, ControlContext
 from mitigate.controllers.tuning import PipeTorque, drive_speed_channel, np_clip, tuning_for
+from mitigate.tunables import Tunable
 from models.errors import ConfigError
 
 __all__ = ["SoftSpeedOptions", "SoftSpeed"]
@@ -77,6 +78,11 @@ class SoftSpeed(Controller):
 
     kind = "softspeed"
     options_class = SoftSpeedOptions
+    tunables = {
+        "kp_factor": Tunable(low=0.25, high=8.0, doc="Kp in multiples of the string impedance Z"),
+        "f_t": Tunable(low=0.25, high=4.0, scale=lambda c: tuning_for(c.model, c.params).f_ss,
+                       doc="tuning frequency in multiples of the rig's lowest mode with the drive held"),
+    }
 
     def __init__(self, options: SoftSpeedOptions, context: ControlContext):
         super().__init__(options, context)
@@ -95,6 +101,9 @@ class SoftSpeed(Controller):
         self.Ki = (2 * math.pi * self.f_t) ** 2 * max(self.J_v - options.J_comp, 0.0)
         self.torque_drive = m.drive_kind == "torque"
         self.reset()
+
+    def actuated_inputs(self) -> tuple[str, ...]:
+        return (self.context.model.drive_input,)
 
     def reset(self) -> None:
         self.pipe.reset()

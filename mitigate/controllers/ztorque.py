@@ -31,6 +31,7 @@ from typing import Mapping
 from mitigate.controllers._opts import check_number
 from mitigate.controllers.base import Action, Controller, ControlContext
 from mitigate.controllers.tuning import PipeTorque, drive_speed_channel, first_order, np_clip, tuning_for
+from mitigate.tunables import Tunable
 
 __all__ = ["ZTorqueOptions", "ZTorque"]
 
@@ -69,6 +70,11 @@ class ZTorque(Controller):
 
     kind = "ztorque"
     options_class = ZTorqueOptions
+    tunables = {
+        "z": Tunable(low=0.05, high=2.0, doc="the torque-feedback factor"),
+        "tau_hp": Tunable(low=0.25, high=10.0, scale=lambda c: tuning_for(c.model, c.params).period,
+                          doc="high-pass time constant in multiples of the rig's stick-slip period"),
+    }
 
     def __init__(self, options: ZTorqueOptions, context: ControlContext):
         super().__init__(options, context)
@@ -85,6 +91,9 @@ class ZTorque(Controller):
         self.Kp = options.kp_factor * self.Z
         self.Ki = options.ki or 5.0 * t.J_drive
         self.reset()
+
+    def actuated_inputs(self) -> tuple[str, ...]:
+        return (self.context.model.drive_input,)
 
     def reset(self) -> None:
         self.pipe.reset()

@@ -32,6 +32,7 @@ import numpy as np
 from mitigate.controllers.base import Action, ControlContext, Controller
 from mitigate.controllers.nmpc.ocp import OCPSolver, OCPSpec, rk4_substeps_needed
 from mitigate.controllers.nmpc.options import MAX_SUBSTEPS, NMPCOptions
+from mitigate.tunables import Tunable
 from models.actuators import Servo
 from models.errors import ConfigError, SolverFailure
 from models.status import Status
@@ -87,6 +88,16 @@ class NMPC(Controller):
 
     kind = "nmpc"
     options_class = NMPCOptions
+    #: the cost weights (dimensionless), a decade or so around the defaults (``mitigate tune``)
+    tunables = {
+        "weights.speed": Tunable(low=0.1, high=10.0), "weights.rel": Tunable(low=0.03, high=3.0),
+        "weights.ref": Tunable(low=0.02, high=2.0, needs="drive"),
+        "weights.d_ref": Tunable(low=0.03, high=3.0, needs="drive"),
+        "weights.force": Tunable(low=0.02, high=2.0, needs="force"),
+        "weights.force_linear": Tunable(low=0.001, high=0.1, needs="force"),
+        "weights.d_force": Tunable(low=0.03, high=3.0, needs="force"),
+        "weights.terminal": Tunable(low=0.3, high=30.0),
+    }
 
     def __init__(self, options: NMPCOptions, context: ControlContext):
         if isinstance(options, Mapping):
@@ -181,6 +192,9 @@ class NMPC(Controller):
         if self._speed0 is not None:
             return self._speed0
         return float(u_prog[self.model.inputs.index(self.model.drive_input)])
+
+    def actuated_inputs(self) -> tuple[str, ...]:
+        return tuple(self.inputs)
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
