@@ -1,0 +1,158 @@
+"""The benchmark run end to end: uncontrolled references, the runs, their statistics.
+
+From Python::
+
+    from mitigate.benchmark import load_suite, run_benchmark, write_benchmark
+    suite = load_suite("scenarios/benchmark/suite.toml", only=["established"])
+    res = run_benchmark(suite, phases=3, seeds=2, jobs=2)        # objects; nothing is written
+    res.entry("established", "NMPC").metrics["residual_severity"]   # {"median", "ci_low", "ci_high"}
+    res.tables["drive"]                                           # like for like: the drive's set-point only
+    write_benchmark(res, "out/benchmark")                         # ranking.md, results.*, PNGs
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from models.errors import ConfigError
+from models.status import Status
+from mitigate.benchmark.execute import RunStore, execute
+from mitigate.benchmark.plan import Reference, make_tasks, reference_run
+from mitigate.benchmark.stats import Entry, class_tables, rank, summarise
+from mitigate.benchmark.suite import Suite
+
+__all__ = ["BenchmarkResult", "run_benchmark", "references", "definition"]
+
+
+@dataclass(frozen=True)
+class BenchmarkResult:
+    """The benchmark's results.
+
+    Attributes
+    ----------
+    suite : the Suite
+    references : ``{scenario: Reference}`` (the uncontrolled runs: periods, stick-slip at switch-on)
+    records : every run's record (:func:`mitigate.benchmark.execute.run_task`)
+    entries : ``{(scenario, controller): Entry}`` (n_runs, medians and intervals, ranks)
+    tables : ``{"overall" | "drive" | "force" | "both": rows}`` (:func:`mitigate.benchmark.stats.class_tables`)
+    phases, seeds : per (scenario, controller)
+    tuned : ``{(scenario, controller): options}`` when the controllers were tuned (``mode == "tuned"``)
+    status : Status.OK; Status.WARNING when a suppression scenario has no stick-slip at its switch-on;
+        Status.FAILED when a run failed (the others' results stand)
+    """
+
+    suite: Suite = field(repr=False)
+    references: dict = field(repr=False)
+    records: list = field(repr=False)
+    entries: dict = field(repr=False)
+    tables: dict = field(repr=False)
+    phases: int = 1
+    seeds: int = 1
+    mode: str = "defaults"
+    tuned: dict = field(default_factory=dict, repr=False)
+    elapsed: float = 0.0
+    status: Status = Status.OK
+    message: str = "ok"
+    files: dict = field(default_factory=dict)
+    computed: int = 0
+
+    @property
+    def success(self) -> bool:
+        return self.status.success
+
+    def entry(self, scenario: str, controller: str) -> Entry:
+        try:
+            return self.entries[(scenario, controller)]
+        except KeyError:
+            raise ConfigError(f"no entry for controller {controller!r} on scenario {scenario!r}") from None
+
+    def as_dict(self) -> dict[str, Any]:
+        from mitigate.cliutil import to_jsonable
+        return to_jsonable({
+            "suite": self.suite.name, "mode": self.mode, "phases": self.phases, "seeds": self.seeds,
+            "status": self.status.value, "message": self.message, "elapsed_s": self.elapsed,
+            "runs": len(self.records), "computed": self.computed,
+            "scenarios": [sc.name for sc in self.suite.scenarios], "controllers": [c.name for c in self.suite.controllers],
+            "references": {k: v.as_dict() for k, v in self.references.items()},
+            "entries": [e.as_dict() for e in self.entries.values()],
+            "tables": self.tables,
+            "tuned": [{"scenario": s, "controller": c, "options": o} for (s, c), o in self.tuned.items()],
+            "files": {k: str(v) for k, v in self.files.items()}})
+
+
+def references(suite: Suite) -> dict[str, Reference]:
+    """The uncontrolled run of every scenario (:func:`mitigate.benchmark.plan.reference_run`)."""
+    return {sc.name: reference_run(sc, suite.metrics) for sc in suite.scenarios}
+
+
+def definition(suite: Suite, phases: int, seeds: int, tuned: Mapping | None = None) -> dict:
+    """What identifies a benchmark's runs on disk (a changed suite, scenario or option is a new one)."""
+    from mitigate.sweep.store import definition_hash
+    files = [Path(suite.path)] + [Path(sc.path) for sc in suite.scenarios if sc.path]
+    text = {str(p.name): p.read_text() for p in files if p.is_file()}
+    return {"suite": suite.name, "files": definition_hash(text), "phases": phases, "seeds": seeds,
+            "controllers": [[c.name, c.kind, dict(c.options)] for c in suite.controllers],
+            "scenarios": [sc.name for sc in suite.scenarios],
+            "tuned": sorted([[s, c, o] for (s, c), o in (tuned or {}).items()], key=str)}
+
+
+def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None = None, jobs: int = 2,
+                  store: str | Path | None = None, force: bool = False, scheduler: str | None = None, client=None,
+                  progress: bool = False, tuned: Mapping | None = None, refs: Mapping | None = None
+                  ) -> BenchmarkResult:
+    """Run every controller of ``suite`` on every scenario at ``phases`` switch-on instants and
+    ``seeds`` noise seeds, and rank them.
+
+    Parameters
+    ----------
+    phases, seeds : per (scenario, controller) (None: the suite's; ``--quick``: 1 and 1)
+    jobs : local worker processes (1: in this process); scheduler / client: a Dask cluster instead
+    store : a folder to keep every finished run in (resumable; :class:`RunStore`); None: memory only
+    force : discard a store holding a different benchmark
+    tuned : ``{(scenario, controller): options}`` replacing the suite's options (the tuned mode)
+    refs : precomputed ``{scenario: Reference}``
+
+    Returns
+    -------
+    BenchmarkResult
+    """
+    t0 = time.perf_counter()
+    phases = suite.phases if phases is None else phases
+    seeds = suite.seeds if seeds is None else seeds
+    refs = dict(refs) if refs is not None else references(suite)
+    tasks = make_tasks(suite, refs, phases=phases, seeds=seeds, options=tuned)
+    st = RunStore(store, definition(suite, phases, seeds, tuned), force=force) if store is not None else None
+    computed: list = []
+    recs = execute(tasks, store=st, jobs=jobs, scheduler=scheduler, client=client, progress=progress,
+                   desc=f"benchmark {suite.name}", on_record=computed.append)
+    records = list(recs.values())
+    kinds = {c.name: c.kind for c in suite.controllers}
+    entries = summarise(records, kinds)
+    scen = [sc.name for sc in suite.scenarios]
+    names = [c.name for c in suite.controllers]
+    for s in scen:
+        for c, r in rank([entries[(s, c)] for c in names]).items():
+            entries[(s, c)].rank = r
+    tables = class_tables(entries, scen, names)
+    for klass, rows in tables.items():
+        if klass == "overall":
+            continue
+        for row in rows:
+            for s, r in row["ranks"].items():
+                if entries[(s, row["controller"])].klass == klass:
+                    entries[(s, row["controller"])].class_rank = r
+    failed = sum(int(r.get("failed", 0)) for r in records)
+    no_slip = [k for k, v in refs.items() if not v.prevention and not v.stick_slip]
+    notes = []
+    if failed:
+        notes.append(f"{failed} run(s) failed or diverged")
+    if no_slip:
+        notes.append(f"no stick-slip at the switch-on of {', '.join(no_slip)}")
+    status = Status.FAILED if failed else Status.WARNING if no_slip else Status.OK
+    return BenchmarkResult(suite, refs, records, entries, tables, phases, seeds, "tuned" if tuned else "defaults",
+                           dict(tuned or {}), time.perf_counter() - t0, status, "; ".join(notes) or "ok",
+                           computed=len(computed))
+
