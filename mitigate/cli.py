@@ -21,7 +21,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from models.errors import ConfigError, DataError, SolverFailure
 
-COMMANDS = ("simulate", "modal", "identify", "estimate", "run", "sweep", "benchmark")
+COMMANDS = ("simulate", "modal", "identify", "estimate", "run", "sweep", "benchmark", "tune")
 
 
 class _Parser(argparse.ArgumentParser):

@@ -39,6 +39,8 @@ class Tunable:
     integer : the option is an integer
     scale : ``context -> float``, the option's natural unit on the rig (None: 1)
     needs : "drive" or "force": the option only matters when the controller sets that kind of input
+    derived : the multiple the option stands for when it is 0 ("derive it from the rig"), where the
+        controller derives it as a multiple of ``scale`` (the tuning's first trial starts there)
     doc : what it is
     """
 
@@ -48,6 +50,7 @@ class Tunable:
     integer: bool = False
     scale: Callable[[Any], float] | None = None
     needs: str = ""
+    derived: float | None = None
     doc: str = ""
 
     def __post_init__(self):

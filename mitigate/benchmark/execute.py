@@ -107,7 +107,7 @@ class RunStore:
             if old.get("hash") != self.hash:
                 if not force:
                     raise ConfigError(f"{self.root} holds the runs of a different benchmark (hash {old.get('hash')}, "
-                                      f"this one {self.hash}); refusing to mix them (pass force=True, or another out)")
+                                      f"this one {self.hash}); refusing to mix them (pass force=True)")
                 shutil.rmtree(self.run_dir, ignore_errors=True)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         atomic_write_text(man, json.dumps({"hash": self.hash, "definition": definition}, indent=2, default=str) + "\n",

@@ -80,7 +80,7 @@ class SoftSpeed(Controller):
     options_class = SoftSpeedOptions
     tunables = {
         "kp_factor": Tunable(low=0.25, high=8.0, doc="Kp in multiples of the string impedance Z"),
-        "f_t": Tunable(low=0.25, high=4.0, scale=lambda c: tuning_for(c.model, c.params).f_ss,
+        "f_t": Tunable(low=0.25, high=4.0, scale=lambda c: tuning_for(c.model, c.params).f_ss, derived=1.0,
                        doc="tuning frequency in multiples of the rig's lowest mode with the drive held"),
     }
 

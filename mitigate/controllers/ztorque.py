@@ -72,7 +72,7 @@ class ZTorque(Controller):
     options_class = ZTorqueOptions
     tunables = {
         "z": Tunable(low=0.05, high=2.0, doc="the torque-feedback factor"),
-        "tau_hp": Tunable(low=0.25, high=10.0, scale=lambda c: tuning_for(c.model, c.params).period,
+        "tau_hp": Tunable(low=0.25, high=10.0, scale=lambda c: tuning_for(c.model, c.params).period, derived=2.0,
                           doc="high-pass time constant in multiples of the rig's stick-slip period"),
     }
 
