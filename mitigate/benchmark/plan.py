@@ -113,15 +113,19 @@ def reference_run(scenario, metrics: MetricOptions = MetricOptions()) -> Referen
     ref = float(np.nanmean(wp)) or 1.0
     stuck = metrics.stuck_speed if metrics.stuck_speed is not None else 1e-3 * abs(ref)
     prevention = start <= 0
+
+    def sev(x):
+        return float(moving_severity(x, dt, len(x) * dt, ref, stuck)[0]) if len(x) >= 2 else float("nan")
+
     lo, hi = (0.5 * start, start + extra) if not prevention else (0.5 * sc.duration, sc.duration + extra)
     seg = w[int(round(lo / dt)):int(round(hi / dt)) + 1]
-    cyc = stick_slip_cycles(seg, dt, stuck)
+    cyc = stick_slip_cycles(seg, dt, stuck) if run.success else None
     if cyc is not None:
         period, source = cyc.period, "measured"
     else:
         from models.signals import dominant_frequency
-        f = dominant_frequency(seg, dt)
-        if f > 0 and moving_severity(seg, dt, len(seg) * dt, ref)[0] > metrics.suppress_threshold:
+        f = dominant_frequency(seg, dt) if run.success else 0.0
+        if f > 0 and sev(seg) > metrics.suppress_threshold:
             period, source = 1.0 / f, "spectrum"
         elif math.isfinite(t_rig):
             period, source = t_rig, "rig"
@@ -129,15 +133,16 @@ def reference_run(scenario, metrics: MetricOptions = MetricOptions()) -> Referen
             raise ConfigError(f"{sc.where}: no stick-slip period: the uncontrolled run does not oscillate and "
                               f"rig {sc.model.name!r} has no torsional mode with the drive held")
     # stick-slip at the switch-on: the body stuck at least once in the two periods before it, and the
-    # severity of that stretch above the suppression threshold
+    # severity of that stretch above the suppression threshold (a run that diverged has none)
     k0 = int(round(start / dt))
-    before = w[max(0, k0 - int(round(2 * period / dt))):k0 + 1] if not prevention else w[:1]
-    sev_before = float(moving_severity(before, dt, len(before) * dt, ref, stuck)[0]) if not prevention else 0.0
-    slip_before = (not prevention and bool(np.any(np.abs(before) <= stuck)) and sev_before > metrics.suppress_threshold)
+    before = w[max(0, k0 - int(round(2 * period / dt))):k0 + 1] if not prevention and k0 < len(w) else w[:0]
+    sev_before = sev(before) if not prevention else 0.0
+    slip_before = (not prevention and before.size > 0 and bool(np.any(np.abs(before) <= stuck))
+                   and sev_before > metrics.suppress_threshold)
     n_res = int(round(min(metrics.residual_periods * period, metrics.residual_fraction * (sc.duration - start)) / dt))
-    tail = w[len(run.t) - int(round(extra / dt)) - max(n_res, 2):len(run.t) - int(round(extra / dt))]
-    res = float(moving_severity(tail, dt, len(tail) * dt, ref, stuck)[0])
-    return Reference(sc.name, float(period), source, prevention, bool(slip_before), sev_before, res)
+    end = int(round(sc.duration / dt)) + 1
+    tail = w[max(0, end - max(n_res, 2)):end] if run.success else w[:0]
+    return Reference(sc.name, float(period), source, prevention, bool(slip_before), sev_before, sev(tail))
 
 
 def task_scenario(task: RunTask):

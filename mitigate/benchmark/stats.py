@@ -32,7 +32,6 @@ EFFORT = ("setpoint_variation", "drive_energy", "pin_work", "normal_force_ratio"
           "speed_ratio", "plan_p95_ms")
 #: counts summed over the runs
 COUNTS = ("controller_fallbacks", "controller_failures", "estimator_fallbacks")
-_BIG = 1e300          # inf stands in as this inside the bootstrap (a "never" has no number)
 CONFIDENCE = 0.95
 
 
@@ -48,10 +47,12 @@ def interval(values, *, seed: int = 0) -> tuple[float, float, float]:
     med = float(np.median(v))
     if v.size == 1 or np.all(v == v[0]):
         return med, float(v[0]) if v.size == 1 else med, float(v[0]) if v.size == 1 else med
-    fin = np.where(np.isinf(v), np.sign(v) * _BIG, v)
+    finite = v[np.isfinite(v)]
+    big = 1e6 * (float(np.max(np.abs(finite))) + 1.0) if finite.size else 1.0     # stands in for inf
+    fin = np.where(np.isinf(v), np.sign(v) * big, v)
     res = bootstrap((fin,), np.median, confidence_level=CONFIDENCE, n_resamples=2000, method="percentile",
                     random_state=np.random.default_rng(seed))
-    back = lambda x: float(math.copysign(math.inf, x)) if abs(x) >= _BIG / 10 else float(x)   # noqa: E731
+    back = lambda x: float(math.copysign(math.inf, x)) if abs(x) >= big / 2 else float(x)   # noqa: E731
     return med, back(res.confidence_interval.low), back(res.confidence_interval.high)
 
 
