@@ -176,17 +176,18 @@ def solve_time_stats(times: np.ndarray) -> dict[str, float]:
 
 #: unit of each fixed entry of :func:`closed_loop_metrics` (per-input entries: :func:`metric_unit`)
 METRIC_UNITS = {
-    "residual_severity": "-", "residual_stuck_fraction": "-", "time_to_suppress": "s", "peak_overshoot": "-",
-    "speed_ratio": "-", "speed_error_rms": "rad/s", "setpoint_variation": "1/s", "normal_force_ratio": "-",
-    "band_violation": "-", "cutting_work": "J", "cutting_work_ratio": "-", "pin_work": "J", "drive_energy": "J",
     "sss": "-", "sss_window_mean": "-", "sss_window_max": "-", "sss_final": "-", "sss_moving_mean": "-",
-    "sss_moving_final": "-", "stuck_fraction": "-", "stuck_fraction_measured": "-",
-    "mean_speed": "rad/s", "rms_twist": "rad", "torque_std": "N m", "mean_pin_force": "N",
-    "period": "s", "residual_window": "s",
+    "sss_moving_final": "-", "time_to_suppress": "s", "stuck_fraction": "-", "stuck_fraction_measured": "-",
+    "mean_speed": "rad/s", "speed_error_rms": "rad/s", "rms_twist": "rad", "torque_std": "N m",
+    "pin_work": "J", "drive_energy": "J", "mean_pin_force": "N",
     "solve_median_ms": "ms", "solve_p95_ms": "ms", "solve_max_ms": "ms",
     "plan_median_ms": "ms", "plan_p95_ms": "ms", "plan_max_ms": "ms", "plan_calls": "-",
     "controller_steps": "-", "controller_failures": "-", "controller_fallbacks": "-",
     "estimator_failures": "-", "estimator_fallbacks": "-", "estimator_dropouts": "-", "diverged": "-",
+    # what stays, how fast, how far above the programme; effort and the programme's band (issue 17)
+    "residual_severity": "-", "residual_stuck_fraction": "-", "peak_overshoot": "-", "speed_ratio": "-",
+    "setpoint_variation": "1/s", "normal_force_ratio": "-", "band_violation": "-", "cutting_work": "J",
+    "cutting_work_ratio": "-", "period": "s", "residual_window": "s",
 }
 
 

@@ -51,7 +51,8 @@ def verdict(e: Entry, ref=None, programme_force: bool = False) -> str:
     if e.n_failed == e.n_runs:
         return f"**{e.controller}**: every run failed ({e.messages[0] if e.messages else 'no reason given'})."
     rs = e.value("residual_severity")
-    parts = [f"**{e.controller}** ({e.klass or 'unknown'} class): what stays is {fmt(rs, 100)} % of the programmed "
+    cls = f" ({e.klass} class)" if e.klass else ""
+    parts = [f"**{e.controller}**{cls}: what stays is {fmt(rs, 100)} % of the programmed "
              f"speed" + (f" (uncontrolled {fmt(ref.residual_severity, 100)} %)" if ref is not None else "")]
     n_ok = e.n_runs - e.n_failed
     tts = e.value("time_to_suppress")
@@ -60,7 +61,7 @@ def verdict(e: Entry, ref=None, programme_force: bool = False) -> str:
     elif e.n_suppressed < n_ok:
         parts.append(f"suppressed in {e.n_suppressed} of {n_ok} runs (median {fmt(tts)} s after the switch-on)")
     else:
-        parts.append(f"suppressed {fmt(tts)} s after the switch-on (median)")
+        parts.append(f"suppressed {fmt(tts)} s after the switch-on" + (" (median)" if n_ok > 1 else ""))
     ov = e.value("peak_overshoot")
     if not math.isnan(ov):
         parts.append(f"overshoot {fmt(ov, 100)} %")
