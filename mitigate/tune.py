@@ -88,6 +88,15 @@ class TuneResult:
         return to_jsonable(dataclasses.asdict(self))
 
 
+def _optuna():
+    """Optuna, or a one-line ConfigError saying how to install it (it is an optional dependency)."""
+    try:
+        import optuna
+    except ImportError:
+        raise ConfigError("tuning needs Optuna (pip install 'stickslip-workbench[tune]')") from None
+    return optuna
+
+
 def _score(rec: Mapping) -> float:
     if rec.get("failed") or not rec.get("applicable", True):
         return FAILED_SCORE
@@ -124,7 +133,7 @@ class _Objective:
 
 
 def _study(storage_path: str | None, name: str, seed: int, definition_hash: str, force: bool):
-    import optuna
+    optuna = _optuna()
     from optuna.storages import JournalStorage
     from optuna.storages.journal import JournalFileBackend
 

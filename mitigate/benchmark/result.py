@@ -88,12 +88,40 @@ def references(suite: Suite) -> dict[str, Reference]:
     return {sc.name: reference_run(sc, suite.metrics) for sc in suite.scenarios}
 
 
+#: modules that only present results (a change to them does not change a run)
+_PRESENTATION = ("mitigate/benchmark/render.py", "mitigate/benchmark/figures.py", "mitigate/benchmark/write.py",
+                 "mitigate/benchmark/stats.py", "mitigate/benchmark/result.py", "mitigate/benchmark/__init__.py",
+                 "mitigate/report.py", "mitigate/plots.py", "mitigate/timeplots.py", "mitigate/cliutil.py",
+                 "mitigate/cli.py", "mitigate/tune.py", "mitigate/commands/")
+
+
+def code_hash() -> str:
+    """Hash of the workbench's source that computes a run (``models``, ``estimators``, ``mitigate``
+    but its presentation modules): runs made by other code are not reused."""
+    import hashlib
+
+    import estimators
+    import models
+    import mitigate
+    h = hashlib.sha256()
+    for pkg in (models, estimators, mitigate):
+        root = Path(pkg.__file__).parent
+        for p in sorted(root.rglob("*.py")):
+            rel = p.relative_to(root.parent).as_posix()
+            if rel.startswith(_PRESENTATION):
+                continue
+            h.update(rel.encode())
+            h.update(p.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def definition(suite: Suite, phases: int, seeds: int, tuned: Mapping | None = None) -> dict:
-    """What identifies a benchmark's runs on disk (a changed suite, scenario or option is a new one)."""
+    """What identifies a benchmark's runs on disk: the suite and scenario files, the controllers and
+    their options, phases, seeds, tuned values and the code (a change to any is a new benchmark)."""
     from mitigate.sweep.store import definition_hash
     files = [Path(suite.path)] + [Path(sc.path) for sc in suite.scenarios if sc.path]
     text = {str(p.name): p.read_text() for p in files if p.is_file()}
-    return {"suite": suite.name, "files": definition_hash(text), "phases": phases, "seeds": seeds,
+    return {"suite": suite.name, "files": definition_hash(text), "code": code_hash(), "phases": phases, "seeds": seeds,
             "controllers": [[c.name, c.kind, dict(c.options)] for c in suite.controllers],
             "scenarios": [sc.name for sc in suite.scenarios],
             "tuned": sorted([[s, c, o] for (s, c), o in (tuned or {}).items()], key=str)}
