@@ -345,8 +345,9 @@ def tune_suite(suite, *, budget: int, out, refs: Mapping | None = None, jobs: in
                 has = False
             if not has:
                 continue
-            r = tune(sc, spec, budget=budget, phases=phases, seeds=seeds, metrics=suite.metrics, out=out,
-                     n_jobs=jobs, progress=progress, reference=ref)
+            # no held-out report here: the benchmark that follows scores the tuned values on its own seeds
+            r = tune(sc, spec, budget=budget, phases=phases, seeds=seeds, held_out_seeds=0, metrics=suite.metrics,
+                     out=out, n_jobs=jobs, progress=progress, reference=ref)
             tuned[(sc.name, spec.name)] = r.best_options
             results.append(r.as_dict())
     atomic_write_text(Path(out) / "tuning.json", json.dumps(results, indent=2) + "\n", overwrite=True)

@@ -302,3 +302,48 @@ def test_the_cli_gives_every_entry_n_runs_and_its_interval(suite_dir, tmp_path, 
                  "--out", str(tmp_path / "r")]) == 1
     assert main(["benchmark", str(suite_dir / "suite.toml"), "--quick", "--phases", "2", "--out",
                  str(tmp_path / "x")]) == 2
+
+
+def test_a_dask_cluster_gives_the_same_runs(suite_dir, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    s = load_suite(suite_dir / "suite.toml", only=["drill"])
+    local = run_benchmark(s, phases=1, seeds=2, jobs=1)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp://",
+                                  host="127.0.0.1", dashboard_address=None) as cluster:
+        remote = run_benchmark(s, phases=1, seeds=2, scheduler=cluster.scheduler_address,
+                               store=tmp_path / "d")
+    assert remote.computed == 6
+    a = {(r["controller"], r["seed"]): r["metrics"] for r in local.records}
+    b = {(r["controller"], r["seed"]): r["metrics"] for r in remote.records}
+    assert a.keys() == b.keys()
+    assert all(a[k]["residual_severity"] == b[k]["residual_severity"] for k in a)
+
+
+def test_kill_9_then_rerun_redoes_only_the_unfinished_runs(suite_dir, tmp_path):
+    """A benchmark killed with SIGKILL mid-way and started again gives the uninterrupted result."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "k"
+    cmd = [sys.executable, "-m", "mitigate.cli", "benchmark", str(suite_dir / "suite.toml"), "--only", "drill",
+           "--phases", "3", "--seeds", "2", "--jobs", "1", "--json", "--out", str(out)]
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        t0 = time.time()
+        while len(list(out.rglob("runs/**/*.json"))) < 4 and time.time() - t0 < 120 and p.poll() is None:
+            time.sleep(0.05)
+        os.killpg(p.pid, signal.SIGKILL)
+    finally:
+        p.wait(timeout=30)
+    done = len(list(out.rglob("runs/**/*.json")))
+    assert 4 <= done < 18 and not (out / "ranking.md").exists()
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert doc["runs"] == 18 and doc["computed"] == 18 - done
+    whole = run_benchmark(load_suite(suite_dir / "suite.toml", only=["drill"]), phases=3, seeds=2, jobs=1)
+    got = {(e["controller"]): e["metrics"]["residual_severity"]["median"] for e in doc["entries"]}
+    assert got == {c: e.value("residual_severity") for (s, c), e in whole.entries.items()}
