@@ -108,3 +108,22 @@ def test_the_tune_command(drill, tmp_path, capsys):
     assert main(["tune", str(drill), "--controller", "softspeed", "--budget", "0"]) == 2
     assert "--budget must be an integer >= 1, got 0" in capsys.readouterr().err
     assert main(["tune", str(drill), "--controller", "lqr", "--budget", "2"]) == 2
+
+
+def test_the_tuned_benchmark_mode_tunes_every_controller_with_the_same_budget(drill, tmp_path):
+    from mitigate.benchmark import load_suite, render_ranking, run_benchmark
+    from mitigate.tune import tune_suite
+    (tmp_path / "drill.toml").write_text(drill.read_text())
+    (tmp_path / "suite.toml").write_text('[suite]\nname = "t"\nscenarios = ["drill.toml"]\n'
+                                         '[[controllers]]\nname = "PI"\nkind = "pi"\n'
+                                         '[[controllers]]\nname = "SS"\nkind = "softspeed"\n'
+                                         '[[controllers]]\nname = "DK"\nkind = "doskil"\n')
+    suite = load_suite(tmp_path / "suite.toml")
+    tuned = tune_suite(suite, budget=3, out=tmp_path / "tuning", phases=1)
+    assert set(tuned) == {("drill", "SS"), ("drill", "DK")}          # PI has nothing to tune
+    studies = json.loads((tmp_path / "tuning" / "tuning.json").read_text())
+    assert [s["n_trials"] for s in studies] == [3, 3] and all(s["budget"] == 3 for s in studies)
+    res = run_benchmark(suite, phases=1, seeds=1, jobs=1, tuned=tuned)
+    assert res.mode == "tuned" and res.tuned == tuned
+    assert {r["controller"]: r["options"] for r in res.records}["SS"] == tuned[("drill", "SS")]
+    assert "## Tuned values" in render_ranking(res) and "f_t = " in render_ranking(res)
