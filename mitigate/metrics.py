@@ -10,13 +10,16 @@ Of the objective body's TRUE speed (rig3: R1, "the bit") after the control start
   the moving severity stays below a threshold (0: never above; inf: still above at the end);
 - ``peak_overshoot``: the largest excursion of the speed above its programme, relative to it;
 - ``speed_ratio``, ``speed_error_rms``: mean speed / programmed speed, RMS of speed - programme;
+  ``residual_speed_ratio`` over the residual window (the bit turning at the programmed speed once the
+  transient is over; ``speed_violation`` outside ``MetricOptions.speed_band``);
 - ``stuck_fraction`` (all of the controlled part) and ``residual_stuck_fraction`` (residual window);
 - the severity of the literature ``sss = (max - min) / (2 mean)`` over everything after the switch-on,
   over windows and over a moving window (:func:`moving_severity`), kept for continuity.
 
 Effort, separately: ``setpoint_variation`` (total variation of every commanded input per second,
 each scaled by its programme), ``drive_energy``, and per actuated normal force its mean and ratio to
-the programme (``normal_force_mean_<input>``, ``normal_force_ratio_<input>``, ``band_violation``).
+the programme (``normal_force_mean_<input>``, ``normal_force_ratio_<input>``, ``force_violation``);
+``band_violation`` is either violation: the run did not drill as programmed.
 Friction work at the contacts whose normal force is an input is split by what the contact is for
 (:func:`force_roles`): the process load (the weight on bit: a positive programme) gives
 ``cutting_work`` (the friction work done at the applied force) and ``cutting_work_ratio`` (against the
@@ -44,7 +47,8 @@ from models.signals import dominant_frequency
 
 __all__ = ["severity", "windowed_severity", "moving_severity", "time_to_suppress", "stuck_fraction", "amplitude",
            "dominant_frequency", "rms", "contact_work", "solve_time_stats", "closed_loop_metrics", "METRIC_UNITS",
-           "MetricOptions", "metric_unit", "programmed_speed", "rig_period", "force_roles", "total_variation"]
+           "MetricOptions", "metric_unit", "programmed_speed", "rig_period", "force_roles", "total_variation",
+           "windows"]
 
 
 def severity(omega: np.ndarray, reference: float | None = None, stuck: float | None = None) -> float:
@@ -186,7 +190,8 @@ METRIC_UNITS = {
     "estimator_failures": "-", "estimator_fallbacks": "-", "estimator_dropouts": "-", "diverged": "-",
     # what stays, how fast, how far above the programme; effort and the programme's band (issue 17)
     "residual_severity": "-", "residual_stuck_fraction": "-", "peak_overshoot": "-", "speed_ratio": "-",
-    "setpoint_variation": "1/s", "normal_force_ratio": "-", "band_violation": "-", "cutting_work": "J",
+    "setpoint_variation": "1/s", "normal_force_ratio": "-", "band_violation": "-", "force_violation": "-",
+    "residual_speed_ratio": "-", "speed_violation": "-", "cutting_work": "J",
     "cutting_work_ratio": "-", "period": "s", "residual_window": "s",
 }
 
@@ -212,9 +217,10 @@ class MetricOptions:
     period : the stick-slip period [s] that sets the windows (None: the rig's lowest torsional mode
         with the drive held, :func:`rig_period`; the benchmark passes the period it measured on the
         uncontrolled run)
-    residual_periods : length of the residual window in periods [-] (3)
+    residual_periods : length of the residual window in periods [-] (3; whole periods, see below)
     residual_fraction : the residual window is at most this fraction of the controlled part [-]
-        (0.5: the first half holds the switch-on transient)
+        (0.5: the first half holds the switch-on transient); it is a whole number of periods (at
+        least one) that fits in both limits
     window_periods : non-overlapping severity windows (``sss_window_*``, ``sss_final``) in periods (2)
     moving_periods : the drilling convention's moving window in periods (1.5)
     suppress_threshold : moving severity below which stick-slip counts as suppressed [-] (0.1)
@@ -224,6 +230,8 @@ class MetricOptions:
         DAQ period on an encoder channel, else 5 % of the programmed speed)
     force_band : ``(low, high)`` band of the mean applied normal force over its programme [-] outside
         which a run violates the programme (the driller's weight on bit; (0.8, 1.25))
+    speed_band : ``(low, high)`` band of the objective body's mean speed over the residual window over
+        its programme [-] outside which a run violates the programme (the bit's speed; (0.95, 1.05))
     """
 
     period: float | None = None
@@ -235,6 +243,7 @@ class MetricOptions:
     stuck_speed: float | None = None
     stuck_speed_measured: float | None = None
     force_band: tuple = (0.8, 1.25)
+    speed_band: tuple = (0.95, 1.05)
     where: str = "metrics"
 
     def __post_init__(self):
@@ -250,14 +259,15 @@ class MetricOptions:
         if f > 1:
             raise ConfigError(f"{w}.residual_fraction must be in (0, 1], got {f!r}")
         object.__setattr__(self, "residual_fraction", f)
-        b = self.force_band
-        if not isinstance(b, (list, tuple)) or len(b) != 2:
-            raise ConfigError(f"{w}.force_band must be [low, high] (ratios to the programme), got {b!r}")
-        lo = finite_number(b[0], f"{w}.force_band[0]", nonneg=True)
-        hi = finite_number(b[1], f"{w}.force_band[1]", positive=True)
-        if not lo < 1 <= hi:
-            raise ConfigError(f"{w}.force_band must have low < 1 <= high, got [{lo:g}, {hi:g}]")
-        object.__setattr__(self, "force_band", (lo, hi))
+        for name in ("force_band", "speed_band"):
+            b = getattr(self, name)
+            if not isinstance(b, (list, tuple)) or len(b) != 2:
+                raise ConfigError(f"{w}.{name} must be [low, high] (ratios to the programme), got {b!r}")
+            lo = finite_number(b[0], f"{w}.{name}[0]", nonneg=True)
+            hi = finite_number(b[1], f"{w}.{name}[1]", positive=True)
+            if not lo < 1 <= hi:
+                raise ConfigError(f"{w}.{name} must have low < 1 <= high, got [{lo:g}, {hi:g}]")
+            object.__setattr__(self, name, (lo, hi))
 
     @classmethod
     def from_mapping(cls, table: Mapping[str, Any], where: str = "metrics") -> "MetricOptions":
@@ -302,9 +312,14 @@ def force_roles(model, programme: np.ndarray) -> dict[str, str]:
     return out
 
 
-def _windows(o: MetricOptions, period: float, span: float, dt: float) -> tuple[float, float, float]:
-    """(residual, non-overlapping, moving) window lengths [s] for ``span`` seconds after the start."""
-    res = max(dt, min(o.residual_periods * period, o.residual_fraction * span))
+def windows(o: MetricOptions, period: float, span: float, dt: float) -> tuple[float, float, float]:
+    """(residual, non-overlapping, moving) window lengths [s] for ``span`` seconds after the start.
+    The residual window is a whole number of periods (a cycle that stays is averaged over whole
+    cycles: its mean speed is the programme's), at least one, at most ``residual_periods`` and
+    ``residual_fraction`` of the span (a span shorter than one period: that fraction of it)."""
+    room = min(o.residual_periods * period, o.residual_fraction * span)
+    whole = math.floor(room / period + 1e-9)
+    res = max(dt, whole * period if whole >= 1 else min(period, o.residual_fraction * span))
     return res, max(dt, o.window_periods * period), max(dt, min(o.moving_periods * period, span))
 
 
@@ -353,7 +368,7 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
             period = rig_period(scenario.model, scenario.model_params)
         except ConfigError:          # no torsional mode with the drive held: a quarter of the controlled part
             period = span / 4
-    res_win, win, mov_win = _windows(o, period, span, dt)
+    res_win, win, mov_win = windows(o, period, span, dt)
     n_res = max(2, min(len(w), int(round(res_win / dt))))
     n_win = max(1, int(round(win / dt)))
     wp = programmed_speed(scenario, tm)
@@ -397,7 +412,7 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
     # the ratio farthest from the programme (on a log scale: half and double are as far)
     out["normal_force_ratio"] = max(ratios, key=lambda r: abs(math.log(r)) if r > 0 else math.inf) if ratios \
         else float("nan")
-    out["band_violation"] = int(any(not (lo <= r <= hi) for r in ratios))
+    out["force_violation"] = int(any(not (lo <= r <= hi) for r in ratios))
 
     # --- effort on the set-points: total variation per second, each scaled by its programme
     tv = 0.0
@@ -422,6 +437,10 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
     cc, ec = result.controller_counts, result.estimator_counts
     meas_ch, stuck_meas = _stuck_measured(scenario, o, w_ref if ref else 1.0)
     tail = w[-n_res:]
+    res_speed = float(np.mean(tail)) / w_ref if ref else float("nan")
+    out["residual_speed_ratio"] = res_speed
+    out["speed_violation"] = int(math.isfinite(res_speed) and not (o.speed_band[0] <= res_speed <= o.speed_band[1]))
+    out["band_violation"] = int(out["force_violation"] or out["speed_violation"])
     out.update({
         "residual_severity": severity(tail, ref, stuck_thr),
         "residual_stuck_fraction": stuck_fraction(tail, stuck_thr),

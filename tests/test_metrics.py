@@ -143,7 +143,10 @@ def test_closed_loop_metrics_hand_computed():
     assert m["cutting_work_ratio"] == pytest.approx(1.0)
     # n2 has a zero programme: a brake, no ratio, no band
     assert m["normal_force_mean_n2"] == pytest.approx(5.0) and math.isnan(m["normal_force_ratio_n2"])
-    assert math.isnan(m["normal_force_ratio"]) and m["band_violation"] == 0
+    assert math.isnan(m["normal_force_ratio"]) and m["force_violation"] == 0
+    # R1 at a mean 1 rad/s over the residual window against pi: it does not turn at the programmed speed
+    assert m["residual_speed_ratio"] == pytest.approx(1 / math.pi) and m["speed_violation"] == 1
+    assert m["band_violation"] == 1
     assert m["setpoint_variation"] == 0.0                     # constant commands after the start
     assert m["sss_window_max"] == m["sss_window_mean"] == m["sss_final"] == pytest.approx(1.0)
     assert m["sss_moving_final"] == pytest.approx(1.0) and m["time_to_suppress"] == math.inf
@@ -237,7 +240,8 @@ def test_weight_on_bit_band_and_cutting_work_against_the_programme():
     f = p["mu_cb"] + (p["mu_sb"] - p["mu_cb"]) * math.exp(-3.0 / p["v_b"])
     m = M.closed_loop_metrics(_drill_result(sc, np.full(10, 3.0), 100.0), sc, M.MetricOptions(period=0.3))
     assert m["normal_force_mean_wob"] == pytest.approx(100.0) and m["normal_force_ratio_wob"] == pytest.approx(0.5)
-    assert m["normal_force_ratio"] == pytest.approx(0.5) and m["band_violation"] == 1
+    assert m["normal_force_ratio"] == pytest.approx(0.5) and m["force_violation"] == m["band_violation"] == 1
+    assert m["speed_violation"] == 0 and m["residual_speed_ratio"] == pytest.approx(1.0)
     cut = lambda W: (p["c_b"] * 3.0 + W * p["R_b"] * f) * 3.0 * 0.1 * 10          # noqa: E731
     assert m["cutting_work"] == pytest.approx(cut(100.0))
     assert m["cutting_work_ratio"] == pytest.approx(cut(100.0) / cut(200.0))
@@ -245,6 +249,12 @@ def test_weight_on_bit_band_and_cutting_work_against_the_programme():
     assert m["speed_ratio"] == pytest.approx(1.0) and m["speed_error_rms"] == pytest.approx(0.0)
     ok = M.closed_loop_metrics(_drill_result(sc, np.full(10, 3.0), 170.0), sc, M.MetricOptions(period=0.3))
     assert ok["band_violation"] == 0 and ok["normal_force_ratio"] == pytest.approx(0.85)
+    fast = M.closed_loop_metrics(_drill_result(sc, np.full(10, 3.3), 200.0), sc, M.MetricOptions(period=0.3))
+    assert fast["speed_violation"] == fast["band_violation"] == 1 and fast["force_violation"] == 0
+    assert fast["residual_speed_ratio"] == pytest.approx(1.1)
+    wide = M.closed_loop_metrics(_drill_result(sc, np.full(10, 3.3), 200.0), sc,
+                                 M.MetricOptions(period=0.3, speed_band=(0.8, 1.2)))
+    assert wide["band_violation"] == 0
     narrow = M.closed_loop_metrics(_drill_result(sc, np.full(10, 3.0), 170.0), sc,
                                    M.MetricOptions(period=0.3, force_band=(0.9, 1.1)))
     assert narrow["band_violation"] == 1

@@ -23,7 +23,7 @@ import numpy as np
 
 from models.errors import ConfigError
 from models.signals import stick_slip_cycles
-from mitigate.metrics import MetricOptions, moving_severity, rig_period, programmed_speed
+from mitigate.metrics import MetricOptions, moving_severity, programmed_speed, rig_period, windows
 
 __all__ = ["Reference", "RunTask", "reference_run", "make_tasks", "run_seed", "task_scenario", "slug"]
 
@@ -139,7 +139,7 @@ def reference_run(scenario, metrics: MetricOptions = MetricOptions()) -> Referen
     sev_before = sev(before) if not prevention else 0.0
     slip_before = (not prevention and before.size > 0 and bool(np.any(np.abs(before) <= stuck))
                    and sev_before > metrics.suppress_threshold)
-    n_res = int(round(min(metrics.residual_periods * period, metrics.residual_fraction * (sc.duration - start)) / dt))
+    n_res = int(round(windows(metrics, period, sc.duration - start, dt)[0] / dt))
     end = int(round(sc.duration / dt)) + 1
     tail = w[max(0, end - max(n_res, 2)):end] if run.success else w[:0]
     return Reference(sc.name, float(period), source, prevention, bool(slip_before), sev_before, sev(tail))

@@ -19,7 +19,7 @@ CLASS_TITLES = {
 _COLS = (("residual_severity", "what stays", 100, "%"), ("time_to_suppress", "t suppress", 1, "s"),
          ("peak_overshoot", "overshoot", 100, "%"), ("setpoint_variation", "set-point var.", 1, "1/s"),
          ("drive_energy", "drive energy", 1, "J"), ("pin_work", "brake wear", 1, "J"),
-         ("normal_force_ratio", "force / programme", 1, "-"), ("speed_ratio", "speed / programme", 1, "-"))
+         ("normal_force_ratio", "force / programme", 1, "-"), ("residual_speed_ratio", "speed / programme", 1, "-"))
 
 
 def fmt(v, scale: float = 1.0) -> str:
@@ -72,17 +72,18 @@ def verdict(e: Entry, ref=None, programme_force: bool = False) -> str:
         eff.append(f"brake wear {fmt(e.value('pin_work'))} J")
     parts.append("effort: " + ", ".join(eff))
     fr = e.value("normal_force_ratio")
-    if e.n_violations:
-        parts.append(f"LEFT the programme's normal-force band in {e.n_violations} of {n_ok} runs (mean force "
+    if e.n_force_violations:
+        parts.append(f"LEFT the programme's normal-force band in {e.n_force_violations} of {n_ok} runs (mean force "
                      f"{fmt(fr, 100)} % of the programme)")
     elif programme_force and not math.isnan(fr):
         parts.append(f"normal force kept ({fmt(fr, 100)} % of the programme)")
     cw = e.value("cutting_work_ratio")
     if programme_force and not math.isnan(cw) and abs(cw - 1) > 0.05:
         parts.append(f"cutting work {fmt(cw, 100)} % of what the programmed force would do")
-    sr = e.value("speed_ratio")
-    if not math.isnan(sr) and abs(sr - 1) > 0.05:
-        parts.append(f"mean speed {fmt(sr, 100)} % of the programme")
+    rsr = e.value("residual_speed_ratio")
+    if e.n_speed_violations:
+        parts.append(f"LEFT the programme's speed band in {e.n_speed_violations} of {n_ok} runs (mean speed "
+                     f"{fmt(rsr, 100)} % of the programme at the end)")
     if e.n_failed:
         parts.append(f"{e.n_failed} of {e.n_runs} runs FAILED ({e.messages[0] if e.messages else ''})")
     fb = e.counts.get("controller_fallbacks", 0)
@@ -118,9 +119,11 @@ def render_ranking(res, command: str = "") -> str:
           "bootstrap interval in brackets. *What stays* is the residual severity, (max - min) / (2 x programmed "
           "speed) of the objective body's true speed over the last few stick-slip periods; *t suppress* is from "
           "the switch-on until the moving severity stays below the threshold (never: it did not). A rank is one "
-          "plus the number of controllers clearly better: a controller that did the job (kept the programme's "
-          "normal-force band, did not fail) beats one that did not; otherwise the one whose interval of what "
+          "plus the number of controllers clearly better: a controller that did the job (kept the programme, "
+          "did not fail) beats one that did not; otherwise the one whose interval of what "
           "stays lies entirely below the other's, and if those overlap, the one that suppresses clearly faster. "
+          "The programme is the speed and the normal forces: a run whose mean speed over the last periods, or "
+          "mean applied normal force, leaves the suite's band around it has not drilled as programmed. "
           "Overlapping intervals share a rank. Effort (set-point variation per second, drive energy, brake "
           "wear) is shown beside the ranks, never folded into them.", ""]
     L += ["## The uncontrolled runs", "",

@@ -6,8 +6,8 @@ metric, the median over the runs that finished and its 95 % bootstrap interval
 (:func:`scipy.stats.bootstrap`, percentile method, a fixed seed: the same runs give the same interval).
 
 **Ranks.**  Within a table (a scenario, over a set of controllers), A is *clearly better* than B when
-A did the job and B did not (most of B's runs failed or left the programme's band of an actuated
-normal force), or, both alike, when A's interval of the residual severity lies entirely below B's,
+A did the job and B did not (most of B's runs failed or left the programme: the band of an actuated
+normal force, or of the objective body's speed once the transient is over), or, both alike, when A's interval of the residual severity lies entirely below B's,
 or, those intervals overlapping, when A's interval of the time to suppress lies entirely below B's.
 A controller's rank is one plus the number of controllers clearly better than it: controllers whose
 intervals overlap share a rank (a tie is declared, not broken by a decimal).
@@ -29,7 +29,7 @@ __all__ = ["RANKED", "EFFORT", "interval", "summarise", "rank", "class_tables", 
 RANKED = ("residual_severity", "time_to_suppress", "peak_overshoot")
 #: effort and side-effect metrics shown beside them (medians with intervals too)
 EFFORT = ("setpoint_variation", "drive_energy", "pin_work", "normal_force_ratio", "cutting_work_ratio",
-          "speed_ratio", "plan_p95_ms")
+          "speed_ratio", "residual_speed_ratio", "plan_p95_ms")
 #: counts summed over the runs
 COUNTS = ("controller_fallbacks", "controller_failures", "estimator_fallbacks")
 CONFIDENCE = 0.95
@@ -68,6 +68,8 @@ class Entry:
     n_runs: int = 0
     n_failed: int = 0
     n_violations: int = 0
+    n_force_violations: int = 0
+    n_speed_violations: int = 0
     n_suppressed: int = 0
     metrics: dict = field(default_factory=dict)        # key -> {"median", "ci_low", "ci_high"}
     counts: dict = field(default_factory=dict)
@@ -78,7 +80,8 @@ class Entry:
 
     @property
     def job_done(self) -> bool:
-        """Most runs finished inside the programme's band of every actuated normal force."""
+        """Most runs finished inside the programme's bands: every actuated normal force's and the
+        objective body's speed's (:class:`mitigate.metrics.MetricOptions`)."""
         return self.applicable and self.n_runs > 0 and (self.n_failed + self.n_violations) * 2 < self.n_runs
 
     def value(self, key: str, what: str = "median") -> float:
@@ -87,7 +90,8 @@ class Entry:
     def as_dict(self) -> dict[str, Any]:
         return {"scenario": self.scenario, "controller": self.controller, "kind": self.kind, "class": self.klass,
                 "applicable": self.applicable, "n_runs": self.n_runs, "n_failed": self.n_failed,
-                "n_violations": self.n_violations, "n_suppressed": self.n_suppressed, "job_done": self.job_done, "rank": self.rank,
+                "n_violations": self.n_violations, "n_force_violations": self.n_force_violations,
+                "n_speed_violations": self.n_speed_violations, "n_suppressed": self.n_suppressed, "job_done": self.job_done, "rank": self.rank,
                 "class_rank": self.class_rank, "metrics": self.metrics, "counts": self.counts,
                 "messages": self.messages[:5], "options": self.options}
 
@@ -111,6 +115,8 @@ def summarise(records: Iterable[Mapping], kinds: Mapping[str, str], *, seed: int
         ok = [r for r in app if not r.get("failed")]
         e.n_failed = len(app) - len(ok)
         e.n_violations = sum(int(r["metrics"].get("band_violation", 0)) for r in ok)
+        e.n_force_violations = sum(int(r["metrics"].get("force_violation", 0)) for r in ok)
+        e.n_speed_violations = sum(int(r["metrics"].get("speed_violation", 0)) for r in ok)
         e.n_suppressed = sum(math.isfinite(float(r["metrics"].get("time_to_suppress", math.inf))) for r in ok)
         e.messages = sorted({r.get("message", "") for r in app if r.get("failed") or r.get("message") not in ("ok", "")})
         for key in RANKED + EFFORT:
