@@ -83,9 +83,15 @@ class BenchmarkResult:
             "files": {k: str(v) for k, v in self.files.items()}})
 
 
-def references(suite: Suite) -> dict[str, Reference]:
-    """The uncontrolled run of every scenario (:func:`mitigate.benchmark.plan.reference_run`)."""
-    return {sc.name: reference_run(sc, suite.metrics) for sc in suite.scenarios}
+def references(suite: Suite, jobs: int = 1) -> dict[str, Reference]:
+    """The uncontrolled run of every scenario (:func:`mitigate.benchmark.plan.reference_run`), in
+    ``jobs`` worker processes."""
+    from mitigate.benchmark.execute import executor
+    if jobs <= 1 or len(suite.scenarios) == 1:
+        return {sc.name: reference_run(sc, suite.metrics) for sc in suite.scenarios}
+    with executor(min(jobs, len(suite.scenarios))) as ex:
+        refs = list(ex.map(reference_run, suite.scenarios, [suite.metrics] * len(suite.scenarios)))
+    return {r.scenario: r for r in refs}
 
 
 #: modules that only present results (a change to them does not change a run)
@@ -150,7 +156,7 @@ def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None 
     t0 = time.perf_counter()
     phases = suite.phases if phases is None else phases
     seeds = suite.seeds if seeds is None else seeds
-    refs = dict(refs) if refs is not None else references(suite)
+    refs = dict(refs) if refs is not None else references(suite, jobs if client is None and not scheduler else 1)
     tasks = make_tasks(suite, refs, phases=phases, seeds=seeds, options=tuned)
     st = RunStore(store, definition(suite, phases, seeds, tuned), force=force) if store is not None else None
     computed: list = []

@@ -107,7 +107,7 @@ def run(args) -> int:
         client = connect_scheduler(args.scheduler, args.scheduler_timeout)
     phases, seeds = (1, 1) if args.quick else (args.phases, args.seeds)
     try:
-        refs = references(suite)
+        refs = references(suite, args.jobs)
         tuned = None
         if args.tuned:
             from mitigate.tune import tune_suite
