@@ -14,7 +14,8 @@ severity of a body that stopped).  The first trial is the shipped options.  Optu
 (seeded) proposes the rest; a median pruner stops a trial whose running mean is worse than the
 median of earlier trials at the same run.  The study lives in a journal file under ``out``
 (:class:`optuna.storages.JournalStorage`): an interrupted tuning continues where it stopped, and
-``n_jobs`` processes share it.  The result is then reported on HELD-OUT seeds that neither the
+``n_jobs`` processes share it (each with its own sampler seed; with one process the study is
+reproducible, with several the order of the trials depends on timing).  The result is then reported on HELD-OUT seeds that neither the
 tuning nor the benchmark (seeds 0 .. S-1) uses.
 
 Each tunable is a multiple of its natural unit on the rig (:mod:`mitigate.tunables`); the tuned
