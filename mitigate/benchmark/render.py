@@ -95,13 +95,14 @@ def verdict(e: Entry, ref=None, programme_force: bool = False) -> str:
 
 def _class_table(rows) -> list[str]:
     hdr = ["controller", "class", "mean rank", "first", "job done"] + [f"{h} [{u}]" for _k, h, _s, u in _COLS] + \
-        ["runs", "failed", "fallbacks"]
+        ["runs", "failed", "left programme", "fallbacks"]
     L = ["| " + " | ".join(hdr) + " |", "|" + "---|" * len(hdr)]
     for r in rows:
         L.append("| " + " | ".join([r["controller"], r["class"] or "-", f"{r['mean_rank']:.2f}",
                                     f"{r['first']}/{r['scenarios']}", f"{r['job_done']}/{r['scenarios']}"]
                                    + [fmt(r[k], s) for k, _h, s, _u in _COLS]
-                                   + [str(r["n_runs"]), str(r["failed"]), str(r["fallbacks"])]) + " |")
+                                   + [str(r["n_runs"]), str(r["failed"]), str(r["violations"]), str(r["fallbacks"])])
+                 + " |")
     return L
 
 
