@@ -153,7 +153,7 @@ def contact_work(model, params, x: np.ndarray, u: np.ndarray, contact: str, dt: 
 
     def torque(u_sym):
         un = {n: u_sym[k] for k, n in enumerate(model.inputs)}
-        N, r, LP = model._contact_args(c, P, un)
+        N, r, LP = model.contact_args(c, P, un)
         return law.torque(v, 1.0, N, r, LP)
 
     T = torque(us)

@@ -164,8 +164,15 @@ def _finished(study) -> int:
 def _optimize(args) -> int:
     """A worker: load the study and run ``n`` trials (the pool's job)."""
     storage_path, name, seed, h, objective, n = args
+    from mitigate.workers import report
     study = _study(storage_path, name, seed, h, False)
-    study.optimize(objective, n_trials=n)
+    done = [0]
+
+    def tick(_s, _t):            # a heartbeat per trial (the pool's stall watchdog) and the progress
+        done[0] += 1
+        report(done[0])
+
+    study.optimize(objective, n_trials=n, callbacks=[tick])
     return n
 
 
@@ -218,9 +225,9 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
     ConfigError : a bad argument, a controller the scenario's rig cannot host, a controller with no
         tunables, or a study in ``out`` made for something else (without ``force``).
     """
-    from mitigate.benchmark.execute import executor, run_task
+    from mitigate.benchmark.execute import pool, run_task
     from mitigate.benchmark.stats import interval
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
     from mitigate.sweep.store import definition_hash
     from mitigate.tunables import tunables_of
 
@@ -230,7 +237,7 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
             raise ConfigError(f"{name} must be an integer >= {lo}, got {v!r}")
     t0 = time.perf_counter()
     sc, spec = _resolve(scenario, controller)
-    ctrl = make_controller(spec, sc, 0)
+    ctrl = make_controller(spec, context_for(sc, 0))
     tun = tunables_of(ctrl)
     if not tun:
         raise ConfigError(f"controller {spec.name!r} ({spec.kind}) declares no tunables")
@@ -262,16 +269,19 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
         if remaining and n_jobs == 1:
             study.optimize(objective, n_trials=remaining, callbacks=[lambda s, t: bar.update()])
         elif remaining:
-            import concurrent.futures as cf
             shares = [remaining // n_jobs + (i < remaining % n_jobs) for i in range(n_jobs)]
-            with executor(n_jobs) as ex:
-                futs = [ex.submit(_optimize, (path, name, seed + i, h, objective, n)) for i, n in enumerate(shares) if n]
-                while futs:
-                    done, futs = cf.wait(futs, timeout=2.0)
-                    for f in done:
-                        f.result()
-                    bar.n = min(budget, _finished(_study(path, name, seed, h, False)))
-                    bar.refresh()
+            jobs = [((path, name, seed + i, h, objective, n),) for i, n in enumerate(shares) if n]
+            counts = [0] * len(jobs)
+
+            def progress_of(i, k):
+                counts[i] = k
+                bar.n = min(budget, budget - remaining + sum(counts))
+                bar.refresh()
+
+            with pool(len(jobs)) as p:
+                for out in p.map(_optimize, jobs, on_progress=progress_of):
+                    if not out.ok:
+                        raise ConfigError(f"tuning {spec.name!r} on {sc.name!r}: a tuning worker failed: {out.error}")
             study = _study(path, name, seed, h, False)
     finally:
         bar.close()
@@ -332,7 +342,7 @@ def tune_suite(suite, *, budget: int, out, refs: Mapping | None = None, jobs: in
     Each study is kept under ``out``; ``out/tuning.json`` lists the results."""
     import json
 
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
     from mitigate.tunables import tunables_of
     from models.files import atomic_write_text
 
@@ -341,7 +351,7 @@ def tune_suite(suite, *, budget: int, out, refs: Mapping | None = None, jobs: in
         ref = (refs or {}).get(sc.name) or reference_run(sc, suite.metrics)
         for i, spec in enumerate(sc.controllers):
             try:
-                has = bool(tunables_of(make_controller(spec, sc, i)))
+                has = bool(tunables_of(make_controller(spec, context_for(sc, i))))
             except ConfigError:
                 has = False
             if not has:

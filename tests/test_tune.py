@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from mitigate.controllers.factory import make_controller
+from mitigate.controllers.factory import context_for, make_controller
 from mitigate.scenario import ControllerSpec, make_scenario
 from mitigate.tune import tune
 from mitigate.tunables import Tunable, actuator_class, set_option, tunables_of
@@ -40,22 +40,22 @@ def drill(tmp_path_factory):
 
 def test_tunables_are_declared_scale_free_and_follow_what_the_controller_sets():
     sc = make_scenario(name="t", duration=1.0, inputs={"omega_ref": "30 rpm", "n1": 20.0}, estimator="fd")
-    ss = make_controller(ControllerSpec("s", "softspeed", {}), sc, 0)
+    ss = make_controller(ControllerSpec("s", "softspeed", {}), context_for(sc, 0))
     t = tunables_of(ss)
     assert set(t) == {"kp_factor", "f_t"} and actuator_class(sc.model, ss.actuated_inputs()) == "drive"
     # f_t in multiples of rig3's lowest mode with the drive held (0.4285 Hz, thesis rig); Kp in multiples of Z
     assert t["f_t"].unit_value(ss.context) == pytest.approx(0.4285, rel=2e-3)
     assert t["kp_factor"].unit_value(ss.context) == 1.0
-    brake = make_controller(ControllerSpec("b", "brake", {}), sc, 0)
+    brake = make_controller(ControllerSpec("b", "brake", {}), context_for(sc, 0))
     # the brake's gain in the servo's force range per programmed speed: 40 N / pi rad/s
     assert tunables_of(brake)["gain_overspeed"].unit_value(brake.context) == pytest.approx(40 / 3.14159265, rel=1e-6)
     assert actuator_class(sc.model, brake.actuated_inputs()) == "force"
-    motor = make_controller(ControllerSpec("m", "nmpc", {"inputs": "motor"}), sc, 0)
-    pin = make_controller(ControllerSpec("p", "nmpc", {"inputs": "pin"}), sc, 0)
+    motor = make_controller(ControllerSpec("m", "nmpc", {"inputs": "motor"}), context_for(sc, 0))
+    pin = make_controller(ControllerSpec("p", "nmpc", {"inputs": "pin"}), context_for(sc, 0))
     assert "weights.force" not in tunables_of(motor) and "weights.ref" in tunables_of(motor)
     assert "weights.force" in tunables_of(pin) and "weights.d_ref" not in tunables_of(pin)
     assert actuator_class(sc.model, pin.actuated_inputs()) == "force"
-    assert actuator_class(sc.model, make_controller(ControllerSpec("p", "pi", {}), sc, 0).actuated_inputs()) == "none"
+    assert actuator_class(sc.model, make_controller(ControllerSpec("p", "pi", {}), context_for(sc, 0)).actuated_inputs()) == "none"
     assert set_option({"inputs": "motor"}, "weights.speed", 2.0) == {"inputs": "motor", "weights": {"speed": 2.0}}
     with pytest.raises(ConfigError, match=r"low < high"):
         Tunable(low=2.0, high=1.0)

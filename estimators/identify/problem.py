@@ -45,17 +45,21 @@ from models.rig import RigModel, get_model
 from models.signals import lowpass, moving_average
 from models.status import Status
 from estimators.identify.covariance import uncertainty
+from estimators.identify.continuation import (GN_METHOD, attempt, choose, continuation_method, solve_continuation,
+                                              wants_continuation)
 from estimators.identify.gauss_newton import solve_gn
-from estimators.identify.guess import LEVELS, initial_guess
+from estimators.identify.diagnostics import diagnose, gap_locator
+from estimators.identify.guess import initial_guess
+from models.discretise import MAX_SUBSTEPS, integration, rate_jacobian
 from estimators.identify.ipopt import solve_ipopt
 from estimators.identify.noise import detect_input_noise, input_noise_hints, output_noise
 from estimators.identify.options import IdentifyOptions, LinearConstraint
 from estimators.identify.outputs import input_delays, output_function, plan_channels
-from estimators.identify.result import FitResult, IdentifiabilityWarning, convergence_message
+from estimators.identify.result import FitResult, IdentifiabilityWarning, convergence_message, fit_status
 from estimators.identify.shooting import ShootingProblem, compiled_or_none, sample_function
 from estimators.identify.validation import validate
 
-__all__ = ["IdentificationProblem", "auto_nsub"]
+__all__ = ["IdentificationProblem"]
 
 _KEEP = object()
 _KIND = {"speed": "speed", "torque": "torque", "force": "force"}
@@ -78,13 +82,12 @@ class LogData:
 
 class StiffRate:
     """The largest eigenvalue magnitude [1/s] of the regularised model's Jacobian at zero contact
-    speed (its stiffest point), as a function of the parameter vector, for inputs ``u``."""
+    speed (its stiffest point), as a function of the parameter vector, for inputs ``u`` (with a
+    quasi-static current when the integration treats it so)."""
 
-    def __init__(self, model, params: ParameterSet, u, eps: float):
-        f = model.ode(eps)
-        x = ca.SX.sym("x", model.nx)
-        p = ca.SX.sym("p", model.n_p)
-        self._J = ca.Function("jf", [x, p], [ca.jacobian(f(x, ca.DM(u), p), x)])
+    def __init__(self, model, params: ParameterSet, u, eps: float, reduced: bool = False):
+        J = rate_jacobian(model, eps, reduced)
+        self._J = lambda x, p: J(x, ca.DM(u), p)
         try:
             x0 = np.asarray(model.sliding_guess(u, params), dtype=float)
         except Exception:  # noqa: BLE001 - any finite point will do
@@ -102,26 +105,17 @@ class StiffRate:
         return float(np.max(np.abs(lam))) if lam.size else 0.0
 
 
-def auto_nsub(model, params: ParameterSet, u, dt: float, eps: float, rho_h: float = 3.5) -> int:
-    """RK4 substeps so that ``h |lambda|max <= rho_h`` at zero contact speed (the stiffest point).
-
-    ``u`` are model inputs (e.g. the largest logged ones).  RK4 is stable to 2.8 on the real
-    axis, but the stiff rate holds only for ``|v| < eps``; fits were unchanged up to 3.5.
-    """
-    rho = StiffRate(model, params, u, eps)(params.vector())
-    return max(1, int(math.ceil(dt * rho / rho_h)))
-
-
-def _functions(model, nsub: int, channels, avg, free_idx, input_jac: bool, compile_: bool):
+def _functions(model, integ, channels, avg, free_idx, input_jac: bool, compile_: bool):
     """(sensitivity function to run, values function to run, values function uncompiled, compiled?), cached on
     the model object (never by ``id``: a freed rig's id is reused by the next one)."""
-    key = ("identify", nsub, tuple((c.name, c.kind) for c in channels), tuple(avg), tuple(free_idx),
+    nsub, qs = integ.nsub, integ.quasi_static
+    key = ("identify", nsub, qs, tuple((c.name, c.kind) for c in channels), tuple(avg), tuple(free_idx),
            input_jac, compile_)
     cache = model._fcache
     if key not in cache:
         h = output_function(model, channels)
-        S = sample_function(model, nsub, h, avg, free_idx, input_jac=input_jac)
-        Sv = sample_function(model, nsub, h, avg, free_idx, values_only=True)
+        S = sample_function(model, nsub, h, avg, free_idx, input_jac=input_jac, quasi_static=qs)
+        Sv = sample_function(model, nsub, h, avg, free_idx, values_only=True, quasi_static=qs)
         S_run, Sv_run = S, Sv
         if compile_:
             S_run = compiled_or_none(S) or S
@@ -305,7 +299,10 @@ class IdentificationProblem:
         # ---- substeps
         umax = np.max(np.abs(np.concatenate([d.U for d in self.data])), axis=0) if m.nu else np.zeros(0)
         self._umax = np.array(m.input_from_measured(list(umax), m.unpack(initial.vector())), float).ravel()
-        self.nsub = auto_nsub(m, initial, self._umax, self.dt, o.eps) if o.nsub is None else o.nsub
+        #: how a sample is integrated (:func:`models.discretise.integration`; ``nsub`` a floor)
+        self.integration = integration(m, initial, self.dt, u=self._umax, eps=o.eps, nsub=o.nsub,
+                                       max_nsub=None if o.nsub is not None else MAX_SUBSTEPS, where="options.nsub")
+        self.nsub = self.integration.nsub
         self._stiff = None
         self._h_lambda0 = None
         self._sh = None
@@ -351,16 +348,18 @@ class IdentificationProblem:
         return lo, hi
 
     def _constraints(self) -> tuple[LinearConstraint, ...]:
-        """Bounds excluded: ``mu_k <= mu_s`` per Stribeck-type contact with both levels free, and the options'."""
+        """Bounds excluded: ``kinetic <= static`` level per contact whose law declares both (e.g. Stribeck's
+        ``mu_k <= mu_s``) with both free, and the options'."""
         m, o = self.model, self.options
         out = []
         if o.order_friction:
             seen = set()
             for c in m.spec.contacts:
-                if c.law not in LEVELS:
+                order = m.law(c.name).level_order
+                if order is None:
                     continue
                 pr = dict(c.params)
-                s, k = pr.get(LEVELS[c.law][0]), pr.get(LEVELS[c.law][1])
+                k, s = pr.get(order[0]), pr.get(order[1])
                 if s is not None and k is not None and s.kind == k.kind == "param" and s.name in o.free \
                         and k.name in o.free and (k.name, s.name) not in seen:
                     seen.add((k.name, s.name))
@@ -399,7 +398,7 @@ class IdentificationProblem:
         avg = [c.kind == "speed" for c in self.channels]
         eiv = self.input_noise
         use_c = o.compile if o.compile is not None else (o.solver == "gn")
-        S_run, Sv_run, Sv, self.compiled = _functions(m, self.nsub, self.channels, avg, self.free_idx, bool(eiv), use_c)
+        S_run, Sv_run, Sv, self.compiled = _functions(m, self.integration, self.channels, avg, self.free_idx, bool(eiv), use_c)
         self._S_val = Sv
         Ub, Yb, starts, zmap = [], [], [], []
         node_off = 0
@@ -521,8 +520,7 @@ class IdentificationProblem:
                 known[idx] = moving_average(d.Y[:, j], 5)
                 s = m.sensor_of(chan_names[j])
                 if s is not None and s.kind == "speed":
-                    known[idx] = (known[idx] - float(P0[s.offset.name] if s.offset.kind == "param" else s.offset.value)) \
-                        / float(P0[s.gain.name] if s.gain.kind == "param" else s.gain.value)
+                    known[idx] = (known[idx] - float(s.offset.value(P0))) / float(s.gain.value(P0))
             for idx, (j, sgn) in twist_of.items():
                 known[idx] = sgn * (moving_average(d.Y[:, j], 3) + zlog.get(j, 0.0))
             row0 = 1 if o.input_row == "end" else 0
@@ -615,7 +613,8 @@ class IdentificationProblem:
                 # rig3 fit doubled its time for nothing
                 if self.stiff_rate(fit.estimate) * self.dt / prob.nsub <= max(4.0, 1.25 * (self._h_lambda0 or 0.0)):
                     break
-                need = auto_nsub(self.model, fit.params, self._umax, self.dt, self.options.eps)
+                need = integration(self.model, fit.params, self.dt, u=self._umax, eps=self.options.eps,
+                                   where="options.nsub").nsub
                 if need <= prob.nsub:
                     break
                 old = prob.nsub
@@ -624,8 +623,8 @@ class IdentificationProblem:
                 fit = replace(fit, initial=first.initial, guess_notes=first.guess_notes,
                               warnings=fit.warnings + (f"RK4 substeps raised from {old} to {need} for the fitted "
                                                        f"parameters (stiffer than the initial ones) and refitted",))
-            return prob._finish(fit)
-        return self._finish(fit)
+            return prob._finish(prob._globalise(fit, warm))
+        return self._finish(self._globalise(fit, warm))
 
     def _feasible(self, theta):
         """``theta`` moved onto the constraints it violates by round-off (the regularised KKT rows
@@ -644,7 +643,8 @@ class IdentificationProblem:
     def stiff_rate(self, theta) -> float:
         """The model's stiffest rate [1/s] with the free parameters at ``theta`` (largest logged inputs)."""
         if self._stiff is None:
-            self._stiff = StiffRate(self.model, self.initial, self._umax, self.options.eps)
+            self._stiff = StiffRate(self.model, self.initial, self._umax, self.options.eps,
+                                    self.integration.quasi_static)
         p = self.initial.vector()
         p[self.free_idx] = theta
         return self._stiff(p)
@@ -677,13 +677,20 @@ class IdentificationProblem:
             n_out = sum(d.nint * o.shoot_every for d in p.data) * len(p.channels)
             costs[dly] = 2 * f.cost / max(n_out, 1)
         best = min(costs, key=costs.get)
-        fit = fits[best]
+        fit = probs[best]._globalise(fits[best], None)
         note = (f"DAQ delay: an extra delay of {best} sample(s) fits best (cost per residual "
                 + ", ".join(f"{d}: {c:.4g}" for d, c in costs.items()) + ")")
         fit = replace(fit, delay=o.extra_delay + best, delay_costs=costs, message=f"{fit.message}; {note}")
         return probs[best]._finish(fit)
 
-    def _fit(self, warm: FitResult | None) -> FitResult:
+    def _globalise(self, fit: FitResult, warm: FitResult | None) -> FitResult:
+        """``fit`` (direct), or the better of it and a cold refit along a continuation in eps
+        (:mod:`~estimators.identify.continuation`)."""
+        o = self.options
+        why = wants_continuation(fit, o.globalise if o.solver == "gn" else "off", warm is not None)
+        return fit if why is None else choose(fit, self._fit(None, continuation=True), why)
+
+    def _fit(self, warm: FitResult | None, continuation: bool = False) -> FitResult:
         t_start = time.perf_counter()
         m, o = self.model, self.options
         sh = self._shooting()
@@ -696,13 +703,20 @@ class IdentificationProblem:
             sys.stderr.flush()
 
         if o.solver == "gn":
-            res = solve_gn(sh, w0, G, h, max_iter=o.max_iter, tol=o.tol, trust_radius=o.trust_radius,
-                           callback=_progress if o.progress else None, admissible=self._rk4_stable)
+            gn = dict(max_iter=o.max_iter, tol=o.tol, trust_radius=o.trust_radius,
+                      callback=_progress if o.progress else None, admissible=self._rk4_stable)
+            if continuation:
+                res, _ = solve_continuation(sh, w0, G, h, o.eps, **gn)
+                method = continuation_method(o.eps)
+            else:
+                res, method = solve_gn(sh, w0, G, h, **gn), GN_METHOD
             costs = res.costs
         else:
             res = solve_ipopt(sh, self._S_val, w0, G, h, max_iter=o.max_iter, tol=o.tol, progress=o.progress,
                               label=label)
             costs = ()
+            method = "IPOPT (Gauss-Newton Hessian, MUMPS)"
+        attempts = (attempt(method, res, t_start),)
         if o.progress and o.solver == "gn":
             sys.stderr.write("\n")
         w = res.w
@@ -744,10 +758,6 @@ class IdentificationProblem:
             warns.append(f"constraint {c} is active at the solution")
         for msg in warns:
             warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
-        if res.success:
-            status = Status.WARNING if warns else Status.OK
-        else:
-            status = Status.NOT_CONVERGED
         message = convergence_message(res.reason, res.success, iterations=res.iterations, max_iter=o.max_iter,
                                       costs=costs, at_bound=at_bound, max_gap=res.max_gap,
                                       condition=unc.condition, weak=unc.weak, solver=o.solver,
@@ -777,6 +787,12 @@ class IdentificationProblem:
             iv += d.nint
             node += d.nint + 1
             col += ncol
+        structure = diagnose(res_l, meas_l, self.dt, sigma2=unc.sigma2, gaps=g,
+                             gap_locator=gap_locator([d.nint for d in self.data], [d.t for d in self.data], M,
+                                                     m.states))
+        status, message = fit_status(res.reason, res.success, message, warned=bool(warns), structure=structure,
+                                     history=getattr(res, "history", ()), cost=0.5 * float(r @ r),
+                                     stalled=attempts[0].stalled)
         nrmse = {}
         for j, c in enumerate(names):
             span = float(np.ptp(Ym[:, j]))
@@ -790,7 +806,8 @@ class IdentificationProblem:
             encoder_zero=tuple(zeros), input_corrections=tuple(corr_l), status=status, message=message, reason=res.reason,
             iterations=res.iterations, wall_time=time.perf_counter() - t_start, warnings=tuple(warns),
             at_bound=at_bound, active_constraints=active, condition=unc.condition, weak_directions=unc.weak,
-            input_noise=dict(self.input_noise), delay=o.extra_delay, guess_notes=self.guess_notes)
+            input_noise=dict(self.input_noise), delay=o.extra_delay, guess_notes=self.guess_notes, method=method,
+            attempts=attempts, structure=structure)
 
     def _systematic(self, fit: FitResult) -> FitResult:
         """``|theta(eps) - theta(eps/2)|``: refit warm-started from ``fit`` with the regularisation

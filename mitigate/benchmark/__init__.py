@@ -16,8 +16,8 @@ from mitigate.benchmark.render import render_ranking, verdict
 from mitigate.benchmark.result import BenchmarkResult, references, run_benchmark
 from mitigate.benchmark.stats import EFFORT, RANKED, Entry
 from mitigate.benchmark.suite import Suite, load_suite
-from mitigate.benchmark.write import output_paths, write_benchmark
+from mitigate.benchmark.write import BENCHMARK_FILES, output_paths, write_benchmark
 
 __all__ = ["Suite", "load_suite", "Reference", "RunTask", "make_tasks", "reference_run", "run_seed", "RunStore",
            "execute", "run_task", "Entry", "RANKED", "EFFORT", "BenchmarkResult", "run_benchmark", "references",
-           "render_ranking", "verdict", "write_benchmark", "output_paths"]
+           "render_ranking", "verdict", "write_benchmark", "output_paths", "BENCHMARK_FILES"]

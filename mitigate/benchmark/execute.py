@@ -2,8 +2,10 @@
 
 Each finished run is one JSON record on disk (:class:`RunStore`, written by :meth:`RunStore.write`,
 the one place that writes): a benchmark killed at any moment (Ctrl-C, ``kill -9``) and started again
-with the same definition redoes only the runs that had not finished.  The runs go to worker
-processes through :func:`executor` (the one place that makes a pool) or to a Dask scheduler
+with the same definition redoes only the runs that had not finished.  The runs go to the worker
+processes of :class:`mitigate.workers.WorkerPool` (through :func:`pool`, the one place that makes
+one: workers that die with the command, a run whose worker dies or stalls fails alone and is not
+stored, so a rerun retries it) or to a Dask scheduler
 (``scheduler="tcp://host:port"``, the same option as ``mitigate sweep``; the workers need this
 package, and the scheduler is trusted: Dask sends pickled tasks).
 """
@@ -21,7 +23,7 @@ from models.errors import ConfigError, DataError
 from models.files import atomic_write_text
 from mitigate.benchmark.plan import RunTask, task_scenario
 
-__all__ = ["run_task", "RunStore", "execute", "executor"]
+__all__ = ["run_task", "RunStore", "execute", "pool", "failed_record"]
 
 #: environment of every worker process: one BLAS/OpenMP thread (the matrices are tiny; threads only
 #: add contention), set before the workers import numpy
@@ -33,7 +35,7 @@ def run_task(task: RunTask) -> dict[str, Any]:
     status, message, failed, class, metrics, elapsed}``.  A controller the rig cannot host is not
     applicable; a controller that raises, or a run that diverges, is FAILED with the reason."""
     from mitigate.closedloop import run_closed_loop
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
     from mitigate.metrics import closed_loop_metrics
     from mitigate.tunables import actuator_class
 
@@ -43,7 +45,7 @@ def run_task(task: RunTask) -> dict[str, Any]:
                            "run_seed": task.run_seed, "options": dict(task.options)}
     sc = task_scenario(task)
     try:
-        ctrl = make_controller(sc.controllers[0], sc, 0)
+        ctrl = make_controller(sc.controllers[0], context_for(sc, 0))
     except ConfigError as exc:     # the rig lacks what the controller needs: not applicable here
         return rec | {"applicable": False, "status": "not applicable", "message": str(exc), "failed": 0,
                       "class": "", "metrics": {}, "elapsed": time.perf_counter() - t0}
@@ -60,6 +62,15 @@ def run_task(task: RunTask) -> dict[str, Any]:
     return rec | {"applicable": True, "status": res.status.value, "message": res.message,
                   "failed": int(not res.success), "class": klass, "metrics": met,
                   "elapsed": time.perf_counter() - t0}
+
+
+def failed_record(task: RunTask, why: str) -> dict[str, Any]:
+    """The record of a run that could not finish in its worker (the worker died or stalled): FAILED
+    with the reason, ``lost = True`` (not stored: a rerun retries it)."""
+    return {"key": task.key, "scenario": task.scenario.name, "controller": task.controller, "phase": task.phase,
+            "seed": task.seed, "switch_on": task.switch_on, "run_seed": task.run_seed, "options": dict(task.options),
+            "applicable": True, "status": "failed", "message": " ".join(str(why).split())[:300], "failed": 1,
+            "class": "", "metrics": {}, "elapsed": 0.0, "lost": True}
 
 
 def _one_line(exc: BaseException) -> str:
@@ -134,13 +145,14 @@ class RunStore:
             raise DataError(f"{p}: unreadable run record ({exc}); delete it to rerun that run") from None
 
 
-def executor(workers: int):
-    """The benchmark's local pool: ``workers`` spawned processes with one BLAS thread each."""
-    import concurrent.futures as cf
-    import multiprocessing as mp
+def pool(workers: int):
+    """The benchmark's local pool (runs, reference runs, tuning workers): a
+    :class:`mitigate.workers.WorkerPool` of ``workers`` processes with one BLAS thread each."""
+    from mitigate.runner import STALL_TIMEOUT
+    from mitigate.workers import WorkerPool
     for k, v in WORKER_ENV.items():      # inherited by the spawned workers, before they import numpy
         os.environ.setdefault(k, v)
-    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"))
+    return WorkerPool(workers, stall_timeout=STALL_TIMEOUT)
 
 
 def execute(tasks: Iterable[RunTask], *, store: RunStore | None = None, jobs: int = 1, scheduler: str | None = None,
@@ -171,7 +183,7 @@ def execute(tasks: Iterable[RunTask], *, store: RunStore | None = None, jobs: in
                disable=not progress)
 
     def finish(rec):
-        if store is not None:
+        if store is not None and not rec.get("lost"):
             store.write(rec)
         out[rec["key"]] = rec
         bar.update()
@@ -197,16 +209,9 @@ def execute(tasks: Iterable[RunTask], *, store: RunStore | None = None, jobs: in
             for t in pending:
                 finish(run_task(t))
         else:
-            import concurrent.futures as cf
-            with executor(min(jobs, len(pending))) as ex:
-                futs = [ex.submit(run_task, t) for t in pending]
-                try:
-                    for fut in cf.as_completed(futs):
-                        finish(fut.result())
-                except BaseException:
-                    for f in futs:
-                        f.cancel()
-                    raise
+            with pool(min(jobs, len(pending))) as p:
+                for res in p.map(run_task, [(t,) for t in pending]):
+                    finish(res.value if res.ok else failed_record(pending[res.index], res.error))
     finally:
         bar.close()
     return {k: out[k] for k in keys}

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from models.errors import ConfigError
+from models.errors import ConfigError, DataError
 from models.status import Status
 from mitigate.benchmark.execute import RunStore, execute
 from mitigate.benchmark.plan import Reference, make_tasks, reference_run
@@ -86,12 +86,17 @@ class BenchmarkResult:
 def references(suite: Suite, jobs: int = 1) -> dict[str, Reference]:
     """The uncontrolled run of every scenario (:func:`mitigate.benchmark.plan.reference_run`), in
     ``jobs`` worker processes."""
-    from mitigate.benchmark.execute import executor
+    from mitigate.benchmark.execute import pool
     if jobs <= 1 or len(suite.scenarios) == 1:
         return {sc.name: reference_run(sc, suite.metrics) for sc in suite.scenarios}
-    with executor(min(jobs, len(suite.scenarios))) as ex:
-        refs = list(ex.map(reference_run, suite.scenarios, [suite.metrics] * len(suite.scenarios)))
-    return {r.scenario: r for r in refs}
+    refs = {}
+    with pool(min(jobs, len(suite.scenarios))) as p:
+        for out in p.map(reference_run, [(sc, suite.metrics) for sc in suite.scenarios]):
+            if not out.ok:
+                sc = suite.scenarios[out.index]
+                raise DataError(f"{sc.where}: the uncontrolled reference run failed: {out.error}")
+            refs[out.value.scenario] = out.value
+    return {sc.name: refs[sc.name] for sc in suite.scenarios}
 
 
 #: modules that only present results (a change to them does not change a run)

@@ -153,6 +153,8 @@ def load_suite(path, *, extra_controllers=(), only=None) -> Suite:
         p = path.parent / f
         sd = dict(read_toml(p, "scenario file"))
         sd["controllers"] = raw_ctrls
+        if isinstance(sd.get("control", {}), Mapping):     # a real-time budget: one control period per call
+            sd["control"] = {"deadline": "period", **sd.get("control", {})}
         scenarios.append(parse_scenario(sd, str(p)))
     names = [sc.name for sc in scenarios]
     dup = next((n for n in names if names.count(n) > 1), None)

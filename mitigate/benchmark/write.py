@@ -1,7 +1,8 @@
 """Writing a benchmark's output set: ``ranking.md``, ``results.csv`` (one row per run),
 ``entries.csv`` (one row per scenario and controller: medians and intervals), ``results.json``,
 ``benchmark.png`` and ``distribution.png``.  :func:`write_benchmark` is the one function that
-writes them; :func:`output_paths` says which they are, so a caller can refuse before any work."""
+writes them, as one output set (:func:`models.files.output_set`: locked, staged, committed together);
+:data:`BENCHMARK_FILES` and :func:`output_paths` say which they are."""
 
 from __future__ import annotations
 
@@ -11,19 +12,22 @@ import io
 import json
 from pathlib import Path
 
-from models.files import atomic_write_text, refuse_overwrite
+from models.files import OutputSet, output_set
 from mitigate.benchmark.render import render_ranking
 from mitigate.benchmark.stats import EFFORT, RANKED
 from mitigate.metrics import metric_unit
 
-__all__ = ["write_benchmark", "output_paths"]
+__all__ = ["write_benchmark", "output_paths", "BENCHMARK_FILES"]
+
+#: the files :func:`write_benchmark` writes, by key
+BENCHMARK_FILES = {"ranking": "ranking.md", "csv": "results.csv", "entries": "entries.csv", "json": "results.json",
+                   "png": "benchmark.png", "distribution": "distribution.png"}
 
 
 def output_paths(out) -> dict[str, Path]:
     """Every file :func:`write_benchmark` writes to ``out``, by key."""
     out = Path(out)
-    return {"ranking": out / "ranking.md", "csv": out / "results.csv", "entries": out / "entries.csv",
-            "json": out / "results.json", "png": out / "benchmark.png", "distribution": out / "distribution.png"}
+    return {k: out / n for k, n in BENCHMARK_FILES.items()}
 
 
 def _runs_csv(res) -> str:
@@ -55,19 +59,21 @@ def _entries_csv(res) -> str:
 
 
 def write_benchmark(res, out, *, force: bool = False, command: str = "") -> dict[str, Path]:
-    """Write the output set of :class:`mitigate.benchmark.BenchmarkResult` ``res`` to ``out``
-    (refusing to replace a file unless ``force``); returns ``{key: path}``."""
+    """Write the output set of :class:`mitigate.benchmark.BenchmarkResult` ``res`` to ``out`` as one
+    set (:func:`models.files.output_set`, refusing to replace a file unless ``force``; ``out`` may be
+    an open :class:`models.files.OutputSet`); returns ``{key: final path}``."""
     from mitigate.benchmark.figures import plot_distribution, plot_heatmap
 
-    files = output_paths(out)
-    for p in files.values():
-        refuse_overwrite(p, force, "force")
-    Path(out).mkdir(parents=True, exist_ok=True)
-    atomic_write_text(files["ranking"], render_ranking(res, command), overwrite=True)
-    atomic_write_text(files["csv"], _runs_csv(res), overwrite=True)
-    atomic_write_text(files["entries"], _entries_csv(res), overwrite=True)
+    if not isinstance(out, OutputSet):
+        with output_set(out, BENCHMARK_FILES.values(), force=force) as w:
+            return write_benchmark(res, w, command=command)
+    w, n = out, BENCHMARK_FILES
+    files = {k: w.final(v) for k, v in n.items()}
+    w.write_text(n["ranking"], render_ranking(res, command))
+    w.write_text(n["csv"], _runs_csv(res))
+    w.write_text(n["entries"], _entries_csv(res))
     res = dataclasses.replace(res, files=files)
-    atomic_write_text(files["json"], json.dumps(res.as_dict(), indent=2) + "\n", overwrite=True)
-    plot_heatmap(res, files["png"])
-    plot_distribution(res, files["distribution"])
+    w.write_text(n["json"], json.dumps(res.as_dict(), indent=2) + "\n")
+    plot_heatmap(res, w.path(n["png"]))
+    plot_distribution(res, w.path(n["distribution"]))
     return files

@@ -20,8 +20,10 @@ set-point; normal forces; both) and overall, with their effort beside. A control
 the programme's band of a normal force (the weight on bit) has not done the job.
 
 Every finished run is kept in DIR/runs/: a killed benchmark, started again with the same command,
-redoes only the unfinished runs. Written to DIR: ranking.md, results.csv (one row per run),
-entries.csv, results.json, benchmark.png, distribution.png. With --tuned, every controller is first
+redoes only the unfinished runs. DIR is locked while it runs; the report is written as one set:
+ranking.md, results.csv (one row per run), entries.csv, results.json, benchmark.png,
+distribution.png. Each controller call has one control period (a later answer is a counted
+deadline miss and the fallback acts). With --tuned, every controller is first
 tuned on every scenario with the same --budget (mitigate tune; studies in DIR/tuning/), and the
 benchmark runs the tuned values on seeds the tuning did not see.
 
@@ -86,10 +88,11 @@ def parse_controller(text: str) -> dict:
 
 
 def run(args) -> int:
-    from pathlib import Path
+    from mitigate.benchmark import BENCHMARK_FILES, load_suite, references, run_benchmark, write_benchmark
+    from mitigate.controllers.factory import controller_class, options_of
+    from models.files import check_output_dir, output_set
 
-    from mitigate.benchmark import load_suite, output_paths, references, run_benchmark, write_benchmark
-
+    out = check_output_dir(args.out)                 # before anything: a usable folder
     for flag in ("phases", "seeds", "jobs", "budget"):
         v = getattr(args, flag)
         if v is not None and v < 1:
@@ -98,28 +101,31 @@ def run(args) -> int:
         raise ConfigError("--quick is 1 phase and 1 seed; give either --quick or --phases/--seeds")
     extra = [parse_controller(c) for c in args.controller]
     suite = load_suite(args.suite, extra_controllers=extra, only=args.only)
-    out = Path(args.out)
-    from mitigate.cliutil import check_outputs
-    check_outputs(output_paths(out).values(), args.force)          # before anything runs
-    client = None
-    if args.scheduler:
-        from mitigate.sweep import connect_scheduler
-        client = connect_scheduler(args.scheduler, args.scheduler_timeout)
-    phases, seeds = (1, 1) if args.quick else (args.phases, args.seeds)
-    try:
-        refs = references(suite, args.jobs)
-        tuned = None
-        if args.tuned:
-            from mitigate.tune import tune_suite
-            tuned = tune_suite(suite, budget=args.budget, out=out / "tuning", refs=refs, jobs=args.jobs,
-                               progress=not args.json)
-        res = run_benchmark(suite, phases=phases, seeds=seeds, jobs=args.jobs, store=out, force=args.force,
-                            client=client, progress=not args.json, tuned=tuned, refs=refs)
-    finally:
-        if client is not None:
-            client.close()
+    for sc in suite.scenarios:                       # every controller's options, before anything runs
+        for i, c in enumerate(sc.controllers):
+            where = f"{sc.where}: controllers[{i}]"
+            options_of(controller_class(c.kind, where), c.options, where)
     command = "mitigate benchmark " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if len(sys.argv) > 2 else ""
-    files = write_benchmark(res, out, force=True, command=command)
+    phases, seeds = (1, 1) if args.quick else (args.phases, args.seeds)
+    # locked for the whole benchmark (the run store in DIR/runs/ too), the report written as one set
+    with output_set(out, BENCHMARK_FILES.values(), force=args.force) as w:
+        client = None
+        if args.scheduler:
+            from mitigate.sweep import connect_scheduler
+            client = connect_scheduler(args.scheduler, args.scheduler_timeout)
+        try:
+            refs = references(suite, args.jobs)
+            tuned = None
+            if args.tuned:
+                from mitigate.tune import tune_suite
+                tuned = tune_suite(suite, budget=args.budget, out=out / "tuning", refs=refs, jobs=args.jobs,
+                                   progress=not args.json)
+            res = run_benchmark(suite, phases=phases, seeds=seeds, jobs=args.jobs, store=out, force=args.force,
+                                client=client, progress=not args.json, tuned=tuned, refs=refs)
+        finally:
+            if client is not None:
+                client.close()
+        files = write_benchmark(res, w, command=command)
     if args.json:
         d = res.as_dict()
         d["files"] = {k: str(v) for k, v in files.items()}

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from typing import Mapping
 
 from mitigate.controllers._opts import check_number
-from mitigate.controllers.base import Action, Controller, ControlContext
+from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.controllers.tuning import PipeTorque, drive_speed_channel, np_clip, tuning_for
 from mitigate.tunables import Tunable
 from models.errors import ConfigError
@@ -83,6 +83,7 @@ class SoftSpeed(Controller):
         "f_t": Tunable(low=0.25, high=4.0, scale=lambda c: tuning_for(c.model, c.params).f_ss, derived=1.0,
                        doc="tuning frequency in multiples of the rig's lowest mode with the drive held"),
     }
+    derived = ("Z", "J_v", "Kp", "Ki", "f_t")
 
     def __init__(self, options: SoftSpeedOptions, context: ControlContext):
         super().__init__(options, context)
@@ -114,7 +115,7 @@ class SoftSpeed(Controller):
         m, dt = self.context.model, self.context.period
         w_nom = self.context.scheduled(t, m.drive_input) if not self.torque_drive else self._w_nominal(t)
         T_pipe = self.pipe.update(measurement)
-        w_meas = float(measurement[self.speed_ch])
+        w_meas = reading(measurement, self.speed_ch)
         if self.torque_drive:
             if self._I is None:
                 self._I = T_pipe
@@ -132,5 +133,4 @@ class SoftSpeed(Controller):
     def _w_nominal(self, t: float) -> float:
         """A torque drive's speed set-point: the scenario's ``speed`` programme if it has one, else the
         operating point's speed of the rig file."""
-        op = self.context.model.spec.extra.get("operating_point", {})
-        return float(op.get("speed", 1.0))
+        return self.context.model.nominal_speed()

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import Mapping
 
 from mitigate.controllers._opts import check_number
-from mitigate.controllers.base import Action, Controller, ControlContext
+from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.controllers.tuning import PipeTorque, drive_speed_channel, first_order, np_clip, tuning_for
 from mitigate.tunables import Tunable
 
@@ -75,6 +75,7 @@ class ZTorque(Controller):
         "tau_hp": Tunable(low=0.25, high=10.0, scale=lambda c: tuning_for(c.model, c.params).period, derived=2.0,
                           doc="high-pass time constant in multiples of the rig's stick-slip period"),
     }
+    derived = ("Z", "gain", "tau_hp", "Kp", "Ki")
 
     def __init__(self, options: ZTorqueOptions, context: ControlContext):
         super().__init__(options, context)
@@ -106,9 +107,8 @@ class ZTorque(Controller):
         self._lp = T if self._lp is None else first_order(self._lp, T, dt, self.tau_hp)
         hp = T - self._lp
         if self.torque_drive:
-            op = m.spec.extra.get("operating_point", {})
-            w_nom = float(op.get("speed", 1.0))
-            e = w_nom - float(measurement[self.speed_ch]) - self.gain * hp
+            w_nom = m.nominal_speed()
+            e = w_nom - reading(measurement, self.speed_ch) - self.gain * hp
             if self._I is None:
                 self._I = T
             self._I += self.Ki * e * dt

@@ -9,9 +9,9 @@ Example
 >>> action = nmpc.step(t, measurement, estimate)                     # action.u == {"n2": ...}
 """
 
-from mitigate.controllers.nmpc.controller import NMPC, make_nmpc, resolve_inputs
+from mitigate.controllers.nmpc.controller import NMPC, resolve_inputs
 from mitigate.controllers.nmpc.ocp import OCPLayout, OCPResult, OCPSolver, OCPSpec, stage_functions
 from mitigate.controllers.nmpc.options import MAX_HORIZON, NMPCOptions, NMPCWeights
 
-__all__ = ["NMPC", "NMPCOptions", "NMPCWeights", "MAX_HORIZON", "make_nmpc", "resolve_inputs", "OCPSpec",
+__all__ = ["NMPC", "NMPCOptions", "NMPCWeights", "MAX_HORIZON", "resolve_inputs", "OCPSpec",
            "OCPLayout", "OCPSolver", "OCPResult", "stage_functions"]

@@ -30,14 +30,15 @@ from typing import Mapping
 import numpy as np
 
 from mitigate.controllers.base import Action, ControlContext, Controller
-from mitigate.controllers.nmpc.ocp import OCPSolver, OCPSpec, rk4_substeps_needed
+from mitigate.controllers.nmpc.ocp import OCPSolver, OCPSpec
 from mitigate.controllers.nmpc.options import MAX_SUBSTEPS, NMPCOptions
 from mitigate.tunables import Tunable
+from models.discretise import integration
 from models.actuators import Servo
 from models.errors import ConfigError, SolverFailure
 from models.status import Status
 
-__all__ = ["NMPC", "make_nmpc", "resolve_inputs"]
+__all__ = ["NMPC", "resolve_inputs"]
 
 #: clip of the load factor taken from an estimate (a diverging estimator must not wreck the plan)
 LOAD_FACTOR_RANGE = (0.2, 5.0)
@@ -61,12 +62,6 @@ def resolve_inputs(inputs, model, where: str) -> tuple[str, ...]:
         raise ConfigError(f"{where}.inputs: rig {model.name!r} cannot set {', '.join(map(repr, bad))} "
                           f"(it can set: {', '.join(model.commands)})")
     return tuple(n for n in model.commands if n in inputs)
-
-
-def _ref_value(ref, params) -> float | None:
-    if ref is None:
-        return None
-    return float(params[ref.name]) if ref.kind == "param" else float(ref.value)
 
 
 class NMPC(Controller):
@@ -139,12 +134,15 @@ class NMPC(Controller):
         w_s = max(abs(nom0), 1.0)
         taus = tuple(float(a.tau) if o.model_servo else 0.0 for a in acts)
         self.weights = weights = o.weights
-        self.nsub = o.substeps or self._substeps(u0, nom0, taus)
+        #: how the prediction integrates the rig over an interval (:func:`models.discretise.integration`)
+        self.integration = self._integration(u0, nom0, taus)
+        self.nsub = self.integration.nsub
         if self.nsub > MAX_SUBSTEPS:
             raise ConfigError(f"{where}.substeps: rig {m.name!r} needs {self.nsub} RK4 substeps per {o.dt} s interval "
                               f"to be stable (stiff friction or springs); the limit is {MAX_SUBSTEPS}: shorten dt, or "
                               f"widen eps where the friction law uses it")
         self.spec = OCPSpec(horizon=o.horizon, dt=o.dt, nsub=self.nsub, eps=o.eps, body=self.body,
+                            quasi_static=self.integration.quasi_static,
                             inputs=self.inputs, taus=taus, speed_scale=w_s,
                             setpoint_scale=(o.setpoint_band if self._torque_drive else w_s) or 1.0,
                             force_scales=tuple(float(a.n_max) for a in acts), weights=weights.as_tuple())
@@ -169,12 +167,13 @@ class NMPC(Controller):
         contact = m.contact_of_input(name)
         for s in m.sensors:
             if s.kind == "load_cell" and contact is not None and s.target == contact.name:
-                off = _ref_value(s.offset, self.params) or 0.0
-                gain = _ref_value(s.gain, self.params)
+                off = float(s.offset.value(self.params)) if s.offset is not None else 0.0
+                gain = float(s.gain.value(self.params)) if s.gain is not None else None
                 return s.channels[0], off, 1.0 if gain is None else gain
         return name, 0.0, 1.0
 
-    def _substeps(self, u0, nom0: float, taus) -> int:
+    def _integration(self, u0, nom0: float, taus):
+        """The integration rule at the largest inputs the plan may use (``substeps`` fixes the count)."""
         m, o = self.model, self.options
         umax = np.abs(u0).astype(float)
         for j, n in enumerate(m.inputs):
@@ -185,7 +184,8 @@ class NMPC(Controller):
                 umax[j] = a.n_max
             elif m.input_kinds[j] == "force":
                 umax[j] = 2.0 * abs(u0[j])  # a held normal force may double (load factor, ramps)
-        return rk4_substeps_needed(m, self.params, o.dt, o.eps, umax, taus, max(abs(nom0) + o.setpoint_band, 1.0))
+        return integration(m, self.params, o.dt, u=umax, eps=o.eps, speed=max(abs(nom0) + o.setpoint_band, 1.0),
+                           nsub=o.substeps or None, rates=[1.0 / t for t in taus if t > 0], max_nsub=None)
 
     def _nominal(self, t: float, u_prog) -> float:
         """Nominal speed of the objective body [rad/s]."""
@@ -344,14 +344,3 @@ class NMPC(Controller):
             self._u_prev = np.array([u_prog[self.model.inputs.index(n)] for n in self.inputs], float)
         return a
 
-
-def make_nmpc(options: Mapping | NMPCOptions, context: ControlContext) -> NMPC:
-    """Validate raw scenario options (``context.where`` names them in errors) and build the NMPC.
-
-    Raises
-    ------
-    ConfigError : one line naming ``<where>.<field>``.
-    """
-    if isinstance(options, Mapping):
-        options = NMPCOptions.from_mapping(options, context.where)
-    return NMPC(options, context)
