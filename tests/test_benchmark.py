@@ -164,6 +164,14 @@ def test_like_for_like_classes_and_the_weight_on_bit_band(result):
     md = render_ranking(result)
     assert "LEFT the programme's normal-force band in 6 of 6 runs" in md and "job NOT done" in md
     assert re.search(r"\| 1 \| D-OSKIL \| force \| 6/6 \| [0-9.]+ \[[0-9.]+, [0-9.]+\]", md)
+    # force and speed leave their bands separately: counted apart in the entries, the tables and the report
+    assert b.n_force_violations == 6 and b.n_violations == b.n_force_violations + b.n_speed_violations \
+        - sum(1 for r in result.records if r["scenario"] == "drill" and r["controller"] == "brake"
+              and r["metrics"].get("force_violation") and r["metrics"].get("speed_violation"))
+    brow = next(r for r in t["force"] if r["controller"] == "brake")
+    assert brow["force_violations"] == 6 and brow["speed_violations"] == b.n_speed_violations
+    assert "| left force band | left speed band |" in md
+    assert re.search(r"\| brake \| force \| 6/6 \|.*\| 6 \| %d \|$" % b.n_speed_violations, md, re.M)
 
 
 def test_ranks_declare_ties_where_intervals_overlap():

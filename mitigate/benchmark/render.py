@@ -95,13 +95,14 @@ def verdict(e: Entry, ref=None, programme_force: bool = False) -> str:
 
 def _class_table(rows) -> list[str]:
     hdr = ["controller", "class", "mean rank", "first", "job done"] + [f"{h} [{u}]" for _k, h, _s, u in _COLS] + \
-        ["runs", "failed", "left programme", "fallbacks"]
+        ["runs", "failed", "left force band", "left speed band", "fallbacks"]
     L = ["| " + " | ".join(hdr) + " |", "|" + "---|" * len(hdr)]
     for r in rows:
         L.append("| " + " | ".join([r["controller"], r["class"] or "-", f"{r['mean_rank']:.2f}",
                                     f"{r['first']}/{r['scenarios']}", f"{r['job_done']}/{r['scenarios']}"]
                                    + [fmt(r[k], s) for k, _h, s, _u in _COLS]
-                                   + [str(r["n_runs"]), str(r["failed"]), str(r["violations"]), str(r["fallbacks"])])
+                                   + [str(r["n_runs"]), str(r["failed"]), str(r["force_violations"]),
+                                      str(r["speed_violations"]), str(r["fallbacks"])])
                  + " |")
     return L
 
@@ -152,13 +153,14 @@ def render_ranking(res, command: str = "") -> str:
                          for n in sc.model.servo_inputs)
         L += [f"## Scenario `{sc.name}`", "", sc.description, "",
               "| rank | controller | class | runs | " + " | ".join(f"{h} [{u}]" for _k, h, _s, u in _COLS[:5])
-              + " |", "|" + "---|" * 9]
+              + " | left force band | left speed band |", "|" + "---|" * 11]
         for e in es:
             if not e.applicable:
-                L.append(f"| - | {e.controller} | - | 0 | n/a | | | | |")
+                L.append(f"| - | {e.controller} | - | 0 | n/a | | | | | | |")
                 continue
             L.append(f"| {e.rank} | {e.controller} | {e.klass} | {e.n_runs - e.n_failed}/{e.n_runs} | "
-                     + " | ".join(_ci(e, k, s) for k, _h, s, _u in _COLS[:5]) + " |")
+                     + " | ".join(_ci(e, k, s) for k, _h, s, _u in _COLS[:5])
+                     + f" | {e.n_force_violations} | {e.n_speed_violations} |")
         L.append("")
         L += [f"- {verdict(e, ref, prog_force)}" for e in es]
         L.append("")

@@ -180,6 +180,8 @@ def class_tables(entries: Mapping[tuple, Entry], scenarios, controllers) -> dict
                                    "job_done": int(sum(e.job_done for e in es)),
                                    "n_runs": int(sum(e.n_runs for e in es)), "failed": int(sum(e.n_failed for e in es)),
                                    "violations": int(sum(e.n_violations for e in es)),
+                                   "force_violations": int(sum(e.n_force_violations for e in es)),
+                                   "speed_violations": int(sum(e.n_speed_violations for e in es)),
                                    "fallbacks": int(sum(e.counts.get("controller_fallbacks", 0) for e in es))}
             for key in RANKED + EFFORT:
                 v = np.array([e.value(key) for e in es], float)
