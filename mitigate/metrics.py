@@ -187,6 +187,7 @@ METRIC_UNITS = {
     "solve_median_ms": "ms", "solve_p95_ms": "ms", "solve_max_ms": "ms",
     "plan_median_ms": "ms", "plan_p95_ms": "ms", "plan_max_ms": "ms", "plan_calls": "-",
     "controller_steps": "-", "controller_failures": "-", "controller_fallbacks": "-",
+    "controller_deadline_misses": "-",
     "estimator_failures": "-", "estimator_fallbacks": "-", "estimator_dropouts": "-", "diverged": "-",
     # what stays, how fast, how far above the programme; effort and the programme's band (issue 17)
     "residual_severity": "-", "residual_stuck_fraction": "-", "peak_overshoot": "-", "speed_ratio": "-",
@@ -478,6 +479,7 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
         "controller_steps": int(cc.get("steps", 0)),
         "controller_failures": int(cc.get("failures", 0)),
         "controller_fallbacks": int(cc.get("fallbacks", 0)),
+        "controller_deadline_misses": int(cc.get("deadline_misses", 0)),
         "estimator_failures": int(ec.get("failures", 0)),
         "estimator_fallbacks": int(ec.get("fallbacks", 0)),
         "estimator_dropouts": int(ec.get("dropouts", 0)),

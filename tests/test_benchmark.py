@@ -44,6 +44,7 @@ description = "two short drill-string scenarios and a broken one"
 scenarios = ["drill.toml", "no_servo.toml", "runaway.toml"]
 phases = 2
 seeds = 1
+deadline = "off"    # bit-reproducible: no answer replaced because the machine was busy
 
 [metrics]
 force_band = [0.8, 1.25]
@@ -102,6 +103,20 @@ def test_load_suite(suite_dir):
     assert s.scenarios[1].model.servo_inputs == ()
     only = load_suite(suite_dir / "suite.toml", only=["no_servo"])
     assert [sc.name for sc in only.scenarios] == ["no_servo"]
+
+
+def test_the_suite_sets_every_scenarios_deadline_unless_the_scenario_does(suite_dir):
+    s = load_suite(suite_dir / "suite.toml")
+    assert all(sc.control_deadline is None for sc in s.scenarios)
+    text = (suite_dir / "suite.toml").read_text()
+    (suite_dir / "on.toml").write_text(text.replace('deadline = "off"', 'deadline = "period"'))
+    on = load_suite(suite_dir / "on.toml")
+    assert [sc.control_deadline for sc in on.scenarios] == [sc.dt * sc.control_every for sc in on.scenarios]
+    (suite_dir / "ms.toml").write_text(text.replace('deadline = "off"', 'deadline = "7 ms"'))
+    assert [sc.control_deadline for sc in load_suite(suite_dir / "ms.toml").scenarios] == pytest.approx([0.007] * 3)
+    (suite_dir / "bad.toml").write_text(text.replace('deadline = "off"', "deadline = true"))
+    with pytest.raises(ConfigError, match="suite.deadline must be"):
+        load_suite(suite_dir / "bad.toml")
 
 
 def test_switch_on_phases_span_one_measured_period_and_seeds_come_from_scenario_phase_seed(suite_dir):

@@ -31,7 +31,7 @@ RANKED = ("residual_severity", "time_to_suppress", "peak_overshoot")
 EFFORT = ("setpoint_variation", "drive_energy", "pin_work", "normal_force_ratio", "cutting_work_ratio",
           "speed_ratio", "residual_speed_ratio", "plan_p95_ms")
 #: counts summed over the runs
-COUNTS = ("controller_fallbacks", "controller_failures", "estimator_fallbacks")
+COUNTS = ("controller_fallbacks", "controller_failures", "controller_deadline_misses", "estimator_fallbacks")
 CONFIDENCE = 0.95
 
 

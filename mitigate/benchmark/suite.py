@@ -7,6 +7,7 @@ A suite is a TOML file (``scenarios/benchmark/suite.toml``)::
     scenarios = ["established.toml", "bistable.toml", ...]   # relative to the suite file
     phases = 6          # switch-on instants spread over one stick-slip period (reference results)
     seeds = 3           # noise seeds per switch-on instant
+    deadline = "period" # each controller call's real-time budget ("off", "5 ms"; a scenario's own wins)
 
     [metrics]           # mitigate.metrics.MetricOptions, e.g. the programme's band of a normal force
     force_band = [0.8, 1.25]
@@ -34,7 +35,7 @@ from mitigate.scenario import ControllerSpec, Scenario, parse_scenario
 
 __all__ = ["Suite", "load_suite", "controller_spec"]
 
-_SUITE_KEYS = ("name", "description", "scenarios", "phases", "seeds")
+_SUITE_KEYS = ("name", "description", "scenarios", "phases", "seeds", "deadline")
 
 
 @dataclass(frozen=True)
@@ -130,6 +131,13 @@ def load_suite(path, *, extra_controllers=(), only=None) -> Suite:
         raise ConfigError(f"{where}: suite.scenarios must be a list of scenario files, got {files!r}")
     phases = _count(s.get("phases", 6), f"{where}: suite.phases")
     seeds = _count(s.get("seeds", 3), f"{where}: suite.seeds")
+    # every controller call's real-time budget unless a scenario states its own ([control] deadline:
+    # "period", "off" or a time); a late answer is a counted miss and the fallback acts -- a run with
+    # misses depends on the machine's load (bit-reproducible only without)
+    deadline = s.get("deadline", "period")
+    if isinstance(deadline, bool) or not isinstance(deadline, (str, int, float)):
+        raise ConfigError(f"{where}: suite.deadline must be \"period\", \"off\" or a time such as \"5 ms\", "
+                          f"got {deadline!r}")
     metrics = MetricOptions.from_mapping(data.get("metrics", {}), f"{where}: metrics")
     raw = data.get("controllers")
     if not isinstance(raw, list) or not raw:
@@ -153,8 +161,8 @@ def load_suite(path, *, extra_controllers=(), only=None) -> Suite:
         p = path.parent / f
         sd = dict(read_toml(p, "scenario file"))
         sd["controllers"] = raw_ctrls
-        if isinstance(sd.get("control", {}), Mapping):     # a real-time budget: one control period per call
-            sd["control"] = {"deadline": "period", **sd.get("control", {})}
+        if isinstance(sd.get("control", {}), Mapping):     # a real-time budget (default one control period)
+            sd["control"] = {"deadline": deadline, **sd.get("control", {})}
         scenarios.append(parse_scenario(sd, str(p)))
     names = [sc.name for sc in scenarios]
     dup = next((n for n in names if names.count(n) > 1), None)
