@@ -70,7 +70,7 @@ class Estimate:
 
     @property
     def success(self) -> bool:
-        return self.status is not Status.FALLBACK
+        return self.status.success
 
     def get(self, name: str) -> float:
         return float(self.x[self.names.index(name)])

@@ -32,6 +32,7 @@ from scipy.optimize import least_squares, root
 
 from models.errors import ConfigError
 from models.params import ParameterSet
+from models.status import Status
 from models.rig import published
 
 __all__ = [
@@ -100,9 +101,13 @@ class ModalFit:
     k2: float
     residual: np.ndarray
     frequencies_hz: np.ndarray
-    success: bool
-    status: str
+    status: Status
+    message: str
     variant: str
+
+    @property
+    def success(self) -> bool:
+        return self.status.success
 
 
 def modal_stiffness(x0=None, *, omega_n=OMEGA_N, params: ParameterSet | None = None, motor: str = "free") -> ModalFit:
@@ -137,7 +142,7 @@ def modal_stiffness(x0=None, *, omega_n=OMEGA_N, params: ParameterSet | None = N
     sol = root(f, x0, method="hybr")
     lam = modal_eigenvalues(sol.x[0], sol.x[1], params.J1, params.J2, J3)
     return ModalFit(float(sol.x[0]), float(sol.x[1]), np.asarray(sol.fun), np.sqrt(np.abs(lam)) / (2 * math.pi),
-                    bool(sol.success), str(sol.message), motor)
+                    Status.OK if sol.success else Status.NOT_CONVERGED, str(sol.message), motor)
 
 
 def log_decrement(x_j: float, x_j1: float) -> float:
@@ -218,8 +223,12 @@ class KineticFit:
     mu_k: float
     stderr: float
     method: str
-    success: bool
-    status: str
+    status: Status
+    message: str
+
+    @property
+    def success(self) -> bool:
+        return self.status.success
 
 
 def fit_kinetic_friction(rec: SpinDown, *, method: str = "equation", mu_s: float = 0.5, J1: float = 0.02888,
@@ -262,4 +271,5 @@ def fit_kinetic_friction(rec: SpinDown, *, method: str = "equation", mu_s: float
     dof = max(r.size - 1, 1)
     s2 = float(r @ r) / dof
     cov = s2 * np.linalg.pinv(Jm.T @ Jm)
-    return KineticFit(float(sol.x[0]), float(math.sqrt(max(cov[0, 0], 0.0))), method, bool(sol.success), str(sol.message))
+    return KineticFit(float(sol.x[0]), float(math.sqrt(max(cov[0, 0], 0.0))), method,
+                      Status.OK if sol.success else Status.NOT_CONVERGED, str(sol.message))

@@ -330,7 +330,7 @@ def run(scenario, *, out=None, force: bool = False, jobs: int = 2, progress: boo
 def _summarise(sc, runs, files, t0, notes=()) -> RunResult:
     bad = [r for r in runs if not r.success]
     warn = [r for r in runs if r.status is Status.WARNING]
-    status = Status.FAILED if bad else (Status.WARNING if warn else Status.OK)
+    status = Status.worst(runs)
     message = "; ".join(f"{r.name}: {r.message}" for r in bad + warn) or "ok"
     if notes:
         message = f"{message} ({'; '.join(notes)})"

@@ -102,7 +102,7 @@ class LinearModel:
 
     @property
     def success(self) -> bool:
-        return self.status is Status.OK
+        return self.status.success
 
     @cached_property
     def ss(self):
@@ -154,7 +154,7 @@ class ModalResult:
 
     @property
     def success(self) -> bool:
-        return self.status is Status.OK
+        return self.status.success
 
     def as_dict(self) -> dict:
         return {"model": self.model, "variant": self.variant, "freq_hz": self.freq_hz.tolist(),
@@ -375,7 +375,7 @@ def modes(model="rig3", params: ParameterSet | None = None, variant: str = "clos
     lin = linearise(model, params, u, eps=eps, x_op=x_op)
     speed_idx = [i for i, s in enumerate(model.states) if s.startswith("omega_")]
     res = _modes_from_A(lin.A, speed_idx, [model.states[i] for i in speed_idx], model.name, "closed")
-    if not lin.success:
+    if lin.status is not Status.OK:      # the linearisation's warning (or failure) is the modes' too
         res = replace(res, status=lin.status, message=lin.message)
     return res
 

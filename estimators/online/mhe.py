@@ -111,13 +111,13 @@ class MHE(ObservabilityMixin, StateEstimator):
         hk = em.h(xk, uk, p)
         meas = ca.Function(f"{em.model.cname}_mhe_meas", [xk, uk, p], [hk, ca.jacobian(hk, xk)],
                            ["x", "uh", "p"], ["h", "C"])
-        self.compile_status = "not requested"
+        self.compiled, self.compile_status = False, "not requested"
         if options.compile:
             try:
                 so = compile_cached([stage, meas], tag=f"{em.model.cname}_mhe")
                 stage = ca.external(stage.name(), str(so))
                 meas = ca.external(meas.name(), str(so))
-                self.compile_status = f"compiled ({so.name})"
+                self.compiled, self.compile_status = True, f"compiled ({so.name})"
             except Exception as exc:
                 self.compile_status = f"compile failed, using SX: {exc}"
         self.stage, self.meas = stage, meas
@@ -195,10 +195,6 @@ class MHE(ObservabilityMixin, StateEstimator):
         self.iterations = 0
         self.qp_failures = 0
         self._check_observability()
-
-    @property
-    def compiled(self) -> bool:
-        return self.compile_status.startswith("compiled")
 
     def _internal(self, y, mask):
         yi = self._T @ np.where(mask, y, 0.0)

@@ -35,6 +35,7 @@ from models.logs import read_csv
 from models.rig import load_params
 from models.rig import get_model
 from models.sensors import SensorOptions
+from models.status import Status
 
 EPILOG = """examples:
   mitigate estimate out/open_stick_slip.csv --model rig3 --out out/est_ekf.csv
@@ -203,7 +204,7 @@ def run(args) -> int:
         e = est.update(float(log.t[k]), {c: v[k] for c, v in chan.items()}, U[k - 1])
         X[k] = e.x
         S[k] = np.sqrt(np.maximum(np.diag(e.P), 0.0))
-        flags[k] = (float(e.corrected), float(e.status.name == "WARNING"), float(e.success))
+        flags[k] = (float(e.corrected), float(e.status is Status.WARNING), float(e.success))
         times.append(e.solve_time)
 
     units = getattr(getattr(est, "em", None), "units", None) or model.state_units
