@@ -133,12 +133,36 @@ class StateEstimator(ABC):
     options_class: ClassVar[type | None] = None
     names: tuple[str, ...] = ()
     channels: tuple[str, ...] = ()
+    #: how the step functions were built ("compiled (...)", "compile failed, ..."); None: nothing compiled
+    compile_status: str | None = None
+    #: construction-time observability reports (:class:`estimators.online.observability.ObservabilityReport`);
+    #: None: not checked, or nothing to check
+    observability: Any = None
+    observability_steady: Any = None
 
     def __init__(self, options: Any, context: EstimatorContext):
         self.options = options
         self.context = context
         self.counts = EstimatorCounts()
         self.last: Estimate | None = None
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        """SI units of :attr:`names` (default: the rig's states)."""
+        return tuple(self.context.model.state_units)
+
+    @property
+    def observability_message(self) -> str:
+        """One line: what this configuration can know (default: not checked)."""
+        return "observability not checked"
+
+    def observability_windows(self, x, u, *, window: float | None = None, max_windows: int = 12) -> list:
+        """Observability along windows of a run (default: none checked)."""
+        return []
+
+    def prior(self) -> Estimate | None:
+        """The estimate before the first sample (row 0 of a log's estimates); None: no prior."""
+        return None
 
     def update(self, t: float, measurement: Mapping[str, float], u) -> Estimate:
         """Process one DAQ sample (module docstring)."""

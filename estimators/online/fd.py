@@ -95,6 +95,10 @@ class FiniteDifference(StateEstimator):
             P[i, i] = channel_variance(model, chans[j], dt, context.sensors)
         self._P = P
 
+    @property
+    def observability_message(self) -> str:
+        return "fd: estimates nothing it does not read"
+
     def _update_impl(self, t, y, mask, u):
         x = self._x.copy()
         if self._pairs:

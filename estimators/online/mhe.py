@@ -196,6 +196,10 @@ class MHE(ObservabilityMixin, StateEstimator):
         self.qp_failures = 0
         self._check_observability()
 
+    def prior(self) -> Estimate:
+        """The EKF's prior (the MHE's arrival cost starts from it)."""
+        return self.ekf.prior()
+
     def _internal(self, y, mask):
         yi = self._T @ np.where(mask, y, 0.0)
         mi = np.array([float(mask[ix].all()) for ix in self._mask_idx])
