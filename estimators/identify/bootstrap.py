@@ -205,7 +205,7 @@ def bootstrap(fit, options: BootstrapOptions | None = None) -> BootstrapResult:
         raise DataError("bootstrap needs a FitResult that carries its problem (from identify or problem.solve)")
     boot = options
     inputs = [_replicate_inputs(problem, fit, j, boot) for j in range(len(problem.data))]
-    start = fit.params if boot.start == "fit" else problem._initial_arg
+    start = fit.params if boot.start == "fit" else problem.given_initial
     jobs = [(b, problem, fit.params, start, inputs, boot) for b in range(boot.replicates)]
     results = []
     bar = None
