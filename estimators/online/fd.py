@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.base import Estimate, EstimatorContext, StateEstimator
-from estimators.online.model import angle_combination, default_channels
+from estimators.online.channels import angle_combination, default_channels
 from estimators.online.options import EKFOptions, FDOptions
 from models.errors import ConfigError
 from models.rig import RigModel

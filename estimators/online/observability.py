@@ -286,7 +286,7 @@ def observability(em, X, UH, *, min_gain: float = MIN_GAIN, lin: ca.Function | N
     observable = not weak
     twist_ok = bool(np.all(twist_rel <= 1.0 / min_gain))
     if suggest is None:
-        from estimators.online.model import default_channels
+        from estimators.online.channels import default_channels
         # only a torque channel carries the absolute level a twist trades off against
         suggest = [c for c in default_channels(em.model) if c not in em.channels
                    and em.model.sensor_of(c).kind == "torque"]

@@ -18,7 +18,7 @@ import numpy as np
 
 from estimators.base import EstimatorContext, StateEstimator
 from estimators.online.factory import make_estimator
-from estimators.online.model import angle_combination, default_channels
+from estimators.online.channels import angle_combination, default_channels
 from models.errors import ConfigError, DataError
 from models.sensors import SensorOptions
 from models.status import Status

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from estimators.online.factory import ESTIMATOR_KINDS
-from estimators.online.model import default_channels
+from estimators.online.channels import default_channels
 from estimators.online.replay import EstimationResult, estimate_log, log_channels, true_twists
 from mitigate.cliutil import check_outputs, emit_json, format_table
 from models.errors import ConfigError, DataError
