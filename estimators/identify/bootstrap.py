@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from models.checks import choice, integer, number, prefix
 from models.errors import ConfigError, DataError
 from models.plant import SimOptions, simulate
 from models.sensors import SensorOptions
@@ -78,23 +79,16 @@ class BootstrapOptions:
     progress: bool = False
 
     def __post_init__(self):
-        for name, least in (("replicates", 2), ("sim_nsub", 1), ("max_iter", 1), ("workers", 1)):
-            v = getattr(self, name)
-            if name == "max_iter" and v is None:
-                continue
-            if isinstance(v, bool) or not isinstance(v, int) or v < least:
-                raise ConfigError(f"bootstrap.{name} must be an integer >= {least}, got {v!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
-            raise ConfigError(f"bootstrap.seed must be an integer, got {self.seed!r}")
+        w = prefix("bootstrap")
+        for name, least in (("replicates", 2), ("sim_nsub", 1), ("workers", 1)):
+            integer(getattr(self, name), f"{w}.{name}", lo=least)
+        integer(self.max_iter, f"{w}.max_iter", lo=1, none=True)
+        integer(self.seed, f"{w}.seed")
         for name in ("force_cutoff", "speed_cutoff"):
-            fc = getattr(self, name)
-            if fc is not None and (isinstance(fc, bool) or not (isinstance(fc, (int, float)) and np.isfinite(fc)
-                                                                and fc > 0)):
-                raise ConfigError(f"bootstrap.{name} must be a frequency > 0 Hz, got {fc!r}")
-        if self.start not in ("initial", "fit"):
-            raise ConfigError(f"bootstrap.start must be 'initial' or 'fit', got {self.start!r}")
+            number(getattr(self, name), f"{w}.{name}", lo=0.0, lo_open=True, unit="Hz", none=True)
+        choice(self.start, f"{w}.start", ("initial", "fit"))
         if not isinstance(self.sensors, SensorOptions):
-            raise ConfigError(f"bootstrap.sensors must be SensorOptions, got {type(self.sensors).__name__}")
+            raise ConfigError(f"{w}.sensors must be SensorOptions, got {type(self.sensors).__name__}")
 
 
 @dataclass(frozen=True)
