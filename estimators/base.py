@@ -38,13 +38,13 @@ from models import plugins
 from models.errors import PluginError, SolverFailure
 from models.params import ParameterSet
 from models.sensors import SensorOptions
-from models.status import Status
+from models.status import Outcome, Status
 
 __all__ = ["Estimate", "StateEstimator", "EstimatorCounts", "EstimatorContext"]
 
 
 @dataclass(frozen=True)
-class Estimate:
+class Estimate(Outcome):
     """A state estimate with its covariance.
 
     Attributes
@@ -67,10 +67,6 @@ class Estimate:
     message: str = "ok"
     corrected: bool = True
     solve_time: float = 0.0
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     def get(self, name: str) -> float:
         return float(self.x[self.names.index(name)])

@@ -32,7 +32,7 @@ from scipy.optimize import least_squares, root
 
 from models.errors import ConfigError
 from models.params import ParameterSet
-from models.status import Status
+from models.status import Outcome, Status
 from models.rig import published
 
 __all__ = [
@@ -94,7 +94,7 @@ def modal_eigenvalues(k1: float, k2: float, J1: float, J2: float, J3: float) -> 
 
 
 @dataclass(frozen=True)
-class ModalFit:
+class ModalFit(Outcome):
     """Result of :func:`modal_stiffness`: k1, k2 [N m/rad], residual, solver status."""
 
     k1: float
@@ -104,10 +104,6 @@ class ModalFit:
     status: Status
     message: str
     variant: str
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
 
 def modal_stiffness(x0=None, *, omega_n=OMEGA_N, params: ParameterSet | None = None, motor: str = "free") -> ModalFit:
@@ -217,7 +213,7 @@ def simulate_spin_down(mu_k: float = 0.306, *, mu_s: float = 0.5, n1: float = 10
 
 
 @dataclass(frozen=True)
-class KineticFit:
+class KineticFit(Outcome):
     """mu_k by least squares; ``method`` "equation" (thesis: J1 a + T_r = 0) or "output" (fit w(t))."""
 
     mu_k: float
@@ -225,10 +221,6 @@ class KineticFit:
     method: str
     status: Status
     message: str
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
 
 def fit_kinetic_friction(rec: SpinDown, *, method: str = "equation", mu_s: float = 0.5, J1: float = 0.02888,

@@ -31,13 +31,13 @@ from scipy.optimize import minimize_scalar
 from models.errors import ConfigError, DataError
 from models import get_model
 from models.params import ParameterSet
-from models.status import Status
+from models.status import Outcome, Status
 
 __all__ = ["Step1Result", "fit_step1", "steady_sliding_data", "seed002_crosscheck", "xi_w0", "fit_step2"]
 
 
 @dataclass(frozen=True)
-class Step1Result:
+class Step1Result(Outcome):
     """Result of :func:`fit_step1` (SI units; ``mu*`` via eqs. 9.26-9.28)."""
 
     speeds: np.ndarray
@@ -53,10 +53,6 @@ class Step1Result:
     rms_b1: float
     status: Status = Status.OK
     message: str = "ok"
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     def mu(self, w):
         """Friction coefficient (9.24) at speed ``w`` [rad/s, screw side]."""

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import enum
 
-__all__ = ["Status"]
+__all__ = ["Status", "Outcome"]
 
 
 class Status(enum.Enum):
@@ -65,3 +65,15 @@ class Status(enum.Enum):
 
     def __str__(self) -> str:
         return self.value
+
+
+class Outcome:
+    """Base of every result that carries a ``status``: its ``success`` is ``status.success``
+    (the one definition), never a test of its own."""
+
+    __slots__ = ()
+
+    @property
+    def success(self) -> bool:
+        """Whether the computation succeeded: ``self.status.success`` (OK, WARNING or HOLD)."""
+        return self.status.success

@@ -42,7 +42,7 @@ from models.errors import ConfigError, DataError
 from models.plant import SimOptions, simulate
 from models.sensors import SensorOptions
 from models.signals import lowpass
-from models.status import Status
+from models.status import Outcome, Status
 
 __all__ = ["BootstrapOptions", "BootstrapResult", "bootstrap"]
 
@@ -92,7 +92,7 @@ class BootstrapOptions:
 
 
 @dataclass(frozen=True)
-class BootstrapResult:
+class BootstrapResult(Outcome):
     """Result of :func:`bootstrap` (SI units; parameters in ``names`` order).
 
     Attributes
@@ -121,10 +121,6 @@ class BootstrapResult:
     status: Status
     message: str
     wall_time: float
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     def as_dict(self) -> dict:
         return {"names": list(self.names), "estimate": self.estimate.tolist(), "bias": self.bias.tolist(),

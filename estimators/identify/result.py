@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from models.params import ParameterSet
-from models.status import Status
+from models.status import Outcome, Status
 
 __all__ = ["FitResult", "IdentifiabilityWarning", "convergence_message", "fit_status", "identifiability_warnings",
            "BEST_FIT"]
@@ -148,7 +148,7 @@ def fit_status(reason: str, success: bool, message: str, *, warned: bool, struct
 
 
 @dataclass(frozen=True)
-class FitResult:
+class FitResult(Outcome):
     """Result of :meth:`IdentificationProblem.solve` / :func:`identify` (SI units, ``names`` order).
 
     Attributes
@@ -232,10 +232,6 @@ class FitResult:
     method: str = ""
     attempts: tuple = ()
     structure: Any = None
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     @property
     def error(self) -> np.ndarray:

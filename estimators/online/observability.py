@@ -52,7 +52,7 @@ import casadi as ca
 import numpy as np
 
 from models.errors import ConfigError
-from models.status import Status
+from models.status import Outcome, Status
 
 __all__ = ["ObservabilityReport", "WeakDirection", "observability", "linearisation_function", "compress_channels", "MIN_GAIN"]
 
@@ -83,7 +83,7 @@ class WeakDirection:
 
 
 @dataclass(frozen=True)
-class ObservabilityReport:
+class ObservabilityReport(Outcome):
     """Local observability along a window (module docstring).
 
     Attributes
@@ -119,10 +119,6 @@ class ObservabilityReport:
     message: str = ""
     twist_names: tuple = field(default=())
     regime: str = "trajectory"
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     def as_dict(self) -> dict:
         """A JSON-friendly summary."""

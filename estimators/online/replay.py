@@ -21,7 +21,7 @@ from estimators.online.factory import make_estimator
 from estimators.online.channels import angle_combination, default_channels
 from models.errors import ConfigError, DataError
 from models.sensors import SensorOptions
-from models.status import Status
+from models.status import Outcome, Status
 
 __all__ = ["EstimationResult", "estimate_log", "log_channels", "true_twists"]
 
@@ -31,7 +31,7 @@ OBS_WINDOWS_MAX = 12
 
 
 @dataclass(frozen=True)
-class EstimationResult:
+class EstimationResult(Outcome):
     """What an estimator made of a log (python-control style result; time on the first axis).
 
     Attributes
@@ -72,10 +72,6 @@ class EstimationResult:
     compile_status: str | None = None
     status: Status = Status.OK
     message: str = "ok"
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     def state(self, name: str) -> np.ndarray:
         """One state's estimates (N,), by name."""

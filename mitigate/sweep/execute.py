@@ -12,7 +12,7 @@ import numpy as np
 from models.errors import ConfigError
 from models.plant import SimOptions, plant_integration
 from models.plugins import describe
-from models.status import Status
+from models.status import Outcome, Status
 from mitigate.sweep.chunks import METRICS, ChunkTask, run_chunk
 from mitigate.sweep.plan import Axis, SweepPlan
 from mitigate.sweep.store import SweepStore
@@ -87,7 +87,7 @@ def stability_indices(plan: SweepPlan) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class SweepResult:
+class SweepResult(Outcome):
     """All points of a sweep.
 
     Attributes
@@ -112,10 +112,6 @@ class SweepResult:
     message: str = "ok"
     files: dict = field(default_factory=dict)
     stability_subgrid: tuple = ()
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
 
 def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None, scheduler: str | None = None,
