@@ -35,7 +35,7 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 
 from models import plugins
-from models.errors import PluginError, SolverFailure
+from models.errors import ConfigError, PluginError, SolverFailure
 from models.params import ParameterSet
 from models.sensors import SensorOptions
 from models.status import Outcome, Status
@@ -120,7 +120,7 @@ class EstimatorCounts:
 class StateEstimator(ABC):
     """Template: :meth:`update` guards, times and counts; subclasses implement ``_update_impl``.
 
-    Subclasses set ``kind``, ``options_class``, and in ``__init__`` ``self.names`` and
+    Subclasses set ``kind``, ``options_class`` (the options are checked to be one), and in ``__init__`` ``self.names`` and
     ``self.channels`` (the measurement channels used); ``_update_impl(t, y, mask, u)`` gets
     the channels in ``self.channels`` order and ``mask`` marking the finite ones.
     """
@@ -137,6 +137,10 @@ class StateEstimator(ABC):
     observability_steady: Any = None
 
     def __init__(self, options: Any, context: EstimatorContext):
+        oc = type(self).options_class
+        if oc is not None and not isinstance(options, oc):
+            raise ConfigError(f"{context.where}: {self.kind.upper()} options must be {oc.__name__}, "
+                              f"got {type(options).__name__}")
         self.options = options
         self.context = context
         self.counts = EstimatorCounts()

@@ -230,8 +230,6 @@ class EKF(ObservabilityMixin, StateEstimator):
     options_class = EKFOptions
 
     def __init__(self, options: EKFOptions, context: EstimatorContext):
-        if not isinstance(options, EKFOptions):
-            raise ConfigError(f"{context.where}: EKF options must be EKFOptions, got {type(options).__name__}")
         super().__init__(options, context)
         self.em = build_estimation_model(context.model, context.params, options, context.dt, context.sensors,
                                          context.x0, context.where)

@@ -43,8 +43,6 @@ class FiniteDifference(StateEstimator):
     options_class = FDOptions
 
     def __init__(self, options: FDOptions, context: EstimatorContext):
-        if not isinstance(options, FDOptions):
-            raise ConfigError(f"{context.where}: fd options must be FDOptions, got {type(options).__name__}")
         super().__init__(options, context)
         model = context.model
         if not isinstance(model, RigModel):

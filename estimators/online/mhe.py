@@ -51,7 +51,7 @@ from estimators.base import Estimate, EstimatorContext, StateEstimator
 from estimators.online.ekf import EKF, ObservabilityMixin
 from estimators.online.options import MHEOptions
 from models.codegen import compile_cached
-from models.errors import ConfigError, PluginError, SolverFailure
+from models.errors import PluginError, SolverFailure
 from models.sensors import FLOOR
 from models.status import Status
 
@@ -89,8 +89,6 @@ class MHE(ObservabilityMixin, StateEstimator):
     options_class = MHEOptions
 
     def __init__(self, options: MHEOptions, context: EstimatorContext):
-        if not isinstance(options, MHEOptions):
-            raise ConfigError(f"{context.where}: MHE options must be MHEOptions, got {type(options).__name__}")
         super().__init__(options, context)
         from dataclasses import replace
         self.ekf = EKF(replace(options.ekf_options(), check_observability=False), context)
