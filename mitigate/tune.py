@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from models.errors import ConfigError
-from models.status import Status
+from models.status import Outcome, Status
 from mitigate.benchmark.plan import Reference, RunTask, reference_run, run_seed, slug
 from mitigate.metrics import MetricOptions
 from mitigate.tunables import set_option
@@ -47,7 +47,7 @@ FAILED_SCORE = 10.0
 
 
 @dataclass(frozen=True)
-class TuneResult:
+class TuneResult(Outcome):
     """A tuning's outcome.
 
     Attributes
@@ -79,10 +79,6 @@ class TuneResult:
     elapsed: float = 0.0
     status: Status = Status.OK
     message: str = "ok"
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     def as_dict(self) -> dict[str, Any]:
         from mitigate.cliutil import to_jsonable

@@ -300,7 +300,7 @@ def test_a_torque_drive_tracks_its_speed_not_its_torque():
     ({"residual_fraction": 1.5}, r"^metrics\.residual_fraction must be in \(0, 1\], got 1\.5$"),
     ({"force_band": (1.1, 1.2)}, r"^metrics\.force_band must have low < 1 <= high, got \[1\.1, 1\.2\]$"),
     ({"force_band": 0.8}, r"^metrics\.force_band must be \[low, high\]"),
-    ({"suppress_threshold": "x"}, r"^metrics\.suppress_threshold must be a finite number, got 'x'$"),
+    ({"suppress_threshold": "x"}, r"^metrics\.suppress_threshold must be a finite number > 0, got 'x'$"),
 ])
 def test_metric_options_check_themselves(kw, match):
     with pytest.raises(ConfigError, match=match):

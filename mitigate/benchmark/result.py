@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from models.errors import ConfigError, DataError
-from models.status import Status
+from models.status import Outcome, Status
 from mitigate.benchmark.execute import RunStore, execute
 from mitigate.benchmark.plan import Reference, make_tasks, reference_run
 from mitigate.benchmark.stats import Entry, class_tables, rank, summarise
@@ -28,7 +28,7 @@ __all__ = ["BenchmarkResult", "run_benchmark", "references", "definition"]
 
 
 @dataclass(frozen=True)
-class BenchmarkResult:
+class BenchmarkResult(Outcome):
     """The benchmark's results.
 
     Attributes
@@ -40,8 +40,8 @@ class BenchmarkResult:
     tables : ``{"overall" | "drive" | "force" | "both": rows}`` (:func:`mitigate.benchmark.stats.class_tables`)
     phases, seeds : per (scenario, controller)
     tuned : ``{(scenario, controller): options}`` when the controllers were tuned (``mode == "tuned"``)
-    status : Status.OK; Status.WARNING when a suppression scenario has no stick-slip at its switch-on;
-        Status.FAILED when a run failed (the others' results stand)
+    status : :meth:`Status.worst` of the runs (FAILED if a run failed -- the others' results stand --,
+        WARNING if a run warned), and WARNING when a suppression scenario has no stick-slip at its switch-on
     """
 
     suite: Suite = field(repr=False)
@@ -58,10 +58,6 @@ class BenchmarkResult:
     message: str = "ok"
     files: dict = field(default_factory=dict)
     computed: int = 0
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     def entry(self, scenario: str, controller: str) -> Entry:
         try:
@@ -190,7 +186,14 @@ def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None 
         notes.append(f"{failed} run(s) failed or diverged")
     if no_slip:
         notes.append(f"no stick-slip at the switch-on of {', '.join(no_slip)}")
-    status = Status.FAILED if failed else Status.WARNING if no_slip else Status.OK
+    known = {s.value for s in Status}
+    runs = [Status(r["status"]) if r.get("status") in known else Status.FAILED if r.get("failed") else Status.OK
+            for r in records if r.get("applicable", True)]
+    warned = sum(s is Status.WARNING for s in runs)
+    if warned:
+        notes.append(f"{warned} run(s) with warnings")
+    # the whole is as good as its worst run (Status.worst); a suppression scenario without stick-slip warns
+    status = Status.worst(runs + ([Status.WARNING] if no_slip else []))
     return BenchmarkResult(suite, refs, records, entries, tables, phases, seeds, "tuned" if tuned else "defaults",
                            dict(tuned or {}), time.perf_counter() - t0, status, "; ".join(notes) or "ok",
                            computed=len(computed))
