@@ -21,7 +21,7 @@ import pytest
 from estimators.base import Estimate
 from mitigate.controllers.base import ControlContext
 from mitigate.controllers.nmpc import NMPC, MAX_HORIZON, NMPCOptions, NMPCWeights, make_nmpc, stage_functions
-from mitigate.controllers.nmpc.ocp import prediction_rhs
+from mitigate.controllers.nmpc.stage import prediction_rhs
 from mitigate.controllers.nmpc.qp import ConicQP, HpipmQP
 from mitigate.metrics import severity
 from models import get_model

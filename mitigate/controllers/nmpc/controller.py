@@ -30,7 +30,9 @@ from typing import Mapping
 import numpy as np
 
 from mitigate.controllers.base import Action, ControlContext, Controller
-from mitigate.controllers.nmpc.ocp import OCPSolver, OCPSpec, rk4_substeps_needed
+from mitigate.controllers.nmpc.layout import OCPSpec
+from mitigate.controllers.nmpc.ocp import make_ocp_solver
+from mitigate.controllers.nmpc.stage import rk4_substeps_needed
 from mitigate.controllers.nmpc.options import MAX_SUBSTEPS, NMPCOptions
 from models.actuators import Servo
 from models.errors import ConfigError, SolverFailure
@@ -80,7 +82,7 @@ class NMPC(Controller):
     Attributes
     ----------
     inputs : the inputs it sets (the drive's first); body : the objective body
-    spec : the OCPSpec; ocp : the OCPSolver; nsub : RK4 substeps per interval
+    spec : the OCPSpec; ocp : its solver (an OCPSolver); nsub : RK4 substeps per interval
     last_result : the last OCPResult; inject_failure : test hook, ``callable(t) -> bool`` (True
         makes the next solve fail)
     """
@@ -137,7 +139,7 @@ class NMPC(Controller):
                             inputs=self.inputs, taus=taus, speed_scale=w_s,
                             setpoint_scale=(o.setpoint_band if self._torque_drive else w_s) or 1.0,
                             force_scales=tuple(float(a.n_max) for a in acts), weights=weights.as_tuple())
-        self.ocp = OCPSolver(m, self.spec, solver=o.solver, compile=o.compile, qp_solver=o.qp_solver,
+        self.ocp = make_ocp_solver(m, self.spec, solver=o.solver, compile=o.compile, qp_solver=o.qp_solver,
                              qp_tol=o.qp_tol, sqp_max_iter=o.sqp_max_iter)
         L = self.ocp.layout
         self.layout = L

@@ -13,11 +13,12 @@ from typing import Mapping
 
 from models.checks import finite_number
 from models.errors import ConfigError
+from mitigate.controllers.nmpc.qp import QP_SOLVERS
 
 __all__ = ["NMPCOptions", "NMPCWeights", "MAX_HORIZON", "MAX_SUBSTEPS", "INPUT_MODES", "SOLVERS", "WEIGHT_NAMES"]
 
+#: OCP solvers (:func:`mitigate.controllers.nmpc.ocp.make_ocp_solver`)
 SOLVERS = ("rti", "sqp", "ipopt")
-QP_SOLVERS = ("hpipm", "qrqp", "osqp")
 #: ``inputs`` keywords: every command the rig offers, its servo inputs only, its drive only
 INPUT_MODES = ("both", "pin", "motor")
 # The OCP, its build and each QP grow with the horizon.  N = 500 plans 25 s ahead at dt = 0.05 s

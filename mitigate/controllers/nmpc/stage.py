@@ -1,0 +1,165 @@
+"""The NMPC's stage functions on any rig: the prediction model, the discrete augmented
+dynamics, the least-squares cost and their Gauss-Newton blocks (named CasADi Functions), and
+the RK4 substep rule of the prediction.
+
+The OCP is a multiple-shooting problem over ``N`` intervals of ``dt`` [s], each integrated by
+RK4 with ``nsub`` substeps on the rig's regularised model (state and decisions:
+:mod:`mitigate.controllers.nmpc.layout`).
+
+The cost is a least-squares sum plus a linear servo-force term (friction work at a pin is
+linear in its normal force; a linear cost leaves the force at exactly 0 when it does not pay)::
+
+    sum_k 0.5 |r(xa_k, v_k)|^2 + c_f sum_j c_j / f_j   +   0.5 |r_N(xa_N)|^2
+
+    r = [w_speed (w_b - w_nom) / w_s,                     objective body b
+         w_rel (w_a - w_a') / w_s  for every spring connection (a, a'),
+         w_ref (u_drive - u_drive_programme) / sp_s,      if the drive is commanded
+         w_force c_j / f_j,  w_d_ref d w / sp_s,  w_d_force (c_j - s_j) / f_j]
+    r_N = w_terminal [speed and spring residuals]
+
+with ``w_s`` = max(|w_nom|, 1 rad/s), ``sp_s`` = ``w_s`` (speed set-point) or the band (torque
+drive) and ``f_j`` the servo's ``n_max``, so every weight is dimensionless.  Gauss-Newton gives
+a positive semi-definite Hessian at no extra cost.
+
+Per-stage parameters ``q`` (:meth:`OCPLayout.q_template`, :meth:`OCPLayout.set_q`): the held inputs (``model.inputs`` order; the
+drive entry is the programme's set-point), the nominal speed, the scales, the weights, one
+friction factor per contact body (the disturbance model: 1 = as the rig file says) and the rig's
+parameter vector.  Only the structure (N, dt, nsub, eps, inputs, lags, body) enters the
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from models import friction as fr
+from models.discretise import rk4
+from mitigate.controllers.nmpc.layout import OCPLayout, OCPSpec
+from mitigate.controllers.nmpc.options import WEIGHT_NAMES
+
+__all__ = ["stage_functions", "prediction_rhs", "rk4_substeps_needed"]
+
+
+def prediction_rhs(model, eps: float) -> ca.Function:
+    """``xdot = f(x, u, p, fc)``: the rig's regularised model with the friction torque of contact
+    body ``i`` multiplied by ``fc[i]`` (the disturbance model; ``fc = 1`` is ``model.ode(eps)``)."""
+    x, u, p = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu), ca.SX.sym("p", model.n_p)
+    fc = ca.SX.sym("fc", len(model.contacts))
+    P = model.unpack(p)
+    Tc = [fc[i] * model.contact_torque_smooth(i, x[idx], x, u, P, eps) for i, idx in enumerate(model.contacts)]
+    s = [fr.smooth_sign(x[idx], eps) for idx in model.contacts]
+    xdot = ca.vertcat(*model.dynamics(x, u, P, Tc, s))
+    return ca.Function(f"{model.cname}_nmpc_rhs", [x, u, p, fc], [xdot], ["x", "u", "p", "fc"], ["xdot"])
+
+
+def _spring_speeds(model, x, u):
+    """Relative speed across every spring connection, ``w(between[0]) - w(between[1])``."""
+    drive = model.drive_input
+
+    def node(n):
+        if n == "ground":
+            return 0
+        if n == "drive":
+            return u[model.inputs.index(drive)]
+        return x[model.speed_index(n)]
+    return [node(c.a) - node(c.b) for c in model.spec.connections if c.stiffness is not None]
+
+
+def stage_functions(model, spec: OCPSpec):
+    """Named SX Functions of one stage.
+
+    Returns
+    -------
+    F : (xa, v, q) -> xa_next, the discrete augmented dynamics
+    cost : (xa, v, q) -> (r, l): stage residual and linear cost
+    stage : (xa, v, q) -> (xn, A, B, Q, S, R, gx, gv, c): dynamics, Jacobians, the Gauss-Newton
+        Hessian blocks (Q = Jx'Jx, S = Jv'Jx, R = Jv'Jv), the gradient and the stage cost
+    term : (xa, q) -> (Q, g, c, r): terminal Gauss-Newton Hessian, gradient, cost and residual
+    """
+    L = OCPLayout(model, spec)
+    nx, nu = model.nx, model.nu
+    rhs = prediction_rhs(model, spec.eps)
+    xa, v, q = ca.SX.sym("xa", L.nxa), ca.SX.sym("v", L.nv), ca.SX.sym("q", L.nq)
+    hold = q[L.q_hold:L.q_hold + nu]
+    nom, ws, sps = q[L.q_nom], q[L.q_ws], q[L.q_sps]
+    fs = q[L.q_f:L.q_f + L.ns]
+    w_speed, w_rel, w_ref, w_force, c_force, w_dref, w_dforce, w_term = (q[L.q_w + k] for k in range(len(WEIGHT_NAMES)))
+    fc = q[L.q_fc:L.q_fc + L.n_fc]
+    p = q[L.q_p:]
+    taus = spec.taus
+
+    def inputs(xa_, v_):
+        u = [hold[j] for j in range(nu)]
+        if L.drive:
+            u[L.u_drive] = xa_[L.i_wprev] + v_[0]
+        for k, j in enumerate(L.u_servo):
+            u[j] = xa_[L.i_servo[k]] if taus[k] > 0 else v_[L.j_cmd[k]]
+        return ca.vertcat(*u)
+
+    def faug(xa_, v_, _q):
+        xdot = rhs(xa_[:nx], inputs(xa_, v_), p, fc)
+        sdot = [(v_[L.j_cmd[k]] - xa_[L.i_servo[k]]) / taus[k] if taus[k] > 0 else 0 for k in range(L.ns)]
+        return ca.vertcat(xdot, *sdot, *([0] if L.drive else []))
+
+    xe = rk4(faug, xa, v, q, spec.dt, spec.nsub)
+    xn = [xe[j] for j in range(nx)]
+    for k in range(L.ns):
+        xn.append(xe[L.i_servo[k]] if taus[k] > 0 else v[L.j_cmd[k]])
+    if L.drive:
+        xn.append(xa[L.i_wprev] + v[0])
+    xn = ca.vertcat(*xn)
+    name = f"{model.cname}_nmpc"
+    F = ca.Function(f"{name}_F", [xa, v, q], [xn], ["xa", "v", "q"], ["xa_next"])
+
+    u = inputs(xa, v)
+    wb = xa[model.speed_index(spec.body)]
+    r = [w_speed * (wb - nom) / ws] + [w_rel * dd / ws for dd in _spring_speeds(model, xa, u)]
+    if L.drive:
+        r += [w_ref * (u[L.u_drive] - hold[L.u_drive]) / sps]
+    cmd = [v[L.j_cmd[k]] for k in range(L.ns)]
+    r += [w_force * cmd[k] / fs[k] for k in range(L.ns)]
+    if L.drive:
+        r += [w_dref * v[0] / sps]
+    r += [w_dforce * (cmd[k] - xa[L.i_servo[k]]) / fs[k] for k in range(L.ns)]
+    r = ca.vertcat(*r)
+    lin = c_force * sum((cmd[k] / fs[k] for k in range(L.ns)), ca.SX(0))
+    cost = ca.Function(f"{name}_cost", [xa, v, q], [r, lin], ["xa", "v", "q"], ["r", "l"])
+    Jx, Jv = ca.jacobian(r, xa), ca.jacobian(r, v)
+    d = ca.densify
+    stage = ca.Function(f"{name}_stage", [xa, v, q],
+                        [xn, d(ca.jacobian(xn, xa)), d(ca.jacobian(xn, v)), d(Jx.T @ Jx), d(Jv.T @ Jx), d(Jv.T @ Jv),
+                         d(Jx.T @ r + ca.jacobian(lin, xa).T), d(Jv.T @ r + ca.jacobian(lin, v).T),
+                         0.5 * ca.sumsqr(r) + lin],
+                        ["xa", "v", "q"], ["xn", "A", "B", "Q", "S", "R", "gx", "gv", "c"])
+    # the terminal stage sees the last applied drive input (no decision there)
+    uN = [hold[j] for j in range(nu)]
+    if L.drive:
+        uN[L.u_drive] = xa[L.i_wprev]
+    for k, j in enumerate(L.u_servo):
+        uN[j] = xa[L.i_servo[k]]
+    rN = w_term * ca.vertcat(w_speed * (wb - nom) / ws,
+                             *[w_rel * dd / ws for dd in _spring_speeds(model, xa, ca.vertcat(*uN))])
+    JN = ca.jacobian(rN, xa)
+    term = ca.Function(f"{name}_term", [xa, q], [d(JN.T @ JN), d(JN.T @ rN), 0.5 * ca.sumsqr(rN), rN],
+                       ["xa", "q"], ["Q", "g", "c", "r"])
+    return F, cost, stage, term
+
+
+def rk4_substeps_needed(model, params, dt: float, eps: float, u_max, taus=(), speed: float = 1.0) -> int:
+    """Substeps that keep RK4 stable over ``dt`` [s]: ``|h lambda| <= 2.5`` with ``lambda`` the
+    largest eigenvalue of the model's Jacobian at steady sliding under ``u_max`` (``model.inputs``
+    order; forces at their largest), with every contact body at rest or at ``speed`` [rad/s], and
+    the servo lags ``1/tau``."""
+    f = model.ode(eps)
+    x, u = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
+    J = ca.Function("J", [x, u], [ca.jacobian(f(x, u, params.vector()), x)])
+    u_max = np.asarray(u_max, float)
+    xs = model.sliding_guess(u_max, params)
+    lam = max([1.0 / t for t in taus if t > 0], default=0.0)
+    nc = min(len(model.contacts), 4)
+    for combo in range(2 ** nc):
+        xx = xs.copy()
+        for i in range(nc):
+            xx[model.contacts[i]] = speed if combo >> i & 1 else 0.0
+        lam = max(lam, float(np.max(np.abs(np.linalg.eigvals(np.array(J(xx, u_max)))))))
+    return max(1, int(np.ceil(dt * lam / 2.5)))
