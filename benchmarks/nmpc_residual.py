@@ -101,7 +101,9 @@ def build(path: Path, *, seed: int | None = None, start: float | None = None, es
         sc["duration"] = float(duration)
     if start is not None:
         data.setdefault("control", {})["start"] = float(start)
-    if estimator != "scenario":
+    if isinstance(estimator, dict):
+        data["estimator"] = dict(estimator)
+    elif estimator != "scenario":
         data["estimator"] = {"kind": estimator}
     if controller is not None:
         name, kind, opts = controller
@@ -141,7 +143,7 @@ def run_metrics(res, sc, period: float) -> dict:
     """The harness's metrics of one closed-loop run (module docstring)."""
     import numpy as np
 
-    from mitigate.metrics import severity
+    from mitigate.metrics import severity, time_to_suppress
     t, dt = res.t, sc.dt
     m = t >= res.control_start - 1e-12
     w = res.objective_speed
@@ -160,6 +162,7 @@ def run_metrics(res, sc, period: float) -> dict:
         "residual": severity(w[last]),
         "speed_ratio": float(np.mean(w[last]) / np.mean(w_prog[last])),
         "overshoot": float(np.max((w[m] - w_prog[m]) / np.abs(w_prog[m]))),
+        "t_suppress": time_to_suppress(w[m], dt, max(3.0, RESIDUAL_PERIODS * period), 0.1),
         "fallbacks": int(res.controller_counts.get("fallbacks", 0)),
         "failures": int(res.controller_counts.get("failures", 0)),
         "status": res.status.value,

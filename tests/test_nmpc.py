@@ -444,7 +444,8 @@ def test_load_estimate_scales_the_friction_of_its_contact(use, factor, monkeypat
 
 
 def test_held_normal_force_is_read_through_its_load_cell():
-    """N1 and N2 are held at their load cells' readings corrected for the cells' gain and offset."""
+    """N1 and N2 are held at their load cells' readings corrected for the cells' gain and offset
+    (the first reading as it is); a lost reading keeps the last deviation from the programme."""
     p = P.replace(n1_gain=2.0, n1_offset=1.0)
     c = make_nmpc({"horizon": 5, "compile": False, "inputs": "motor"}, _ctx(params=p))
     seen = []
@@ -452,9 +453,30 @@ def test_held_normal_force_is_read_through_its_load_cell():
     c.ocp.solve = lambda xa0, q, *a: seen.append(q[:M.nu].copy()) or orig(xa0, q, *a)
     c.step(0.0, {"n1": 41.0, "n2": 3.0}, _est(0.0, M.steady_sliding(U0, P)))
     np.testing.assert_allclose(seen[0], [W0, 20.0, 3.0])
-    # a lost reading: the programme's value (N1 = 20 N, N2 = 0 N) until it comes back
     c.step(0.05, {"n1": float("nan")}, _est(0.05, M.steady_sliding(U0, P)))
-    np.testing.assert_allclose(seen[1], [W0, 20.0, 0.0])
+    np.testing.assert_allclose(seen[1], [W0, 20.0, 3.0])
+
+
+def test_held_normal_force_filters_the_load_cell_noise_and_follows_the_programme_at_once():
+    """Load-cell noise reaches the plan low-passed (time constant ``force_filter``): +-1 N of
+    alternating noise on N1 moves the held force by < 0.1 N; a programme step of N1 (20 -> 30 N)
+    reaches it in the same sample.  With ``force_filter = 0`` the raw reading is held."""
+    prog = lambda t: np.array([W0, 20.0 if t < 1.0 else 30.0, 0.0])   # noqa: E731
+    x = M.steady_sliding(U0, P)
+    for tau, tol in ((0.2, 0.1), (0.0, None)):
+        c = make_nmpc({"horizon": 5, "compile": False, "inputs": "motor", "force_filter": tau}, _ctx(programme=prog))
+        seen = []
+        orig = c.ocp.solve
+        c.ocp.solve = lambda xa0, q, *a, seen=seen, orig=orig: seen.append(q[:M.nu].copy()) or orig(xa0, q, *a)
+        for k in range(150):
+            t = 0.01 * k
+            c.step(t, {"n1": float(prog(t)[1]) + (1.0 if k % 2 else -1.0), "n2": 0.0}, _est(t, x))
+        n1 = np.array([s[1] for s in seen])       # one plan every 5 samples: t = 0, 0.05, ...
+        if tol is None:
+            assert np.all(np.abs(np.abs(n1 - np.where(np.arange(len(n1)) < 20, 20.0, 30.0)) - 1.0) < 1e-9)
+        else:
+            assert np.max(np.abs(n1[12:20] - 20.0)) < tol   # the first reading (-1 N) has decayed
+            assert abs(n1[20] - 30.0) < tol        # t = 1.0 s: the step of the programme, at once
 
 
 # ----------------------------------------------------------------------------- other rigs

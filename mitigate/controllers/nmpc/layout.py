@@ -100,12 +100,14 @@ class OCPLayout:
         self.states = tuple(model.states) + tuple(f"servo:{n}" for n in self.servos) + \
             ((f"previous:{drive}",) if self.drive else ())
         self.decisions = ((f"change:{drive}",) if self.drive else ()) + tuple(f"command:{n}" for n in self.servos)
-        # q = [held inputs (nu), nominal speed, w_s, sp_s, f_1..f_m, weights (8), friction factors, p]
+        # q = [held inputs (nu), nominal speed, w_s, sp_s, f_1..f_m, linear-cost flags (m), weights,
+        #      friction factors, p]
         self.q_hold = 0
         self.q_nom = nu
         self.q_ws, self.q_sps = nu + 1, nu + 2
         self.q_f = nu + 3
-        self.q_w = self.q_f + ns
+        self.q_lin = self.q_f + ns
+        self.q_w = self.q_lin + ns
         self.q_fc = self.q_w + len(WEIGHT_NAMES)
         self.n_fc = len(model.contacts)
         self.q_p = self.q_fc + self.n_fc
@@ -129,12 +131,15 @@ class OCPLayout:
         q[self.q_p:] = np.asarray(p, float)
         return q
 
-    def set_q(self, q: np.ndarray, hold, nominal: float, friction=None) -> np.ndarray:
+    def set_q(self, q: np.ndarray, hold, nominal: float, friction=None, linear=None) -> np.ndarray:
         """Write the held inputs (``model.inputs`` order; the drive's entry is the programme's
-        set-point), the nominal speed [rad/s] and the friction factors (None: 1) into ``q``."""
+        set-point, a commanded servo's its programmed force), the nominal speed [rad/s], the
+        friction factors (None: 1) and the servos' linear-cost flags (None: 0; 1 where the
+        programme holds that servo at its lower limit) into ``q``."""
         q[:self.model.nu] = hold
         q[self.q_nom] = nominal
         q[self.q_fc:self.q_fc + self.n_fc] = 1.0 if friction is None else friction
+        q[self.q_lin:self.q_lin + self.ns] = 0.0 if linear is None else linear
         return q
 
     def applied(self, xa, v) -> np.ndarray:

@@ -8,6 +8,7 @@ the rig (does it have that input, that body?) is checked when the controller is 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Mapping
 
@@ -128,6 +129,12 @@ class NMPCOptions:
         call after a plan (a held sample), so a planning call only embeds the state and solves the QP
     use_load_estimate : scale a contact's friction in the prediction by the estimate's
         ``load:<contact>`` state when it has one (the EKF's disturbance model)
+    force_filter : time constant [s] of the low-pass on (load-cell reading - programme) of a
+        held normal force (None: the horizon, ``horizon dt``; 0: the raw reading)
+    hold_gain : factor on the ``ref`` and ``force`` weights once the objective body slides calmly
+        (:mod:`mitigate.controllers.nmpc.schedule`; 1: the same weights always)
+    calm_band : ``(s_lo, s_hi)``: the estimated severity over one stick-slip period below which
+        the NMPC holds (``hold_gain``) and above which it suppresses (factor 1); log-linear between
     """
 
     horizon: int = 20
@@ -148,6 +155,9 @@ class NMPCOptions:
     model_servo: bool = True
     prepare_ahead: bool = True
     use_load_estimate: bool = True
+    force_filter: float | None = None
+    hold_gain: float = 15.0
+    calm_band: tuple[float, float] = (0.01, 0.1)
     where: str = "nmpc"
 
     def __post_init__(self):
@@ -186,6 +196,15 @@ class NMPCOptions:
             raise ConfigError(f"{w}.qp_solver must be one of {', '.join(QP_SOLVERS)}, got {self.qp_solver!r}")
         finite_number(self.qp_tol, f"{w}.qp_tol", positive=True)
         _int(self.sqp_max_iter, f"{w}.sqp_max_iter", 1)
+        finite_number(self.hold_gain, f"{w}.hold_gain", positive=True)
+        band = self.calm_band
+        if not (isinstance(band, (list, tuple)) and len(band) == 2
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in band)
+                and 0 < band[0] < band[1]):
+            raise ConfigError(f"{w}.calm_band must be two severities 0 < s_lo < s_hi, got {band!r}")
+        object.__setattr__(self, "calm_band", (float(band[0]), float(band[1])))
+        if self.force_filter is not None:
+            finite_number(self.force_filter, f"{w}.force_filter", nonneg=True, unit="s")
         for name in ("compile", "model_servo", "prepare_ahead", "use_load_estimate"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{w}.{name} must be true or false, got {getattr(self, name)!r}")

@@ -6,25 +6,31 @@ The OCP is a multiple-shooting problem over ``N`` intervals of ``dt`` [s], each 
 RK4 with ``nsub`` substeps on the rig's regularised model (state and decisions:
 :mod:`mitigate.controllers.nmpc.layout`).
 
-The cost is a least-squares sum plus a linear servo-force term (friction work at a pin is
-linear in its normal force; a linear cost leaves the force at exactly 0 when it does not pay)::
+The cost is a least-squares sum plus a linear servo-force term where the programme holds a
+servo at its lower limit (friction work at a pin is linear in its normal force; a linear cost
+leaves the force at exactly 0 when it does not pay)::
 
-    sum_k 0.5 |r(xa_k, v_k)|^2 + c_f sum_j c_j / f_j   +   0.5 |r_N(xa_N)|^2
+    sum_k 0.5 |r(xa_k, v_k)|^2 + c_f sum_j l_j c_j / f_j   +   0.5 |r_N(xa_N)|^2
 
     r = [w_speed (w_b - w_nom) / w_s,                     objective body b
          w_rel (w_a - w_a') / w_s  for every spring connection (a, a'),
          w_ref (u_drive - u_drive_programme) / sp_s,      if the drive is commanded
-         w_force c_j / f_j,  w_d_ref d w / sp_s,  w_d_force (c_j - s_j) / f_j]
+         w_force (c_j - N_j) / f_j,                       N_j the programme's force (the driller's
+                                                          weight on bit: tracked, never pulled to 0)
+         w_d_ref d w / sp_s,  w_d_force (c_j - s_j) / f_j]
     r_N = w_terminal [speed and spring residuals]
 
 with ``w_s`` = max(|w_nom|, 1 rad/s), ``sp_s`` = ``w_s`` (speed set-point) or the band (torque
-drive) and ``f_j`` the servo's ``n_max``, so every weight is dimensionless.  Gauss-Newton gives
-a positive semi-definite Hessian at no extra cost.
+drive), ``f_j`` the servo's ``n_max`` and ``l_j`` = 1 where ``N_j`` is the servo's ``n_min`` (else
+0), so every weight is dimensionless.  Gauss-Newton gives a positive semi-definite Hessian at
+no extra cost.
 
-Per-stage parameters ``q`` (:meth:`OCPLayout.q_template`, :meth:`OCPLayout.set_q`): the held inputs (``model.inputs`` order; the
-drive entry is the programme's set-point), the nominal speed, the scales, the weights, one
-friction factor per contact body (the disturbance model: 1 = as the rig file says) and the rig's
-parameter vector.  Only the structure (N, dt, nsub, eps, inputs, lags, body) enters the
+Per-stage parameters ``q`` (:meth:`OCPLayout.q_template`, :meth:`OCPLayout.set_q`): the held
+inputs (``model.inputs`` order; the drive entry is the programme's set-point, a commanded
+servo's its programmed force), the nominal speed, the scales, the linear-cost flags ``l_j``,
+the weights, one friction factor per contact body (the disturbance model: 1 = as the rig file
+says) and the rig's parameter vector.  Only the structure (N, dt, nsub, eps, inputs, lags,
+body) enters the compiled code, so one library serves every tuning.
 """
 
 from __future__ import annotations
@@ -83,6 +89,7 @@ def stage_functions(model, spec: OCPSpec):
     hold = q[L.q_hold:L.q_hold + nu]
     nom, ws, sps = q[L.q_nom], q[L.q_ws], q[L.q_sps]
     fs = q[L.q_f:L.q_f + L.ns]
+    flin = q[L.q_lin:L.q_lin + L.ns]
     w_speed, w_rel, w_ref, w_force, c_force, w_dref, w_dforce, w_term = (q[L.q_w + k] for k in range(len(WEIGHT_NAMES)))
     fc = q[L.q_fc:L.q_fc + L.n_fc]
     p = q[L.q_p:]
@@ -117,12 +124,12 @@ def stage_functions(model, spec: OCPSpec):
     if L.drive:
         r += [w_ref * (u[L.u_drive] - hold[L.u_drive]) / sps]
     cmd = [v[L.j_cmd[k]] for k in range(L.ns)]
-    r += [w_force * cmd[k] / fs[k] for k in range(L.ns)]
+    r += [w_force * (cmd[k] - hold[L.u_servo[k]]) / fs[k] for k in range(L.ns)]
     if L.drive:
         r += [w_dref * v[0] / sps]
     r += [w_dforce * (cmd[k] - xa[L.i_servo[k]]) / fs[k] for k in range(L.ns)]
     r = ca.vertcat(*r)
-    lin = c_force * sum((cmd[k] / fs[k] for k in range(L.ns)), ca.SX(0))
+    lin = c_force * sum((flin[k] * cmd[k] / fs[k] for k in range(L.ns)), ca.SX(0))
     cost = ca.Function(f"{name}_cost", [xa, v, q], [r, lin], ["xa", "v", "q"], ["r", "l"])
     Jx, Jv = ca.jacobian(r, xa), ca.jacobian(r, v)
     d = ca.densify
