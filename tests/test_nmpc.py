@@ -375,7 +375,7 @@ def test_inputs_respect_bounds_and_rate_limits(variants):
     r = variants["both"]
     c, acts, forces = r["c"], r["acts"], r["forces"]
     servo = M.actuator("n2")
-    o = c.options
+    o = c.cfg          # the settings in force: the rig's defaults here
     wref = np.array([a.u["omega_ref"] for a in acts])
     n2 = np.array([a.u["n2"] for a in acts])
     assert np.all(n2 >= servo.n_min - 1e-9) and np.all(n2 <= servo.n_max + 1e-9)
@@ -625,4 +625,4 @@ def test_too_stiff_a_rig_for_the_interval_is_a_config_error():
     m = get_model("leadscrew")
     with pytest.raises(ConfigError, match=r"^nmpc\.substeps: rig 'leadscrew' needs \d+ RK4 substeps per 0.05 s "
                                           r"interval .* the limit is 200"):
-        make_nmpc({"compile": False}, _ctx(model=m, programme=[40.3, 314.3]))
+        make_nmpc({"compile": False, "dt": 0.05}, _ctx(model=m, programme=[40.3, 314.3]))

@@ -38,6 +38,7 @@ from typing import Mapping
 import numpy as np
 
 from mitigate.controllers.base import Action, ControlContext, Controller
+from mitigate.controllers.nmpc.defaults import resolve as resolve_defaults
 from mitigate.controllers.nmpc.layout import OCPSpec
 from mitigate.controllers.nmpc.ocp import make_ocp_solver
 from mitigate.controllers.nmpc.stage import rk4_substeps_needed
@@ -94,6 +95,8 @@ class NMPC(Controller):
     Attributes
     ----------
     inputs : the inputs it sets (the drive's first); body : the objective body
+    cfg : the unit-carrying settings (:class:`mitigate.controllers.nmpc.defaults.Resolved`: given
+        options, or the rig's defaults); period : the rig's stick-slip period [s]
     spec : the OCPSpec; ocp : its solver (an OCPSolver); nsub : RK4 substeps per interval
     last_result : the last OCPResult; inject_failure : test hook, ``callable(t) -> bool`` (True
         makes the next solve fail)
@@ -113,8 +116,6 @@ class NMPC(Controller):
         self.model = m
         self.params = m.check_params(context.params, f"{where}: params")
         self.dt_daq = float(context.dt)
-        if o.dt < self.dt_daq - 1e-12:
-            raise ConfigError(f"{where}.dt must be >= the DAQ period {self.dt_daq} s, got {o.dt}")
         self.inputs = resolve_inputs(o.inputs, m, where)
         self.body = o.body or m.objective_body
         if self.body not in m.bodies:
@@ -135,36 +136,37 @@ class NMPC(Controller):
         acts = [m.actuator(n) for n in self.servos]
         self._acts = acts
         self._held = [j for j, n in enumerate(m.inputs) if n not in self.inputs]
-        self._tau_force = o.force_filter if o.force_filter is not None else o.horizon * o.dt
         self._n_min = np.array([a.n_min for a in acts], float)
         self._readers = {j: self._reader(n) for j, n in enumerate(m.inputs) if n != drive}
-        # structure of the OCP
+        # structure of the OCP; the unit-carrying settings from the options or the rig
         u0 = np.asarray(context.programme(0.0), float)
         nom0 = self._nominal(0.0, u0)
-        w_s = max(abs(nom0), 1.0)
+        self.cfg = cfg = resolve_defaults(o, m, self.params, self.dt_daq, nom0, float(u0[m.inputs.index(drive)]), where)
+        self._tau_force = cfg.force_filter
+        w_s = abs(nom0) if nom0 != 0 else 1.0
         taus = tuple(float(a.tau) if o.model_servo else 0.0 for a in acts)
         self.weights = weights = o.weights
         self.nsub = o.substeps or self._substeps(u0, nom0, taus)
         if self.nsub > MAX_SUBSTEPS:
-            raise ConfigError(f"{where}.substeps: rig {m.name!r} needs {self.nsub} RK4 substeps per {o.dt} s interval "
-                              f"to be stable (stiff friction or springs); the limit is {MAX_SUBSTEPS}: shorten dt, or "
-                              f"widen eps where the friction law uses it")
-        self.spec = OCPSpec(horizon=o.horizon, dt=o.dt, nsub=self.nsub, eps=o.eps, body=self.body,
+            raise ConfigError(f"{where}.substeps: rig {m.name!r} needs {self.nsub} RK4 substeps per {cfg.dt} s "
+                              f"interval to be stable (stiff friction or springs); the limit is {MAX_SUBSTEPS}: shorten "
+                              f"dt, or widen eps where the friction law uses it")
+        self.spec = OCPSpec(horizon=o.horizon, dt=cfg.dt, nsub=self.nsub, eps=cfg.eps, body=self.body,
                             inputs=self.inputs, taus=taus, speed_scale=w_s,
-                            setpoint_scale=(o.setpoint_band if self._torque_drive else w_s) or 1.0,
+                            setpoint_scale=(cfg.setpoint_band if self._torque_drive else w_s) or 1.0,
                             force_scales=tuple(float(a.n_max) for a in acts), weights=weights.as_tuple())
         self.ocp = make_ocp_solver(m, self.spec, solver=o.solver, compile=o.compile, qp_solver=o.qp_solver,
                              qp_tol=o.qp_tol, sqp_max_iter=o.sqp_max_iter)
         L = self.ocp.layout
         self.layout = L
         self._q = L.q_template(self.spec, self.params.vector())
-        self._rate = np.array(([o.setpoint_rate] if self.drives else []) + [a.rate_max for a in acts], float)
+        self._rate = np.array(([cfg.setpoint_rate] if self.drives else []) + [a.rate_max for a in acts], float)
         self._lo = np.array(([0.0] if self.drives else []) + [a.n_min for a in acts], float)
         self._hi = np.array(([0.0] if self.drives else []) + [a.n_max for a in acts], float)
         self._load_keys = {f"load:{c}": i for i, names in enumerate(m.contact_names) for c in names}
-        self.period = self._stick_slip_period()
+        self.period = cfg.period
         self.schedule = CalmSchedule(self.period, self.dt_daq, o.calm_band, o.hold_gain)
-        self._i_sched = np.array([L.q_w + WEIGHT_NAMES.index(k) for k in ("ref", "force")])
+        self._i_ref, self._i_force = (L.q_w + WEIGHT_NAMES.index(k) for k in ("ref", "force"))
         self._i_speed = m.speed_index(self.body)
         self._names_seen = None
         self.inject_failure = None
@@ -183,27 +185,19 @@ class NMPC(Controller):
                 return s.channels[0], off, 1.0 if gain is None else gain
         return name, 0.0, 1.0
 
-    def _stick_slip_period(self) -> float:
-        """The period [s] of the rig's stick-slip band (the lowest torsional mode with the drive
-        held, :func:`mitigate.controllers.tuning.stick_slip_frequency`), or the horizon if it has none."""
-        from mitigate.controllers.tuning import stick_slip_frequency
-        try:
-            return 1.0 / stick_slip_frequency(self.model, self.params)
-        except ConfigError:
-            return self.options.horizon * self.options.dt
-
     def _substeps(self, u0, nom0: float, taus) -> int:
-        m, o = self.model, self.options
+        m, cfg = self.model, self.cfg
         umax = np.abs(u0).astype(float)
         for j, n in enumerate(m.inputs):
             a = m.actuator(n)
             if n == m.drive_input:
-                umax[j] = abs(u0[j]) + o.setpoint_band
+                umax[j] = abs(u0[j]) + cfg.setpoint_band
             elif a is not None:
                 umax[j] = a.n_max
             elif m.input_kinds[j] == "force":
                 umax[j] = 2.0 * abs(u0[j])  # a held normal force may double (load factor, ramps)
-        return rk4_substeps_needed(m, self.params, o.dt, o.eps, umax, taus, max(abs(nom0) + o.setpoint_band, 1.0))
+        return rk4_substeps_needed(m, self.params, cfg.dt, cfg.eps, umax, taus,
+                                   abs(nom0) + (0.0 if self._torque_drive else cfg.setpoint_band) or 1.0)
 
     def _nominal(self, t: float, u_prog) -> float:
         """Nominal speed of the objective body [rad/s]."""
@@ -267,7 +261,7 @@ class NMPC(Controller):
         lo, hi = self._lo.copy(), self._hi.copy()
         if self.drives:
             c = float(u_prog[self.layout.u_drive])
-            band = self.options.setpoint_band
+            band = self.cfg.setpoint_band
             lo[0], hi[0] = c - band, c + band
             if not self._torque_drive:   # a speed set-point does not reverse the rotation
                 if c >= 0:
@@ -319,7 +313,8 @@ class NMPC(Controller):
         xe = getattr(estimate, "x", None)
         if xe is not None and len(xe) > self._i_speed:
             self.schedule.update(float(xe[self._i_speed]), self._nominal(t, u_prog))
-        due = self._t_solve is None or t - self._t_solve >= o.dt - 0.5 * self.dt_daq
+        dt = self.cfg.dt
+        due = self._t_solve is None or t - self._t_solve >= dt - 0.5 * self.dt_daq
         if not due and self._action is not None:
             if self._prep_q is not None:
                 q, self._prep_q = self._prep_q, None
@@ -329,7 +324,7 @@ class NMPC(Controller):
                     self.ocp.reset()
             a = self._action
             return Action(a.u, Status.HOLD, f"hold: {a.status.value}: {a.message}" if a.message else "hold")
-        steps = 1 if self._t_solve is None else max(1, int(round((t - self._t_solve) / o.dt)))
+        steps = 1 if self._t_solve is None else max(1, int(round((t - self._t_solve) / dt)))
         self._t_solve = t
         try:
             if self.inject_failure is not None and self.inject_failure(t):
@@ -344,7 +339,9 @@ class NMPC(Controller):
                 xa0[L.i_wprev] = self._u_prev[0]
             at_min = [float(hold[j] <= lo + 1e-9 * max(abs(lo), 1.0)) for j, lo in zip(L.u_servo, self._n_min)]
             q = L.set_q(self._q.copy(), hold, self._nominal(t, u_prog), fc, at_min)
-            q[self._i_sched] *= self.schedule.current()
+            f = self.schedule.current()
+            q[self._i_ref] *= f
+            q[self._i_force] *= f * f if self.drives else f   # pin only: the servo is all it has
             if self.ocp.X is not None and not (self.ocp.prepared and steps == 1):
                 # prepare() already shifted by one interval
                 self.ocp.shift(steps - 1 if self.ocp.prepared else steps)
@@ -364,7 +361,7 @@ class NMPC(Controller):
 
     def _shift_or_programme(self, t: float, u_prog, why: str) -> Action:
         if self._plan_u is not None:
-            j = int(round((t - self._t_plan) / self.options.dt))
+            j = int(round((t - self._t_plan) / self.cfg.dt))
             if 0 <= j < len(self._plan_u):
                 lo, hi = self._bounds(u_prog)
                 u = np.clip(self._plan_u[j], lo, hi)

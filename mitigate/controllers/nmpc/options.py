@@ -99,10 +99,11 @@ class NMPCOptions:
     Parameters
     ----------
     horizon : OCP intervals N (2 .. :data:`MAX_HORIZON`)
-    dt : OCP interval [s] (>= the DAQ period); the NMPC re-plans every ``dt``
+    dt : OCP interval [s] (>= the DAQ period); the NMPC re-plans every ``dt`` (None: a 40th of
+        the rig's stick-slip period, :mod:`mitigate.controllers.nmpc.defaults`)
     substeps : RK4 substeps per interval (0: the fewest that keep RK4 stable, ``|h lambda| <= 2.5``;
         at most :data:`MAX_SUBSTEPS`)
-    eps : friction regularisation of the prediction model [rad/s]
+    eps : friction regularisation of the prediction model [rad/s] (None: 1.6 % of the nominal speed)
     inputs : what the NMPC sets: "both" (the drive's set-point and every servo input), "pin"
         (the servo inputs only; the set-point follows the programme), "motor" (the drive's
         set-point only; no servo force), or a list of input names from the rig's ``commands``.
@@ -113,8 +114,10 @@ class NMPCOptions:
         drive: the rig's ``operating_point.speed``)
     weights : :class:`NMPCWeights` (or a table of them)
     setpoint_band : the drive's set-point stays within the programme's +- this [rad/s, or N m
-        for a torque drive] (a speed set-point never changes sign)
-    setpoint_rate : rate limit of the set-point [rad/s^2, or N m/s]
+        for a torque drive] (a speed set-point never changes sign; None: the programme's own
+        set-point, so a speed set-point stays in [0, 2 w_prog])
+    setpoint_rate : rate limit of the set-point [rad/s^2, or N m/s] (None: 15 bands per
+        stick-slip period)
     solver : "rti" (one Gauss-Newton QP per plan), "sqp" (Gauss-Newton to convergence), "ipopt"
         (exact Hessian; the reference)
     compile : compile the stage function with gcc (cached on disk) for rti/sqp
@@ -138,15 +141,15 @@ class NMPCOptions:
     """
 
     horizon: int = 20
-    dt: float = 0.05
+    dt: float | None = None
     substeps: int = 0
-    eps: float = 0.05
+    eps: float | None = None
     inputs: str | tuple[str, ...] = "both"
     body: str | None = None
     speed: float | None = None
     weights: NMPCWeights = NMPCWeights()
-    setpoint_band: float = 3.0
-    setpoint_rate: float = 20.0
+    setpoint_band: float | None = None
+    setpoint_rate: float | None = None
     solver: str = "rti"
     compile: bool = True
     qp_solver: str = "hpipm"
@@ -163,11 +166,13 @@ class NMPCOptions:
     def __post_init__(self):
         w = self.where
         _int(self.horizon, f"{w}.horizon", 2, MAX_HORIZON)
-        finite_number(self.dt, f"{w}.dt", positive=True, unit="s")
+        if self.dt is not None:
+            finite_number(self.dt, f"{w}.dt", positive=True, unit="s")
         _int(self.substeps, f"{w}.substeps", 0, what=" (0 = automatic)")
         if self.substeps > MAX_SUBSTEPS:
             raise ConfigError(f"{w}.substeps must be <= {MAX_SUBSTEPS}, got {self.substeps}")
-        finite_number(self.eps, f"{w}.eps", positive=True, unit="rad/s")
+        if self.eps is not None:
+            finite_number(self.eps, f"{w}.eps", positive=True, unit="rad/s")
         inp = self.inputs
         if isinstance(inp, str):
             if inp not in INPUT_MODES:
@@ -188,8 +193,10 @@ class NMPCOptions:
             object.__setattr__(self, "weights", NMPCWeights.from_mapping(self.weights, f"{w}.weights"))
         if not isinstance(self.weights, NMPCWeights):
             raise ConfigError(f"{w}.weights must be a table of weights, got {type(self.weights).__name__}")
-        finite_number(self.setpoint_band, f"{w}.setpoint_band", nonneg=True)
-        finite_number(self.setpoint_rate, f"{w}.setpoint_rate", positive=True)
+        if self.setpoint_band is not None:
+            finite_number(self.setpoint_band, f"{w}.setpoint_band", nonneg=True)
+        if self.setpoint_rate is not None:
+            finite_number(self.setpoint_rate, f"{w}.setpoint_rate", positive=True)
         if self.solver not in SOLVERS:
             raise ConfigError(f"{w}.solver must be one of {', '.join(SOLVERS)}, got {self.solver!r}")
         if self.qp_solver not in QP_SOLVERS:

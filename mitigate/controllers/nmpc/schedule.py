@@ -15,10 +15,13 @@ stick-slip (at 15 rpm it never does).  So the weights are scheduled on what the 
         (max - min) / (2 mean) of a sinusoid, but not set by the estimate's noise peaks; a body
         held off its nominal speed, e.g. by a pin, is not calm either)
     g = clip(log(s / s_lo) / log(s_hi / s_lo), 0, 1)      1: stick-slip, 0: calm sliding
-    ref, force  <-  weight x hold_gain ** (1 - g)
+    f = hold_gain ** (1 - g);   ref <- ref x f;   force <- force x f^2 (x f without the drive)
 
-with ``window`` one stick-slip period and ``(s_lo, s_hi)`` the options' ``calm_band``.  The weights
-sit in the OCP's parameter vector, so nothing is rebuilt.
+with ``window`` one stick-slip period and ``(s_lo, s_hi)`` the options' ``calm_band``.  The servo
+forces get the square: calm, the pin or the weight on bit returns to the programme and stays
+there (on the lab drill string a weight on bit that dithered by 0.26 N left 2.2 times the
+industry's residual, held within 0.002 N 1.4 times).  The weights sit in the OCP's parameter
+vector, so nothing is rebuilt.
 """
 
 from __future__ import annotations
