@@ -18,9 +18,12 @@ force_filter   the horizon, horizon x dt                                     1.0
 schedule       one period T                                                  2.3 s
 ============== ============================================================= ===================
 
-``T`` is the rig's stick-slip period, the lowest torsional mode with the drive held
+``T`` is the rig's stick-slip period: the lowest torsional mode with the drive held
 (:func:`mitigate.controllers.tuning.stick_slip_frequency`; rig3: 2.33 s, its stick-slip cycle at
-30 rpm is 2.3 s).  With the default horizon of 20 intervals the NMPC looks half a period ahead.
+30 rpm is 2.3 s) -- or, on a torque drive, whose drive body turns freely, the lowest torsional
+mode of the free chain (the field drill string: 7.2 s, its stick-slip cycle at 10 kN m 8.3 s;
+with its table held it would be 15.7 s, and an NMPC planning at that period's 0.39 s ran the
+bit 27 % fast).  With the default horizon of 20 intervals the NMPC looks half a period ahead.
 """
 
 from __future__ import annotations
@@ -113,7 +116,12 @@ def resolve(options, model, params, dt_daq: float, nominal_speed: float, setpoin
 
 
 def _period(model, params) -> float | None:
-    """The rig's stick-slip period [s], or None without a torsional mode."""
+    """The rig's stick-slip period [s] (module docstring), or None without a torsional mode."""
+    if model.drive_kind == "torque":
+        from models.modal import modes
+        r = modes(model, params, "free", damped=True)
+        osc = [f for f, o in zip(r.freq_hz, r.oscillatory) if o and f > 0]
+        return 1.0 / float(osc[0]) if osc else None
     from mitigate.controllers.tuning import stick_slip_frequency
     try:
         return 1.0 / stick_slip_frequency(model, params)
