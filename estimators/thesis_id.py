@@ -31,7 +31,8 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import least_squares, root
 
 from models.errors import ConfigError
-from models.params import ParameterSet, published
+from models.params import ParameterSet
+from models.rig import published
 
 __all__ = [
     "G", "D1", "D2", "TABLE_3_3_K1", "TABLE_3_3_K2", "TABLE_3_4", "TABLE_3_5", "OMEGA_N",

@@ -98,7 +98,7 @@ def contact_work(model, params, x: np.ndarray, u: np.ndarray, contact: str, dt: 
     P = model.unpack(ca.DM(params.vector()))
     c = next(c for c in model.spec.contacts if c.name == contact)
     un = {n: us[k] for k, n in enumerate(model.inputs)}
-    N, r, LP = model._contact_args(c, P, un)
+    N, r, LP = model.contact_args(c, P, un)
     from models.friction import get_law
     T = get_law(c.law).torque(v, 1.0, N, r, LP)
     f = ca.Function("work", [v, xs, us], [ca.fabs(T) * v])

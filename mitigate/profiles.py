@@ -92,8 +92,8 @@ def parse_profile(spec: Any, where: str, duration: float, *, quantity: str = "di
     if isinstance(spec, (int, float)) and not isinstance(spec, bool):
         spec = {"kind": "constant", "value": spec}
     elif isinstance(spec, str):
-        from models.rig.spec import _quantity
-        q = _quantity(spec)
+        from models.units import parse_quantity
+        q = parse_quantity(spec)
         if q is None:
             raise ConfigError(f"{where} must be a number, a quantity such as \"30 rpm\" or a table with 'kind', "
                               f"got {spec!r}")

@@ -14,7 +14,7 @@ same fields as keyword arguments.  Schema (only ``[scenario]`` and ``[inputs]`` 
     [plant]
     params = "published"             # or a parameter TOML (e.g. one written by `mitigate identify`)
     method = "hybrid"                # hybrid (exact stick) | smooth | cvodes
-    nsub = 10                        # substeps per sample (raised automatically for stiff plants)
+    nsub = 10                        # substeps per sample, at least (raised automatically for stiff plants)
     start = "rest"                   # rest | sliding
     max_speed = 100.0                # [rad/s] a body faster than this ends the run as diverged
 
@@ -58,7 +58,6 @@ at about :data:`BYTES_PER_SAMPLE` per sample and controller.
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -68,11 +67,12 @@ import numpy as np
 
 from models.checks import finite_number as _num, read_toml
 from models.errors import ConfigError
-from models.params import ParameterSet, load_params
-from models.plant import SimOptions
+from models.params import ParameterSet
+from models.rig import load_params
+from models.plant import SimOptions, plant_integration
 from models.rig import RigModel, get_model
 from models.rig import variants
-from models.rig.spec import _quantity
+from models.units import parse_quantity
 from models.sensors import SensorOptions
 from models.units import factor as unit_factor
 from mitigate.profiles import Profile, parse_profile
@@ -209,7 +209,7 @@ def _check_size(duration: float, dt: float, runs: int, where: str) -> None:
 def _si(v: Any, kind: str, where: str) -> float:
     """A number (SI) or a quantity string converted to SI."""
     if isinstance(v, str):
-        q = _quantity(v)
+        q = parse_quantity(v)
         if q is None:
             raise ConfigError(f"{where} must be a number or a quantity such as \"1.5 N m\", got {v!r}")
         return q[0] * unit_factor(q[1] or "-", kind, where)
@@ -297,27 +297,6 @@ def _apply_structure(model: RigModel, params: ParameterSet, st: Mapping, where: 
             raise ConfigError(f"{w}.drift.{k}: not a parameter of rig {model.name!r}")
         drift[k] = _num(v, f"{w}.drift.{k} [1/s]")
     return plant, pparams, drift, []
-
-
-def _stiff_nsub(plant: RigModel, params: ParameterSet, u0: np.ndarray, dt: float, nsub: int) -> tuple[int, str]:
-    """Substeps that keep the plant's RK4 stable, ``dt |lambda|max / nsub <= 2.5`` with lambda
-    the eigenvalues of the plant's linearisation at sliding (contacts slipping)."""
-    from models.modal import linearise
-    try:
-        w = max(abs(float(u0[plant.inputs.index(plant.drive_input)])), 1.0) if plant.drive_kind != "torque" else 1.0
-        u = u0.copy()
-        if plant.drive_kind != "torque":
-            u[plant.inputs.index(plant.drive_input)] = w
-            x = plant.sliding_guess(u, params)
-        else:
-            u, x = plant.operating_point(w, u, params)
-        lam = float(np.max(np.abs(np.linalg.eigvals(linearise(plant, params, u, x_op=x).A))))
-    except Exception as exc:  # noqa: BLE001 - a failed estimate keeps the user's choice
-        return nsub, f"plant.nsub kept at {nsub}: the plant's fastest mode could not be estimated ({exc})"
-    need = int(math.ceil(dt * lam / 2.5))
-    if need > nsub:
-        return need, f"plant.nsub raised from {nsub} to {need}: the plant's fastest mode is {lam:.0f} 1/s"
-    return nsub, ""
 
 
 # ----------------------------------------------------------------------------- parsing
@@ -452,10 +431,12 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
         ctrls.append(ControllerSpec(c["name"], c["kind"], {k: v for k, v in c.items() if k not in ("name", "kind")}))
     sweep = dict(_table(data, "sweep", where))
     u0 = np.array([inputs[n](0.0) for n in model.inputs])
-    nsub, note = _stiff_nsub(plant_model, plant_params, u0, dt, sim.nsub) if structure else (sim.nsub, "")
-    if note:
-        sim = dataclasses.replace(sim, nsub=nsub)
-        notes.append(note)
+    # the plant states how it integrates when the rule changes what the scenario asked for
+    # (more substeps for a stiff rig, the current of a fast motor quasi-static)
+    integ = plant_integration(plant_model, plant_params, sim, u0)
+    if integ.nsub != sim.nsub or integ.quasi_static:
+        notes.append(f"plant: {integ.note}" + (f" (plant.nsub = {sim.nsub} asked)" if integ.nsub != sim.nsub else ""))
+        sim = dataclasses.replace(sim, nsub=integ.nsub)
     return Scenario(name=name.strip(), model=model, model_params=nominal, plant_model=plant_model,
                     plant_params=plant_params, duration=duration, dt=dt, seed=seed, inputs=inputs, sim=sim,
                     sensors=sensors, description=str(sc.get("description", "")), control_start=cstart,

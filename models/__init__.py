@@ -13,9 +13,9 @@ from models.errors import ConfigError, DataError, SolverFailure
 from models.friction import FrictionLaw, LAWS, Param, get_law, register
 from models.logs import Log, read_csv
 from models.modal import LinearModel, ModalResult, linearise, modes, sliding_stability, stability_map
-from models.params import ParameterSet, load_params, published
+from models.params import ParameterSet
 from models.plant import Plant, SimOptions, SimResult, simulate
-from models.rig import RigModel, get_model, load_rig, shipped_rigs
+from models.rig import RigModel, get_model, load_params, load_rig, published, shipped_rigs
 from models.sensors import SensorOptions
 from models.status import Status
 

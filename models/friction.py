@@ -14,8 +14,15 @@ Adding a law is one function and one registry line::
         '''mu_k N r + c_v |w|: Coulomb plus viscous.'''
         return scale * mu_k + c_v * v_abs
 
-    register(FrictionLaw("my_law", my_law, (Param("mu_k", "level"), Param("c_v", "damping")),
+    register(FrictionLaw("my_law", my_law, (Param("mu_k", "level", role="kinetic"),
+                                            Param("c_v", "damping", role="viscous")),
                          doc="Coulomb plus viscous", reference="textbook"))
+
+The *roles* (:data:`ROLES`: static and kinetic level, viscous coefficient, decay speed, ...)
+are how the rest of the workbench understands a law without knowing its name:
+identification's starting guess regresses a torque balance on the parameters the torque is
+linear in, its ``kinetic <= static`` constraint pairs the two levels, and D-OSKIL scales its
+gain by the kinetic level.
 
 after which a rig file may say ``law = "my_law"`` with ``mu_k`` and ``c_v`` in the contact.
 
@@ -50,6 +57,8 @@ from models.errors import ConfigError
 
 __all__ = [
     "Param",
+    "ROLES",
+    "LINEAR_ROLES",
     "FrictionLaw",
     "LAWS",
     "register",
@@ -167,17 +176,48 @@ def leadscrew_smooth(v, N, r, eps, *, mu1, mu2, mu3, r0, sm, lam, m, F0, T0, r1)
 
 
 # ----------------------------------------------------------------------------- registry
+#: parameter roles a law may declare (:attr:`Param.role`); identification's starting guess, its
+#: ``kinetic <= static`` constraint and D-OSKIL's gain ask a law for these instead of its names
+ROLES = {
+    "static": "friction level at zero sliding speed (a coefficient with a normal force, else a torque)",
+    "kinetic": "friction level once sliding (Coulomb / kinetic level)",
+    "excess": "static level minus kinetic level (a Stribeck part added to the kinetic level)",
+    "viscous": "viscous coefficient: friction grows in proportion to the sliding speed",
+    "decay_speed": "characteristic speed of the fall from static to kinetic level [rad/s]",
+    "decay_rate": "inverse characteristic speed of that fall [s/rad]",
+    "scale": "a factor on the whole law",
+    "smoothing": "the law's own regularisation at zero speed",
+    "geometry": "a dimension or mass of the contact's mechanism",
+}
+#: roles in which the friction torque is linear (so a torque balance gives them by least squares)
+LINEAR_ROLES = ("static", "kinetic", "excess", "viscous")
+
+
 @dataclass(frozen=True)
 class Param:
     """A parameter of a law: its name, quantity kind (:data:`models.units.DIMENSIONS`, or
     ``"level"``: dimensionless when the contact has a normal force and a radius, a torque
-    [N m] when it has neither; ``"level_slowness"``: a level per rad/s) and a description."""
+    [N m] when it has neither; ``"level_slowness"``: a level per rad/s), a description, physical
+    bounds, and its role (one of :data:`ROLES`, or ``""``).
+
+    ``linear`` says the law's torque is linear in this parameter (with the others fixed); it
+    defaults to True for the roles of :data:`LINEAR_ROLES`.
+    """
 
     name: str
     kind: str
     doc: str = ""
     lower: float = float("-inf")
     upper: float = float("inf")
+    role: str = ""
+    linear: bool | None = None
+
+    def __post_init__(self):
+        if self.role and self.role not in ROLES:
+            raise ConfigError(f"friction law parameter {self.name!r}: role must be one of {', '.join(ROLES)} or "
+                              f"empty, got {self.role!r}")
+        if self.linear is None:
+            object.__setattr__(self, "linear", self.role in LINEAR_ROLES)
 
 
 @dataclass(frozen=True)
@@ -211,6 +251,29 @@ class FrictionLaw:
     @property
     def param_names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.params)
+
+    def with_role(self, role: str) -> str | None:
+        """The name of the parameter that plays ``role`` (:data:`ROLES`), or None."""
+        if role not in ROLES:
+            raise ConfigError(f"role must be one of {', '.join(ROLES)}, got {role!r}")
+        return next((p.name for p in self.params if p.role == role), None)
+
+    @property
+    def linear_params(self) -> tuple[str, ...]:
+        """Parameters the torque is linear in (least-squares regressors of a torque balance)."""
+        return tuple(p.name for p in self.params if p.linear)
+
+    @property
+    def level_order(self) -> tuple[str, str] | None:
+        """``(kinetic, static)`` names when the law has both levels (then ``kinetic <= static``
+        is a physical constraint), else None."""
+        k, s = self.with_role("kinetic"), self.with_role("static")
+        return (k, s) if k and s else None
+
+    def magnitude_at(self, v_abs, N, r, P: dict):
+        """Friction torque magnitude opposing motion in the + direction at speed ``v_abs >= 0``
+        [N m] (for a symmetric law, the law itself)."""
+        return -self.torque(v_abs, 1.0, N, r, P)
 
     def torque(self, v_abs, s, N, r, P: dict):
         """Signed friction torque on the body sliding in direction ``s`` (+1/-1) at speed
@@ -269,35 +332,36 @@ def get_law(name: str, where: str = "law") -> FrictionLaw:
 
 
 _LS_PARAMS = (
-    Param("mu1", "dimensionless", "Coulomb part of the thread friction (seed 002 Table 9.5)"),
-    Param("mu2", "dimensionless", "Stribeck part"),
-    Param("mu3", "slowness", "viscous part [s/rad]"),
-    Param("r0", "slowness", "Stribeck decay rate [s/rad]", 0.0),
-    Param("sm", "dimensionless", "friction scaling of eq. (9.33)", 0.0),
-    Param("lam", "angle", "lead angle", 0.0, 1.5),
-    Param("m", "mass", "mass of the translating parts", 0.0),
+    Param("mu1", "dimensionless", "Coulomb part of the thread friction (seed 002 Table 9.5)", role="kinetic", linear=False),
+    Param("mu2", "dimensionless", "Stribeck part", role="excess", linear=False),
+    Param("mu3", "slowness", "viscous part [s/rad]", role="viscous", linear=False),
+    Param("r0", "slowness", "Stribeck decay rate [s/rad]", 0.0, role="decay_rate"),
+    Param("sm", "dimensionless", "friction scaling of eq. (9.33)", 0.0, role="scale"),
+    Param("lam", "angle", "lead angle", 0.0, 1.5, role="geometry"),
+    Param("m", "mass", "mass of the translating parts", 0.0, role="geometry"),
     Param("F0", "force", "slider resistance", 0.0),
     Param("T0", "torque", "support friction torque", 0.0),
-    Param("r1", "slowness", "zero-speed smoothing rate of eq. (9.33) [s/rad]", 0.0),
+    Param("r1", "slowness", "zero-speed smoothing rate of eq. (9.33) [s/rad]", 0.0, role="smoothing"),
 )
 
-register(FrictionLaw("coulomb", coulomb, (Param("mu_k", "level", "kinetic coefficient (or torque)", 0.0),),
+register(FrictionLaw("coulomb", coulomb, (Param("mu_k", "level", "kinetic coefficient (or torque)", 0.0, role="kinetic"),),
                      doc="constant friction at any sliding speed", reference="seed 001 eqs. (3)-(4)"))
 register(FrictionLaw("stribeck", stribeck,
-                     (Param("mu_s", "level", "static coefficient (or torque)", 0.0),
-                      Param("mu_k", "level", "kinetic coefficient (or torque)", 0.0),
-                      Param("v_s", "speed", "Stribeck decay speed", 0.0)),
+                     (Param("mu_s", "level", "static coefficient (or torque)", 0.0, role="static"),
+                      Param("mu_k", "level", "kinetic coefficient (or torque)", 0.0, role="kinetic"),
+                      Param("v_s", "speed", "Stribeck decay speed", 0.0, role="decay_speed")),
                      doc="exponential decay from static to kinetic friction", reference="thesis eq. (3-13)"))
 register(FrictionLaw("vahid_araghi", vahid_araghi,
-                     (Param("mu1", "level", "Coulomb part"), Param("mu2", "level", "Stribeck part"),
-                      Param("mu3", "level_slowness", "viscous part"), Param("r0", "slowness", "Stribeck decay rate", 0.0),
-                      Param("sm", "dimensionless", "friction scaling", 0.0)),
+                     (Param("mu1", "level", "Coulomb part", role="kinetic"), Param("mu2", "level", "Stribeck part", role="excess"),
+                      Param("mu3", "level_slowness", "viscous part", role="viscous"),
+                      Param("r0", "slowness", "Stribeck decay rate", 0.0, role="decay_rate"),
+                      Param("sm", "dimensionless", "friction scaling", 0.0, role="scale")),
                      doc="Coulomb + exponential Stribeck + linear viscous coefficient", reference="seed 002 eqs. (9.8), (9.33)"))
 register(FrictionLaw("bit_rock", bit_rock,
-                     (Param("mu_sb", "level", "static bit-rock coefficient", 0.0),
-                      Param("mu_cb", "level", "Coulomb bit-rock coefficient", 0.0),
-                      Param("v_b", "speed", "decay speed of the weakening branch", 0.0),
-                      Param("c_b", "damping", "viscous (strengthening) coefficient [N m s/rad]", 0.0)),
+                     (Param("mu_sb", "level", "static bit-rock coefficient", 0.0, role="static"),
+                      Param("mu_cb", "level", "Coulomb bit-rock coefficient", 0.0, role="kinetic"),
+                      Param("v_b", "speed", "decay speed of the weakening branch", 0.0, role="decay_speed"),
+                      Param("c_b", "damping", "viscous (strengthening) coefficient [N m s/rad]", 0.0, role="viscous")),
                      doc="velocity weakening followed by viscous strengthening (bit-rock interaction)",
                      reference="Navarro-Lopez & Cortes, J. Sound Vib. 307 (2007)"))
 register(FrictionLaw("leadscrew", None, _LS_PARAMS, doc="lead-screw thread friction (direction-dependent)",

@@ -49,8 +49,7 @@ import scipy.linalg
 from models.errors import ConfigError
 from models.params import ParameterSet
 from models.rig import get_model
-from models.rig.model import _val
-from models.rig.spec import NODE_DRIVE, NODE_GROUND
+from models.rig.steady import nominal_operating_point
 from models.status import Status
 
 __all__ = [
@@ -172,33 +171,9 @@ def _params(model, params):
 
 def operating_point(model, params: ParameterSet | None = None, *, omega: float | None = None,
                     load: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """Default sliding operating point ``(u, x_op or None)`` of a rig.
-
-    The rig file's ``[rig] operating_point`` gives the inputs (rig3: 30 rpm, N1 = 20 N);
-    ``omega`` [rad/s] replaces the drive's speed and ``load`` [N] the first contact's
-    normal-force input.  A torque drive's operating point is a sliding speed: its input
-    torque and state are solved for and returned (``x_op``), since pure Coulomb friction
-    has a continuum of equilibria.
-    """
-    model = get_model(model)
-    params = _params(model, params)
-    op = dict(model.spec.extra.get("operating_point", {}))
-    u = np.array([op.get(n, 0.0) for n in model.inputs], float)
-    normals = [j for j, k in enumerate(model.input_kinds) if k == "force"]
-    if load is not None:
-        if not normals:
-            raise ConfigError(f"rig {model.name!r} has no normal-force input for a load")
-        u[normals[0]] = float(load)
-    if model.drive_kind == "torque":
-        speed = float(omega if omega is not None else op.get("speed", 1.0))
-        u2, x = model.operating_point(speed, u, params)
-        return u2, x
-    j = model.inputs.index(model.drive_input)
-    if omega is not None:
-        u[j] = float(omega)
-    elif model.drive_input not in op:
-        u[j] = 1.0
-    return u, None
+    """The rig's sliding operating point ``(u, x_op or None)``:
+    :func:`models.rig.steady.nominal_operating_point` (a rig name or file is accepted here)."""
+    return nominal_operating_point(get_model(model), params, omega=omega, load=load)
 
 
 def _functions(model, eps: float, outputs: tuple[str, ...]):
@@ -297,17 +272,13 @@ def chain_matrices(model, params: ParameterSet | None = None, *, clamped: bool =
     M = np.zeros((n, n))
     K = np.zeros((n, n))
     Cd = np.zeros((n, n))
-    d = model.spec.drive
     for b in bodies:
-        J = _val(model.spec.body(b).inertia, P, {})
-        if d.kind == "dc_motor" and d.body == b:
-            J += _val(d.param("ratio"), P, {}) ** 2 * _val(d.param("Jm"), P, {})
-        M[idx[b], idx[b]] = J
+        M[idx[b], idx[b]] = model.inertia(b, P)
     for c in model.spec.connections:
         for mat, ref in ((K, c.stiffness), (Cd, c.damping if damped else None)):
             if ref is None:
                 continue
-            v = _val(ref, P, {})
+            v = ref.value(P)
             ia, ib = idx.get(c.a), idx.get(c.b)
             for i in (ia, ib):
                 if i is not None:
@@ -319,7 +290,7 @@ def chain_matrices(model, params: ParameterSet | None = None, *, clamped: bool =
     if clamped:
         if model.drive_kind == "speed":
             return M, Cd, K, dofs
-        keep = [i for i, b in enumerate(bodies) if b != d.body]
+        keep = [i for i, b in enumerate(bodies) if b != model.drive_body]
         sel = np.ix_(keep, keep)
         return M[sel], Cd[sel], K[sel], tuple(dofs[i] for i in keep)
     return M, Cd, K, dofs

@@ -32,8 +32,9 @@ import numpy as np
 
 from models.errors import ConfigError
 from models.checks import read_toml
+from models.units import parse_quantity
 
-__all__ = ["Spec", "ParameterSet", "load_params", "published", "LEADSCREW_FINE_TUNED"]
+__all__ = ["Spec", "ParameterSet", "LEADSCREW_FINE_TUNED"]
 
 
 @dataclass(frozen=True)
@@ -221,8 +222,7 @@ class ParameterSet:
                 raise ConfigError(f"{where}.params.{key}: unknown parameter for model {self.model!r}; "
                                   f"expected one of {', '.join(self._specs)}")
             if isinstance(v, str):
-                from models.rig.spec import _quantity
-                q = _quantity(v)
+                q = parse_quantity(v)
                 if q is None or not self._specs[key].kind:
                     raise ConfigError(f"{where}.params.{key} must be a number [{self._specs[key].unit}] or a quantity "
                                       f"string such as \"1.5 {self._specs[key].unit}\", got {v!r}")
@@ -278,49 +278,6 @@ class ParameterSet:
 
 def _rebuild(model, specs, values, fit_bounds, stderr):
     return ParameterSet(model, specs, values, fit_bounds=fit_bounds, stderr=stderr)
-
-
-def published(model) -> ParameterSet:
-    """The published parameter set of a rig (a shipped name such as ``"rig3"``, or a rig-file path)."""
-    from models.rig import get_model
-
-    return get_model(model).published()
-
-
-def load_params(path: str | os.PathLike, model=None) -> ParameterSet:
-    """Load a parameter TOML file.
-
-    ``model`` (a rig name, path or model), if given, must match the file's ``model`` key; the
-    file's ``model`` names a shipped rig or a rig file (relative paths are taken from the
-    parameter file's folder).
-    """
-    from models.rig import get_model, rig_key
-
-    path = Path(path)
-    data = read_toml(path, "parameter file")
-    name = data.get("model")
-    if name is None and model is None:
-        raise ConfigError(f"{path}: missing field 'model' (a rig name or rig file)")
-    if name is not None and not isinstance(name, str):
-        raise ConfigError(f"{path}: model must be a rig name or path, got {name!r}")
-    want = get_model(model) if model is not None else None
-    if name is None:
-        m = want
-    else:
-        cand = Path(name)
-        if name.endswith(".toml") and not cand.is_absolute() and (path.parent / cand).exists():
-            name = str(path.parent / cand)
-        try:
-            m = get_model(name)
-        except ConfigError as exc:
-            raise ConfigError(f"{path}: model: {exc}") from None
-    if want is not None and rig_key(m) != rig_key(want):
-        raise ConfigError(f"{path}: model must be {want.name!r} here, got {m.name!r}")
-    try:
-        return m.published().from_mapping(data, where=str(path))
-    except ConfigError as exc:
-        msg = str(exc)
-        raise ConfigError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
 
 
 #: The six fine-tuned (R [N], omega_G [rad/s], K [N m/rad], c [N m s/rad]) of seed 002 Figs. 9.21-9.26.

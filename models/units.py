@@ -22,7 +22,9 @@ import re
 
 from models.errors import ConfigError
 
-__all__ = ["Unit", "parse_unit", "factor", "to_si", "DIMENSIONS", "dimension_of"]
+__all__ = ["Unit", "parse_unit", "parse_quantity", "factor", "to_si", "DIMENSIONS", "dimension_of"]
+
+_QTY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*)$")
 
 # base dimensions: kg, m, s, A, rad, K (exponent vector)
 _BASE = ("kg", "m", "s", "A", "rad")
@@ -193,3 +195,16 @@ def factor(unit: str, kind: str, where: str = "unit") -> float:
 def to_si(value: float, unit: str, kind: str, where: str = "unit") -> float:
     """``value`` in ``unit`` converted to SI for a quantity of ``kind``."""
     return float(value) * factor(unit, kind, where)
+
+
+def parse_quantity(text: str) -> tuple[float, str] | None:
+    """``"<number> <unit>"`` -> ``(number, unit text)`` (unit ``""`` when absent), or None if
+    ``text`` does not start with a number.  The unit is not checked here (:func:`factor`).
+
+    >>> parse_quantity("30 rpm")
+    (30.0, 'rpm')
+    """
+    m = _QTY.match(text)
+    if not m:
+        return None
+    return float(m.group(1)), m.group(2).strip()

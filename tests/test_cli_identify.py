@@ -8,7 +8,7 @@ import pytest
 
 import mitigate.cli as cli
 from models import get_model, published
-from models.params import load_params
+from models.rig import load_params
 from models.plant import SimOptions, simulate
 from models.rig import RIGS_DIR
 

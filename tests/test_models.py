@@ -96,8 +96,8 @@ def test_rig3_contact_torque_odd_in_speed(v, n1):
     m = get_model("rig3")
     P = m.published().as_dict()
     x, u = np.zeros(m.nx), np.array([0.0, n1, n1])
-    t_pos = m.contact_torque_smooth(0, v, x, u, P, 0.05)
-    t_neg = m.contact_torque_smooth(0, -v, x, u, P, 0.05)
+    t_pos = m.contact_friction(0, v, u, P, 0.05)
+    t_neg = m.contact_friction(0, -v, u, P, 0.05)
     assert float(t_pos) == pytest.approx(-float(t_neg), abs=1e-14)
 
 

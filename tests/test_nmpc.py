@@ -122,7 +122,7 @@ def test_prediction_model_is_the_rig_model_with_a_friction_factor():
         a = np.array(f(x, u, P.vector())).ravel()
         np.testing.assert_allclose(np.array(rhs(x, u, P.vector(), [1.0, 1.0])).ravel(), a, rtol=1e-12, atol=1e-12)
         b = np.array(rhs(x, u, P.vector(), [2.0, 1.0])).ravel()
-        Tf = float(M.contact_torque_smooth(0, x[2], x, u, P.as_dict(), 0.05))
+        Tf = float(M.contact_friction(0, x[2], u, P.as_dict(), 0.05))
         i1 = M.speed_index("R1")
         assert abs(Tf) > 1e-3
         assert b[i1] - a[i1] == pytest.approx(Tf / P["J1"], rel=1e-9)

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from models.params import published
+from models.rig import published
 
 G = 9.81  # m/s^2, thesis eq. (3-2)
 D1, D2 = 0.190, 0.162  # m, thesis Table 3.2

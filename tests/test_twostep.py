@@ -8,7 +8,7 @@ import pytest
 
 from estimators.twostep import fit_step1, seed002_crosscheck, steady_sliding_data, xi_w0
 from models.errors import DataError
-from models.params import published
+from models.rig import published
 
 
 def test_xi_w0_eq_9_12():

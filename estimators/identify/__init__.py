@@ -32,13 +32,13 @@ from estimators.identify.covariance import WeakDirection
 from estimators.identify.guess import Guess, initial_guess
 from estimators.identify.noise import detect_input_noise, input_noise_hints
 from estimators.identify.options import IdentifyOptions, LinearConstraint
-from estimators.identify.problem import IdentificationProblem, auto_nsub
+from estimators.identify.problem import IdentificationProblem
 from estimators.identify.result import FitResult, IdentifiabilityWarning
 from estimators.identify.validation import Validation
 
 __all__ = ["IdentifyOptions", "LinearConstraint", "IdentificationProblem", "FitResult", "Validation",
            "WeakDirection", "IdentifiabilityWarning", "identify", "initial_guess", "Guess", "bootstrap",
-           "BootstrapOptions", "BootstrapResult", "detect_input_noise", "input_noise_hints", "auto_nsub"]
+           "BootstrapOptions", "BootstrapResult", "detect_input_noise", "input_noise_hints"]
 
 
 def identify(logs, model, initial: ParameterSet | None = None, options: IdentifyOptions | None = None, *,

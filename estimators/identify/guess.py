@@ -49,10 +49,6 @@ from models.signals import moving_average, stick_slip_cycles
 
 __all__ = ["Guess", "initial_guess"]
 
-#: static / kinetic level names of the Stribeck-type laws
-LEVELS = {"stribeck": ("mu_s", "mu_k"), "bit_rock": ("mu_sb", "mu_cb")}
-
-
 @dataclass(frozen=True)
 class Guess:
     """A data-derived starting set: ``params`` (the base set with the guessed free values),
@@ -61,24 +57,6 @@ class Guess:
     params: ParameterSet
     values: dict
     notes: tuple[str, ...]
-
-
-def _val(ref, P: dict, u_named: dict | None = None):
-    if ref is None:
-        return None
-    if ref.kind == "param":
-        return P[ref.name]
-    if ref.kind == "input":
-        return None if u_named is None else u_named[ref.name]
-    return ref.value
-
-
-def _inertia(model, P: dict, body: str) -> float:
-    J = float(_val(model.spec.body(body).inertia, P))
-    d = model.spec.drive
-    if d.kind == "dc_motor" and d.body == body:
-        J += float(_val(d.param("ratio"), P)) ** 2 * float(_val(d.param("Jm"), P))
-    return J
 
 
 def _stuck_threshold(model, channel: str, dt: float, omega_scale: float, n_avg: int = 1) -> float:
@@ -130,9 +108,26 @@ class _Data:
 
     def scale(self, contact):
         """``N r`` of a contact over the log (array), 1 where it has neither."""
-        N = _val(contact.normal, self.P, self.u) if contact.normal is not None else 1.0
-        r = _val(contact.radius, self.P) if contact.radius is not None else 1.0
+        N, r, _ = self.model.contact_args(contact, self.P, self.u)
         return np.broadcast_to(np.asarray(N, float) * float(r), self.log.t.shape)
+
+    def friction_terms(self, contact):
+        """The contact's friction magnitude over the log as ``rest + sum(value(ref) * column)``
+        over the parameters its law is linear in (:attr:`models.friction.FrictionLaw.linear_params`):
+        ``([(ref, column)], rest)``, arrays over the log; None if the law declares none."""
+        law = self.model.law(contact.name)
+        names = law.linear_params
+        if not names:
+            return None
+        N, r, LP = self.model.contact_args(contact, self.P, self.u)
+        N = np.broadcast_to(np.asarray(N, float), self.log.t.shape)
+        aw = np.abs(self.speed(contact.body))
+        zero = dict({k: float(v) for k, v in LP.items()}, **{n: 0.0 for n in names})
+        rest = np.asarray(law.magnitude_at(aw, N, float(r), zero), float)
+        refs = dict(contact.params)
+        terms = [(refs[n], np.asarray(law.magnitude_at(aw, N, float(r), dict(zero, **{n: 1.0})), float) - rest)
+                 for n in names]
+        return terms, rest
 
 
 def _side(model, conn) -> set[str]:
@@ -165,27 +160,16 @@ def _regress_friction(model, P, data, contacts, F, mask, free) -> dict:
     cols: dict[str, np.ndarray] = {}
     fixed = np.zeros(int(mask.sum()))
     for c in contacts:
-        pr = dict(c.params)
-        w = data.speed(c.body)[mask]
-        aw = np.abs(w)
-        sc = data.scale(c)[mask]
-        if c.law == "coulomb":
-            terms = [(pr.get("mu_k"), sc)]
-        elif c.law in LEVELS:
-            sname, kname = LEVELS[c.law]
-            vname = "v_s" if c.law == "stribeck" else "v_b"
-            v = float(_val(pr[vname], P))
-            e = np.exp(-aw / max(v, 1e-9))
-            terms = [(pr.get(sname), sc * e), (pr.get(kname), sc * (1 - e))]
-            if c.law == "bit_rock":
-                terms.append((pr.get("c_b"), aw))
-        else:
+        ft = data.friction_terms(c)
+        if ft is None:
             return {}
+        terms, rest = ft
+        fixed = fixed + rest[mask]
         for ref, col in terms:
-            if ref is not None and ref.kind == "param" and ref.name in free:
-                cols[ref.name] = cols.get(ref.name, 0) + col
+            if ref.kind == "param" and ref.name in free:
+                cols[ref.name] = cols.get(ref.name, 0) + col[mask]
             else:
-                fixed = fixed + (float(_val(ref, P)) if ref is not None else 0.0) * col
+                fixed = fixed + float(ref.value(P)) * col[mask]
     if not cols:
         return {}
     names = list(cols)
@@ -256,7 +240,7 @@ def _cycle_guess(model, P, data, body, log, free, notes, values):
     src = (f"stick-slip cycle of {ch} (period {cyc.period:.3g} s, stick {stick:.3g} s, peak "
            f"{wmax:.3g} rad/s, {cyc.cycles} cycles; exact Coulomb cycle)")
     kref = c.stiffness
-    k = float(_val(kref, P))
+    k = float(kref.value(P))
     if kref.kind == "param" and kref.name in free and kref.name not in values:
         k = J * wn * wn
         values[kref.name] = k
@@ -264,7 +248,7 @@ def _cycle_guess(model, P, data, body, log, free, notes, values):
     else:
         jref = model.spec.body(body).inertia
         if jref.kind == "param" and jref.name in free and jref.name not in values:
-            Jb = _inertia(model, P, body) - J + k / (wn * wn)
+            Jb = float(model.inertia(body, P)) - J + k / (wn * wn)
             values[jref.name] = Jb
             notes.append(f"{jref.name} = {Jb:.4g} from the {src}")
     delta = k * dk_over_k
@@ -313,10 +297,10 @@ def _walk_chain(model, P, data, conn, T_conn, free, values, notes, source):
             return
         c2 = others[0]
         s, s2 = (1.0 if b == c.b else -1.0), (1.0 if b == c2.b else -1.0)
-        Tb = _inertia(model, P, b) * data.accel(b)
+        Tb = float(model.inertia(b, P)) * data.accel(b)
         for g in model.spec.connections:          # dampers to the ground on b
             if g.damping is not None and NODE_GROUND in (g.a, g.b) and b in (g.a, g.b):
-                Tb = Tb + float(_val(g.damping, P)) * data.speed(b)
+                Tb = Tb + float(g.damping.value(P)) * data.speed(b)
         c, Tc = c2, s2 * (Tb - s * Tc)
         source = f"{source} passed through {b}"
 
@@ -330,7 +314,7 @@ def _equation_error(model, P, data, body, free, values, notes, thr, encoder_zero
     intercept for the encoder zeros when they are free (``k z``).  A coefficient is used only if the
     regression determines it (relative standard error below 30 %)."""
     conns = [c for c in model.spec.connections if body in (c.a, c.b)]
-    y = _inertia(model, P, body) * data.accel(body)
+    y = float(model.inertia(body, P)) * data.accel(body)
     w = data.speed(body)
     cols: dict[str, np.ndarray] = {}
     for c in conns:
@@ -338,7 +322,7 @@ def _equation_error(model, P, data, body, free, values, notes, thr, encoder_zero
         s = 1.0 if body == c.b else -1.0
         if o == NODE_GROUND:
             if c.damping is not None:
-                y = y + float(_val(c.damping, P)) * w       # (fixed) damper to the ground
+                y = y + float(c.damping.value(P)) * w       # (fixed) damper to the ground
             continue
         tha, thb, wa, wb = data.angle(c.a), data.angle(c.b), data.speed(c.a), data.speed(c.b)
         if tha is None or thb is None or wa is None or wb is None:
@@ -349,35 +333,27 @@ def _equation_error(model, P, data, body, free, values, notes, thr, encoder_zero
             if ref.kind == "param" and ref.name in free and ref.name not in values:
                 cols[ref.name] = cols.get(ref.name, 0) + reg
             else:
-                y = y - float(_val(ref, P)) * reg
+                y = y - float(ref.value(P)) * reg
         if encoder_zero == "free" and c.stiffness is not None:
             cols["(encoder zero)"] = cols.get("(encoder zero)", 0) + s * np.ones_like(w)
     sg = np.sign(w)
-    aw = np.abs(w)
     no_use: set[str] = set()      # static levels: barely seen by sliding samples, taken from the cycle
     for ct in model.spec.contacts:
         if ct.body != body:
             continue
-        pr = dict(ct.params)
-        sc = data.scale(ct)
-        if ct.law == "coulomb":
-            terms = [(pr.get("mu_k"), sc)]
-        elif ct.law in LEVELS:
-            v = float(_val(pr["v_s" if ct.law == "stribeck" else "v_b"], P))
-            e = np.exp(-aw / max(v, 1e-9))
-            terms = [(pr.get(LEVELS[ct.law][0]), sc * e), (pr.get(LEVELS[ct.law][1]), sc * (1 - e))]
-            if ct.law == "bit_rock":
-                terms.append((pr.get("c_b"), aw))
-        else:
+        ft = data.friction_terms(ct)
+        if ft is None:
             return
-        static = pr.get(LEVELS[ct.law][0]) if ct.law in LEVELS else None
+        terms, rest = ft
+        y = y + sg * rest
+        static = dict(ct.params).get(model.law(ct.name).with_role("static"))
         for ref, reg in terms:
-            if ref is not None and ref.kind == "param" and ref.name in free and ref.name not in values:
+            if ref.kind == "param" and ref.name in free and ref.name not in values:
                 cols[ref.name] = cols.get(ref.name, 0) - sg * reg
                 if ref is static:
                     no_use.add(ref.name)
-            elif ref is not None:
-                y = y + float(_val(ref, P)) * sg * reg
+            else:
+                y = y + float(ref.value(P)) * sg * reg
     names = [n for n in cols if n != "(encoder zero)"]
     if not names:
         return
@@ -445,7 +421,7 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
     friction_done = False
     if tq is not None:
         T_read = np.asarray(log[tq.channels[0]], float)
-        T = (T_read - float(_val(tq.offset, P))) / float(_val(tq.gain, P)) if tq.offset is not None else T_read
+        T = (T_read - float(tq.offset.value(P))) / float(tq.gain.value(P)) if tq.offset is not None else T_read
         side, T_in, k_conn = None, None, None
         if tq.target == NODE_DRIVE:
             side = set(model.bodies)
@@ -453,11 +429,11 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
             if model.drive_kind == "torque":
                 T_in = T
             elif model.drive_kind == "dc_motor" and data.speed(d.body) is not None:
-                eta, Jm = float(_val(d.param("ratio"), P)), float(_val(d.param("Jm"), P))
+                eta, Jm = float(d.param("ratio").value(P)), float(d.param("Jm").value(P))
                 wd = data.speed(d.body)
                 if tq.definition == "electromagnetic":
-                    T_in = T - eta * (float(_val(d.param("Tf"), P)) * np.tanh(eta * wd / d.eps_motor)
-                                      + float(_val(d.param("Cm"), P)) * eta * wd)
+                    T_in = T - eta * (float(d.param("Tf").value(P)) * np.tanh(eta * wd / d.eps_motor)
+                                      + float(d.param("Cm").value(P)) * eta * wd)
                 else:
                     T_in = T + eta * (eta - 1) * Jm * data.accel(d.body)
                     # the delivered torque, for the stiffness of the drive's only shaft
@@ -478,11 +454,11 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
         if T_in is not None and side and all(data.speed(b) is not None for b in side):
             F = T_in.copy()
             for b in side:
-                F = F - _inertia(model, P, b) * data.accel(b)
+                F = F - float(model.inertia(b, P)) * data.accel(b)
             for c in model.spec.connections:      # dampers to the ground on that side
                 if c.damping is not None and NODE_GROUND in (c.a, c.b) and (c.a in side or c.b in side):
                     b = c.a if c.a in side else c.b
-                    F = F - float(_val(c.damping, P)) * data.speed(b)
+                    F = F - float(c.damping.value(P)) * data.speed(b)
             contacts = [c for c in model.spec.contacts if c.body in side]
             active = _active_contacts(model, data, contacts)
             if active:
@@ -520,14 +496,15 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
     if cyc is not None:
         body = bodies[0]
         for ct in model.spec.contacts:
-            if ct.body != body or ct.law not in LEVELS:
+            order = model.law(ct.name).level_order
+            if ct.body != body or order is None:
                 continue
             pr = dict(ct.params)
-            sref, kref = pr[LEVELS[ct.law][0]], pr[LEVELS[ct.law][1]]
+            kref, sref = pr[order[0]], pr[order[1]]
             if sref.kind == "param" and sref.name in free and sref.name not in values:
                 sc = float(np.mean(data.scale(ct)))
                 if sc > 0:
-                    v = float(_val(kref, P)) + cyc["delta"] / sc
+                    v = float(kref.value(P)) + cyc["delta"] / sc
                     values[sref.name] = v
                     notes.append(f"{sref.name} = {v:.4g} = {kref.name} + the friction drop "
                                  f"{cyc['delta']:.3g} N m of the {cyc['src']}")
@@ -547,9 +524,10 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
         if line.split(" = ")[0] in out:
             kept.append(line)
     for ct in model.spec.contacts:
-        if ct.law in LEVELS:
+        order = model.law(ct.name).level_order
+        if order is not None:
             pr = dict(ct.params)
-            s, k = pr[LEVELS[ct.law][0]], pr[LEVELS[ct.law][1]]
+            k, s = pr[order[0]], pr[order[1]]
             if s.kind == "param" and k.kind == "param" and (s.name in out or k.name in out):
                 vs, vk = out.get(s.name, base[s.name]), out.get(k.name, base[k.name])
                 if vk > vs:

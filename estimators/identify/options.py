@@ -144,8 +144,9 @@ class IdentifyOptions:
     eps : friction regularisation of the fitted model [rad/s].  The regularised model creeps
         where the plant sticks; the bias this puts on friction and damping shrinks with eps,
         at the price of more substeps
-    nsub : RK4 substeps per sample; None: from the stiffest rate at zero contact speed,
-        ``ceil(dt |lambda|max / 3.5)``
+    nsub : RK4 substeps per sample; None: from the integration rule
+        (:func:`models.discretise.integration`: ``h |lambda|max <= 2.5`` over the contacts at rest
+        and sliding, a fast motor's current quasi-static)
     shoot_every : samples per shooting interval
     speed_average : compare encoder speeds as means over the sample (the DAQ's backward
         differences of counted angles)

@@ -46,7 +46,8 @@ from models.signals import lowpass, moving_average
 from models.status import Status
 from estimators.identify.covariance import uncertainty
 from estimators.identify.gauss_newton import solve_gn
-from estimators.identify.guess import LEVELS, initial_guess
+from estimators.identify.guess import initial_guess
+from models.discretise import MAX_SUBSTEPS, integration, rate_jacobian
 from estimators.identify.ipopt import solve_ipopt
 from estimators.identify.noise import detect_input_noise, input_noise_hints, output_noise
 from estimators.identify.options import IdentifyOptions, LinearConstraint
@@ -55,7 +56,7 @@ from estimators.identify.result import FitResult, IdentifiabilityWarning, conver
 from estimators.identify.shooting import ShootingProblem, compiled_or_none, sample_function
 from estimators.identify.validation import validate
 
-__all__ = ["IdentificationProblem", "auto_nsub"]
+__all__ = ["IdentificationProblem"]
 
 _KEEP = object()
 _KIND = {"speed": "speed", "torque": "torque", "force": "force"}
@@ -78,13 +79,12 @@ class LogData:
 
 class StiffRate:
     """The largest eigenvalue magnitude [1/s] of the regularised model's Jacobian at zero contact
-    speed (its stiffest point), as a function of the parameter vector, for inputs ``u``."""
+    speed (its stiffest point), as a function of the parameter vector, for inputs ``u`` (with a
+    quasi-static current when the integration treats it so)."""
 
-    def __init__(self, model, params: ParameterSet, u, eps: float):
-        f = model.ode(eps)
-        x = ca.SX.sym("x", model.nx)
-        p = ca.SX.sym("p", model.n_p)
-        self._J = ca.Function("jf", [x, p], [ca.jacobian(f(x, ca.DM(u), p), x)])
+    def __init__(self, model, params: ParameterSet, u, eps: float, reduced: bool = False):
+        J = rate_jacobian(model, eps, reduced)
+        self._J = lambda x, p: J(x, ca.DM(u), p)
         try:
             x0 = np.asarray(model.sliding_guess(u, params), dtype=float)
         except Exception:  # noqa: BLE001 - any finite point will do
@@ -102,26 +102,17 @@ class StiffRate:
         return float(np.max(np.abs(lam))) if lam.size else 0.0
 
 
-def auto_nsub(model, params: ParameterSet, u, dt: float, eps: float, rho_h: float = 3.5) -> int:
-    """RK4 substeps so that ``h |lambda|max <= rho_h`` at zero contact speed (the stiffest point).
-
-    ``u`` are model inputs (e.g. the largest logged ones).  RK4 is stable to 2.8 on the real
-    axis, but the stiff rate holds only for ``|v| < eps``; fits were unchanged up to 3.5.
-    """
-    rho = StiffRate(model, params, u, eps)(params.vector())
-    return max(1, int(math.ceil(dt * rho / rho_h)))
-
-
-def _functions(model, nsub: int, channels, avg, free_idx, input_jac: bool, compile_: bool):
+def _functions(model, integ, channels, avg, free_idx, input_jac: bool, compile_: bool):
     """(sensitivity function to run, values function to run, values function uncompiled, compiled?), cached on
     the model object (never by ``id``: a freed rig's id is reused by the next one)."""
-    key = ("identify", nsub, tuple((c.name, c.kind) for c in channels), tuple(avg), tuple(free_idx),
+    nsub, qs = integ.nsub, integ.quasi_static
+    key = ("identify", nsub, qs, tuple((c.name, c.kind) for c in channels), tuple(avg), tuple(free_idx),
            input_jac, compile_)
     cache = model._fcache
     if key not in cache:
         h = output_function(model, channels)
-        S = sample_function(model, nsub, h, avg, free_idx, input_jac=input_jac)
-        Sv = sample_function(model, nsub, h, avg, free_idx, values_only=True)
+        S = sample_function(model, nsub, h, avg, free_idx, input_jac=input_jac, quasi_static=qs)
+        Sv = sample_function(model, nsub, h, avg, free_idx, values_only=True, quasi_static=qs)
         S_run, Sv_run = S, Sv
         if compile_:
             S_run = compiled_or_none(S) or S
@@ -305,7 +296,10 @@ class IdentificationProblem:
         # ---- substeps
         umax = np.max(np.abs(np.concatenate([d.U for d in self.data])), axis=0) if m.nu else np.zeros(0)
         self._umax = np.array(m.input_from_measured(list(umax), m.unpack(initial.vector())), float).ravel()
-        self.nsub = auto_nsub(m, initial, self._umax, self.dt, o.eps) if o.nsub is None else o.nsub
+        #: how a sample is integrated (:func:`models.discretise.integration`; ``nsub`` a floor)
+        self.integration = integration(m, initial, self.dt, u=self._umax, eps=o.eps, nsub=o.nsub,
+                                       max_nsub=None if o.nsub is not None else MAX_SUBSTEPS, where="options.nsub")
+        self.nsub = self.integration.nsub
         self._stiff = None
         self._h_lambda0 = None
         self._sh = None
@@ -351,16 +345,18 @@ class IdentificationProblem:
         return lo, hi
 
     def _constraints(self) -> tuple[LinearConstraint, ...]:
-        """Bounds excluded: ``mu_k <= mu_s`` per Stribeck-type contact with both levels free, and the options'."""
+        """Bounds excluded: ``kinetic <= static`` level per contact whose law declares both (e.g. Stribeck's
+        ``mu_k <= mu_s``) with both free, and the options'."""
         m, o = self.model, self.options
         out = []
         if o.order_friction:
             seen = set()
             for c in m.spec.contacts:
-                if c.law not in LEVELS:
+                order = m.law(c.name).level_order
+                if order is None:
                     continue
                 pr = dict(c.params)
-                s, k = pr.get(LEVELS[c.law][0]), pr.get(LEVELS[c.law][1])
+                k, s = pr.get(order[0]), pr.get(order[1])
                 if s is not None and k is not None and s.kind == k.kind == "param" and s.name in o.free \
                         and k.name in o.free and (k.name, s.name) not in seen:
                     seen.add((k.name, s.name))
@@ -399,7 +395,7 @@ class IdentificationProblem:
         avg = [c.kind == "speed" for c in self.channels]
         eiv = self.input_noise
         use_c = o.compile if o.compile is not None else (o.solver == "gn")
-        S_run, Sv_run, Sv, self.compiled = _functions(m, self.nsub, self.channels, avg, self.free_idx, bool(eiv), use_c)
+        S_run, Sv_run, Sv, self.compiled = _functions(m, self.integration, self.channels, avg, self.free_idx, bool(eiv), use_c)
         self._S_val = Sv
         Ub, Yb, starts, zmap = [], [], [], []
         node_off = 0
@@ -521,8 +517,7 @@ class IdentificationProblem:
                 known[idx] = moving_average(d.Y[:, j], 5)
                 s = m.sensor_of(chan_names[j])
                 if s is not None and s.kind == "speed":
-                    known[idx] = (known[idx] - float(P0[s.offset.name] if s.offset.kind == "param" else s.offset.value)) \
-                        / float(P0[s.gain.name] if s.gain.kind == "param" else s.gain.value)
+                    known[idx] = (known[idx] - float(s.offset.value(P0))) / float(s.gain.value(P0))
             for idx, (j, sgn) in twist_of.items():
                 known[idx] = sgn * (moving_average(d.Y[:, j], 3) + zlog.get(j, 0.0))
             row0 = 1 if o.input_row == "end" else 0
@@ -615,7 +610,8 @@ class IdentificationProblem:
                 # rig3 fit doubled its time for nothing
                 if self.stiff_rate(fit.estimate) * self.dt / prob.nsub <= max(4.0, 1.25 * (self._h_lambda0 or 0.0)):
                     break
-                need = auto_nsub(self.model, fit.params, self._umax, self.dt, self.options.eps)
+                need = integration(self.model, fit.params, self.dt, u=self._umax, eps=self.options.eps,
+                                   where="options.nsub").nsub
                 if need <= prob.nsub:
                     break
                 old = prob.nsub
@@ -644,7 +640,8 @@ class IdentificationProblem:
     def stiff_rate(self, theta) -> float:
         """The model's stiffest rate [1/s] with the free parameters at ``theta`` (largest logged inputs)."""
         if self._stiff is None:
-            self._stiff = StiffRate(self.model, self.initial, self._umax, self.options.eps)
+            self._stiff = StiffRate(self.model, self.initial, self._umax, self.options.eps,
+                                    self.integration.quasi_static)
         p = self.initial.vector()
         p[self.free_idx] = theta
         return self._stiff(p)

@@ -41,7 +41,7 @@ _COMPILED: dict = {}
 
 
 def sample_function(model, nsub: int, h: ca.Function, avg, free_idx=None, *, values_only: bool = False,
-                    input_jac: bool = False) -> ca.Function:
+                    input_jac: bool = False, quasi_static: bool = False) -> ca.Function:
     """One sample with sensitivities (see the module docstring).
 
     Parameters
@@ -55,6 +55,8 @@ def sample_function(model, nsub: int, h: ca.Function, avg, free_idx=None, *, val
         (``B = dx_next/dth``, ``D = dy/dth``); None: all parameters free
     values_only : only ``(x_next, y)``
     input_jac : also ``E``, ``F`` (errors in the variables)
+    quasi_static : a DC motor's current at its quasi-static value at every RK4 stage and at the end
+        (:func:`models.discretise.integration` decides)
 
     Returns
     -------
@@ -72,8 +74,14 @@ def sample_function(model, nsub: int, h: ca.Function, avg, free_idx=None, *, val
         parts[i] = th[k]
     pe = ca.vertcat(*parts)
     um = ca.vertcat(*model.input_from_measured([u[i] for i in range(model.nu)], model.unpack(pe)))
-    rhs = ca.vertcat(*model.smooth_rhs(x, um, pe, eps))
-    yexpr = h(x, um, pe)
+    xq = x
+    if quasi_static:
+        jq = model.current_index
+        xq = ca.vertcat(x[:jq], model.quasi_static_current(x, um, model.unpack(pe)), x[jq + 1:])
+    rhs = ca.vertcat(*model.smooth_rhs(xq, um, pe, eps))
+    if quasi_static:
+        rhs[jq] = 0
+    yexpr = h(xq, um, pe)
     idx_avg = [i for i, a in enumerate(avg) if a]
     q_rhs = ca.vertcat(*[yexpr[i] for i in idx_avg]) if idx_avg else ca.SX(0, 1)
     fa = ca.Function("fa", [x, u, th, p, eps], [ca.vertcat(rhs, q_rhs)])
@@ -86,7 +94,7 @@ def sample_function(model, nsub: int, h: ca.Function, avg, free_idx=None, *, val
         k3 = fa(xa[:nx] + hs / 2 * k2[:nx], u, th, p, eps)
         k4 = fa(xa[:nx] + hs * k3[:nx], u, th, p, eps)
         xa = xa + hs / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    xn = xa[:nx]
+    xn = ca.Function("proj", [x, u, th, p], [xq])(xa[:nx], u, th, p) if quasi_static else xa[:nx]
     yend = h(xn, um, pe)
     ys, jq = [], 0
     for i, a in enumerate(avg):
@@ -98,7 +106,7 @@ def sample_function(model, nsub: int, h: ca.Function, avg, free_idx=None, *, val
     y = ca.vertcat(*ys)
     import hashlib
     ftag = hashlib.sha1(",".join(map(str, free_idx)).encode()).hexdigest()[:8]
-    tag = f"{model.cname}_id_n{nsub}_y{len(avg)}_f{ftag}"
+    tag = f"{model.cname}_id_n{nsub}{'q' if quasi_static else ''}_y{len(avg)}_f{ftag}"
     args, argn = [x, u, th, p, dt, eps], ["x", "u", "th", "p", "dt", "eps"]
     if values_only:
         return ca.Function(f"{tag}_val", args, [xn, y], argn, ["x_next", "y"])

@@ -107,7 +107,7 @@ from models.params import ParameterSet
 from models.rig import RigModel
 from models.rig.spec import NODE_DRIVE
 from models.sensors import FLOOR, SensorOptions, channel_variance
-from models.discretise import rk4
+from models.discretise import Integration, integration
 
 __all__ = ["EstimationModel", "build_estimation_model", "default_channels", "default_augment", "state_units",
            "angle_combination"]
@@ -189,6 +189,8 @@ class EstimationModel:
     meas_names : internal measurements (whitened angle differences, then the other channels)
     delay : samples of input history the model needs (``uh`` holds ``u_k, u_{k-1}, ...``)
     F : Function ``(x, uh, p) -> x_next`` over one sample (RK4 with substeps)
+    integration : how ``F`` integrates the rig (:func:`models.discretise.integration`: substeps,
+        a fast motor's current quasi-static); its ``note`` says so
     h : Function ``(x, uh, p) -> y`` internal measurements
     to_internal : Function ``(y_raw, m_raw) -> (y, m)`` raw channels and their masks (1 present,
         0 missing) to internal measurements and masks
@@ -227,6 +229,7 @@ class EstimationModel:
     p: np.ndarray
     angles: str = "zeroed"
     augment: tuple = ()
+    integration: Integration | None = None
 
     @property
     def nx(self) -> int:
@@ -265,45 +268,14 @@ class EstimationModel:
         return x
 
 
-def _ref_value(ref, P, un):
-    """A rig-file reference's value: parameter, input or constant."""
-    if ref is None:
-        return None
-    if ref.kind == "param":
-        return P[ref.name]
-    if ref.kind == "input":
-        return un[ref.name]
-    return ref.value
-
-
-def _body_inertia(model: RigModel, body: str, P: dict):
-    J = _ref_value(model.spec.body(body).inertia, P, {})
-    d = model.spec.drive
-    if d.kind == "dc_motor" and d.body == body:
-        J = J + _ref_value(d.param("ratio"), P, {}) ** 2 * _ref_value(d.param("Jm"), P, {})
-    return J
-
-
 def rig_rhs(model: RigModel, x, u, P: dict, eps: float, factors: dict):
     """The rig's regularised state derivative with friction factors per contact.
 
     Identical to ``model.ode(eps)`` when every factor is 1 (tests check it); a factor scales
     its contact's friction torque, not the inertia a contact may add.
     """
-    un = {n: u[i] for i, n in enumerate(model.inputs)}
-    Tc, s = [], []
-    for i, idx in enumerate(model.contacts):
-        v = x[idx]
-        T = 0
-        for cname in model.contact_names[i]:
-            c = next(cc for cc in model.spec.contacts if cc.name == cname)
-            N = _ref_value(c.normal, P, un) if c.normal is not None else 1.0
-            r = _ref_value(c.radius, P, un) if c.radius is not None else 1.0
-            LP = {k: _ref_value(ref, P, un) for k, ref in c.params}
-            Tk = fr.get_law(c.law).smooth(v, N, r, LP, eps)
-            T = T + (factors[cname] * Tk if cname in factors else Tk)
-        Tc.append(T)
-        s.append(fr.smooth_sign(v, eps))
+    Tc = [model.contact_friction(i, x[idx], u, P, eps, factors=factors) for i, idx in enumerate(model.contacts)]
+    s = [fr.smooth_sign(x[idx], eps) for idx in model.contacts]
     return ca.vertcat(*model.dynamics(x, u, P, Tc, s))
 
 
@@ -454,7 +426,9 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
     f_rhs = ca.Function("rhs", [xr_s, ur_s, ps, fa_s], [rig_rhs(model, xr_s, ur_s, model.unpack(ps), options.eps, fac)])
     fvec = ca.vertcat(*factors.values()) if factors else ca.SX.zeros(1)
     u0 = ca.vertcat(*u_at(0))
-    xr_next = rk4(lambda a, b, c: f_rhs(a, b, c, fvec), x[:nxr], u0, p, dt, int(options.nsub))
+    integ = integration(model, params, dt, eps=options.eps, min_nsub=int(options.nsub), where=where)
+    xr_next = integ.advance(lambda a, b, c: f_rhs(a, b, c, fvec), x[:nxr], u0, p,
+                            lambda a, b, c: model.quasi_static_current(a, b, model.unpack(c)))
     nxt = [xr_next]
     if nx > nxr:
         held = [x[idx[n]] for n in names[nxr:] if not n.startswith("lag")]
@@ -517,19 +491,14 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
     # ---- stick: in stick the friction is a constraint force, not the regularised law's creep
     dq = [ca.SX(0)] * nx
     if options.q_stick > 0:
-        uu = u_at(0)
-        un = {n: uu[i] for i, n in enumerate(model.inputs)}
+        un = u_at(0)
         for i, jdx in enumerate(model.contacts):
             Ts = 0
             for cname in model.contact_names[i]:
-                c = next(cc for cc in model.spec.contacts if cc.name == cname)
-                N = _ref_value(c.normal, P, un) if c.normal is not None else 1.0
-                rr = _ref_value(c.radius, P, un) if c.radius is not None else 1.0
-                LP = {k: _ref_value(ref, P, un) for k, ref in c.params}
-                tp, tm = fr.get_law(c.law).static_limits(N, rr, LP)
+                tp, tm = model.law(cname).static_limits(*model.contact_args(cname, P, un))
                 t_s = 0.5 * (ca.fabs(tp) + ca.fabs(tm))
                 Ts = Ts + t_s     # the nominal limit: a load factor near 0 must not switch this off
-            J = _body_inertia(model, model.contact_bodies[i], P)
+            J = model.inertia(model.contact_bodies[i], P)
             sech2 = 1 - ca.tanh(x[jdx] / options.eps) ** 2
             dq[jdx] = (options.q_stick * Ts * dt / J) ** 2 * sech2
     stick = ca.Function(f"{model.cname}_est_stick", [x, uh, p], [ca.vertcat(*dq)], ["x", "uh", "p"], ["dq"])
@@ -540,7 +509,7 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
     lb, ub = _bounds(names)
     return EstimationModel(model, params, dt, names, state_units(model, names), nxr, chans, tuple(meas), D, F, h,
                            to_internal, np.array(dep_rows, bool).reshape(len(meas), len(chans)), q, stick, float(options.eps), r, x0v, P0, lb,
-                           ub, np.array([P_num[n] for n in model.param_names]), options.angles, aug)
+                           ub, np.array([P_num[n] for n in model.param_names]), options.angles, aug, integ)
 
 
 def _prod(terms):
@@ -558,7 +527,7 @@ def _process_variances(model: RigModel, names, P_num: dict, dt: float, o) -> np.
             if n.startswith("twist_"):
                 v = o.q_twist ** 2
             elif n.startswith("omega_"):
-                J = float(_body_inertia(model, n[len("omega_"):], P_num))
+                J = float(model.inertia(n[len("omega_"):], P_num))
                 v = (o.q_torque * dt / J) ** 2 if J > 0 else o.q_torque ** 2
             elif n == "current":
                 v = o.q_current ** 2

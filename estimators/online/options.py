@@ -77,7 +77,9 @@ class EKFOptions:
         torque sensor's, speed sensor's or load cell's offset [channel unit] or gain [-]);
         None: the rig's default (see :mod:`estimators.online.model`); ``[]``: none
     eps : friction regularisation of the estimator's model [rad/s]
-    nsub : RK4 substeps per DAQ sample (the regularised friction is stiff, ~400 1/s)
+    nsub : RK4 substeps per DAQ sample, at least (the regularised friction is stiff, ~400 1/s on
+        rig3); the integration rule (:func:`models.discretise.integration`) raises them for a
+        stiffer rig and treats a fast DC motor's current quasi-statically
     q_torque : unmodelled torque on each body, standard deviation [N m] (white over a sample)
     q_current : unmodelled armature current per sample, standard deviation [A]
     q_twist : unmodelled twist per sample, standard deviation [rad]

@@ -32,7 +32,7 @@ from mitigate.cliutil import check_outputs, emit_json, format_table
 from models.errors import ConfigError, DataError
 from models.files import atomic_write_text
 from models.logs import read_csv
-from models.params import load_params
+from models.rig import load_params
 from models.rig import get_model
 from models.sensors import SensorOptions
 

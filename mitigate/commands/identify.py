@@ -24,7 +24,7 @@ from mitigate.cliutil import check_outputs, emit_json, format_table
 from models.errors import ConfigError, DataError
 from models.files import atomic_path
 from models.logs import read_csv
-from models.params import load_params
+from models.rig import load_params
 from models.rig import get_model, shipped_rigs
 
 EPILOG = """examples:

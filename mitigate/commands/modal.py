@@ -11,7 +11,7 @@ import numpy as np
 from mitigate.cliutil import add_common, check_outputs, emit_json, format_table, savefig_atomic
 from models.errors import ConfigError
 from models.modal import VARIANTS, compare_measured, modes, stability_map
-from models.params import load_params
+from models.rig import load_params
 from models.rig import get_model, shipped_rigs
 
 EPILOG = """examples:

@@ -30,7 +30,6 @@ from mitigate.controllers._opts import check_number
 from mitigate.controllers.base import Action, Controller, ControlContext
 from mitigate.controllers.tuning import drive_speed_channel, first_order, np_clip, tuning_for
 from models.errors import ConfigError
-from models.rig.model import _val
 
 __all__ = ["DOSKILOptions", "DOSKIL"]
 
@@ -84,15 +83,15 @@ class DOSKIL(Controller):
         if self.body_ch is None:
             raise ConfigError(f"{context.where}: needs the speed of {c.body!r}, which rig {m.name!r} does not measure")
         self.top_ch = drive_speed_channel(context)
-        lp = dict(c.params)
-        level = next((lp[n] for n in ("mu_k", "mu_cb", "mu1") if n in lp), None)
+        kinetic = m.law(c.name).with_role("kinetic")
+        level = dict(c.params).get(kinetic) if kinetic else None
         if options.gain > 0:
             self.gain = options.gain
         else:
             if level is None or c.radius is None:
                 raise ConfigError(f"{context.where}.gain: cannot derive it for contact {c.name!r} (law {c.law!r}); "
                                   f"give gain [N s/rad]")
-            self.gain = options.gain_factor * tuning_for(m, context.params).Z / (_val(c.radius, P, {}) * _val(level, P, {}))
+            self.gain = options.gain_factor * tuning_for(m, context.params).Z / (c.radius.value(P) * level.value(P))
         self.tau = options.tau or tuning_for(m, context.params).period / 80.0
         a = m.actuator(self.input)
         self.n_min = max(options.n_min, a.n_min)

@@ -123,5 +123,4 @@ class SoftSpeed(Controller):
     def _w_nominal(self, t: float) -> float:
         """A torque drive's speed set-point: the scenario's ``speed`` programme if it has one, else the
         operating point's speed of the rig file."""
-        op = self.context.model.spec.extra.get("operating_point", {})
-        return float(op.get("speed", 1.0))
+        return self.context.model.nominal_speed()

@@ -29,7 +29,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.errors import ConfigError
-from models.rig.model import _val
 
 __all__ = ["DriveTuning", "string_impedance", "stick_slip_frequency", "drive_inertia", "tuning_for"]
 
@@ -64,12 +63,7 @@ def drive_inertia(model, params) -> float:
     """The drive body's total inertia (a DC motor's ``ratio^2 Jm`` included) [kg m^2]; 0 for a speed drive."""
     if model.drive_kind == "speed":
         return 0.0
-    P = params.as_dict()
-    d = model.spec.drive
-    J = _val(model.spec.body(d.body).inertia, P, {})
-    if d.kind == "dc_motor":
-        J += _val(d.param("ratio"), P, {}) ** 2 * _val(d.param("Jm"), P, {})
-    return float(J)
+    return float(model.inertia(model.spec.drive.body, params.as_dict()))
 
 
 def string_impedance(model, params, body: str | None = None) -> tuple[float, float, float]:
@@ -82,9 +76,9 @@ def string_impedance(model, params, body: str | None = None) -> tuple[float, flo
     if not springs:
         raise ConfigError(f"rig {model.name!r}: the objective body {body!r} is the drive itself")
     P = params.as_dict()
-    k = 1.0 / sum(1.0 / _val(c.stiffness, P, {}) for c in springs)
+    k = 1.0 / sum(1.0 / c.stiffness.value(P) for c in springs)
     nodes = {x for c in springs for x in (c.a, c.b)} - {start, "drive", "ground"}
-    J = sum(_val(model.spec.body(b).inertia, P, {}) for b in nodes)
+    J = sum(model.inertia(b, P) for b in nodes)
     return math.sqrt(k * J), k, J
 
 
@@ -179,11 +173,11 @@ class PipeTorque:
         self.friction = None
         if m.drive_kind == "dc_motor":
             d = m.spec.drive
-            eta, Jm = _val(d.param("ratio"), P, {}), _val(d.param("Jm"), P, {})
+            eta, Jm = d.param("ratio").value(P), d.param("Jm").value(P)
             sensor = m.sensor_of(self.torque_ch)
             if sensor.definition == "electromagnetic":
-                self.J = eta ** 2 * Jm + _val(m.spec.body(d.body).inertia, P, {})
-                Tf, Cm, eps = _val(d.param("Tf"), P, {}), _val(d.param("Cm"), P, {}), d.eps_motor
+                self.J = m.inertia(d.body, P)
+                Tf, Cm, eps = d.param("Tf").value(P), d.param("Cm").value(P), d.eps_motor
                 self.friction = lambda w: eta * (Tf * math.tanh(eta * w / eps) + Cm * eta * w)  # noqa: E731
             else:
                 self.J = eta * Jm

@@ -97,8 +97,7 @@ class ZTorque(Controller):
         self._lp = T if self._lp is None else first_order(self._lp, T, dt, self.tau_hp)
         hp = T - self._lp
         if self.torque_drive:
-            op = m.spec.extra.get("operating_point", {})
-            w_nom = float(op.get("speed", 1.0))
+            w_nom = m.nominal_speed()
             e = w_nom - float(measurement[self.speed_ch]) - self.gain * hp
             if self._I is None:
                 self._I = T

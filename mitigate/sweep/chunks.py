@@ -31,16 +31,17 @@ def _model_key(model) -> str:
     return hashlib.sha256(repr(model.spec).encode()).hexdigest()[:16]
 
 
-def batched_step(model, dt: float, nsub: int, block: int, n_points: int, backend: str = "compiled"):
+def batched_step(model, dt: float, nsub: int, block: int, n_points: int, backend: str = "compiled",
+                 quasi_static: bool = False):
     """``G(x0, theta0, U, P) -> (X, Theta)``: ``block`` hybrid plant steps for ``n_points`` points.
 
     Shapes: x0 (nx, n), U (nu, block*n) (point-major), P (n_p, n); X (nx, block*n),
     column ``j*block + k`` is point ``j`` after step ``k+1``.
     """
-    key = (_model_key(model), float(dt), int(nsub), backend)
+    key = (_model_key(model), float(dt), int(nsub), backend, bool(quasi_static))
     F = _FN_CACHE.get(key)
     if F is None:
-        F = hybrid_step_function(model, dt, nsub)
+        F = hybrid_step_function(model, dt, nsub, quasi_static=quasi_static)
         if backend == "compiled":
             F = compiled_or_none(F) or F
         _FN_CACHE[key] = F
@@ -85,6 +86,7 @@ class ChunkTask:
     controller: Any = None       # (scenario, controller index, duration [s]) for closed-loop sweeps
     kind: str = "simulate"       # simulate | stability (linear stability of steady sliding)
     params: Any = None           # the scenario's plant ParameterSet (for kind="stability")
+    quasi_static: bool = False   # a DC motor's current quasi-static (models.discretise.integration)
 
 
 def _x0(model, start, u, pvec, perturbation=0.0):
@@ -140,7 +142,7 @@ def run_chunk(task: ChunkTask) -> dict[str, np.ndarray]:
     k = 0
     while k < n_steps:
         b = min(task.block, n_steps - k)
-        G = batched_step(task.model, task.dt, task.nsub, b, m, task.backend)
+        G = batched_step(task.model, task.dt, task.nsub, b, m, task.backend, task.quasi_static)
         Ub = Uall[:, k:k + b, :].transpose(2, 0, 1).reshape(model.nu, m * b)
         X, T = G(x, th, Ub, Pt)
         X = np.asarray(X).reshape(model.nx, m, b)

@@ -10,6 +10,7 @@ from typing import Callable
 import numpy as np
 
 from models.errors import ConfigError
+from models.plant import SimOptions, plant_integration
 from models.status import Status
 from mitigate.sweep.chunks import METRICS, ChunkTask, run_chunk
 from mitigate.sweep.plan import Axis, SweepPlan
@@ -33,6 +34,8 @@ def make_tasks(plan: SweepPlan, controller: str | None = None) -> list[ChunkTask
                               f"got {controller!r}")
         controller = (sc, names.index(controller), o.duration)
     model = plan.scenario.plant_model
+    # the integration rule at the scenario's plant parameters (one decision for the whole grid)
+    qs = plant_integration(model, plan.scenario.plant_params, SimOptions(dt=o.dt, nsub=o.nsub)).quasi_static
     tasks = []
     for start in o.starts:
         for c, lo in enumerate(range(0, plan.n_points, o.chunk)):
@@ -43,7 +46,7 @@ def make_tasks(plan: SweepPlan, controller: str | None = None) -> list[ChunkTask
                                    speed_index=model.states.index(o.speed),
                                    amp_index=model.states.index(o.amplitude_of), threshold=o.threshold,
                                    stuck_threshold=o.stuck_threshold, backend=o.backend, controller=controller,
-                                   perturbation=o.perturbation))
+                                   perturbation=o.perturbation, quasi_static=qs))
     if model.drive_kind != "torque" and "force" in model.input_kinds:
         idx = stability_indices(plan)
         for c, lo in enumerate(range(0, len(idx), o.chunk)):

@@ -124,9 +124,9 @@ def options_from_scenario(sc: Scenario, **overrides) -> SweepOptions:
     for k in tab:
         if k not in _SWEEP_KEYS:
             raise ConfigError(f"{sc.where}: sweep.{k}: unknown key; expected one of {', '.join(sorted(_SWEEP_KEYS))}")
-    # the leadscrew's amplitude is that of its twist (seed 002 Figs. 9.31-9.33 plot the angle's amplitude)
-    speed = f"omega_{sc.plant_model.objective_body}"
-    amp = speed if sc.plant_model.name != "leadscrew" else sc.plant_model.states[0]
+    # the amplitude defaults to the objective body's speed; a scenario may name another state
+    # (sweep_leadscrew.toml: the twist, as seed 002 Figs. 9.31-9.33 plot the angle's amplitude)
+    speed = amp = f"omega_{sc.plant_model.objective_body}"
     kw = dict(start=tab.get("start", "rest"), duration=tab.get("duration", sc.duration), dt=tab.get("dt", sc.dt),
               nsub=tab.get("nsub", sc.sim.nsub), settle=tab.get("settle"), speed=tab.get("speed", speed),
               amplitude_of=tab.get("amplitude_of", amp), threshold=tab.get("threshold", 0.05),

@@ -30,8 +30,17 @@ from models.errors import ConfigError
 __all__ = ["hybrid_step_function"]
 
 
-def _substep(model, x, th, u, P, h):
+def _substep(model, x, th, u, P, h, quasi_static: bool = False):
     nc = len(model.contacts)
+    j_i = model.current_index
+
+    def project(xx):
+        # the armature current at its quasi-static value (models.discretise)
+        if not quasi_static:
+            return xx
+        return ca.vertcat(xx[:j_i], model.quasi_static_current(xx, u, P), xx[j_i + 1:])
+
+    x = project(x)
     # --- modes, frozen over the substep
     zeros = [ca.SX(0)] * nc
     xd0 = model.dynamics(x, u, P, zeros, [ca.SX(1)] * nc)
@@ -40,8 +49,8 @@ def _substep(model, x, th, u, P, h):
         v = x[idx]
         J = model.contact_inertia(i, x, u, P, 1.0)
         T_ext = J * xd0[idx]
-        T_plus = model.contact_torque(i, ca.SX(0), 1.0, x, u, P)    # static limit opposing +motion (<= 0)
-        T_minus = model.contact_torque(i, ca.SX(0), -1.0, x, u, P)  # static limit opposing -motion (>= 0)
+        T_plus = model.contact_friction(i, ca.SX(0), u, P, s=1.0)    # static limit opposing +motion (<= 0)
+        T_minus = model.contact_friction(i, ca.SX(0), u, P, s=-1.0)  # static limit opposing -motion (>= 0)
         at_rest = v == 0
         st = ca.logic_and(at_rest, ca.logic_and(T_ext + T_plus <= 0, T_ext + T_minus >= 0))
         s_rest = ca.if_else(T_ext + T_plus > 0, 1, -1)
@@ -49,11 +58,14 @@ def _substep(model, x, th, u, P, h):
         s.append(ca.if_else(at_rest, s_rest, ca.sign(v)))
 
     def rhs(xx):
-        Tc = [model.contact_torque(i, ca.fmax(s[i] * xx[idx], 0), s[i], xx, u, P)
+        xx = project(xx)
+        Tc = [model.contact_friction(i, ca.fmax(s[i] * xx[idx], 0), u, P, s=s[i])
               for i, idx in enumerate(model.contacts)]
         xd = model.dynamics(xx, u, P, Tc, s)
         xd = [ca.if_else(stuck[model.contacts.index(j)], 0, xd[j]) if j in model.contacts else xd[j]
               for j in range(model.nx)]
+        if quasi_static:
+            xd[j_i] = 0
         return ca.vertcat(*xd), model.ref_rate(xx, u, P)
 
     k1, r1 = rhs(x)
@@ -66,10 +78,10 @@ def _substep(model, x, th, u, P, h):
     parts = [xn[j] for j in range(model.nx)]
     for i, idx in enumerate(model.contacts):
         parts[idx] = ca.if_else(ca.logic_or(stuck[i], s[i] * xn[idx] <= 0), 0, xn[idx])
-    return ca.vertcat(*parts), thn
+    return project(ca.vertcat(*parts)), thn
 
 
-def hybrid_step_function(model, dt: float, nsub: int) -> ca.Function:
+def hybrid_step_function(model, dt: float, nsub: int, *, quasi_static: bool = False) -> ca.Function:
     """One DAQ sample of the exact stick/slip plant, zero-order-hold input.
 
     Returns ``F(x, theta_ref, u, p) -> (x_next, theta_ref_next)`` where ``theta_ref`` is
@@ -80,6 +92,8 @@ def hybrid_step_function(model, dt: float, nsub: int) -> ca.Function:
     model : models.rig.RigModel
     dt : sample period [s]
     nsub : substeps per sample; switching times are resolved to ``dt/nsub``
+    quasi_static : a DC motor's current at its quasi-static value (:func:`models.discretise.integration`
+        decides; :attr:`models.discretise.Integration.quasi_static`)
     """
     if not dt > 0:
         raise ConfigError(f"dt must be > 0 s, got {dt}")
@@ -90,12 +104,14 @@ def hybrid_step_function(model, dt: float, nsub: int) -> ca.Function:
     u = ca.SX.sym("u", model.nu)
     p = ca.SX.sym("p", model.n_p)
     P = model.unpack(p)
+    if quasi_static and model.current_index is None:
+        raise ConfigError(f"quasi_static needs a DC motor drive; rig {model.name!r} has a {model.drive_kind} drive")
     # one substep as its own Function keeps the graph small; it is called nsub times
     xs, ths = ca.SX.sym("xs", model.nx), ca.SX.sym("ths")
-    sub = ca.Function(f"{model.cname}_hybrid_substep", [xs, ths, u, p], list(_substep(model, xs, ths, u, P, dt / nsub)),
+    sub = ca.Function(f"{model.cname}_hybrid_substep", [xs, ths, u, p], list(_substep(model, xs, ths, u, P, dt / nsub, quasi_static)),
                       ["x", "theta_ref", "u", "p"], ["x_next", "theta_ref_next"])
     xk, thk = x, th
     for _ in range(int(nsub)):
         xk, thk = sub(xk, thk, u, p)
-    return ca.Function(f"{model.cname}_plant_step", [x, th, u, p], [xk, thk],
+    return ca.Function(f"{model.cname}_plant_step{'_qs' if quasi_static else ''}", [x, th, u, p], [xk, thk],
                        ["x", "theta_ref", "u", "p"], ["x_next", "theta_ref_next"])

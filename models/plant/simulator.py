@@ -17,7 +17,6 @@ Example
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
@@ -27,7 +26,7 @@ import numpy as np
 from models.actuators import Servo
 from models.checks import finite_number
 from models.codegen import FastFunction
-from models.discretise import rk4
+from models.discretise import Integration, integration
 from models.errors import ConfigError
 from models.logs import Log, channel_kind
 from models.params import ParameterSet
@@ -37,7 +36,7 @@ from models.rig.spec import SI_UNITS
 from models.sensors import SensorOptions, Sensors
 from models.status import Status
 
-__all__ = ["SimOptions", "Plant", "SimResult", "simulate", "step_function", "MAX_SAMPLES"]
+__all__ = ["SimOptions", "Plant", "SimResult", "simulate", "step_function", "plant_integration", "MAX_SAMPLES"]
 
 _METHODS = ("hybrid", "smooth", "cvodes")
 #: the largest run (DAQ samples) the simulator accepts; a state history of 10 states takes 0.8 GB at this size
@@ -51,7 +50,10 @@ class SimOptions:
     Parameters
     ----------
     dt : DAQ period [s] (thesis: 10 ms)
-    nsub : substeps per sample (hybrid/smooth); stick/slip switching resolves to dt/nsub
+    nsub : substeps per sample at least (hybrid/smooth); stick/slip switching resolves to dt/nsub.
+        The integration rule (:func:`models.discretise.integration`) raises it for a stiff rig, and
+        treats a DC motor's current quasi-statically when its L/R is far below the substep
+        (:func:`plant_integration`; the plant's ``integration`` says what it did)
     method : "hybrid" (exact stick/slip, default), "smooth" (regularised RK4) or "cvodes"
     eps : regularisation [rad/s] for "smooth"/"cvodes" (model default if None)
     seed : seed of the sensor-noise generator
@@ -79,19 +81,33 @@ class SimOptions:
             raise ConfigError(f"sim.start must be 'rest' or 'sliding', got {self.start!r}")
 
 
-def step_function(model, options: SimOptions) -> ca.Function:
+def plant_integration(model, params: ParameterSet | None, options: SimOptions, u0=None) -> Integration:
+    """How the plant advances one sample: :func:`models.discretise.integration` for the exact
+    stick/slip plant (``eps=None``; "smooth"/"cvodes": the regularised model), at least
+    ``options.nsub`` substeps, at the first input ``u0`` (default: the rig's operating point)."""
+    model = get_model(model)
+    params = model.published() if params is None else params
+    eps = None if options.method == "hybrid" else (model.eps_default if options.eps is None else options.eps)
+    return integration(model, params, options.dt, u=u0, eps=eps, min_nsub=options.nsub, where="plant")
+
+
+def step_function(model, options: SimOptions, integ: Integration | None = None) -> ca.Function:
     """``F(x, theta_ref, u, p) -> (x_next, theta_ref_next)`` for one sample.
 
-    Cached on the model object (its lifetime, never a key that another model could reuse: two
-    rigs of one name, e.g. a plant with ``[structure]`` changes and its nominal model, differ).
+    ``integ`` (default: :func:`plant_integration` with the rig's published parameters) sets the
+    substeps and the quasi-static current.  Cached on the model object (its lifetime, never a
+    key that another model could reuse: two rigs of one name, e.g. a plant with ``[structure]``
+    changes and its nominal model, differ).
     """
     model = get_model(model)
-    key = ("plant_step", options.method, options.dt, options.nsub, options.eps)
+    if integ is None:
+        integ = plant_integration(model, None, options)
+    key = ("plant_step", options.method, options.dt, integ.nsub, integ.quasi_static, options.eps)
     cache = model._fcache
     if key in cache:
         return cache[key]
     if options.method == "hybrid":
-        F = hybrid_step_function(model, options.dt, options.nsub)
+        F = hybrid_step_function(model, options.dt, integ.nsub, quasi_static=integ.quasi_static)
     else:
         f = model.ode(options.eps)
         x = ca.SX.sym("x", model.nx)
@@ -103,7 +119,8 @@ def step_function(model, options: SimOptions) -> ca.Function:
         rhs = ca.vertcat(f(x, u, p), model.ref_rate(x, u, P))
         if options.method == "smooth":
             fa = ca.Function("fa", [xa, u, p], [rhs])
-            xn = rk4(lambda a, b, c: fa(a, b, c), xa, u, p, options.dt, options.nsub)
+            xn = integ.advance(lambda a, b, c: fa(a, b, c), xa, u, p,
+                               lambda a, b, c: model.quasi_static_current(a, b, model.unpack(c)))
             F = ca.Function(f"{model.cname}_smooth_step", [x, th, u, p], [xn[:model.nx], xn[model.nx]],
                             ["x", "theta_ref", "u", "p"], ["x_next", "theta_ref_next"])
         else:
@@ -150,9 +167,11 @@ class Plant:
             if name not in model.param_names:
                 raise ConfigError(f"drift.{name}: not a parameter of rig {model.name!r}")
             self._drift[model.param_names.index(name)] = finite_number(rate, f"drift.{name}", unit="1/s")
+        #: how a sample is integrated (substeps, quasi-static current): :func:`plant_integration`
+        self.integration = plant_integration(model, params, options, u0)
         # compiled (cached on disk) and called through ctypes: the CasADi call's overhead was half a
         # closed loop's time
-        F = step_function(model, options)
+        F = step_function(model, options, self.integration)
         self._F = FastFunction(F, compile=options.method != "cvodes")
         h = model.meas()
         self._h_names = tuple(h.name_out())

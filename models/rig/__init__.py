@@ -15,10 +15,13 @@ from pathlib import Path
 
 from models.checks import read_toml
 from models.errors import ConfigError
+from models.params import ParameterSet
 from models.rig.model import RigModel
-from models.rig.spec import RigSpec, parse_rig
+from models.rig.parse import parse_rig
+from models.rig.spec import RigSpec
 
-__all__ = ["RigModel", "RigSpec", "parse_rig", "load_rig", "get_model", "rig_key", "shipped_rigs", "RIGS_DIR"]
+__all__ = ["RigModel", "RigSpec", "parse_rig", "load_rig", "get_model", "rig_key", "shipped_rigs", "RIGS_DIR",
+           "load_params", "published"]
 
 RIGS_DIR = Path(__file__).resolve().parent.parent / "rigs"
 _CACHE: dict[str, RigModel] = {}
@@ -70,3 +73,42 @@ def get_model(model) -> RigModel:
 def rig_key(model) -> str:
     """How a model is referred to in files: its shipped name, else its file's absolute path."""
     return get_model(model).key
+
+
+def published(model) -> ParameterSet:
+    """The published parameter set of a rig (a shipped name such as ``"rig3"``, or a rig-file path)."""
+    return get_model(model).published()
+
+
+def load_params(path: str | os.PathLike, model=None) -> ParameterSet:
+    """Load a parameter TOML file.
+
+    ``model`` (a rig name, path or model), if given, must match the file's ``model`` key; the
+    file's ``model`` names a shipped rig or a rig file (relative paths are taken from the
+    parameter file's folder).
+    """
+    path = Path(path)
+    data = read_toml(path, "parameter file")
+    name = data.get("model")
+    if name is None and model is None:
+        raise ConfigError(f"{path}: missing field 'model' (a rig name or rig file)")
+    if name is not None and not isinstance(name, str):
+        raise ConfigError(f"{path}: model must be a rig name or path, got {name!r}")
+    want = get_model(model) if model is not None else None
+    if name is None:
+        m = want
+    else:
+        cand = Path(name)
+        if name.endswith(".toml") and not cand.is_absolute() and (path.parent / cand).exists():
+            name = str(path.parent / cand)
+        try:
+            m = get_model(name)
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: model: {exc}") from None
+    if want is not None and rig_key(m) != rig_key(want):
+        raise ConfigError(f"{path}: model must be {want.name!r} here, got {m.name!r}")
+    try:
+        return m.published().from_mapping(data, where=str(path))
+    except ConfigError as exc:
+        msg = str(exc)
+        raise ConfigError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None

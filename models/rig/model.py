@@ -25,8 +25,8 @@ The rest of the workbench uses the same interface for every rig:
 
 - ``dynamics(x, u, P, Tc, s)``: state derivative for given contact torques ``Tc`` (one per
   contact body) and sliding directions ``s``;
-- ``contact_torque(i, v_abs, s, x, u, P)``: friction on contact body ``i`` sliding in
-  direction ``s`` at speed ``v_abs``; ``contact_torque_smooth(i, v, x, u, P, eps)``;
+- ``contact_friction(i, v, u, P, eps=None, s=...)``: friction on contact body ``i``, the exact
+  law sliding in direction ``s`` at speed ``v >= 0``, or regularised with ``eps`` at signed ``v``;
   ``contact_inertia(i, x, u, P, s)``;
 - ``ode(eps)``: the regularised model as a named Function ``xdot = f(x, u, p)``;
 - ``outputs(x, u, P, theta_ref)``: what every sensor reads without noise, quantisation or
@@ -35,9 +35,7 @@ The rest of the workbench uses the same interface for every rig:
 
 from __future__ import annotations
 
-import math
 import re
-from collections import deque
 from functools import cached_property
 
 import casadi as ca
@@ -46,6 +44,8 @@ import numpy as np
 from models import friction as fr
 from models.errors import ConfigError
 from models.params import ParameterSet, Spec
+from models.rig import steady
+from models.rig.outputs import RigOutputs
 from models.rig.spec import NODE_DRIVE, NODE_GROUND, RigSpec, SI_UNITS
 
 __all__ = ["RigModel"]
@@ -55,17 +55,6 @@ def _sym(x) -> bool:
     return isinstance(x, (ca.SX, ca.MX, ca.DM))
 
 
-def _val(ref, P, u_named):
-    """The value of a spec reference: a parameter (symbolic or numeric), a constant or an input."""
-    if ref is None:
-        return None
-    if ref.kind == "param":
-        return P[ref.name]
-    if ref.kind == "input":
-        return u_named[ref.name]
-    return ref.value
-
-
 def _dead_zone(phi, half):
     """``phi - clip(phi, -half, half)``: the twist a spring with backlash ``2 half`` actually feels."""
     if _sym(phi) or _sym(half):
@@ -73,7 +62,7 @@ def _dead_zone(phi, half):
     return phi - min(max(phi, -half), half)
 
 
-class RigModel:
+class RigModel(RigOutputs):
     """A rig built from a :class:`models.rig.spec.RigSpec` (see module docstring).
 
     Attributes
@@ -251,10 +240,10 @@ class RigModel:
         if c.stiffness is not None:
             phi = x[self._springs.index(c)]
             if c.backlash is not None:
-                phi = _dead_zone(phi, 0.5 * _val(c.backlash, P, u_named))
-            T = T + _val(c.stiffness, P, u_named) * phi
+                phi = _dead_zone(phi, 0.5 * c.backlash.value(P, u_named))
+            T = T + c.stiffness.value(P, u_named) * phi
         if c.damping is not None:
-            T = T + _val(c.damping, P, u_named) * (wa - wb)
+            T = T + c.damping.value(P, u_named) * (wa - wb)
         return T
 
     def motor_voltage(self, x, u_named, P):
@@ -267,19 +256,19 @@ class RigModel:
         """
         d = self.spec.drive
         wb = x[self._speed_index[d.body]]
-        eta = _val(d.param("ratio"), P, u_named)
+        eta = d.param("ratio").value(P, u_named)
         G = eta if d.pi_error == "motor" else 1.0
         e = u_named[d.input] - wb
         z = x[self.nx - 1]
-        V = G * (_val(d.param("kp"), P, u_named) * e + _val(d.param("ki"), P, u_named) * z)
+        V = G * (d.param("kp").value(P, u_named) * e + d.param("ki").value(P, u_named) * z)
         hi, lo = None, None
         vmax = d.param("v_max")
         if vmax is not None:
-            hi, lo = _val(vmax, P, u_named), -_val(vmax, P, u_named)
+            hi, lo = vmax.value(P, u_named), -vmax.value(P, u_named)
         imax = d.param("i_max")
         if imax is not None:
             wm = eta * wb
-            Rr, KE, im = _val(d.param("R"), P, u_named), _val(d.param("KE"), P, u_named), _val(imax, P, u_named)
+            Rr, KE, im = d.param("R").value(P, u_named), d.param("KE").value(P, u_named), imax.value(P, u_named)
             ih, il = Rr * im + KE * wm, -Rr * im + KE * wm
             hi = ih if hi is None else ca.fmin(hi, ih)
             lo = il if lo is None else ca.fmax(lo, il)
@@ -288,31 +277,112 @@ class RigModel:
             Vs = ca.fmin(ca.fmax(V, lo), hi)
         return V, Vs
 
+    @property
+    def current_index(self) -> int | None:
+        """Index of a DC motor's armature current in the state, or None."""
+        return self.nx - 2 if self.drive_kind == "dc_motor" else None
+
+    def quasi_static_current(self, x, u, P):
+        """The armature current with the inductance neglected, ``i = (V - KE ratio w_b) / R`` [A]
+        (``V`` the limited PI voltage, :meth:`motor_voltage`): what ``L i' = V - R i - KE w_m``
+        settles to when ``L/R`` is far below the time scales of interest
+        (:func:`models.discretise.integration`).  ``u`` in ``inputs`` order or named."""
+        d = self.spec.drive
+        un = self._named_inputs(u)
+        _, Vs = self.motor_voltage(x, un, P)
+        wm = d.param("ratio").value(P) * x[self._speed_index[d.body]]
+        return (Vs - d.param("KE").value(P) * wm) / d.param("R").value(P)
+
+    def electrical_time_constant(self, params) -> float:
+        """A DC motor's ``L/R`` [s] (0 for other drives)."""
+        if self.drive_kind != "dc_motor":
+            return 0.0
+        P = params if isinstance(params, dict) else dict(zip(self.param_names, np.asarray(
+            params.vector() if hasattr(params, "vector") else params, float)))
+        d = self.spec.drive
+        return float(d.param("L").value(P)) / float(d.param("R").value(P))
+
     def motor_torque_em(self, x, u_named, P, *, friction: bool = True):
         """Torque the DC motor's rotor delivers through the gearbox, output side [N m]:
         ``ratio (KT i - Tf tanh(w_m/eps_m) - Cm w_m)`` (``friction=False``: ``ratio KT i``)."""
         d = self.spec.drive
-        eta = _val(d.param("ratio"), P, u_named)
+        eta = d.param("ratio").value(P, u_named)
         i = x[self.nx - 2]
-        T = eta * _val(d.param("KT"), P, u_named) * i
+        T = eta * d.param("KT").value(P, u_named) * i
         if friction:
             wm = eta * x[self._speed_index[d.body]]
             tanh = ca.tanh if _sym(wm) or _sym(T) else np.tanh
-            T = T - eta * (_val(d.param("Tf"), P, u_named) * tanh(wm / d.eps_motor) + _val(d.param("Cm"), P, u_named) * wm)
+            T = T - eta * (d.param("Tf").value(P, u_named) * tanh(wm / d.eps_motor) + d.param("Cm").value(P, u_named) * wm)
         return T
 
-    def _body_inertia(self, b: str, P, u_named):
-        J = _val(self.spec.body(b).inertia, P, u_named)
+    def inertia(self, body: str, P) -> float:
+        """The body's total inertia [kg m^2]: its own, plus ``ratio^2 Jm`` when a DC motor drives
+        it (the rotor reflected through the gearbox; thesis eq. 3-3), without what a contact adds.
+
+        Parameters
+        ----------
+        body : a body name
+        P : parameter name -> value (symbolic or numeric), e.g. ``rig.unpack(p)`` or a ParameterSet
+        """
+        self.speed_index(body)
+        J = self.spec.body(body).inertia.value(P)
         d = self.spec.drive
-        if d.kind == "dc_motor" and d.body == b:
-            J = J + _val(d.param("ratio"), P, u_named) ** 2 * _val(d.param("Jm"), P, u_named)
+        if d.kind == "dc_motor" and d.body == body:
+            J = J + d.param("ratio").value(P) ** 2 * d.param("Jm").value(P)
         return J
 
-    def _contact_args(self, c, P, u_named):
-        N = _val(c.normal, P, u_named) if c.normal is not None else 1.0
-        r = _val(c.radius, P, u_named) if c.radius is not None else 1.0
-        LP = {k: _val(ref, P, u_named) for k, ref in c.params}
+    def _named_inputs(self, u):
+        if u is None or isinstance(u, dict):
+            return u
+        return self._u_named(u)
+
+    def contact(self, name: str):
+        """The contact spec called ``name``."""
+        for c in self.spec.contacts:
+            if c.name == name:
+                return c
+        raise ConfigError(f"{self.name}: no contact {name!r} (contacts: "
+                          f"{', '.join(c.name for c in self.spec.contacts) or 'none'})")
+
+    def law(self, contact: str):
+        """The friction law (:class:`models.friction.FrictionLaw`) of the contact ``contact``."""
+        self.contact(contact)
+        return self._laws[contact]
+
+    def contact_args(self, contact, P, u=None) -> tuple:
+        """``(N, r, law_params)`` of a contact: its normal force [N] (1 if it gives none), radius
+        [m] (1 if none) and ``{law parameter: value}``, what :class:`models.friction.FrictionLaw`
+        takes.
+
+        Parameters
+        ----------
+        contact : a contact's name or its spec
+        P : parameter name -> value (symbolic or numeric)
+        u : the inputs, named (dict) or in ``inputs`` order; needed when the normal force is an input
+        """
+        c = self.contact(contact) if isinstance(contact, str) else contact
+        un = self._named_inputs(u)
+        N = c.normal.value(P, un) if c.normal is not None else 1.0
+        r = c.radius.value(P, un) if c.radius is not None else 1.0
+        LP = {k: ref.value(P, un) for k, ref in c.params}
         return N, r, LP
+
+    def contact_friction(self, i: int, v, u, P, eps: float | None = None, *, s=None, factors=None):
+        """Friction torque on contact body ``i`` [N m], the sum over its contacts.
+
+        With ``eps`` the law's regularised torque at the signed speed ``v``
+        (:meth:`models.friction.FrictionLaw.smooth`); without, the exact law sliding in direction
+        ``s`` (+1/-1) at the speed ``v >= 0``.  ``factors`` ({contact name: factor}) scale single
+        contacts' torques (estimators' friction-level states).
+        """
+        un = self._named_inputs(u)
+        T = 0.0
+        for c in self._contact_groups[i]:
+            N, r, LP = self.contact_args(c, P, un)
+            law = self._laws[c.name]
+            Tk = law.smooth(v, N, r, LP, eps) if eps is not None else law.torque(v, s, N, r, LP)
+            T = T + (factors[c.name] * Tk if factors and c.name in factors else Tk)
+        return T
 
     def dynamics(self, x, u, P, Tc, s):
         """State derivative (list) for contact torques ``Tc`` and sliding directions ``s`` per contact body."""
@@ -335,18 +405,18 @@ class RigModel:
         for c in self._springs:
             out.append(self._node_speed(c.a, x, un) - self._node_speed(c.b, x, un))
         for b in self._bodies:
-            J = self._body_inertia(b, P, un)
+            J = self.inertia(b, P)
             if b in self.contact_bodies:
                 i = self.contact_bodies.index(b)
                 J = J + self._added_inertia(i, x, un, P, s[i])
             out.append(torque[b] / J)
         if d.kind == "dc_motor":
-            eta = _val(d.param("ratio"), P, un)
+            eta = d.param("ratio").value(P, un)
             wb = x[self._speed_index[d.body]]
             V, Vs = self.motor_voltage(x, un, P)
             e = un[d.input] - wb
-            di = (Vs - _val(d.param("R"), P, un) * x[self.nx - 2] - _val(d.param("KE"), P, un) * eta * wb) \
-                / _val(d.param("L"), P, un)
+            di = (Vs - d.param("R").value(P, un) * x[self.nx - 2] - d.param("KE").value(P, un) * eta * wb) \
+                / d.param("L").value(P, un)
             if d.param("v_max") is not None or d.param("i_max") is not None:
                 # anti-windup: the integral stops while the limit holds the voltage against the error
                 sat = ca.logic_and(ca.fabs(V - Vs) > 1e-9, ca.sign(V - Vs) == ca.sign(e))
@@ -360,128 +430,19 @@ class RigModel:
         for c in self._contact_groups[i]:
             law = self._laws[c.name]
             if law.inertia is not None:
-                N, r, LP = self._contact_args(c, P, un)
+                N, r, LP = self.contact_args(c, P, un)
                 J = J + law.added_inertia(v_abs, s, N, r, LP)
         return J
-
-    def contact_torque(self, i, v_abs, s, x, u, P):
-        """Friction torque on contact body ``i`` sliding in direction ``s`` at speed ``v_abs`` [N m]."""
-        un = self._u_named(u)
-        T = 0.0
-        for c in self._contact_groups[i]:
-            N, r, LP = self._contact_args(c, P, un)
-            T = T + self._laws[c.name].torque(v_abs, s, N, r, LP)
-        return T
-
-    def contact_torque_smooth(self, i, v, x, u, P, eps):
-        """Regularised friction torque on contact body ``i`` at signed speed ``v``."""
-        un = self._u_named(u)
-        T = 0.0
-        for c in self._contact_groups[i]:
-            N, r, LP = self._contact_args(c, P, un)
-            T = T + self._laws[c.name].smooth(v, N, r, LP, eps)
-        return T
 
     def contact_inertia(self, i, x, u, P, s):
         b = self.contact_bodies[i]
         un = self._u_named(u)
-        return self._body_inertia(b, P, un) + self._added_inertia(i, x, un, P, s)
+        return self.inertia(b, P) + self._added_inertia(i, x, un, P, s)
 
     def ref_rate(self, x, u, P):
         """Speed of the reference node (the drive body, or a speed drive's input) [rad/s]."""
         un = self._u_named(u)
         return self._node_speed(self.spec.reference_node, x, un)
-
-    # ------------------------------------------------------------------ angles and outputs
-    def _angle_paths(self) -> dict[str, list[tuple[int, float]]]:
-        """For every node reachable by springs from the reference node: [(twist index, sign)] so
-        that ``theta_node = theta_ref + sum(sign * twist)``."""
-        ref = self.spec.reference_node
-        adj: dict[str, list] = {}
-        for j, c in enumerate(self._springs):
-            adj.setdefault(c.a, []).append((c.b, j, -1.0))   # theta_b = theta_a - phi
-            adj.setdefault(c.b, []).append((c.a, j, +1.0))   # theta_a = theta_b + phi
-        paths = {ref: []}
-        q = deque([ref])
-        while q:
-            n = q.popleft()
-            for m, j, sgn in adj.get(n, []):
-                if m not in paths:
-                    paths[m] = paths[n] + [(j, sgn)]
-                    q.append(m)
-        return paths
-
-    def angle(self, body: str, x, theta_ref):
-        """Absolute angle of ``body`` from the reference angle and the twists [rad]."""
-        th = theta_ref
-        for j, sgn in self._ang_path[body]:
-            th = th + sgn * x[j]
-        return th
-
-    def acceleration(self, x, u, P, body: str, eps: float | None = None):
-        """``omega_<body>'`` of the regularised model (contact friction smoothed with ``eps``)."""
-        eps = self.eps_default if eps is None else eps
-        Tc = [self.contact_torque_smooth(i, x[idx], x, u, P, eps) for i, idx in enumerate(self.contacts)]
-        s = [fr.smooth_sign(x[idx], eps) for idx in self.contacts]
-        return self.dynamics(x, u, P, Tc, s)[self._speed_index[body]]
-
-    def _ideal(self, s, x, u, P, theta_ref, un):
-        """A sensor's ideal reading, before gain and offset."""
-        if s.kind == "encoder":
-            th = theta_ref if s.target == NODE_DRIVE else self.angle(s.target, x, theta_ref)
-            return [th, self._node_speed(s.target, x, un)]
-        if s.kind == "speed":
-            return [self._node_speed(s.target, x, un)]
-        if s.kind == "torque":
-            if s.target == NODE_DRIVE and self.drive_kind == "torque":
-                return [un[self.spec.drive.input]]
-            if s.target == NODE_DRIVE:
-                if s.definition == "electromagnetic":
-                    return [self.motor_torque_em(x, un, P, friction=False)]
-                d = self.spec.drive
-                eta, Jm = _val(d.param("ratio"), P, un), _val(d.param("Jm"), P, un)
-                return [self.motor_torque_em(x, un, P) - eta * (eta - 1) * Jm * self.acceleration(x, u, P, d.body)]
-            c = next(c for c in self.spec.connections if c.name == s.target)
-            return [self.connection_torque(c, x, un, P)]
-        c = next(c for c in self.spec.contacts if c.name == s.target)
-        return [_val(c.normal, P, un)]
-
-    def outputs(self, x, u, P, theta_ref) -> dict:
-        """Noise-free readings of every sensor channel (gain and offset applied), the inputs,
-        and physical quantities: twists (state names), body speeds, friction torques
-        (``friction_<contact>``, regularised), and for a DC motor ``current``, ``voltage``,
-        ``motor_speed`` and ``motor_torque_em``."""
-        un = self._u_named(u)
-        out: dict = {}
-        for s in self.sensors:
-            vals = self._ideal(s, x, u, P, theta_ref, un)
-            if s.offset is not None:
-                vals = [_val(s.gain, P, un) * v + _val(s.offset, P, un) for v in vals]
-            out.update(zip(s.channels, vals))
-        for n in self.inputs:
-            out.setdefault(n, un[n])
-        for j, c in enumerate(self._springs):
-            out[f"twist_{c.name}"] = x[j]
-        for b in self._bodies:
-            out[f"omega_{b}"] = x[self._speed_index[b]]
-        d = self.spec.drive
-        if d.kind == "dc_motor":
-            eta = _val(d.param("ratio"), P, un)
-            out["current"] = x[self.nx - 2]
-            out["voltage"] = self.motor_voltage(x, un, P)[1]
-            out["motor_speed"] = eta * x[self._speed_index[d.body]]
-            out["motor_torque_em"] = self.motor_torque_em(x, un, P, friction=False)
-        return out
-
-    def input_from_measured(self, u_meas, P):
-        """Model inputs from logged ones: a normal force logged through a load cell is corrected
-        for the cell's gain and offset, ``N = (reading - offset) / gain``."""
-        out = [u_meas[i] for i in range(self.nu)]
-        for s in self.sensors:
-            if s.kind in ("load_cell", "torque") and s.channels[0] in self.inputs:
-                j = self.inputs.index(s.channels[0])
-                out[j] = (out[j] - _val(s.offset, P, {})) / _val(s.gain, P, {})
-        return out
 
     # ------------------------------------------------------------------ CasADi Functions
     def _syms(self, kind=ca.SX):
@@ -489,7 +450,7 @@ class RigModel:
 
     def smooth_rhs(self, x, u, p, eps):
         P = self.unpack(p)
-        Tc = [self.contact_torque_smooth(i, x[idx], x, u, P, eps) for i, idx in enumerate(self.contacts)]
+        Tc = [self.contact_friction(i, x[idx], u, P, eps) for i, idx in enumerate(self.contacts)]
         s = [fr.smooth_sign(x[idx], eps) for idx in self.contacts]
         return self.dynamics(x, u, P, Tc, s)
 
@@ -510,141 +471,23 @@ class RigModel:
     def _fcache(self) -> dict:
         return {}
 
-    def output_names(self) -> tuple[str, ...]:
-        """Names of :meth:`outputs` (the measurement Function's outputs)."""
-        return tuple(self.meas().name_out())
+    # ------------------------------------------------------------------ steady sliding (models.rig.steady)
+    def nominal_speed(self) -> float:
+        """:func:`models.rig.steady.nominal_speed`."""
+        return steady.nominal_speed(self)
 
-    def meas(self) -> ca.Function:
-        """Noise-free measurement function ``y = h(x, u, p, theta_ref)`` with named outputs."""
-        if "meas" not in self._fcache:
-            x, u, p = self._syms()
-            th = ca.SX.sym("theta_ref")
-            out = self.outputs(x, u, self.unpack(p), th)
-            self._fcache["meas"] = ca.Function(f"{self.cname}_meas", [x, u, p, th], [ca.SX(v) for v in out.values()],
-                                               ["x", "u", "p", "theta_ref"], list(out.keys()))
-        return self._fcache["meas"]
-
-    def meas_vector(self, names) -> ca.Function:
-        """``y = h(x, u, p)`` stacking the named outputs that need no absolute angle."""
-        x, u, p = self._syms()
-        out = self.outputs(x, u, self.unpack(p), ca.SX(0))
-        missing = [n for n in names if n not in out]
-        if missing:
-            raise ConfigError(f"{self.name}: unknown output(s) {missing}; expected some of {list(out)}")
-        return ca.Function(f"{self.cname}_h", [x, u, p], [ca.vertcat(*[out[n] for n in names])], ["x", "u", "p"], ["y"])
-
-    # ------------------------------------------------------------------ steady sliding
     def drive_speed_index(self) -> int | None:
-        """Index of the input that sets the sliding speed (a speed set-point or a prescribed
-        speed), or None for a torque drive."""
-        return None if self.drive_kind == "torque" else self.inputs.index(self.spec.drive.input)
-
-    def _steady_function(self, eps, mode: str, other: tuple, spd_idx: tuple, ju: int) -> ca.Function:
-        """``ss(z, p, u, w) -> (residual, d residual / dz)`` of steady sliding (cached on the model).
-
-        ``z`` holds the non-speed states and one extra unknown: the drive's input torque
-        (``mode = "torque"``), the common speed (``"speed"``) or nothing (``"fixed"``); every body
-        turns at ``w`` unless the speed is the unknown."""
-        key = ("steady", eps, mode)
-        if key not in self._fcache:
-            f = self.ode(eps)
-            z = ca.SX.sym("z", len(other) + 1)
-            p_s, u_s, w_s = ca.SX.sym("p", self.n_p), ca.SX.sym("u", self.nu), ca.SX.sym("w")
-            x = [None] * self.nx
-            for k, j in enumerate(other):
-                x[j] = z[k]
-            extra = z[len(other)]
-            uu = [u_s[j] for j in range(self.nu)]
-            if mode == "torque":
-                uu[ju] = extra
-            w = extra if mode == "speed" else w_s
-            for j in spd_idx:
-                x[j] = w
-            keep = [j for j in range(self.nx) if j >= self._n_tw]          # accelerations and drive rows
-            r = f(ca.vertcat(*x), ca.vertcat(*uu), p_s)[keep]
-            self._fcache[key] = ca.Function(f"{self.cname}_steady", [z, p_s, u_s, w_s], [r, ca.jacobian(r, z)])
-        return self._fcache[key]
-
-    def _steady_solve(self, u, params, speed: float | None, eps: float | None = None, iters: int = 30):
-        """Gauss-Newton on the accelerations and drive rows with every body at one speed.
-
-        Unknowns: the twists, the drive states and, for a torque drive, either the input torque
-        (``speed`` given) or the common speed (``speed`` None).
-        """
-        pv = np.asarray(params.vector(), float)
-        u = np.asarray(u, float).copy()
-        n_tw, nb = self._n_tw, len(self._bodies)
-        spd_idx = list(range(n_tw, n_tw + nb))
-        other = [j for j in range(self.nx) if j not in spd_idx]
-        torque_drive = self.drive_kind == "torque"
-        ju = self.inputs.index(self.spec.drive.input)
-        solve_speed = torque_drive and speed is None
-        if speed is None:
-            speed = float(u[ju]) if not torque_drive else 1.0
-        mode = "torque" if torque_drive and not solve_speed else ("speed" if solve_speed else "fixed")
-        F = self._steady_function(eps, mode, tuple(other), tuple(spd_idx), ju)
-        zv = np.zeros(len(other) + 1)
-        if solve_speed:
-            zv[-1] = speed
-        free = np.ones(zv.size, bool)
-        if not torque_drive:
-            free[-1] = False
-        # a spring with backlash carries torque only outside its dead zone: start there, on the side
-        # that drives the load forward
-        Pn = dict(zip(self.param_names, pv))
-        for j, c in enumerate(self._springs):
-            if c.backlash is not None:
-                zv[other.index(j)] = np.sign(speed or 1.0) * float(_val(c.backlash, Pn, {}))
-        # a drive's voltage and current limits are flat outside their range: solve without them
-        # first (they bind only in transients), then polish with them
-        limits = [self.param_names.index(r.name) for r in (self.spec.drive.param("v_max"), self.spec.drive.param("i_max"))
-                  if r is not None and r.kind == "param"]
-        pvs = [pv]
-        if limits:
-            loose = pv.copy()
-            loose[limits] = 1e9
-            pvs = [loose, pv]
-        for pcur in pvs:
-            for _ in range(iters):
-                rv, Jv = (np.array(a, float) for a in F(zv, pcur, u, speed))
-                rv = rv.ravel()
-                step = np.linalg.lstsq(Jv[:, free], -rv, rcond=None)[0]
-                zv[free] += step
-                if np.max(np.abs(step)) < 1e-12:
-                    break
-        xs = np.empty(self.nx)
-        for k, j in enumerate(other):
-            xs[j] = zv[k]
-        xs[spd_idx] = zv[-1] if solve_speed else speed
-        if torque_drive and not solve_speed:
-            u[ju] = zv[-1]
-        return xs, u
+        """:func:`models.rig.steady.drive_speed_index`."""
+        return steady.drive_speed_index(self)
 
     def sliding_guess(self, u, params) -> np.ndarray:
-        """A state of steady sliding at the drive's speed (every body at that speed), from a
-        Gauss-Newton solve of the force balance; a torque drive slides at the speed its
-        torque sustains."""
-        u = np.asarray(u, float)
-        if self.drive_kind == "torque":
-            return self._steady_solve(u, params, None)[0]
-        return self._steady_solve(u, params, float(u[self.inputs.index(self.spec.drive.input)]))[0]
+        """:func:`models.rig.steady.sliding_guess`."""
+        return steady.sliding_guess(self, u, params)
 
     def operating_point(self, speed: float, u, params) -> tuple[np.ndarray, np.ndarray]:
-        """``(u, x)`` of steady sliding at ``speed`` [rad/s]: the drive input is set to it
-        (a torque drive's input torque is solved for) and the state solved as in
-        :meth:`sliding_guess`, then polished by Newton on the regularised model."""
-        u = np.asarray(u, float).copy()
-        if self.drive_kind != "torque":
-            u[self.inputs.index(self.spec.drive.input)] = speed
-            return u, self.steady_sliding(u, params)
-        x, u = self._steady_solve(u, params, float(speed))
-        return u, x
+        """:func:`models.rig.steady.operating_point`."""
+        return steady.operating_point(self, speed, u, params)
 
     def steady_sliding(self, u, params: ParameterSet, x0=None) -> np.ndarray:
-        """Equilibrium of the regularised model for a constant input (steady sliding)."""
-        f = self.ode()
-        x = ca.SX.sym("x", self.nx)
-        g = f(x, ca.DM(np.asarray(u, float)), ca.DM(params.vector()))
-        solver = ca.rootfinder("ss", "newton", ca.Function("g", [x], [g]), {"abstol": 1e-12})
-        guess = self.sliding_guess(u, params) if x0 is None else x0
-        return np.array(solver(ca.DM(guess))).ravel()
+        """:func:`models.rig.steady.steady_sliding`."""
+        return steady.steady_sliding(self, u, params, x0)

@@ -109,16 +109,16 @@ def with_backlash(spec: RigSpec, gap: float, stiffness: float, inertia: float, d
     bodies = []
     for b in spec.bodies:
         if b.name == out:
-            total = Ref("const", value=inertia + (own.value if own.kind == "const" else 0.0))
+            total = Ref("const", constant=inertia + (own.constant if own.kind == "const" else 0.0))
             if own.kind == "param":
                 raise ConfigError("structure.backlash: the drive body's inertia is a parameter; give the gearbox "
                                   "output's inertia in the rig file as a value")
             bodies.append(BodySpec(out, total))
         else:
             bodies.append(b)
-    bodies.append(BodySpec(rotor, Ref("const", value=0.0)))
-    mesh = ConnectionSpec(f"{out}_mesh", rotor, out, Ref("const", value=stiffness),
-                          Ref("const", value=damping) if damping > 0 else None, Ref("const", value=gap))
+    bodies.append(BodySpec(rotor, Ref("const", constant=0.0)))
+    mesh = ConnectionSpec(f"{out}_mesh", rotor, out, Ref("const", constant=stiffness),
+                          Ref("const", constant=damping) if damping > 0 else None, Ref("const", constant=gap))
     sens = []
     for s in spec.sensors:
         if s.target == out and s.kind in ("encoder", "speed") and s.ratio != 1.0:
@@ -152,8 +152,8 @@ def with_shaft_elements(spec: RigSpec, count: int, inertia: float) -> RigSpec:
         if ref is None:
             return None
         if ref.kind == "const":
-            return Ref("const", value=ref.value * count)
-        return Ref("const", value=decl[ref.name].value * count)
+            return Ref("const", constant=ref.constant * count)
+        return Ref("const", constant=decl[ref.name].value * count)
 
     for c in spec.connections:
         if c.stiffness is None or c.a not in bnames or c.b not in bnames:
@@ -161,7 +161,7 @@ def with_shaft_elements(spec: RigSpec, count: int, inertia: float) -> RigSpec:
             continue
         nodes = [c.a] + [f"{c.name}_e{j}" for j in range(1, count)] + [c.b]
         for j in range(1, count):
-            bodies.append(BodySpec(nodes[j], Ref("const", value=float(inertia))))
+            bodies.append(BodySpec(nodes[j], Ref("const", constant=float(inertia))))
         for j in range(count):
             conns.append(ConnectionSpec(c.name if j == 0 else f"{c.name}_{j}", nodes[j], nodes[j + 1],
                                         scaled(c.stiffness), scaled(c.damping), c.backlash))

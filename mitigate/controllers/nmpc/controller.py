@@ -41,9 +41,9 @@ from mitigate.controllers.base import Action, ControlContext, Controller
 from mitigate.controllers.nmpc.defaults import resolve as resolve_defaults
 from mitigate.controllers.nmpc.layout import OCPSpec
 from mitigate.controllers.nmpc.ocp import make_ocp_solver
-from mitigate.controllers.nmpc.stage import rk4_substeps_needed
 from mitigate.controllers.nmpc.options import MAX_SUBSTEPS, WEIGHT_NAMES, NMPCOptions
 from mitigate.controllers.nmpc.schedule import CalmSchedule
+from models.discretise import integration
 from models.actuators import Servo
 from models.errors import ConfigError, SolverFailure
 from models.status import Status
@@ -75,12 +75,6 @@ def resolve_inputs(inputs, model, where: str) -> tuple[str, ...]:
         raise ConfigError(f"{where}.inputs: rig {model.name!r} cannot set {', '.join(map(repr, bad))} "
                           f"(it can set: {', '.join(model.commands)})")
     return tuple(n for n in model.commands if n in inputs)
-
-
-def _ref_value(ref, params) -> float | None:
-    if ref is None:
-        return None
-    return float(params[ref.name]) if ref.kind == "param" else float(ref.value)
 
 
 class NMPC(Controller):
@@ -146,12 +140,15 @@ class NMPC(Controller):
         w_s = abs(nom0) if nom0 != 0 else 1.0
         taus = tuple(float(a.tau) if o.model_servo else 0.0 for a in acts)
         self.weights = weights = o.weights
-        self.nsub = o.substeps or self._substeps(u0, nom0, taus)
+        #: how the prediction integrates the rig over an interval (:func:`models.discretise.integration`)
+        self.integration = self._integration(u0, nom0, taus)
+        self.nsub = self.integration.nsub
         if self.nsub > MAX_SUBSTEPS:
             raise ConfigError(f"{where}.substeps: rig {m.name!r} needs {self.nsub} RK4 substeps per {cfg.dt} s "
                               f"interval to be stable (stiff friction or springs); the limit is {MAX_SUBSTEPS}: shorten "
                               f"dt, or widen eps where the friction law uses it")
         self.spec = OCPSpec(horizon=o.horizon, dt=cfg.dt, nsub=self.nsub, eps=cfg.eps, body=self.body,
+                            quasi_static=self.integration.quasi_static,
                             inputs=self.inputs, taus=taus, speed_scale=w_s,
                             setpoint_scale=(cfg.setpoint_band if self._torque_drive else w_s) or 1.0,
                             force_scales=tuple(float(a.n_max) for a in acts), weights=weights.as_tuple())
@@ -180,12 +177,13 @@ class NMPC(Controller):
         contact = m.contact_of_input(name)
         for s in m.sensors:
             if s.kind == "load_cell" and contact is not None and s.target == contact.name:
-                off = _ref_value(s.offset, self.params) or 0.0
-                gain = _ref_value(s.gain, self.params)
+                off = float(s.offset.value(self.params)) if s.offset is not None else 0.0
+                gain = float(s.gain.value(self.params)) if s.gain is not None else None
                 return s.channels[0], off, 1.0 if gain is None else gain
         return name, 0.0, 1.0
 
-    def _substeps(self, u0, nom0: float, taus) -> int:
+    def _integration(self, u0, nom0: float, taus):
+        """The integration rule at the largest inputs the plan may use (``substeps`` fixes the count)."""
         m, cfg = self.model, self.cfg
         umax = np.abs(u0).astype(float)
         for j, n in enumerate(m.inputs):
@@ -196,8 +194,9 @@ class NMPC(Controller):
                 umax[j] = a.n_max
             elif m.input_kinds[j] == "force":
                 umax[j] = 2.0 * abs(u0[j])  # a held normal force may double (load factor, ramps)
-        return rk4_substeps_needed(m, self.params, cfg.dt, cfg.eps, umax, taus,
-                                   abs(nom0) + (0.0 if self._torque_drive else cfg.setpoint_band) or 1.0)
+        speed = abs(nom0) + (0.0 if self._torque_drive else cfg.setpoint_band)
+        return integration(m, self.params, cfg.dt, u=umax, eps=cfg.eps, speed=speed if speed > 0 else 1.0,
+                           nsub=self.options.substeps or None, rates=[1.0 / t for t in taus if t > 0], max_nsub=None)
 
     def _nominal(self, t: float, u_prog) -> float:
         """Nominal speed of the objective body [rad/s]."""

@@ -42,7 +42,8 @@ class OCPSpec:
     Parameters
     ----------
     horizon : N; dt : interval [s]; nsub : RK4 substeps per interval; eps : friction
-        regularisation [rad/s]
+        regularisation [rad/s]; quasi_static : a DC motor's current at its quasi-static value
+        (both from :func:`models.discretise.integration`)
     body : the objective body
     inputs : the commanded inputs, the drive's first if it is commanded (model input names)
     taus : lag [s] of each commanded servo input, in ``inputs`` order without the drive (0: no
@@ -62,6 +63,7 @@ class OCPSpec:
     setpoint_scale: float
     force_scales: tuple[float, ...]
     weights: tuple[float, ...]
+    quasi_static: bool = False
 
     def step_limit(self, j: int, rate: float) -> float:
         """Largest ``|c_j - s_j|`` [N] of commanded servo ``j``: ``rate tau`` (the servo at its rate

@@ -1,9 +1,9 @@
 """The NMPC's stage functions on any rig: the prediction model, the discrete augmented
-dynamics, the least-squares cost and their Gauss-Newton blocks (named CasADi Functions), and
-the RK4 substep rule of the prediction.
+dynamics, the least-squares cost and their Gauss-Newton blocks (named CasADi Functions).
 
 The OCP is a multiple-shooting problem over ``N`` intervals of ``dt`` [s], each integrated by
-RK4 with ``nsub`` substeps on the rig's regularised model (state and decisions:
+the rig's integration rule (:func:`models.discretise.integration`: RK4 with ``nsub`` substeps,
+a fast motor's current quasi-static) on the rig's regularised model (state and decisions:
 :mod:`mitigate.controllers.nmpc.layout`).
 
 The cost is a least-squares sum plus a linear servo-force term where the programme holds a
@@ -36,14 +36,13 @@ body) enters the compiled code, so one library serves every tuning.
 from __future__ import annotations
 
 import casadi as ca
-import numpy as np
 
 from models import friction as fr
-from models.discretise import rk4
+from models.discretise import Integration
 from mitigate.controllers.nmpc.layout import OCPLayout, OCPSpec
 from mitigate.controllers.nmpc.options import WEIGHT_NAMES
 
-__all__ = ["stage_functions", "prediction_rhs", "rk4_substeps_needed"]
+__all__ = ["stage_functions", "prediction_rhs"]
 
 
 def prediction_rhs(model, eps: float) -> ca.Function:
@@ -52,7 +51,7 @@ def prediction_rhs(model, eps: float) -> ca.Function:
     x, u, p = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu), ca.SX.sym("p", model.n_p)
     fc = ca.SX.sym("fc", len(model.contacts))
     P = model.unpack(p)
-    Tc = [fc[i] * model.contact_torque_smooth(i, x[idx], x, u, P, eps) for i, idx in enumerate(model.contacts)]
+    Tc = [fc[i] * model.contact_friction(i, x[idx], u, P, eps) for i, idx in enumerate(model.contacts)]
     s = [fr.smooth_sign(x[idx], eps) for idx in model.contacts]
     xdot = ca.vertcat(*model.dynamics(x, u, P, Tc, s))
     return ca.Function(f"{model.cname}_nmpc_rhs", [x, u, p, fc], [xdot], ["x", "u", "p", "fc"], ["xdot"])
@@ -108,7 +107,8 @@ def stage_functions(model, spec: OCPSpec):
         sdot = [(v_[L.j_cmd[k]] - xa_[L.i_servo[k]]) / taus[k] if taus[k] > 0 else 0 for k in range(L.ns)]
         return ca.vertcat(xdot, *sdot, *([0] if L.drive else []))
 
-    xe = rk4(faug, xa, v, q, spec.dt, spec.nsub)
+    xe = Integration(spec.dt, spec.nsub, model.current_index if spec.quasi_static else None).advance(
+        faug, xa, v, q, lambda xa_, v_, _q: model.quasi_static_current(xa_[:nx], inputs(xa_, v_), model.unpack(p)))
     xn = [xe[j] for j in range(nx)]
     for k in range(L.ns):
         xn.append(xe[L.i_servo[k]] if taus[k] > 0 else v[L.j_cmd[k]])
@@ -150,23 +150,3 @@ def stage_functions(model, spec: OCPSpec):
     term = ca.Function(f"{name}_term", [xa, q], [d(JN.T @ JN), d(JN.T @ rN), 0.5 * ca.sumsqr(rN), rN],
                        ["xa", "q"], ["Q", "g", "c", "r"])
     return F, cost, stage, term
-
-
-def rk4_substeps_needed(model, params, dt: float, eps: float, u_max, taus=(), speed: float = 1.0) -> int:
-    """Substeps that keep RK4 stable over ``dt`` [s]: ``|h lambda| <= 2.5`` with ``lambda`` the
-    largest eigenvalue of the model's Jacobian at steady sliding under ``u_max`` (``model.inputs``
-    order; forces at their largest), with every contact body at rest or at ``speed`` [rad/s], and
-    the servo lags ``1/tau``."""
-    f = model.ode(eps)
-    x, u = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
-    J = ca.Function("J", [x, u], [ca.jacobian(f(x, u, params.vector()), x)])
-    u_max = np.asarray(u_max, float)
-    xs = model.sliding_guess(u_max, params)
-    lam = max([1.0 / t for t in taus if t > 0], default=0.0)
-    nc = min(len(model.contacts), 4)
-    for combo in range(2 ** nc):
-        xx = xs.copy()
-        for i in range(nc):
-            xx[model.contacts[i]] = speed if combo >> i & 1 else 0.0
-        lam = max(lam, float(np.max(np.abs(np.linalg.eigvals(np.array(J(xx, u_max)))))))
-    return max(1, int(np.ceil(dt * lam / 2.5)))

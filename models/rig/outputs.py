@@ -1,0 +1,134 @@
+"""What a rig's sensors read: absolute angles from the twists, every channel's noise-free
+reading (gain and offset applied), the logged inputs corrected through load cells, and the
+measurement Functions.  :class:`RigOutputs` is the measurement side of
+:class:`models.rig.RigModel` (a mixin: the model's structure and dynamics are in
+:mod:`models.rig.model`)."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import casadi as ca
+
+from models import friction as fr
+from models.errors import ConfigError
+from models.rig.spec import NODE_DRIVE
+
+__all__ = ["RigOutputs"]
+
+
+class RigOutputs:
+    """Angles, sensor readings and measurement Functions of a rig (see the module docstring)."""
+
+    def _angle_paths(self) -> dict[str, list[tuple[int, float]]]:
+        """For every node reachable by springs from the reference node: [(twist index, sign)] so
+        that ``theta_node = theta_ref + sum(sign * twist)``."""
+        ref = self.spec.reference_node
+        adj: dict[str, list] = {}
+        for j, c in enumerate(self._springs):
+            adj.setdefault(c.a, []).append((c.b, j, -1.0))   # theta_b = theta_a - phi
+            adj.setdefault(c.b, []).append((c.a, j, +1.0))   # theta_a = theta_b + phi
+        paths = {ref: []}
+        q = deque([ref])
+        while q:
+            n = q.popleft()
+            for m, j, sgn in adj.get(n, []):
+                if m not in paths:
+                    paths[m] = paths[n] + [(j, sgn)]
+                    q.append(m)
+        return paths
+
+    def angle(self, body: str, x, theta_ref):
+        """Absolute angle of ``body`` from the reference angle and the twists [rad]."""
+        th = theta_ref
+        for j, sgn in self._ang_path[body]:
+            th = th + sgn * x[j]
+        return th
+
+    def acceleration(self, x, u, P, body: str, eps: float | None = None):
+        """``omega_<body>'`` of the regularised model (contact friction smoothed with ``eps``)."""
+        eps = self.eps_default if eps is None else eps
+        Tc = [self.contact_friction(i, x[idx], u, P, eps) for i, idx in enumerate(self.contacts)]
+        s = [fr.smooth_sign(x[idx], eps) for idx in self.contacts]
+        return self.dynamics(x, u, P, Tc, s)[self._speed_index[body]]
+
+    def _ideal(self, s, x, u, P, theta_ref, un):
+        """A sensor's ideal reading, before gain and offset."""
+        if s.kind == "encoder":
+            th = theta_ref if s.target == NODE_DRIVE else self.angle(s.target, x, theta_ref)
+            return [th, self._node_speed(s.target, x, un)]
+        if s.kind == "speed":
+            return [self._node_speed(s.target, x, un)]
+        if s.kind == "torque":
+            if s.target == NODE_DRIVE and self.drive_kind == "torque":
+                return [un[self.spec.drive.input]]
+            if s.target == NODE_DRIVE:
+                if s.definition == "electromagnetic":
+                    return [self.motor_torque_em(x, un, P, friction=False)]
+                d = self.spec.drive
+                eta, Jm = d.param("ratio").value(P, un), d.param("Jm").value(P, un)
+                return [self.motor_torque_em(x, un, P) - eta * (eta - 1) * Jm * self.acceleration(x, u, P, d.body)]
+            c = next(c for c in self.spec.connections if c.name == s.target)
+            return [self.connection_torque(c, x, un, P)]
+        c = next(c for c in self.spec.contacts if c.name == s.target)
+        return [c.normal.value(P, un)]
+
+    def outputs(self, x, u, P, theta_ref) -> dict:
+        """Noise-free readings of every sensor channel (gain and offset applied), the inputs,
+        and physical quantities: twists (state names), body speeds, friction torques
+        (``friction_<contact>``, regularised), and for a DC motor ``current``, ``voltage``,
+        ``motor_speed`` and ``motor_torque_em``."""
+        un = self._u_named(u)
+        out: dict = {}
+        for s in self.sensors:
+            vals = self._ideal(s, x, u, P, theta_ref, un)
+            if s.offset is not None:
+                vals = [s.gain.value(P, un) * v + s.offset.value(P, un) for v in vals]
+            out.update(zip(s.channels, vals))
+        for n in self.inputs:
+            out.setdefault(n, un[n])
+        for j, c in enumerate(self._springs):
+            out[f"twist_{c.name}"] = x[j]
+        for b in self._bodies:
+            out[f"omega_{b}"] = x[self._speed_index[b]]
+        d = self.spec.drive
+        if d.kind == "dc_motor":
+            eta = d.param("ratio").value(P, un)
+            out["current"] = x[self.nx - 2]
+            out["voltage"] = self.motor_voltage(x, un, P)[1]
+            out["motor_speed"] = eta * x[self._speed_index[d.body]]
+            out["motor_torque_em"] = self.motor_torque_em(x, un, P, friction=False)
+        return out
+
+    def input_from_measured(self, u_meas, P):
+        """Model inputs from logged ones: a normal force logged through a load cell is corrected
+        for the cell's gain and offset, ``N = (reading - offset) / gain``."""
+        out = [u_meas[i] for i in range(self.nu)]
+        for s in self.sensors:
+            if s.kind in ("load_cell", "torque") and s.channels[0] in self.inputs:
+                j = self.inputs.index(s.channels[0])
+                out[j] = (out[j] - s.offset.value(P, {})) / s.gain.value(P, {})
+        return out
+
+    def output_names(self) -> tuple[str, ...]:
+        """Names of :meth:`outputs` (the measurement Function's outputs)."""
+        return tuple(self.meas().name_out())
+
+    def meas(self) -> ca.Function:
+        """Noise-free measurement function ``y = h(x, u, p, theta_ref)`` with named outputs."""
+        if "meas" not in self._fcache:
+            x, u, p = self._syms()
+            th = ca.SX.sym("theta_ref")
+            out = self.outputs(x, u, self.unpack(p), th)
+            self._fcache["meas"] = ca.Function(f"{self.cname}_meas", [x, u, p, th], [ca.SX(v) for v in out.values()],
+                                               ["x", "u", "p", "theta_ref"], list(out.keys()))
+        return self._fcache["meas"]
+
+    def meas_vector(self, names) -> ca.Function:
+        """``y = h(x, u, p)`` stacking the named outputs that need no absolute angle."""
+        x, u, p = self._syms()
+        out = self.outputs(x, u, self.unpack(p), ca.SX(0))
+        missing = [n for n in names if n not in out]
+        if missing:
+            raise ConfigError(f"{self.name}: unknown output(s) {missing}; expected some of {list(out)}")
+        return ca.Function(f"{self.cname}_h", [x, u, p], [ca.vertcat(*[out[n] for n in names])], ["x", "u", "p"], ["y"])

@@ -1,0 +1,172 @@
+"""Steady sliding of a rig, and its nominal operating point.
+
+- :func:`nominal_operating_point`: THE operating point of a rig (the rig file's
+  ``[rig] operating_point``; a torque drive's nominal speed, :func:`nominal_speed`); modal
+  analysis, the estimators' checks and the controllers' defaults all start from it.
+- :func:`sliding_guess`, :func:`operating_point`, :func:`steady_sliding`: the state of steady
+  sliding (every body at one speed) from a Gauss-Newton solve of the force balance, polished by
+  Newton on the regularised model.  :class:`models.rig.RigModel` offers them as methods.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from models.errors import ConfigError
+
+__all__ = ["nominal_operating_point", "nominal_speed", "drive_speed_index", "sliding_guess", "operating_point",
+           "steady_sliding"]
+
+
+def nominal_speed(model) -> float:
+    """The rig's nominal sliding speed [rad/s]: the drive's input in the rig file's operating point
+    (a torque drive: its ``speed``), 1 rad/s when the file gives none."""
+    op = model.spec.extra.get("operating_point", {})
+    key = "speed" if model.drive_kind == "torque" else model.drive_input
+    return float(op.get(key, 1.0))
+
+
+def nominal_operating_point(model, params=None, *, omega: float | None = None,
+                            load: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """The rig's sliding operating point ``(u, x_op or None)``.
+
+    The rig file's ``[rig] operating_point`` gives the inputs (rig3: 30 rpm, N1 = 20 N);
+    ``omega`` [rad/s] replaces the drive's speed and ``load`` [N] the first contact's
+    normal-force input.  A torque drive's operating point is a sliding speed
+    (:func:`nominal_speed` unless ``omega``): its input torque and state are solved for and
+    returned (``x_op``), since pure Coulomb friction has a continuum of equilibria.
+    """
+    params = model.published() if params is None else model.check_params(params)
+    op = dict(model.spec.extra.get("operating_point", {}))
+    u = np.array([op.get(n, 0.0) for n in model.inputs], float)
+    normals = [j for j, k in enumerate(model.input_kinds) if k == "force"]
+    if load is not None:
+        if not normals:
+            raise ConfigError(f"rig {model.name!r} has no normal-force input for a load")
+        u[normals[0]] = float(load)
+    if model.drive_kind == "torque":
+        return operating_point(model, float(omega) if omega is not None else nominal_speed(model), u, params)
+    u[model.inputs.index(model.drive_input)] = float(omega) if omega is not None else nominal_speed(model)
+    return u, None
+
+
+def drive_speed_index(model) -> int | None:
+    """Index of the input that sets the sliding speed (a speed set-point or a prescribed
+    speed), or None for a torque drive."""
+    return None if model.drive_kind == "torque" else model.inputs.index(model.spec.drive.input)
+
+
+def _steady_function(model, eps, mode: str, other: tuple, spd_idx: tuple, ju: int) -> ca.Function:
+    """``ss(z, p, u, w) -> (residual, d residual / dz)`` of steady sliding (cached on the model).
+
+    ``z`` holds the non-speed states and one extra unknown: the drive's input torque
+    (``mode = "torque"``), the common speed (``"speed"``) or nothing (``"fixed"``); every body
+    turns at ``w`` unless the speed is the unknown."""
+    key = ("steady", eps, mode)
+    if key not in model._fcache:
+        f = model.ode(eps)
+        z = ca.SX.sym("z", len(other) + 1)
+        p_s, u_s, w_s = ca.SX.sym("p", model.n_p), ca.SX.sym("u", model.nu), ca.SX.sym("w")
+        x = [None] * model.nx
+        for k, j in enumerate(other):
+            x[j] = z[k]
+        extra = z[len(other)]
+        uu = [u_s[j] for j in range(model.nu)]
+        if mode == "torque":
+            uu[ju] = extra
+        w = extra if mode == "speed" else w_s
+        for j in spd_idx:
+            x[j] = w
+        keep = [j for j in range(model.nx) if j >= len(model.springs)]          # accelerations and drive rows
+        r = f(ca.vertcat(*x), ca.vertcat(*uu), p_s)[keep]
+        model._fcache[key] = ca.Function(f"{model.cname}_steady", [z, p_s, u_s, w_s], [r, ca.jacobian(r, z)])
+    return model._fcache[key]
+
+
+def _steady_solve(model, u, params, speed: float | None, eps: float | None = None, iters: int = 30):
+    """Gauss-Newton on the accelerations and drive rows with every body at one speed.
+
+    Unknowns: the twists, the drive states and, for a torque drive, either the input torque
+    (``speed`` given) or the common speed (``speed`` None).
+    """
+    pv = np.asarray(params.vector(), float)
+    u = np.asarray(u, float).copy()
+    n_tw, nb = len(model.springs), len(model.bodies)
+    spd_idx = list(range(n_tw, n_tw + nb))
+    other = [j for j in range(model.nx) if j not in spd_idx]
+    torque_drive = model.drive_kind == "torque"
+    ju = model.inputs.index(model.spec.drive.input)
+    solve_speed = torque_drive and speed is None
+    if speed is None:
+        speed = float(u[ju]) if not torque_drive else 1.0
+    mode = "torque" if torque_drive and not solve_speed else ("speed" if solve_speed else "fixed")
+    F = _steady_function(model, eps, mode, tuple(other), tuple(spd_idx), ju)
+    zv = np.zeros(len(other) + 1)
+    if solve_speed:
+        zv[-1] = speed
+    free = np.ones(zv.size, bool)
+    if not torque_drive:
+        free[-1] = False
+    # a spring with backlash carries torque only outside its dead zone: start there, on the side
+    # that drives the load forward
+    Pn = dict(zip(model.param_names, pv))
+    for j, c in enumerate(cc for cc in model.spec.connections if cc.stiffness is not None):
+        if c.backlash is not None:
+            zv[other.index(j)] = np.sign(speed or 1.0) * float(c.backlash.value(Pn))
+    # a drive's voltage and current limits are flat outside their range: solve without them
+    # first (they bind only in transients), then polish with them
+    limits = [model.param_names.index(r.name) for r in (model.spec.drive.param("v_max"), model.spec.drive.param("i_max"))
+              if r is not None and r.kind == "param"]
+    pvs = [pv]
+    if limits:
+        loose = pv.copy()
+        loose[limits] = 1e9
+        pvs = [loose, pv]
+    for pcur in pvs:
+        for _ in range(iters):
+            rv, Jv = (np.array(a, float) for a in F(zv, pcur, u, speed))
+            rv = rv.ravel()
+            step = np.linalg.lstsq(Jv[:, free], -rv, rcond=None)[0]
+            zv[free] += step
+            if np.max(np.abs(step)) < 1e-12:
+                break
+    xs = np.empty(model.nx)
+    for k, j in enumerate(other):
+        xs[j] = zv[k]
+    xs[spd_idx] = zv[-1] if solve_speed else speed
+    if torque_drive and not solve_speed:
+        u[ju] = zv[-1]
+    return xs, u
+
+
+def sliding_guess(model, u, params) -> np.ndarray:
+    """A state of steady sliding at the drive's speed (every body at that speed), from a
+    Gauss-Newton solve of the force balance; a torque drive slides at the speed its
+    torque sustains."""
+    u = np.asarray(u, float)
+    if model.drive_kind == "torque":
+        return _steady_solve(model, u, params, None)[0]
+    return _steady_solve(model, u, params, float(u[model.inputs.index(model.spec.drive.input)]))[0]
+
+
+def operating_point(model, speed: float, u, params) -> tuple[np.ndarray, np.ndarray]:
+    """``(u, x)`` of steady sliding at ``speed`` [rad/s]: the drive input is set to it
+    (a torque drive's input torque is solved for) and the state solved as in
+    :meth:`sliding_guess`, then polished by Newton on the regularised model."""
+    u = np.asarray(u, float).copy()
+    if model.drive_kind != "torque":
+        u[model.inputs.index(model.spec.drive.input)] = speed
+        return u, steady_sliding(model, u, params)
+    x, u = _steady_solve(model, u, params, float(speed))
+    return u, x
+
+
+def steady_sliding(model, u, params, x0=None) -> np.ndarray:
+    """Equilibrium of the regularised model for a constant input (steady sliding)."""
+    f = model.ode()
+    x = ca.SX.sym("x", model.nx)
+    g = f(x, ca.DM(np.asarray(u, float)), ca.DM(params.vector()))
+    solver = ca.rootfinder("ss", "newton", ca.Function("g", [x], [g]), {"abstol": 1e-12})
+    guess = sliding_guess(model, u, params) if x0 is None else x0
+    return np.array(solver(ca.DM(guess))).ravel()
