@@ -177,8 +177,8 @@ def test_calm_schedule_holds_when_calm_and_acts_in_stick_slip():
 
 
 def test_schedule_scales_the_tracking_weights_the_plan_sees():
-    """At calm sliding the plan's ``ref`` weight is hold_gain times the option, and a servo's
-    force weight hold_gain squared when the drive is commanded too."""
+    """At calm sliding the plan's ``ref`` and ``d_ref`` weights are hold_gain times the options',
+    and a servo's force weight hold_gain squared when the drive is commanded too."""
     m = get_model("rig3")
     u0 = np.array([math.pi, 20.0, 0.0])
     x = m.steady_sliding(u0, m.published())
@@ -192,6 +192,7 @@ def test_schedule_scales_the_tracking_weights_the_plan_sees():
     ref, force = c._i_ref, c._i_force
     assert seen[0][ref] == pytest.approx(c.weights.ref)                       # before a window: act
     assert seen[-1][ref] == pytest.approx(c.weights.ref * c.options.hold_gain)
+    assert seen[-1][c._i_dref] == pytest.approx(c.weights.d_ref * c.options.hold_gain)
     assert seen[-1][force] == pytest.approx(c.weights.force * c.options.hold_gain ** 2)
     assert L.q_w <= ref < L.q_fc
 

@@ -163,7 +163,7 @@ class NMPC(Controller):
         self._load_keys = {f"load:{c}": i for i, names in enumerate(m.contact_names) for c in names}
         self.period = cfg.period
         self.schedule = CalmSchedule(self.period, self.dt_daq, o.calm_band, o.hold_gain)
-        self._i_ref, self._i_force = (L.q_w + WEIGHT_NAMES.index(k) for k in ("ref", "force"))
+        self._i_ref, self._i_force, self._i_dref = (L.q_w + WEIGHT_NAMES.index(k) for k in ("ref", "force", "d_ref"))
         self._i_speed = m.speed_index(self.body)
         self._names_seen = None
         self.inject_failure = None
@@ -340,6 +340,7 @@ class NMPC(Controller):
             q = L.set_q(self._q.copy(), hold, self._nominal(t, u_prog), fc, at_min)
             f = self.schedule.current()
             q[self._i_ref] *= f
+            q[self._i_dref] *= f
             q[self._i_force] *= f * f if self.drives else f   # pin only: the servo is all it has
             if self.ocp.X is not None and not (self.ocp.prepared and steps == 1):
                 # prepare() already shifted by one interval

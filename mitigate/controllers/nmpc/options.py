@@ -134,7 +134,8 @@ class NMPCOptions:
         ``load:<contact>`` state when it has one (the EKF's disturbance model)
     force_filter : time constant [s] of the low-pass on (load-cell reading - programme) of a
         held normal force (None: the horizon, ``horizon dt``; 0: the raw reading)
-    hold_gain : factor on the ``ref`` and ``force`` weights once the objective body slides calmly
+    hold_gain : factor on the ``ref`` and ``d_ref`` weights (its square on ``force`` when the drive is
+        commanded too) once the objective body slides calmly
         (:mod:`mitigate.controllers.nmpc.schedule`; 1: the same weights always)
     calm_band : ``(s_lo, s_hi)``: the estimated severity over one stick-slip period below which
         the NMPC holds (``hold_gain``) and above which it suppresses (factor 1); log-linear between

@@ -15,7 +15,7 @@ stick-slip (at 15 rpm it never does).  So the weights are scheduled on what the 
         (max - min) / (2 mean) of a sinusoid, but not set by the estimate's noise peaks; a body
         held off its nominal speed, e.g. by a pin, is not calm either)
     g = clip(log(s / s_lo) / log(s_hi / s_lo), 0, 1)      1: stick-slip, 0: calm sliding
-    f = hold_gain ** (1 - g);   ref <- ref x f;   force <- force x f^2 (x f without the drive)
+    f = hold_gain ** (1 - g);   ref, d_ref <- x f;   force <- x f^2 (x f without the drive)
 
 with ``window`` one stick-slip period and ``(s_lo, s_hi)`` the options' ``calm_band``.  The servo
 forces get the square: calm, the pin or the weight on bit returns to the programme and stays
