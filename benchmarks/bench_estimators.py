@@ -10,8 +10,8 @@ a PRE-TWISTED shaft: the encoders are zeroed there, and the estimators start fro
 (c) a plant that differs in structure from the estimators' nominal rig3: a true torque
     offset of 0.05 N m, the PI acting on the motor-side error (``pi_error = "motor"``),
     and a one-sample DAQ delay on every channel;
-(d) the independent scipy simulator of the rig (``/work/main/tests/independent_rig3.py``,
-    imported by path if present: no code of ours), same operating point and power-on;
+(d) the independent scipy simulator of the rig (``tests/independent_rig3.py`` of this checkout,
+    or ``--independent PATH``; imported by path: no code of ours), same operating point and power-on;
 (e) our plant sliding steadily from the start (``start = "sliding"``, no stick-slip), powered
     on at the same time: the regime a successful mitigation creates, where the friction does
     not vary and the twist at power-on, the load factor and a torque offset trade off.
@@ -27,6 +27,7 @@ how many 4-s windows of the run the twist was observable along the estimates
 Usage::
 
     python benchmarks/bench_estimators.py [--duration 60] [--out benchmarks/results/estimators.md]
+    python benchmarks/bench_estimators.py --quick     # 8 s, EKF and MHE defaults only, prints (CI)
 """
 
 from __future__ import annotations
@@ -55,7 +56,8 @@ from models.plant import SimOptions, simulate
 from models.rig import RigModel
 
 ENCODERS = ("theta1", "theta2", "theta3", "omega1", "omega2", "omega3")
-INDEPENDENT = Path("/work/main/tests/independent_rig3.py")
+ROOT = Path(__file__).resolve().parents[1]
+INDEPENDENT = ROOT / "tests" / "independent_rig3.py"
 U_OP = np.array([math.pi, 20.0, 0.0])      # omega_ref [rad/s], N1, N2 [N]
 
 
@@ -87,10 +89,10 @@ def plant_c(model):
     return mc, mc.published().replace(motor_torque_offset=0.05)
 
 
-def independent_run(duration: float, power_on: float, seed: int) -> Run | None:
-    if not INDEPENDENT.exists():
+def independent_run(duration: float, power_on: float, seed: int, path: Path = INDEPENDENT) -> Run | None:
+    if not path.exists():
         return None
-    sys.path.insert(0, str(INDEPENDENT.parent))
+    sys.path.insert(0, str(path.parent))
     try:
         import independent_rig3 as ir
     finally:
@@ -139,14 +141,25 @@ def metrics(run: Run, X, P, T, warn, stick_speed: float) -> dict:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--duration", type=float, default=60.0, help="seconds after power-on")
-    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "estimators.md"))
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog="example: python benchmarks/bench_estimators.py --quick")
+    ap.add_argument("--duration", type=float, default=None, help="seconds after power-on (default 60; --quick 8)")
+    ap.add_argument("--quick", action="store_true",
+                    help="8 s runs, the default EKF and MHE only, printed and not written (unless --out is given)")
+    ap.add_argument("--independent", type=Path, default=INDEPENDENT,
+                    help="the independent simulator of the rig (default: tests/independent_rig3.py of this checkout)")
+    ap.add_argument("--out", default=None, help="results file (default benchmarks/results/estimators.md)")
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--power-on", type=float, default=5.0, help="time [s] at which the DAQ/estimators start")
     ap.add_argument("--window", type=int, default=20, help="MHE window [samples]")
     ap.add_argument("--no-write", action="store_true", help="print only")
     args = ap.parse_args(argv)
+    if args.duration is None:
+        args.duration = 8.0 if args.quick else 60.0
+    if args.quick and args.out is None:
+        args.no_write = True
+    if args.out is None:
+        args.out = str(Path(__file__).parent / "results" / "estimators.md")
 
     model = get_model("rig3")
     p = model.published()
@@ -154,7 +167,7 @@ def main(argv=None):
     runs = [("a", plant_run("plant", model, p, args.duration, args.power_on, args.seed))]
     mc, pc = plant_c(model)
     runs.append(("c", plant_run("plant (c)", mc, pc, args.duration, args.power_on, args.seed)))
-    ind = independent_run(args.duration, args.power_on, args.seed)
+    ind = independent_run(args.duration, args.power_on, args.seed, args.independent)
     if ind is not None:
         runs.append(("d", ind))
     runs.append(("e", plant_run("sliding", model, p, args.duration, args.power_on, args.seed, start="sliding")))
@@ -185,6 +198,8 @@ def main(argv=None):
         ("e", "EKF without offset:motor_torque", {"kind": "ekf", "augment": ["load:pin1"]}),
         ("e", "EKF encoders only", {"kind": "ekf", **enc}),
     ]
+    if args.quick:
+        variants = [v for v in variants if v[1] in ("EKF (default)", f"MHE N={args.window} (default)")]
     rundict = {"a": runs[0][1], "b": runs[0][1], **{k: r for k, r in runs[1:]}}
     rows = []
     verdicts = {}

@@ -39,7 +39,11 @@ def measure(duration: float, plant_steps: int) -> dict:
         times.append(time.perf_counter() - t0)
     sc = make_scenario(name="steps", duration=duration, inputs={"omega_ref": "30 rpm", "n1": 20.0, "n2": 0.0},
                        controllers=[{"name": "NMPC", "kind": "nmpc"}], estimator="ekf", control_start=2.0)
-    ctrl = make_controller(sc.controllers[0], sc, 0)
+    try:                             # make_controller(spec, context) since the faults branch; (spec, scenario, i) before
+        from mitigate.controllers.factory import context_for
+        ctrl = make_controller(sc.controllers[0], context_for(sc, 0))
+    except (TypeError, AttributeError):
+        ctrl = make_controller(sc.controllers[0], sc, 0)
     r = run_closed_loop(sc, ctrl)
     st, plan = np.asarray(r.solve_times, float), np.asarray(r.plan_calls, bool)
     return {"module": __import__("models").__file__, "status": r.status.value,

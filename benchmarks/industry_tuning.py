@@ -62,12 +62,12 @@ def run_one(args):
     import numpy as np
 
     from mitigate.closedloop import run_closed_loop
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
     from mitigate.metrics import closed_loop_metrics
 
     kind, options = args
     sc = scenario(kind, options)
-    ctrl = make_controller(sc.controllers[0], sc, 0)
+    ctrl = make_controller(sc.controllers[0], context_for(sc, 0))
     res = run_closed_loop(sc, ctrl)
     m = closed_loop_metrics(res, sc)
     st = np.asarray(res.solve_times) * 1e3

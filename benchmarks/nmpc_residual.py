@@ -35,6 +35,7 @@ Usage::
     python benchmarks/nmpc_residual.py --only suite --controllers nmpc nmpc_motor softspeed ztorque
     python benchmarks/nmpc_residual.py --scenarios scenarios/benchmark/drillstring.toml --nmpc horizon=40
     python benchmarks/nmpc_residual.py --json > out/residual.json
+    python benchmarks/nmpc_residual.py --only suite --latency measured   # answers applied after their time
 """
 
 from __future__ import annotations
@@ -89,9 +90,9 @@ def scenario_files(only: str) -> list[Path]:
 
 
 def build(path: Path, *, seed: int | None = None, start: float | None = None, estimator="user",
-          controller: tuple | None = None, duration: float | None = None):
-    """The scenario of ``path`` with another seed, control start, estimator or duration, and one
-    controller ``(name, kind, options)``."""
+          controller: tuple | None = None, duration: float | None = None, latency=None):
+    """The scenario of ``path`` with another seed, control start, estimator, duration or
+    ``[control] latency`` (``"measured"`` or seconds), and one controller ``(name, kind, options)``."""
     from mitigate.scenario import parse_scenario
     data = _read(path)
     data.pop("controllers", None)
@@ -102,6 +103,8 @@ def build(path: Path, *, seed: int | None = None, start: float | None = None, es
         sc["duration"] = float(duration)
     if start is not None:
         data.setdefault("control", {})["start"] = float(start)
+    if latency is not None:
+        data.setdefault("control", {})["latency"] = latency
     if isinstance(estimator, dict):
         data["estimator"] = dict(estimator)
     elif estimator == "user":
@@ -120,7 +123,7 @@ def stick_slip_period(path: Path) -> tuple[float, float]:
     import numpy as np
 
     from mitigate.closedloop import run_closed_loop
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
     from models.signals import dominant_frequency, stick_slip_cycles
 
     base = build(path, estimator="fd", controller=("PI only", "pi", {}))
@@ -129,7 +132,7 @@ def stick_slip_period(path: Path) -> tuple[float, float]:
         # prevention from rest: the stick-slip the uncontrolled run develops over 30 s
         base = build(path, estimator="fd", controller=("PI only", "pi", {}), start=0.0,
                      duration=max(30.0, base.duration))
-    res = run_closed_loop(base, make_controller(base.controllers[0], base, 0))
+    res = run_closed_loop(base, make_controller(base.controllers[0], context_for(base, 0)))
     w = res.objective_speed
     t1 = start if start > 0 else res.t[-1]
     m = (res.t >= max(0.0, t1 - max(10.0, 0.4 * t1))) & (res.t < t1)
@@ -184,13 +187,14 @@ def run_metrics(res, sc, period: float) -> dict:
 
 
 def job(args) -> dict:
-    path, cname, kind, opts, seed, start, estimator, period = args
+    path, cname, kind, opts, seed, start, estimator, period, latency = args
     from mitigate.closedloop import run_closed_loop
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
     t0 = time.perf_counter()
     try:
-        sc = build(Path(path), seed=seed, start=start, estimator=estimator, controller=(cname, kind, opts))
-        res = run_closed_loop(sc, make_controller(sc.controllers[0], sc, 0))
+        sc = build(Path(path), seed=seed, start=start, estimator=estimator, controller=(cname, kind, opts),
+                   latency=latency)
+        res = run_closed_loop(sc, make_controller(sc.controllers[0], context_for(sc, 0)))
         met = run_metrics(res, sc, period)
     except Exception as exc:  # noqa: BLE001 - a failed build or run is a result of its own
         met = {"status": "failed", "message": f"{type(exc).__name__}: {exc}", "residual": float("nan")}
@@ -266,6 +270,8 @@ def main(argv=None) -> int:
     ap.add_argument("--estimator", default="user",
                     help="'user' (each file's own, FD replaced by the EKF), 'scenario', or a kind for every scenario")
     ap.add_argument("--nmpc", nargs="*", metavar="NAME=VALUE", help="options for every NMPC variant (JSON values)")
+    ap.add_argument("--latency", help="[control] latency for every run: 'measured' (each answer applied after "
+                                      "its measured computation time) or a time such as '3 ms'")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="established only, 1 phase, 1 seed, NMPC motor vs SoftSpeed")
     ap.add_argument("--json", action="store_true", help="one JSON document on stdout")
@@ -299,7 +305,8 @@ def main(argv=None) -> int:
                 opts = {**opts, **extra} if kind == "nmpc" else opts
                 for s in range(args.seeds):
                     for st in starts:
-                        jobs.append((str(f), name, kind, opts, base_seed + s, round(st, 6), args.estimator, T))
+                        jobs.append((str(f), name, kind, opts, base_seed + s, round(st, 6), args.estimator, T,
+                                     args.latency))
         from tqdm import tqdm
         rows = list(tqdm(ex.map(job, jobs), total=len(jobs), desc="runs", disable=args.json or None, leave=False))
     elapsed = time.perf_counter() - t0
@@ -324,7 +331,8 @@ def render(summ, verdict, periods, args, elapsed, argv) -> str:
     forces = sorted({k for r in summ for k in r if k.startswith("force_ratio:")})
     cmd = "python benchmarks/nmpc_residual.py " + " ".join(argv if argv is not None else sys.argv[1:])
     lines = [f"Command: `{cmd.strip()}`", "",
-             f"{args.phases} phase(s) x {args.seeds} seed(s); estimator {args.estimator}; {elapsed:.0f} s on "
+             f"{args.phases} phase(s) x {args.seeds} seed(s); estimator {args.estimator}; latency "
+             f"{args.latency or 0}; {elapsed:.0f} s on "
              f"{os.cpu_count()} cores ({platform.machine()}); stick-slip periods: "
              + ", ".join(f"{Path(f).stem} {p[0]:.2f} s" for f, p in periods.items()), "",
              "| scenario | controller | runs | residual median | residual max | mean speed / programme "

@@ -12,9 +12,16 @@ the same call, with its arguments in the order of :meth:`mitigate.controllers.ba
 
 The closed loop, the scenario runner and a scenario file can therefore swap an EKF for an
 MHE or for the finite-difference baseline.  The public :meth:`StateEstimator.update` guards
-its inputs and never raises inside a closed loop: a missing or NaN channel skips its
-correction (counted), and a failure inside ``_update_impl`` is counted and answered by a
-documented fallback (:meth:`StateEstimator._fallback`).
+its inputs: a missing or NaN channel skips its correction (counted); a
+:class:`models.errors.SolverFailure` raised inside ``_update_impl`` (the one transient failure,
+e.g. the MHE's QP) is counted and answered by the documented fallback
+(:meth:`StateEstimator._fallback`); anything else -- another exception, ``SystemExit``, a
+non-finite estimate, a result that is not an :class:`Estimate`, a call that does not return
+within the context's ``timeout`` -- raises :class:`models.errors.PluginError` with the reason,
+and the closed loop ends that run as FAILED (:mod:`models.plugins`).
+
+Estimators are built by :func:`estimators.online.factory.make_estimator` (built-in kinds, the
+``stickslip.estimators`` entry points, or ``module:Class``), the same way as controllers.
 """
 
 from __future__ import annotations
@@ -27,6 +34,8 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
+from models import plugins
+from models.errors import PluginError, SolverFailure
 from models.params import ParameterSet
 from models.sensors import SensorOptions
 from models.status import Status
@@ -86,6 +95,8 @@ class EstimatorContext:
     sensors : sensor settings (noise covariances follow from the rig's sensors and these)
     x0 : initial state guess in ``model.states`` order (None: at rest)
     where : prefix of error messages
+    timeout : wall time after which an update that has not returned fails the run [s]
+        (``[control] timeout`` of a scenario; None: never)
     """
 
     model: Any
@@ -94,6 +105,7 @@ class EstimatorContext:
     sensors: SensorOptions = SensorOptions()
     x0: np.ndarray | None = None
     where: str = "estimator"
+    timeout: float | None = None
 
 
 @dataclass
@@ -139,17 +151,32 @@ class StateEstimator(ABC):
         u = np.asarray(u, dtype=float).ravel()
         self.counts.steps += 1
         try:
-            est = self._update_impl(float(t), y, mask, u)
-            if not (np.all(np.isfinite(est.x)) and np.all(np.isfinite(est.P))):
-                raise FloatingPointError("non-finite estimate")
-        except Exception as exc:  # never raise inside a closed loop
+            est = plugins.call(self._update_impl, float(t), y, mask, u, timeout=self.context.timeout, what="update")
+            self._check_estimate(est)
+        except SolverFailure as exc:
             self.counts.failures += 1
-            est = self._fallback(float(t), y, mask, u, f"fallback: {type(exc).__name__}: {exc}")
+            try:
+                est = plugins.call(self._fallback, float(t), y, mask, u, f"fallback: SolverFailure: {exc}",
+                                   timeout=self.context.timeout, what="fallback")
+            except SolverFailure as exc2:
+                raise PluginError(f"the fallback failed: SolverFailure: {exc2}") from exc2
+            self._check_estimate(est)
         if est.status is Status.FALLBACK:
             self.counts.fallbacks += 1
         est = replace(est, solve_time=time.perf_counter() - t0)
         self.last = est
         return est
+
+    @staticmethod
+    def _check_estimate(est) -> None:
+        if not isinstance(est, Estimate):
+            raise PluginError(f"TypeError: update must return an Estimate, got {type(est).__name__}")
+        try:
+            finite = bool(np.all(np.isfinite(np.asarray(est.x, float))) and np.all(np.isfinite(np.asarray(est.P, float))))
+        except (TypeError, ValueError) as exc:
+            raise PluginError(f"TypeError: the estimate's x and P must be numbers ({exc})") from None
+        if not finite:
+            raise PluginError("FloatingPointError: non-finite estimate")
 
     @abstractmethod
     def _update_impl(self, t: float, y: np.ndarray, mask: np.ndarray, u: np.ndarray) -> Estimate:

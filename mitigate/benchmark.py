@@ -36,8 +36,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from models.checks import read_toml
-from models.errors import ConfigError
-from models.files import atomic_write_text, refuse_overwrite
+from models.errors import ConfigError, PluginError
+from models.files import OutputSet, output_set
 from models.status import Status
 from mitigate.scenario import ControllerSpec, Scenario, parse_scenario
 
@@ -58,6 +58,10 @@ RANK_COLUMNS = (
     ("controller_fallbacks", "fallbacks", "-", "sum"),
     ("plan_p95_ms", "plan p95 [ms]", "ms", "max"),
 )
+
+
+#: the files :func:`write_benchmark` writes, by key
+BENCHMARK_FILES = {"ranking": "ranking.md", "csv": "results.csv", "json": "results.json", "png": "benchmark.png"}
 
 
 @dataclass(frozen=True)
@@ -129,6 +133,8 @@ def load_suite(path, *, extra_controllers=(), only=None) -> Suite:
         p = path.parent / f
         sd = dict(read_toml(p, "scenario file"))
         sd["controllers"] = raw_ctrls
+        if isinstance(sd.get("control", {}), Mapping):     # a real-time budget: one control period per call
+            sd["control"] = {"deadline": "period", **sd.get("control", {})}
         scenarios.append(parse_scenario(sd, str(p)))
     if only:
         names = [sc.name for sc in scenarios]
@@ -173,47 +179,41 @@ class BenchmarkResult:
             "files": {k: str(v) for k, v in self.files.items()}})
 
 
-def _job(args):
-    sc, i = args
-    from mitigate.controllers.factory import make_controller
-    from mitigate.runner import run_one
+def _job(sc, i):
+    from mitigate.controllers.factory import context_for, make_controller
+    from mitigate.runner import failed_run, run_one
     try:
-        make_controller(sc.controllers[i], sc, i)
+        make_controller(sc.controllers[i], context_for(sc, i))
     except ConfigError as exc:     # the rig lacks what the controller needs: not applicable here
         return sc.name, sc.controllers[i].name, None, str(exc)
+    except PluginError as exc:     # a broken plug-in: its run FAILED
+        return sc.name, sc.controllers[i].name, failed_run(sc.controllers[i], f"controller failed to build: {exc}"), ""
     r = run_one(sc, i)
     return sc.name, r.name, r, ""
 
 
 def run_benchmark(suite: Suite, *, jobs: int = 2, progress: bool = False) -> BenchmarkResult:
     """Run every controller of ``suite`` on every scenario (in ``jobs`` processes) and rank them."""
-    import concurrent.futures as cf
-    import multiprocessing as mp
-
-    from mitigate.runner import _init_worker
+    from mitigate.runner import STALL_TIMEOUT, failed_run
+    from mitigate.workers import WorkerPool
 
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
     t0 = time.perf_counter()
     tasks = [(sc, i) for sc in suite.scenarios for i in range(len(sc.controllers))]
-    results = []
+    results: list = [None] * len(tasks)
     bar = None
     if progress:
         from tqdm import tqdm
         bar = tqdm(total=len(tasks), desc=f"benchmark {suite.name}", unit="run")
     try:
-        if jobs == 1:
-            for t in tasks:
-                results.append(_job(t))
+        with WorkerPool(jobs, stall_timeout=STALL_TIMEOUT) as pool:   # a run that fails (its worker dies, hangs) fails alone
+            for out in pool.map(_job, tasks):
+                sc, i = tasks[out.index]
+                results[out.index] = out.value if out.ok else (sc.name, sc.controllers[i].name,
+                                                               failed_run(sc.controllers[i], out.error), "")
                 if bar is not None:
                     bar.update()
-        else:
-            with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"),
-                                        initializer=_init_worker) as ex:
-                for res in ex.map(_job, tasks):
-                    results.append(res)
-                    if bar is not None:
-                        bar.update()
     finally:
         if bar is not None:
             bar.close()
@@ -257,7 +257,7 @@ def run_benchmark(suite: Suite, *, jobs: int = 2, progress: bool = False) -> Ben
         table.append(row)
     table.sort(key=lambda r: (r.get("mean_rank", math.inf) if math.isfinite(r.get("mean_rank", math.inf)) else math.inf))
     failed = sum(v.get("failed", 0) for v in cells.values())
-    status = Status.OK if failed == 0 else Status.WARNING
+    status = Status.OK if failed == 0 else Status.FAILED
     return BenchmarkResult(suite, cells, ranks, table, time.perf_counter() - t0, status,
                            "ok" if failed == 0 else f"{failed} run(s) failed or diverged")
 
@@ -307,27 +307,27 @@ def render_ranking(res: BenchmarkResult, command: str = "") -> str:
 
 
 def write_benchmark(res: BenchmarkResult, out, *, force: bool = False, command: str = "") -> dict:
-    """Write ``ranking.md``, ``results.csv``, ``results.json`` and ``benchmark.png`` to ``out``."""
+    """Write ``ranking.md``, ``results.csv``, ``results.json`` and ``benchmark.png`` to ``out`` as one
+    set (:func:`models.files.output_set`; ``out`` may be an open :class:`models.files.OutputSet`)."""
     import csv
     import io
 
-    out = Path(out)
-    files = {"ranking": out / "ranking.md", "csv": out / "results.csv", "json": out / "results.json",
-             "png": out / "benchmark.png"}
-    for p in files.values():
-        refuse_overwrite(p, force, "force")
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(files["ranking"], render_ranking(res, command), overwrite=True)
+    if not isinstance(out, OutputSet):
+        with output_set(out, BENCHMARK_FILES.values(), force=force) as w:
+            return write_benchmark(res, w, command=command)
+    w = out
+    files = {k: w.final(n) for k, n in BENCHMARK_FILES.items()}
+    w.write_text(BENCHMARK_FILES["ranking"], render_ranking(res, command))
     keys = sorted({k for v in res.cells.values() for k in v if k not in ("applicable", "status", "message")})
     buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["scenario", "controller", "applicable", "status", "rank"] + keys)
+    wr = csv.writer(buf, lineterminator="\n")
+    wr.writerow(["scenario", "controller", "applicable", "status", "rank"] + keys)
     for (s, c), v in res.cells.items():
-        w.writerow([s, c, v["applicable"], v["status"], res.ranks.get((s, c), "")] + [v.get(k, "") for k in keys])
-    atomic_write_text(files["csv"], buf.getvalue(), overwrite=True)
+        wr.writerow([s, c, v["applicable"], v["status"], res.ranks.get((s, c), "")] + [v.get(k, "") for k in keys])
+    w.write_text(BENCHMARK_FILES["csv"], buf.getvalue())
     res = dataclasses.replace(res, files=files)
-    atomic_write_text(files["json"], json.dumps(res.as_dict(), indent=2) + "\n", overwrite=True)
-    _plot(res, files["png"])
+    w.write_text(BENCHMARK_FILES["json"], json.dumps(res.as_dict(), indent=2) + "\n")
+    _plot(res, w.path(BENCHMARK_FILES["png"]))
     return files
 
 

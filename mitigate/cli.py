@@ -3,8 +3,11 @@
 Each sub-command lives in ``mitigate/commands/<name>.py`` and exposes
 ``register(subparsers)``; the parser it adds sets ``func`` to a ``run(args) -> int``.
 Bad input (``ConfigError``, ``DataError``) and solver failures become one line on
-stderr and exit code 2; there is never a traceback for bad input.  Set
-``MITIGATE_DEBUG=1`` to see tracebacks of internal errors.
+stderr and exit code 2; there is never a traceback for bad input.  A controller or
+estimator that broke its contract outside a run (``PluginError``) is one line and exit 1;
+inside ``run``/``benchmark`` it fails only its run, and the command exits 1.  Ctrl-C and
+SIGTERM end the command cleanly (workers stopped, no half-written output), exit 130 / 143.
+Set ``MITIGATE_DEBUG=1`` to see tracebacks of internal errors.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
 
 # The workbench's matrices are tiny (7-20 states): threaded BLAS only adds contention and
@@ -19,7 +23,7 @@ import sys
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from models.errors import ConfigError, DataError, SolverFailure
+from models.errors import QUOTE_LIMIT, ConfigError, DataError, PluginError, SolverFailure, shorten
 
 COMMANDS = ("simulate", "modal", "identify", "estimate", "run", "sweep", "benchmark")
 
@@ -64,6 +68,15 @@ def cli_words(message: str) -> str:
     return message
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, turned into an exception so that ``finally`` blocks run (workers stopped, staged
+    outputs removed)."""
+
+
+def _on_sigterm(signum, frame):
+    raise _Terminated()
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -71,13 +84,30 @@ def main(argv=None) -> int:
         parser.print_help()
         return 2
     try:
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:          # not the main thread (main() called from a thread): keep the default
+        previous = None
+    try:
+        return _dispatch(args)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _dispatch(args) -> int:
+    """Run the sub-command; every failure becomes one line and an exit code (module docstring)."""
+    try:
         return int(args.func(args) or 0)
     except (ConfigError, DataError, SolverFailure) as exc:
-        sys.stderr.write(f"mitigate {args.command}: error: {cli_words(str(exc))}\n")
+        sys.stderr.write(f"mitigate {args.command}: error: {_line(cli_words(str(exc)))}\n")
         return 2
-    except KeyboardInterrupt:
-        sys.stderr.write(f"mitigate {args.command}: interrupted\n")
-        return 130
+    except PluginError as exc:
+        sys.stderr.write(f"mitigate {args.command}: failed: {_line(str(exc))}\n")
+        return 1
+    except KeyboardInterrupt as exc:
+        terminated = isinstance(exc, _Terminated)
+        sys.stderr.write(f"mitigate {args.command}: {'terminated' if terminated else 'interrupted'}\n")
+        return 143 if terminated else 130
     except BrokenPipeError:   # the reader went away (``mitigate modal --json | head``): not an error of ours
         try:
             sys.stdout = open(os.devnull, "w")
@@ -87,9 +117,15 @@ def main(argv=None) -> int:
     except Exception as exc:  # an internal error: one line unless debugging
         if os.environ.get("MITIGATE_DEBUG"):
             raise
-        sys.stderr.write(f"mitigate {args.command}: internal error: {type(exc).__name__}: {exc} "
+        sys.stderr.write(f"mitigate {args.command}: internal error: {type(exc).__name__}: {_line(str(exc))} "
                          f"(set MITIGATE_DEBUG=1 for a traceback)\n")
         return 1
+
+
+def _line(text: str) -> str:
+    """One line; a long one has its quoted values capped (models.errors.shorten, as the errors do)."""
+    text = " ".join(text.split())
+    return shorten(text) if len(text) > 4 * QUOTE_LIMIT else text
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -28,8 +28,14 @@ def add_common(p: argparse.ArgumentParser, *, out: bool = True, default_out: str
 
 
 def check_outputs(paths: Iterable[os.PathLike | str], force: bool) -> None:
-    """Refuse (ConfigError) if any output exists and ``force`` is not set.  Call before writing anything."""
-    existing = [str(p) for p in paths if Path(p).exists()]
+    """Refuse (ConfigError) if an output file cannot be written (a folder of that name, a parent
+    that is a file or not writable) or exists and ``force`` is not set.  Call before any work."""
+    from models.files import check_output_file
+
+    paths = [Path(p) for p in paths]
+    for p in paths:
+        check_output_file(p, True)
+    existing = [str(p) for p in paths if p.exists()]
     if existing and not force:
         raise ConfigError(f"output file {existing[0]} exists"
                           f"{f' (and {len(existing) - 1} more)' if len(existing) > 1 else ''}; "

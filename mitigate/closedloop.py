@@ -6,7 +6,7 @@ One sample ``k`` (time ``t_k = k dt``)::
     xhat_k = estimator.update(t_k, y_k, u over [t_{k-1}, t_k])
     a_k    = controller.step(t_k, y_k, xhat_k)   from control.start, every control.every samples,
              held in between; before control.start the programme alone
-    u_k    = the programme at t_k, with the inputs the action sets replaced    held over [t_k, t_{k+1}]
+    u_k    = the programme at t_k, with the inputs the newest due action sets replaced   held over [t_k, t_{k+1}]
     plant  <- one exact stick/slip step (servos on the inputs they set, the true parameters,
               the plant's own structure)
 
@@ -14,10 +14,27 @@ Controllers and estimators see only measurements, estimates and the NOMINAL mode
 parameters (``scenario.model``, ``scenario.model_params``); the true state, the true parameters
 and the plant's structure stay in the plant.  The estimator's input is the commanded drive
 input with the MEASURED normal forces where a load cell measures them (a servo's output is not
-known exactly).  A failing controller or estimator is handled by their base classes (counted
-fallbacks).  A run whose plant leaves its physical bounds -- a non-finite state, or a body
-faster than ``scenario.max_speed`` -- ends there as ``Status.DIVERGED`` with the reason; the
-samples so far are returned.
+known exactly).
+
+Computation latency (``[control] latency``): 0 (default) applies an action at the sample it was
+computed for; a fixed time ``L``, or ``"measured"`` (each call's own wall time, capped at the
+deadline), applies it from the first DAQ sample at or after ``t_k + L`` (outputs are written at
+sample instants; a newer action that is due replaces every older one).
+
+How a run ends (``ClosedLoopResult.status``):
+
+- ``Status.OK``; ``Status.WARNING`` when the controller's or the estimator's fallbacks (solver
+  failures they answered themselves, deadline misses) exceed :data:`FALLBACK_WARN_FRACTION` of
+  their calls, or the controller's set-point chatters (:func:`setpoint_chatter`); the message
+  gives the counts, the first reason and the controller's derived tuning values;
+- ``Status.FAILED`` when the controller or the estimator breaks its contract (raises -- also in
+  ``reset`` or with ``SystemExit`` --, returns NaN or the wrong type, or does not return within
+  ``[control] timeout``; :mod:`models.plugins`): the run ends at that sample, the message names
+  who failed, when, and the exception's type and first line (``controller failed at t = 15.000 s
+  in step: KeyError: 'motor_torque'``);
+- ``Status.DIVERGED`` when the plant leaves its physical bounds (a non-finite state, or a body
+  faster than ``scenario.max_speed``), ``Status.FAILED`` when the plant's step raises.
+The samples so far are returned in every case.
 """
 
 from __future__ import annotations
@@ -27,12 +44,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models.errors import ConfigError
+from models import plugins
+from models.errors import ConfigError, PluginError
 from models.logs import Log
 from models.plant import Plant
 from models.status import Status
+from mitigate.controllers.base import Action
 
-__all__ = ["ClosedLoopResult", "run_closed_loop", "model_twists"]
+__all__ = ["ClosedLoopResult", "run_closed_loop", "model_twists", "setpoint_chatter", "FALLBACK_WARN_FRACTION"]
+
+#: fallbacks on more than this fraction of a controller's (or estimator's) calls make the run a WARNING
+FALLBACK_WARN_FRACTION = 0.01
+#: set-point chatter: at least this fraction of the increments change sign ...
+CHATTER_SIGN_FRACTION = 0.5
+#: ... and the median increment is at least this fraction of the input's scale (module docstring)
+CHATTER_STEP_FRACTION = 0.1
 
 
 @dataclass(frozen=True)
@@ -132,6 +158,32 @@ def model_twists(model, plant_model) -> np.ndarray:
     return S
 
 
+def setpoint_chatter(cmd: np.ndarray, scale: float, min_steps: int = 20) -> str | None:
+    """Why a command sequence chatters, or None.
+
+    Chatter: the sign of the increments ``diff(cmd)`` changes on more than
+    :data:`CHATTER_SIGN_FRACTION` of the steps AND the median non-zero increment is at least
+    :data:`CHATTER_STEP_FRACTION` of ``scale`` (the larger of the programme's mean and the largest
+    command, in the input's unit): a set-point jumping between two values every sample (hardware
+    damage), not a law that follows sensor noise with small steps."""
+    d = np.diff(np.asarray(cmd, float))
+    d = d[np.isfinite(d) & (d != 0.0)]
+    if d.size < min_steps or not scale > 0:
+        return None
+    flips = float(np.mean(np.sign(d[1:]) != np.sign(d[:-1])))
+    step = float(np.median(np.abs(d)))
+    if flips > CHATTER_SIGN_FRACTION and step >= CHATTER_STEP_FRACTION * scale:
+        return f"its increments change sign on {100 * flips:.0f} % of the steps, median step {step:.3g}"
+    return None
+
+
+def _latency_samples(latency, action, deadline, dt) -> int:
+    L = action.solve_time if latency == "measured" else float(latency)
+    if latency == "measured" and deadline is not None:
+        L = min(L, deadline)
+    return int(math.ceil(L / dt - 1e-9)) if L > 0 else 0
+
+
 def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plant=None) -> ClosedLoopResult:
     """Run ``controller`` against the scenario's plant.
 
@@ -147,7 +199,13 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
 
     Returns
     -------
-    ClosedLoopResult
+    ClosedLoopResult : ``status`` OK, WARNING, FAILED or DIVERGED with the reason in ``message``
+        (module docstring); a controller or estimator that fails ends its run as FAILED, it never raises.
+
+    Raises
+    ------
+    ConfigError : a scenario too short for one sample; PluginError : building the default
+        estimator failed (a broken estimator plug-in).
     """
     model, pm = scenario.model, scenario.plant_model
     dt = scenario.dt
@@ -159,14 +217,16 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
     if plant is None:
         plant = Plant(pm, scenario.plant_params, scenario.sim, sensors=scenario.sensors, u0=u0,
                       drift=scenario.drift)
+    timeout = getattr(scenario, "control_timeout", None)
+    deadline = getattr(scenario, "control_deadline", None)
+    latency = getattr(scenario, "control_latency", 0.0)
     if estimator is None:
         from estimators.base import EstimatorContext
         from estimators.online.factory import make_estimator
         # the estimator's initial guess comes from the NOMINAL model, never from the plant
         x0 = model.steady_sliding(u0, scenario.model_params) if scenario.sim.start == "sliding" else np.zeros(model.nx)
         estimator = make_estimator(scenario.estimator, EstimatorContext(
-            model, scenario.model_params, dt, scenario.sensors, x0, f"{scenario.where}: estimator"))
-    controller.reset()
+            model, scenario.model_params, dt, scenario.sensors, x0, f"{scenario.where}: estimator", timeout))
     k_start = int(math.ceil(scenario.control_start / dt - 1e-9))
     every = scenario.control_every
     twist_map = model_twists(model, pm)
@@ -188,6 +248,8 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
     ys: list[dict] = []
     xh: list[np.ndarray] = []
     names: tuple = ()
+    pending: list[tuple[int, int, object]] = []     # (due sample, call number, action) under a latency
+    first_fallback = {"controller": "", "estimator": ""}
 
     y = plant.measure()
     u_prev = u0.copy()
@@ -202,56 +264,90 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
     last = n
     X[0] = plant.x
     TW[0] = plant.x @ twist_map
-    for k in range(n + 1):
-        t = T[k]
-        ys.append(y)
-        u_est = u_prev.copy()
-        for j in measured_inputs:
-            v = y.get(model.inputs[j], np.nan)
-            if np.isfinite(v):
-                u_est[j] = v
-        est = estimator.update(t, y, u_est)
-        names = est.names
-        xh.append(np.asarray(est.x, dtype=float))
-        est_times[k] = est.solve_time
-        u = scenario.programme(t)
-        if k >= k_start:
-            if held is None or (k - k_start) % every == 0:
-                held = controller.step(t, y, est)
-                solve_times.append(held.solve_time)
-                plan_calls.append(held.status is not Status.HOLD)
-            active[k] = True
-            ok[k] = held.success
-            for name, v in held.u.items():
-                u[model.inputs.index(name)] = v
-        CMD[k] = u
-        if k == n:
-            U[k] = U[k - 1] if k > 0 else u
-            break
+    with plugins.watchdog(timeout):       # one periodic alarm for every guarded call of the run
         try:
-            y = plant.step(u)
-            xk = np.asarray(plant.x, dtype=float)
-        except Exception as exc:  # noqa: BLE001 - the plant is the one thing that may end a run
-            status, message, last = Status.FAILED, f"plant step failed at t = {T[k + 1]:.3f} s: " \
-                                                   f"{type(exc).__name__}: {exc}", k
-            U[k] = u
-            break
-        U[k] = plant.u_applied
-        X[k + 1] = xk
-        TW[k + 1] = xk @ twist_map
-        u_prev = u
-        if not np.all(np.isfinite(xk)):
-            status, message, last = Status.DIVERGED, f"diverged at t = {T[k + 1]:.3f} s: non-finite plant state", k + 1
-            break
-        fast = np.abs(xk[speed_idx])
-        if np.any(fast > scenario.max_speed):
-            b = pm.bodies[int(np.argmax(fast))]
-            status, message, last = Status.DIVERGED, (
-                f"diverged at t = {T[k + 1]:.3f} s: |omega_{b}| = {float(np.max(fast)):.3g} rad/s exceeds "
-                f"plant.max_speed = {scenario.max_speed:g} rad/s"), k + 1
-            break
-        if progress is not None and (k + 1) % 100 == 0:
-            progress(k + 1)
+            plugins.call(controller.reset, timeout=timeout, what="reset")
+        except PluginError as exc:
+            status, message, last = Status.FAILED, f"controller failed at t = 0.000 s in reset: {exc}", -1
+        for k in range(n + 1) if last == n else ():
+            t = T[k]
+            ys.append(y)
+            u_est = u_prev.copy()
+            for j in measured_inputs:
+                v = y.get(model.inputs[j], np.nan)
+                if np.isfinite(v):
+                    u_est[j] = v
+            u = scenario.programme(t)
+            try:
+                est = estimator.update(t, y, u_est)
+            except PluginError as exc:
+                status, message, last = Status.FAILED, f"estimator failed at t = {t:.3f} s in update: {exc}", k
+                xh.append(np.full(len(xh[-1]) if xh else 0, np.nan))
+                CMD[k], U[k] = u, (U[k - 1] if k > 0 else u)
+                break
+            if est.status is Status.FALLBACK and not first_fallback["estimator"]:
+                first_fallback["estimator"] = f"t = {t:.3f} s: {est.message}"
+            names = est.names
+            xh.append(np.asarray(est.x, dtype=float))
+            est_times[k] = est.solve_time
+            if k >= k_start:
+                if (k - k_start) % every == 0:
+                    try:
+                        a = plugins.call(controller.step, t, dict(y), est, timeout=timeout, what="step")   # its own copy
+                        if not isinstance(a, Action):
+                            raise PluginError(f"TypeError: step must return an Action, got {type(a).__name__}")
+                    except PluginError as exc:
+                        status, message, last = Status.FAILED, f"controller failed at t = {t:.3f} s in step: {exc}", k
+                        CMD[k], U[k] = u, (U[k - 1] if k > 0 else u)
+                        break
+                    if a.status is Status.FALLBACK and not first_fallback["controller"]:
+                        first_fallback["controller"] = f"t = {t:.3f} s: {a.message}"
+                    solve_times.append(a.solve_time)
+                    plan_calls.append(a.status is not Status.HOLD)
+                    pending.append((k + _latency_samples(latency, a, deadline, dt), len(solve_times), a))
+                due = [p for p in pending if p[0] <= k]
+                if due:
+                    newest = max(due, key=lambda p: p[1])
+                    held = newest[2]
+                    pending = [p for p in pending if p[1] > newest[1]]
+                active[k] = True
+                if held is not None:
+                    ok[k] = held.success
+                    for name, v in held.u.items():
+                        u[model.inputs.index(name)] = v
+            CMD[k] = u
+            if k == n:
+                U[k] = U[k - 1] if k > 0 else u
+                break
+            try:
+                y = plant.step(u)
+                xk = np.asarray(plant.x, dtype=float)
+            except Exception as exc:  # noqa: BLE001 - the plant is the one thing that may end a run
+                status, message, last = Status.FAILED, f"plant step failed at t = {T[k + 1]:.3f} s: " \
+                                                       f"{type(exc).__name__}: {exc}", k
+                U[k] = u
+                break
+            U[k] = plant.u_applied
+            X[k + 1] = xk
+            TW[k + 1] = xk @ twist_map
+            u_prev = u
+            if not np.all(np.isfinite(xk)):
+                status, message, last = Status.DIVERGED, f"diverged at t = {T[k + 1]:.3f} s: non-finite plant state", k + 1
+                break
+            fast = np.abs(xk[speed_idx])
+            if np.any(fast > scenario.max_speed):
+                b = pm.bodies[int(np.argmax(fast))]
+                status, message, last = Status.DIVERGED, (
+                    f"diverged at t = {T[k + 1]:.3f} s: |omega_{b}| = {float(np.max(fast)):.3g} rad/s exceeds "
+                    f"plant.max_speed = {scenario.max_speed:g} rad/s"), k + 1
+                break
+            if progress is not None and (k + 1) % 100 == 0:
+                progress(k + 1)
+    if last < 0:          # reset failed: the first sample only, the programme, no estimate
+        last = 0
+        ys.append(y)
+        xh.append(np.zeros(0))
+        CMD[0] = U[0] = u0
     m = last + 1
     if status is Status.DIVERGED:
         # the diverged sample is kept: what the DAQ read there, the inputs held over the step that led
@@ -262,9 +358,10 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
     keys = list(dict.fromkeys(k for d in ys[:m] for k in d))
     Y = {c: np.array([d.get(c, np.nan) for d in ys[:m]]) for c in keys}
     commands = {name: CMD[:m, j] for j, name in enumerate(model.inputs) if name in model.commands}
-    if status is Status.OK and controller.counts.failures:
-        message = f"ok ({controller.counts.failures} controller failure(s) answered by the fallback)"
-    xhat = np.array(xh[:m]) if xh else np.zeros((0, 0))
+    if status is Status.OK:
+        status, message = _warnings(scenario, controller, estimator, commands, active[:m], first_fallback)
+    width = max((len(r) for r in xh[:m]), default=0)
+    xhat = np.array([r if len(r) == width else np.full(width, np.nan) for r in xh[:m]]) if xh else np.zeros((0, 0))
     return ClosedLoopResult(
         t=T[:m], x=X[:m], twists={nm: TW[:m, j] for j, nm in enumerate(twist_names)}, y=Y, xhat=xhat,
         xhat_names=tuple(names), u=U[:m], commands=commands, controller_active=active[:m], controller_ok=ok[:m],
@@ -274,3 +371,37 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
         model=model.name, objective_body=model.objective_body, states=pm.states, inputs=pm.inputs,
         control_start=float(k_start * dt), observability=getattr(estimator, "observability", None),
         status=status, message=message)
+
+
+def _warnings(scenario, controller, estimator, commands, active, first_fallback) -> tuple[Status, str]:
+    """Status.WARNING with the reasons (fallbacks over the threshold, set-point chatter), or OK."""
+    notes, warn = [], False
+    for who, counts in (("controller", controller.counts), ("estimator", estimator.counts)):
+        calls, fb = counts.steps, counts.fallbacks
+        if not fb:
+            continue
+        misses = getattr(counts, "deadline_misses", 0)
+        detail = f"{fb} {who} fallback(s) in {calls} call(s) ({100 * fb / max(calls, 1):.2g} %" + \
+                 (f", {misses} deadline miss(es)" if misses else "") + f"), the first at {first_fallback[who]}"
+        warn = warn or fb > FALLBACK_WARN_FRACTION * calls
+        notes.append(detail)
+    chatter = []
+    prog = np.array([scenario.programme(t) for t in (scenario.control_start, scenario.duration)])
+    for name, cmd in commands.items():
+        c = np.asarray(cmd)[active]
+        j = scenario.model.inputs.index(name)
+        why = setpoint_chatter(c, max(float(np.max(np.abs(prog[:, j]))), float(np.max(np.abs(c))) if c.size else 0.0))
+        if why:
+            chatter.append(f"set-point chatter on {name}: {why}")
+    if chatter:
+        warn = True
+        try:
+            tv = plugins.call(controller.tuning_values, timeout=getattr(scenario, "control_timeout", None)) \
+                if hasattr(controller, "tuning_values") else {}
+        except PluginError:
+            tv = {}
+        tune = f" (derived tuning: {', '.join(f'{k} = {v:.4g}' for k, v in tv.items())})" if tv else ""
+        notes += [c + tune for c in chatter]
+    if not notes:
+        return Status.OK, "ok"
+    return (Status.WARNING, "; ".join(notes)) if warn else (Status.OK, "ok (" + "; ".join(notes) + ")")

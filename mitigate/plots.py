@@ -68,7 +68,8 @@ def plot_comparison(sc, results: Mapping[str, object], title: str, path: str | o
         ax.grid(True, alpha=0.3)
         for s in starts:
             ax.axvline(s, color="k", ls=":", lw=1.0)
-    axes[0].legend(loc="upper right", fontsize=8, ncol=min(4, len(results)))
+    if results:                  # (every run may have failed before its first sample)
+        axes[0].legend(loc="upper right", fontsize=8, ncol=min(4, len(results)))
     axes[0].set_title("true plant states; dotted line: control switched on")
     axes[-1].set_xlabel("time [s]")
     return finish_figure(fig, path, title, dpi=dpi)

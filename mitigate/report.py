@@ -114,17 +114,20 @@ def render_report(sc, result, files, slug_names) -> str:
           "stick; `stuck_fraction_measured` from the quantised measured speed with a half-tick threshold), the "
           "RMS error of its speed against the programme, the friction work at the servo pins (`pin_work`) and "
           "the drive's electrical energy. Solve times are wall times of the controller calls.", ""]
-    hdr = ["controller", "kind"] + [f"{k} [{METRIC_UNITS[k]}]" for k in _TABLE]
+    hdr = ["controller", "kind", "status"] + [f"{k} [{METRIC_UNITS[k]}]" for k in _TABLE]
     L.append("| " + " | ".join(hdr) + " |")
     L.append("|" + "---|" * len(hdr))
     for r in runs:
-        L.append("| " + " | ".join([r.name, r.kind] + [_fmt(r.metrics[k]) for k in _TABLE]) + " |")
+        L.append("| " + " | ".join([r.name, r.kind, r.status.value] + [_fmt(r.metrics[k]) for k in _TABLE]) + " |")
     L += ["", f"Raw numbers: [metrics.csv]({rel['metrics_csv']}), [metrics.json]({rel['metrics_json']}).", "",
           "## Plots", "",
           f"![controllers compared]({rel['comparison_png']})", "",
           f"![phase portraits]({rel['phase_png']})", "",
           f"![metrics]({rel['metrics_png']})", ""]
     for s, r in zip(slug_names, runs):
+        if r.result is None:       # failed before its first sample: nothing to plot or log
+            L.append(f"- {r.name}: **{r.status.value}**: {r.message}")
+            continue
         L.append(f"- {r.name}: [time histories]({rel['timeseries_' + s]}), [CSV log]({rel['log_' + s]}) "
                  f"({r.status.value}{': ' + r.message if r.message != 'ok' else ''})")
     L.append("")

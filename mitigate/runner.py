@@ -8,15 +8,27 @@ From Python::
     result = run(scenario, out="out/")                         # also writes the report
 
 :func:`run` validates the scenario completely (every controller's options, the estimator) and,
-when ``out`` is given, checks that no output file exists (unless ``force``) BEFORE any
-simulation starts.  Each controller runs in its own worker process
-(``concurrent.futures.ProcessPoolExecutor``, spawn context; the scenario is pickled, the
-CasADi Functions are rebuilt in the worker).  Files written to ``out`` (atomically):
+when ``out`` is given, checks the output folder (a usable folder, not in use by another command,
+no output file existing unless ``force``) BEFORE any simulation starts.  Each controller runs in
+its own worker process (:class:`mitigate.workers.WorkerPool`, spawn context; the scenario is
+pickled, the CasADi Functions are rebuilt in the worker).
+
+Failures are failures: a controller or estimator that raises (in its constructor, ``reset``,
+``step`` or ``update``; also ``SystemExit``), returns NaN or the wrong type, or hangs past
+``[control] timeout`` makes ITS run ``Status.FAILED`` with the reason (the exception's type and
+first line) in the table, the JSON and the report; the other controllers' runs complete, and the
+result's status is FAILED (the CLI exits 1).  A bad option is a ConfigError before anything runs
+(exit 2).  Fallbacks on more than 1 % of a run's calls, or set-point chatter, make that run a
+WARNING (``mitigate.closedloop``).
+
+Files written to ``out`` as one set (:func:`models.files.output_set`: staged, then moved into
+place; a killed run leaves ``out`` as it was):
 
 - ``metrics.csv``, ``metrics.json``: :func:`mitigate.metrics.closed_loop_metrics` per controller;
 - ``log_<controller>.csv``: the run as a log (measured channels, commands, true twists and speeds);
 - ``timeseries_<controller>.png``, ``comparison.png``, ``phase.png``, ``metrics.png``;
 - ``report.md`` linking them.
+(A run that failed before its first sample has no log and no time series.)
 """
 
 from __future__ import annotations
@@ -24,16 +36,13 @@ from __future__ import annotations
 import csv
 import io
 import json
-import multiprocessing as mp
 import re
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from queue import Empty
 
-from models.errors import ConfigError
-from models.files import atomic_write_text, refuse_overwrite
+from models.errors import ConfigError, PluginError
+from models.files import check_output_dir, output_set
 from models.status import Status
 from mitigate.metrics import METRIC_UNITS, closed_loop_metrics
 from mitigate.scenario import Scenario, load_scenario
@@ -52,8 +61,8 @@ TABLE_COLUMNS = (
 
 @dataclass(frozen=True)
 class ControllerRun:
-    """One controller's run: its closed-loop result (:class:`mitigate.closedloop.ClosedLoopResult`)
-    and metrics."""
+    """One controller's run: its closed-loop result (:class:`mitigate.closedloop.ClosedLoopResult`;
+    None when the run failed before its first sample) and metrics (NaN where there is nothing to measure)."""
 
     name: str
     kind: str
@@ -121,19 +130,34 @@ def slugs(names) -> list[str]:
 
 def validate_scenario(scenario) -> Scenario:
     """The scenario (loaded if a path), with every controller and the estimator built once
-    (raises ConfigError naming the field of the first problem)."""
+    (raises ConfigError naming the field of the first problem; a plug-in whose constructor
+    fails otherwise is not a ConfigError: :func:`run` reports its run as FAILED)."""
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    _build_all(sc)
+    return sc
+
+
+def _build_all(sc: Scenario) -> dict[int, str]:
+    """Build the estimator and every controller once: ConfigError for bad input; ``{index: why}``
+    for the controllers whose run cannot start (a broken plug-in: PluginError)."""
     from estimators.base import EstimatorContext
     from estimators.online.factory import make_estimator
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
 
-    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     if not sc.controllers:
         raise ConfigError(f"{sc.where}: controllers: missing; list at least one [[controllers]] table")
-    make_estimator(sc.estimator, EstimatorContext(sc.model, sc.model_params, sc.dt, sc.sensors, None,
-                                                  f"{sc.where}: estimator"))
+    broken: dict[int, str] = {}
+    try:
+        make_estimator(sc.estimator, EstimatorContext(sc.model, sc.model_params, sc.dt, sc.sensors, None,
+                                                      f"{sc.where}: estimator", sc.control_timeout))
+    except PluginError as exc:
+        broken = {i: f"estimator failed to build: {exc}" for i in range(len(sc.controllers))}
     for i, spec in enumerate(sc.controllers):
-        make_controller(spec, sc, i)
-    return sc
+        try:
+            make_controller(spec, context_for(sc, i))
+        except PluginError as exc:
+            broken.setdefault(i, f"controller failed to build: {exc}")
+    return broken
 
 
 def output_paths(scenario: Scenario, out) -> dict[str, Path]:
@@ -148,60 +172,64 @@ def output_paths(scenario: Scenario, out) -> dict[str, Path]:
     return files
 
 
-def run_one(scenario: Scenario, index: int, queue=None) -> ControllerRun:
-    """Run controller ``index`` of ``scenario`` in closed loop (a worker's job)."""
+def run_one(scenario: Scenario, index: int) -> ControllerRun:
+    """Run controller ``index`` of ``scenario`` in closed loop (a worker's job): never raises for a
+    failing controller or estimator -- the run is FAILED with the reason."""
     from mitigate.closedloop import run_closed_loop
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
+    from mitigate.workers import report
 
     t0 = time.perf_counter()
     spec = scenario.controllers[index]
-    ctrl = make_controller(spec, scenario, index)
-    cb = (lambda k: queue.put((index, k))) if queue is not None else None
-    res = run_closed_loop(scenario, ctrl, progress=cb)
+    try:
+        ctrl = make_controller(spec, context_for(scenario, index))
+        res = run_closed_loop(scenario, ctrl, progress=report)
+    except PluginError as exc:
+        return failed_run(spec, f"{exc}", time.perf_counter() - t0)
+    if len(res.t) < 2:                 # failed at its first sample (in reset): nothing to measure or log
+        return failed_run(spec, res.message, time.perf_counter() - t0)
     met = closed_loop_metrics(res, scenario)
+    if res.status is Status.FAILED:    # what it did until it failed is no result: only the counts stay
+        met = {k: (v if k.startswith(COUNT_PREFIXES) else float("nan")) for k, v in met.items()}
     return ControllerRun(spec.name, spec.kind, res, met, time.perf_counter() - t0, res.status, res.message)
 
 
-def _init_worker():
-    import os
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
+#: a worker that reports nothing for this long [s] (it reports every 100 samples; a controller stuck in C
+#: code that the per-call timeout cannot interrupt) is killed and its run FAILED (mitigate.workers)
+STALL_TIMEOUT = 600.0
+
+#: metrics that stay in a FAILED run's row (counts of what happened); the others are NaN there
+COUNT_PREFIXES = ("controller_", "estimator_", "plan_calls")
 
 
-def _execute(sc: Scenario, jobs: int, progress: bool) -> list[ControllerRun]:
+def failed_run(spec, why: str, elapsed: float = 0.0) -> ControllerRun:
+    """The FAILED run of a controller that could not run at all (no result; NaN metrics)."""
+    return ControllerRun(spec.name, spec.kind, None, {k: float("nan") for k in METRIC_UNITS}, elapsed,
+                         Status.FAILED, why)
+
+
+def _execute(sc: Scenario, jobs: int, progress: bool, broken: dict[int, str] | None = None) -> list[ControllerRun]:
     from tqdm import tqdm
 
-    n_ctrl = len(sc.controllers)
-    bar = tqdm(total=n_ctrl * sc.samples, desc=f"run {sc.name}", unit="step", disable=None if progress else True,
-               leave=False)
-    done, last = {}, {}
+    from mitigate.workers import WorkerPool
 
-    def tick(i, k):
-        bar.update(k - last.get(i, 0))
-        last[i] = k
+    broken = broken or {}
+    n_ctrl = len(sc.controllers)
+    todo = [i for i in range(n_ctrl) if i not in broken]
+    done = {i: failed_run(sc.controllers[i], why) for i, why in broken.items()}
+    bar = tqdm(total=len(todo) * sc.samples, desc=f"run {sc.name}", unit="step", disable=None if progress else True,
+               leave=False)
+    last: dict[int, int] = {}
+
+    def tick(j, k):
+        bar.update(k - last.get(j, 0))
+        last[j] = k
 
     try:
-        if jobs <= 1 or n_ctrl == 1:
-            class _Q:
-                def put(self, item):
-                    tick(*item)
-            for i in range(n_ctrl):
-                done[i] = run_one(sc, i, _Q())
-        else:
-            ctx = mp.get_context("spawn")
-            with ctx.Manager() as mgr, ProcessPoolExecutor(max_workers=min(jobs, n_ctrl), mp_context=ctx,
-                                                            initializer=_init_worker) as ex:
-                q = mgr.Queue()
-                futs = {ex.submit(run_one, sc, i, q): i for i in range(n_ctrl)}
-                while True:
-                    try:
-                        tick(*q.get(timeout=0.2))
-                    except Empty:
-                        pass
-                    if all(f.done() for f in futs):
-                        break
-                for f, i in futs.items():
-                    done[i] = f.result()   # a worker exception (a bug) propagates
+        with WorkerPool(min(jobs, max(len(todo), 1)), stall_timeout=STALL_TIMEOUT) as pool:
+            for out in pool.map(run_one, [(sc, i) for i in todo], on_progress=tick):
+                i = todo[out.index]
+                done[i] = out.value if out.ok else failed_run(sc.controllers[i], out.error)
     finally:
         bar.close()
     return [done[i] for i in range(n_ctrl)]
@@ -218,33 +246,46 @@ def _metrics_csv(runs) -> str:
 
 
 def write_outputs(result: RunResult, out, *, force: bool = False) -> dict[str, Path]:
-    """Write the logs, plots, metrics and report of a run to ``out`` (see module docstring)."""
+    """Write the logs, plots, metrics and report of a run to ``out`` as one set (module docstring)."""
+    sc = result.scenario
+    files = output_paths(sc, out)
+    with output_set(out, [p.name for p in files.values()], force=force) as w:
+        _write_set(result, w)
+    return _existing(files)
+
+
+def _existing(files: dict[str, Path]) -> dict[str, Path]:
+    return {k: p for k, p in files.items() if p.exists()}
+
+
+def _write_set(result: RunResult, w) -> None:
+    """Every file of a run into the output set ``w`` (:class:`models.files.OutputSet`)."""
     from mitigate.plots import plot_comparison, plot_metric_bars, plot_phase_portraits
     from mitigate.report import write_report
     from mitigate.timeplots import plot_run
 
     sc = result.scenario
-    files = output_paths(sc, out)
-    for p in files.values():
-        refuse_overwrite(p, force, "force")
-    Path(out).mkdir(parents=True, exist_ok=True)
+    files = output_paths(sc, w.root)
+    staged = {k: w.path(p.name) for k, p in files.items()}
     names = slugs([r.name for r in result.runs])
     for s, r in zip(names, result.runs):
-        r.result.to_log().write_csv(files[f"log_{s}"], overwrite=True)
+        if r.result is None:      # failed before it ran: nothing to log or plot
+            continue
+        r.result.to_log().write_csv(staged[f"log_{s}"], overwrite=True)
         plot_run(sc, r.result, f"{sc.name}: {r.name} (true speeds and twists, applied inputs)",
-                 files[f"timeseries_{s}"])
-    results = {r.name: r.result for r in result.runs}
-    plot_comparison(sc, results, f"{sc.name}: controllers compared", files["comparison_png"])
-    plot_phase_portraits(sc, results, f"{sc.name}: phase portraits (true states)", files["phase_png"])
+                 staged[f"timeseries_{s}"])
+    results = {r.name: r.result for r in result.runs if r.result is not None}
+    plot_comparison(sc, results, f"{sc.name}: controllers compared", staged["comparison_png"])
+    plot_phase_portraits(sc, results, f"{sc.name}: phase portraits (true states)", staged["phase_png"])
     plot_metric_bars({r.name: r.metrics for r in result.runs}, f"{sc.name}: metrics after control start",
-                     files["metrics_png"])
-    atomic_write_text(files["metrics_csv"], _metrics_csv(result.runs), overwrite=True)
+                     staged["metrics_png"])
+    w.write_text("metrics.csv", _metrics_csv(result.runs))
     payload = result.as_dict()
-    payload["files"] = {k: str(v) for k, v in files.items()}
+    payload["files"] = {k: str(v) for k, v in files.items()
+                        if not (k.startswith(("log_", "timeseries_")) and not staged[k].exists())}
     payload["metric_units"] = METRIC_UNITS
-    atomic_write_text(files["metrics_json"], json.dumps(payload, indent=2) + "\n", overwrite=True)
-    write_report(sc, result, files, names, files["report"])
-    return files
+    w.write_text("metrics.json", json.dumps(payload, indent=2) + "\n")
+    write_report(sc, result, files, names, staged["report"])
 
 
 def run(scenario, *, out=None, force: bool = False, jobs: int = 2, progress: bool = False) -> RunResult:
@@ -261,29 +302,39 @@ def run(scenario, *, out=None, force: bool = False, jobs: int = 2, progress: boo
     Returns
     -------
     RunResult : ``runs`` (one :class:`ControllerRun` each: ``result``, ``metrics``, ``status``),
-    ``files`` written, ``status`` (Status.OK, or Status.FAILED when a run diverged or failed).
+    ``files`` written, ``status`` (Status.OK; Status.WARNING when a run has warnings; Status.FAILED
+    when a run failed or diverged, ``message`` naming each with its reason).
 
     Raises
     ------
-    ConfigError : a bad scenario, a bad ``jobs``, or an existing output without ``force``
-        (nothing has been run or written then).
+    ConfigError : a bad scenario, a bad ``jobs``, an output folder that cannot be used (a file, not
+        writable, in use by another command) or an existing output without ``force`` (nothing has
+        been run or written then).
     """
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
     t0 = time.perf_counter()
-    sc = validate_scenario(scenario)
     if out is not None:
-        for p in output_paths(sc, out).values():
-            refuse_overwrite(p, force, "force")
-    runs = _execute(sc, jobs, progress)
+        check_output_dir(out)
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    broken = _build_all(sc)
+    if out is None:
+        return _summarise(sc, _execute(sc, jobs, progress, broken), {}, t0)
+    files = output_paths(sc, out)
+    with output_set(out, [p.name for p in files.values()], force=force) as w:
+        result = _summarise(sc, _execute(sc, jobs, progress, broken), {}, t0)
+        _write_set(result, w)
+    return _summarise(sc, list(result.runs), _existing(files), t0, notes=w.notes)
+
+
+def _summarise(sc, runs, files, t0, notes=()) -> RunResult:
     bad = [r for r in runs if not r.success]
-    status = Status.OK if not bad else Status.FAILED
-    message = "ok" if not bad else "; ".join(f"{r.name}: {r.message}" for r in bad)
-    result = RunResult(sc, tuple(runs), {}, time.perf_counter() - t0, status, message)
-    if out is not None:
-        files = write_outputs(result, out, force=True)
-        result = RunResult(sc, tuple(runs), files, time.perf_counter() - t0, status, message)
-    return result
+    warn = [r for r in runs if r.status is Status.WARNING]
+    status = Status.FAILED if bad else (Status.WARNING if warn else Status.OK)
+    message = "; ".join(f"{r.name}: {r.message}" for r in bad + warn) or "ok"
+    if notes:
+        message = f"{message} ({'; '.join(notes)})"
+    return RunResult(sc, tuple(runs), files, time.perf_counter() - t0, status, message)
 
 
 def run_scenario(path, out, *, force: bool = False, jobs: int = 2, progress: bool = True) -> RunResult:

@@ -40,8 +40,12 @@ same fields as keyword arguments.  Schema (only ``[scenario]`` and ``[inputs]`` 
     n1 = { kind = "steps", times = [0, 20, 40], values = [15, 25, 20] }
 
     [control]
-    start = 20.0                     # [s] controllers act from here; before, the programme alone
+    start = 20.0                     # [s] controllers act from here (< duration); before, the programme alone
     every = 1                        # a controller runs every k DAQ samples
+    deadline = "5 ms"                # optional ("period": one control period; default off): a later answer
+                                     # is a counted deadline miss and the fallback acts (on in the benchmark)
+    timeout = "2 s"                  # a call not returned by then fails its run (default max(2 s, 100 periods))
+    latency = "measured"             # optional: each answer applied after its measured time, or "3 ms" (fixed)
 
     [estimator]
     kind = "ekf"                     # ekf | mhe | fd, and their options
@@ -66,7 +70,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from models.checks import finite_number as _num, read_toml
-from models.errors import ConfigError
+from models.errors import ConfigError, quote
 from models.params import ParameterSet
 from models.rig import load_params
 from models.plant import SimOptions, plant_integration
@@ -85,6 +89,12 @@ __all__ = ["Scenario", "ControllerSpec", "load_scenario", "parse_scenario", "mak
 # for the logs and plots.  Both limits are checked before anything is allocated or run.
 MAX_SAMPLES = 10_000_000
 BYTES_PER_SAMPLE = 2048     # per sample and controller run, with room for the logs and plots
+#: default per-call timeout of controllers and estimators [s]: at least this, and at least
+#: TIMEOUT_PERIODS control periods (``[control] timeout``)
+DEFAULT_TIMEOUT = 2.0
+TIMEOUT_PERIODS = 100
+#: the longest deadline, timeout or latency a scenario may give [s] (a day; longer is "off")
+MAX_CALL_TIME = 86400.0
 
 _SECTIONS = {"scenario", "plant", "mismatch", "structure", "sensors", "actuators", "inputs", "control", "estimator",
              "controllers", "sweep"}
@@ -112,6 +122,8 @@ class Scenario:
     sim, sensors : plant simulator and sensor settings
     drift : ``{parameter: relative rate [1/s]}`` of the plant (wear)
     messages : notes made while building it (e.g. substeps raised for a stiff plant)
+    control_deadline, control_timeout : [s] or None (``[control] deadline`` / ``timeout``)
+    control_latency : [s] applied to each controller answer, or "measured" (its own wall time)
     """
 
     name: str
@@ -128,6 +140,9 @@ class Scenario:
     description: str = ""
     control_start: float = 0.0
     control_every: int = 1
+    control_deadline: float | None = None
+    control_timeout: float | None = None
+    control_latency: float | str = 0.0
     estimator: Mapping[str, Any] = field(default_factory=lambda: {"kind": "ekf"})
     controllers: tuple[ControllerSpec, ...] = ()
     mismatch: Mapping[str, float] = field(default_factory=dict)
@@ -174,7 +189,7 @@ def _check_keys(tab: Mapping, allowed, where: str):
             raise ConfigError(f"{where}.{k}: unknown key; expected one of {', '.join(sorted(allowed))}")
 
 
-def _memory_bytes() -> int | None:
+def memory_bytes() -> int | None:
     """This machine's physical memory, or its cgroup's limit if lower (None: unknown)."""
     total = None
     try:
@@ -198,7 +213,7 @@ def _check_size(duration: float, dt: float, runs: int, where: str) -> None:
     head = f"{where}: scenario.duration / scenario.dt = {duration:g} s / {dt:g} s = {shown} samples"
     if samples > MAX_SAMPLES:
         raise ConfigError(f"{head}; the limit is {MAX_SAMPLES:,} samples (shorten the duration or raise dt)")
-    need, have = samples * runs * BYTES_PER_SAMPLE, _memory_bytes()
+    need, have = samples * runs * BYTES_PER_SAMPLE, memory_bytes()
     if have is not None and need > have:
         fit = int(have // (runs * BYTES_PER_SAMPLE))
         raise ConfigError(f"{head}; the limit is {fit:,} samples here: {runs} controller run(s) need about "
@@ -214,6 +229,42 @@ def _si(v: Any, kind: str, where: str) -> float:
             raise ConfigError(f"{where} must be a number or a quantity such as \"1.5 N m\", got {v!r}")
         return q[0] * unit_factor(q[1] or "-", kind, where)
     return _num(v, where)
+
+
+def _time(v: Any, where: str) -> float:
+    """A positive time [s] of at most a day: a number or a quantity such as ``"5 ms"``."""
+    t = _si(v, "time", where)
+    if not 0 < t <= MAX_CALL_TIME:
+        raise ConfigError(f"{where} must be > 0 s and at most {MAX_CALL_TIME:g} s (or \"off\"), got {quote(v)}")
+    return t
+
+
+def _control_timing(ctl: Mapping, period: float, where: str) -> tuple[float | None, float | None, float | str]:
+    """``(deadline, timeout, latency)`` of the ``[control]`` table (module docstring): deadline None
+    unless given; timeout default ``max(DEFAULT_TIMEOUT, TIMEOUT_PERIODS x period)``, "off" for none;
+    latency 0, a fixed time [s], or "measured"."""
+    d = ctl.get("deadline", "off")
+    deadline = None if d == "off" else period if d == "period" else _time(d, f"{where}.deadline")
+    tv = ctl.get("timeout")
+    if tv == "off":
+        timeout = None
+    elif tv is None:
+        timeout = max(DEFAULT_TIMEOUT, TIMEOUT_PERIODS * period)
+    else:
+        timeout = _time(tv, f"{where}.timeout")
+    if deadline is not None and timeout is not None and timeout < deadline:
+        raise ConfigError(f"{where}.timeout must be >= control.deadline = {deadline:g} s, got {timeout:g} s")
+    lv = ctl.get("latency", 0.0)
+    if lv == "measured":
+        return deadline, timeout, "measured"
+    bad = f"{where}.latency must be \"measured\" or a time >= 0 such as \"3 ms\", got {quote(lv)}"
+    try:
+        latency = _si(lv, "time", f"{where}.latency")
+    except ConfigError:
+        raise ConfigError(bad) from None
+    if not 0 <= latency <= MAX_CALL_TIME:
+        raise ConfigError(bad)
+    return deadline, timeout, latency
 
 
 def _resolve_model(name: Any, path: str, where: str) -> RigModel:
@@ -403,11 +454,15 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
                                   nonnegative=(kind == "force"), base=base)
 
     ctl = _table(data, "control", where)
-    _check_keys(ctl, {"start", "every"}, f"{where}: control")
+    _check_keys(ctl, {"start", "every", "deadline", "timeout", "latency"}, f"{where}: control")
     cstart = _num(ctl.get("start", 0.0), f"{where}: control.start", nonneg=True, unit="s")
+    if cstart >= duration:
+        raise ConfigError(f"{where}: control.start must be < scenario.duration = {duration:g} s (the controllers "
+                          f"would never act), got {cstart:g} s")
     every = ctl.get("every", 1)
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-        raise ConfigError(f"{where}: control.every must be an integer >= 1, got {every!r}")
+        raise ConfigError(f"{where}: control.every must be an integer >= 1, got {quote(every)}")
+    deadline, timeout, latency = _control_timing(ctl, dt * every, f"{where}: control")
 
     est = dict(_table(data, "estimator", where)) or {"kind": "ekf"}
     if not isinstance(est.get("kind", "ekf"), str):
@@ -440,7 +495,8 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
     return Scenario(name=name.strip(), model=model, model_params=nominal, plant_model=plant_model,
                     plant_params=plant_params, duration=duration, dt=dt, seed=seed, inputs=inputs, sim=sim,
                     sensors=sensors, description=str(sc.get("description", "")), control_start=cstart,
-                    control_every=every, estimator=est, controllers=tuple(ctrls), mismatch=factors,
+                    control_every=every, control_deadline=deadline, control_timeout=timeout,
+                    control_latency=latency, estimator=est, controllers=tuple(ctrls), mismatch=factors,
                     structure=structure, drift=drift, max_speed=max_speed, sweep=sweep, path=str(path or ""),
                     messages=tuple(notes))
 

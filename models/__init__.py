@@ -9,7 +9,7 @@ The Python API::
     modes("rig3", p, "clamped").freq_hz
 """
 
-from models.errors import ConfigError, DataError, SolverFailure
+from models.errors import ConfigError, DataError, PluginError, SolverFailure
 from models.friction import FrictionLaw, LAWS, Param, get_law, register
 from models.logs import Log, read_csv
 from models.modal import LinearModel, ModalResult, linearise, modes, sliding_stability, stability_map
@@ -20,7 +20,7 @@ from models.sensors import SensorOptions
 from models.status import Status
 
 __all__ = [
-    "ConfigError", "DataError", "SolverFailure", "Status",
+    "ConfigError", "DataError", "PluginError", "SolverFailure", "Status",
     "RigModel", "get_model", "load_rig", "shipped_rigs",
     "ParameterSet", "load_params", "published",
     "FrictionLaw", "LAWS", "Param", "get_law", "register",

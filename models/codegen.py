@@ -8,14 +8,24 @@ version and the optimisation flag).  The cache folder is ``$STICKSLIP_CACHE``, e
 ``$XDG_CACHE_HOME/stickslip``, else ``~/.cache/stickslip``.  Libraries are written via a
 temporary file and renamed, so parallel processes never load a half-written library.
 Nothing is written into the working directory.
+
+Loading a shared library runs its code, so the cache is trusted only as far as it is yours
+(:func:`trusted_cache_dir`): the folder is created ``0700``; a folder owned by another user, or
+writable by the group or the world, is refused (a RuntimeError naming it: set
+``$STICKSLIP_CACHE`` to a folder of your own; callers then keep the uncompiled CasADi call where
+they can).  Each library is written with a sidecar ``<library>.sha256`` (the SHA-256 of the
+library's bytes) and checked against it before every load; a library that is not yours, is
+writable by others, has no sidecar or does not match it is rebuilt, never loaded.
 """
 
 from __future__ import annotations
 
 import ctypes
 import hashlib
+import hmac
 import os
 import shutil
+import stat
 import subprocess
 import tempfile
 from pathlib import Path
@@ -24,8 +34,8 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
-__all__ = ["cache_dir", "compiler", "compile_cached", "load_compiled", "compiled_or_none", "CtypesFunction",
-           "FastFunction"]
+__all__ = ["cache_dir", "trusted_cache_dir", "compiler", "compile_cached", "load_compiled", "compiled_or_none",
+           "verify_library", "CtypesFunction", "FastFunction"]
 
 
 def cache_dir() -> Path:
@@ -35,6 +45,49 @@ def cache_dir() -> Path:
         return Path(env)
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "stickslip"
+
+
+def trusted_cache_dir() -> Path:
+    """:func:`cache_dir`, created ``0700`` if missing; a RuntimeError if it is not a folder of this
+    user's that only this user can write (module docstring)."""
+    d = cache_dir()
+    try:
+        d.mkdir(mode=0o700, parents=True, exist_ok=True)
+        st = d.stat()
+    except OSError as exc:
+        raise RuntimeError(f"compiled-code cache {d}: cannot create it ({exc.strerror or exc})") from None
+    if not stat.S_ISDIR(st.st_mode):
+        raise RuntimeError(f"compiled-code cache {d} is not a folder")
+    if hasattr(os, "getuid") and st.st_uid != os.getuid():
+        raise RuntimeError(f"compiled-code cache {d} belongs to user id {st.st_uid}, not to you ({os.getuid()}); "
+                           f"refusing to load code from it (set STICKSLIP_CACHE to a folder of your own)")
+    if st.st_mode & 0o022:
+        raise RuntimeError(f"compiled-code cache {d} is writable by {'others' if st.st_mode & 0o002 else 'its group'} "
+                           f"(mode {stat.S_IMODE(st.st_mode):o}); refusing to load code from it (chmod 700 it, or set "
+                           f"STICKSLIP_CACHE to a folder of your own)")
+    return d
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def verify_library(so: Path) -> bool:
+    """Whether the cached library ``so`` may be loaded: a regular file of this user's, not writable
+    by others, whose bytes match its sidecar ``<so>.sha256`` written when it was built."""
+    try:
+        st = so.lstat()
+        sidecar = so.with_name(so.name + ".sha256").read_text().strip()
+    except OSError:
+        return False
+    if not stat.S_ISREG(st.st_mode) or st.st_mode & 0o022:
+        return False
+    if hasattr(os, "getuid") and st.st_uid != os.getuid():
+        return False
+    try:
+        return hmac.compare_digest(sidecar, _digest(so))
+    except OSError:
+        return False
 
 
 def compiler() -> str | None:
@@ -65,22 +118,28 @@ def compile_cached(functions: ca.Function | Sequence[ca.Function], opt: str = "-
         cg.add(fn)
     src = cg.dump()
     key = hashlib.sha256((ca.__version__ + opt + src).encode()).hexdigest()[:16]
-    d = cache_dir()
-    d.mkdir(parents=True, exist_ok=True)
+    d = trusted_cache_dir()
     so = d / f"{tag}_{key}.so"
-    if so.exists():
+    if verify_library(so):
         return so
     with tempfile.TemporaryDirectory(prefix="stickslip_cg_") as tmp:
         c = Path(tmp) / f"{tag}.c"
         c.write_text(src)
         part = d / f".{so.name}.{os.getpid()}.tmp"
-        res = subprocess.run([cc, opt, "-fPIC", "-shared", str(c), "-o", str(part), "-lm"],
-                             capture_output=True, text=True)
+        # a relative source name: the same bytes from every build (parallel builders agree on the hash)
+        res = subprocess.run([cc, opt, "-fPIC", "-shared", c.name, "-o", str(part.absolute()), "-lm"],
+                             capture_output=True, text=True, cwd=tmp)
         if res.returncode != 0:
             if part.exists():
                 part.unlink()
             raise RuntimeError(f"{cc} failed building {tag}: {res.stderr.strip()[:300]}")
+        os.chmod(part, 0o700)
+        side = d / f".{so.name}.sha256.{os.getpid()}.tmp"
+        side.write_text(_digest(part) + "\n")
+        os.replace(side, so.with_name(so.name + ".sha256"))     # the sidecar first: a library never lacks it
         os.replace(part, so)
+    if not verify_library(so):     # another process replaced it meanwhile: theirs must verify too
+        raise RuntimeError(f"compiled library {so} does not match its sidecar hash after building; refusing to load it")
     return so
 
 

@@ -93,13 +93,25 @@ def convert_unit(name: str, unit: str, where: str) -> tuple[str, float]:
     return _unit_of(name, unit, where)
 
 
+_SHOWABLE = re.compile(r"^[\w .()\[\]/^*+-]{0,40}$")
+
+
+def _shown(cell: str) -> str:
+    """A cell of a file for an error message: quoted if it is short and looks like a log's header or
+    number, else only described -- an error never echoes the content of a file that is not a log
+    (``file = "/etc/passwd"`` in a scenario)."""
+    if _SHOWABLE.match(cell):
+        return repr(cell)
+    return f"a {len(cell)}-character text (not shown: is this a CSV log of the workbench?)"
+
+
 def parse_header(cells: list[str], source: str) -> list[tuple[str, str, float]]:
     """Header cells -> [(name, SI unit, factor to SI)]; raises DataError on bad names/units."""
     out, seen = [], set()
     for j, cell in enumerate(cells, start=1):
         m = _HEADER.match(cell)
         if not m:
-            raise DataError(f"{source}: header column {j} must look like 'name [unit]', got {cell!r}")
+            raise DataError(f"{source}: header column {j} must look like 'name [unit]', got {_shown(cell)}")
         name, unit = m.group(1), m.group(2)
         if name in seen:
             raise DataError(f"{source}: header column {j}: channel {name!r} appears twice")
@@ -269,7 +281,7 @@ def read_csv(path: str | os.PathLike, required: Iterable[str] = ()) -> Log:
                 data[i - 1, j] = float(cell)
             except ValueError:
                 raise DataError(f"{src}: column {header[j][0]!r} row {i} (line {i + 1}): "
-                                f"expected a number, got {cell!r}") from None
+                                f"expected a number, got {_shown(cell)}") from None
     cols = {name: data[:, j] * f for j, (name, _u, f) in enumerate(header)}
     units = {name: u for name, u, _f in header}
     t = cols.pop("t")

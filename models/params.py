@@ -64,7 +64,8 @@ class ParameterSet:
     Raises
     ------
     ConfigError : a value that is not a finite number within its physical bounds
-        (``"params.rig3.k1 must be in [0, 1000] N m/rad, got -1"``).
+        (``"params.k1 must be in [0, 1000] N m/rad, got -1"``; the rig is not in the field name, which
+        stays readable when the rig is a file path).
     """
 
     __slots__ = ("model", "_specs", "_values", "fit_bounds", "stderr")
@@ -93,7 +94,7 @@ class ParameterSet:
         object.__setattr__(self, "stderr", tuple((str(n), float(s)) for n, s in stderr))
 
     def _check(self, name: str, spec: Spec, value: Any) -> float:
-        where = f"params.{self.model}.{name}"
+        where = f"params.{name}"
         if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
             raise ConfigError(f"{where} must be a number [{spec.unit}], got {value!r} ({type(value).__name__})")
         value = float(value)

@@ -105,7 +105,7 @@ def test_ranking_is_by_severity_and_not_applicable_is_not_a_failure(result):
     for n in ("PI only", "brake", "SoftSpeed", "D-OSKIL"):
         v = cells[("runaway", n)]
         assert v["failed"] == 1 and v["status"] == Status.DIVERGED.value and "plant.max_speed" in v["message"]
-    assert result.status is Status.WARNING and result.message == "4 run(s) failed or diverged"
+    assert result.status is Status.FAILED and result.message == "4 run(s) failed or diverged"
 
 
 def test_the_table(result):

@@ -14,6 +14,7 @@ from mitigate.metrics import closed_loop_metrics
 from mitigate.scenario import make_scenario
 from models.plant import Plant, simulate
 from models.sensors import encoder_step
+from models.errors import PluginError, SolverFailure
 from models.status import Status
 
 
@@ -52,7 +53,7 @@ def _spy(sc):
 def test_pi_equals_the_open_loop_simulation_with_the_same_seed():
     """'PI only' sets nothing: the loop is the open-loop plant, sample for sample, noise included."""
     sc = _scenario()
-    r = run_closed_loop(sc, make_controller(sc.controllers[0], sc, 0))
+    r = run_closed_loop(sc, make_controller(sc.controllers[0], context_for(sc, 0)))
     ref = simulate(sc.plant_model, sc.plant_params, sc.programme, sc.duration, sc.sim, sensors=sc.sensors)
     n = 300
     assert r.status is Status.OK and r.success and r.message == "ok"
@@ -131,20 +132,41 @@ def test_multirate_holds_the_action_between_calls():
     assert len(np.unique(r.commands["omega_ref"][on])) == 31
 
 
-def test_a_raising_controller_is_counted_and_the_programme_runs_on():
+class Transient(Controller):
+    """Its solver fails (SolverFailure, the one transient failure) at every call."""
+
+    kind = "transient"
+
+    def _step_impl(self, t, measurement, estimate):
+        raise SolverFailure("solver exploded")
+
+
+def test_a_transient_solver_failure_is_answered_by_the_fallback_counted_and_a_warning():
     sc = _scenario(duration=2.0, start=1.0)
-    a = Raiser(None, context_for(sc)).step(0.0, {}, None)
+    a = Transient(None, context_for(sc)).step(0.0, {}, None)
     assert a.status is Status.FALLBACK and not a.success and a.u == {} and "solver exploded" in a.message
-    r = run_closed_loop(sc, Raiser(None, context_for(sc)))
-    assert r.success and r.t[-1] == pytest.approx(2.0)
+    r = run_closed_loop(sc, Transient(None, context_for(sc)))
+    assert r.success and r.status is Status.WARNING and r.t[-1] == pytest.approx(2.0)
     assert r.controller_counts["failures"] == 101 == r.controller_counts["fallbacks"]
     assert not np.any(r.controller_ok[r.t >= 1.0]) and np.all(r.controller_ok[r.t < 1.0])
     np.testing.assert_allclose(r.commands["omega_ref"], math.pi)     # the fallback is the programme
     np.testing.assert_allclose(r.commands["n2"], 0.0)
-    assert "101 controller failure(s)" in r.message and "fallback" in r.message
+    assert r.message.startswith("101 controller fallback(s) in 101 call(s) (1e+02 %), the first at t = 1.000 s: "
+                                "fallback to the programme: SolverFailure: solver exploded")
 
 
-def test_non_finite_or_foreign_commands_are_failures_too():
+def test_a_raising_controller_fails_its_run_with_the_reason():
+    sc = _scenario(duration=2.0, start=1.0)
+    with pytest.raises(PluginError, match=r"^RuntimeError: solver exploded$"):
+        Raiser(None, context_for(sc)).step(0.0, {}, None)
+    r = run_closed_loop(sc, Raiser(None, context_for(sc)))
+    assert r.status is Status.FAILED and not r.success
+    assert r.message == "controller failed at t = 1.000 s in step: RuntimeError: solver exploded"
+    assert r.t[-1] == pytest.approx(1.0) and r.x.shape == (101, 7) and r.xhat.shape[0] == 101
+    np.testing.assert_allclose(r.commands["omega_ref"], math.pi)     # nothing it said was applied
+
+
+def test_non_finite_or_foreign_commands_fail_the_run():
     sc = _scenario(duration=0.1, start=0.0)
 
     class Bad(Controller):
@@ -152,10 +174,12 @@ def test_non_finite_or_foreign_commands_are_failures_too():
             return Action({"omega_ref": float("nan")}) if t < 0.05 else Action({"n1": 5.0})
 
     c = Bad(None, context_for(sc))
-    assert c.step(0.0, {}, None).status is Status.FALLBACK
-    a = c.step(0.06, {}, None)
-    assert a.status is Status.FALLBACK and "n1" in a.message          # n1 is set by hand, not a command
-    assert c.counts.failures == 2
+    with pytest.raises(PluginError, match=r"^FloatingPointError: non-finite command omega_ref = nan$"):
+        c.step(0.0, {}, None)
+    with pytest.raises(PluginError, match=r"^ValueError: command for 'n1', which the rig cannot set"):
+        c.step(0.06, {}, None)           # n1 is set by hand, not a command
+    r = run_closed_loop(sc, Bad(None, context_for(sc)))
+    assert r.status is Status.FAILED and "non-finite command omega_ref" in r.message
 
 
 class BrokenEstimator(StateEstimator):
@@ -174,16 +198,33 @@ class BrokenEstimator(StateEstimator):
         return Estimate(t, np.zeros(len(self.names)), np.eye(len(self.names)), self.names)
 
 
-def test_an_estimator_failure_is_counted_and_the_loop_finishes():
+def test_an_estimator_that_raises_fails_the_run_with_the_reason():
     from estimators.base import EstimatorContext
     sc = _scenario(duration=1.0, start=0.2)
     spy = _spy(sc)
     est = BrokenEstimator(None, EstimatorContext(sc.model, sc.model_params, sc.dt))
     r = run_closed_loop(sc, spy, estimator=est)
-    assert r.success and r.t[-1] == pytest.approx(1.0)
+    assert r.status is Status.FAILED and r.message == "estimator failed at t = 0.510 s in update: LinAlgError: singular"
+    assert r.t[-1] == pytest.approx(0.51) and r.xhat.shape == (52, 7) and np.all(np.isnan(r.xhat[-1]))
+    assert spy.calls[-1][2].status is Status.OK and spy.calls[-1][0] == pytest.approx(0.5)
+
+
+def test_an_estimator_solver_failure_is_answered_by_its_fallback():
+    from estimators.base import EstimatorContext
+
+    class Transient(BrokenEstimator):
+        def _update_impl(self, t, y, mask, u):
+            if t > 0.5:
+                raise SolverFailure("singular")
+            return super()._update_impl(t, y, mask, u)
+
+    sc = _scenario(duration=1.0, start=0.2)
+    spy = _spy(sc)
+    r = run_closed_loop(sc, spy, estimator=Transient(None, EstimatorContext(sc.model, sc.model_params, sc.dt)))
+    assert r.status is Status.WARNING and r.t[-1] == pytest.approx(1.0)
     assert r.estimator_counts["failures"] == r.estimator_counts["fallbacks"] == 50
     assert spy.calls[-1][2].status is Status.FALLBACK and "singular" in spy.calls[-1][2].message
-    assert spy.calls[0][2].status is Status.OK
+    assert "50 estimator fallback(s) in 101 call(s)" in r.message
 
 
 def test_a_plant_failure_ends_the_run_cleanly():

@@ -289,7 +289,7 @@ def test_factory_builds_every_kind_and_rejects_bad_options():
         ({"kind": "ekf", "augment": ["offset:theta1"]}, r"'offset:theta1': 'theta1' is not a channel with an offset"),
         ({"kind": "ekf", "augment": ["drift:pin1"]}, r"estimator.augment entries must be 'load:<contact>'"),
         ({"kind": "ekf", "augment": "load:pin1"}, r"estimator.augment must be a list"),
-        ({"kind": "kalman"}, r"scenario.toml: estimator.kind must be one of ekf, mhe, fd, got 'kalman'"),
+        ({"kind": "kalman"}, r"scenario.toml: estimator.kind must be one of ekf, mhe, fd, a registered 'stickslip.estimators' entry point or 'module:Class', got 'kalman'"),
         ({"kind": "fd", "window": 3}, r"unknown key 'window' for kind 'fd'"),
     ]
     for spec, msg in cases:

@@ -15,7 +15,7 @@ import pytest
 
 from estimators.base import Estimate
 from mitigate.closedloop import run_closed_loop
-from mitigate.controllers.factory import make_controller
+from mitigate.controllers.factory import context_for, make_controller
 from mitigate.controllers.tuning import tuning_for
 from mitigate.metrics import closed_loop_metrics
 from mitigate.scenario import make_scenario, parse_scenario
@@ -43,7 +43,7 @@ def test_auto_tuning_on_rig3_hand_computed():
     assert t.f_ss == pytest.approx(0.4285, abs=1e-4)
     assert t.J_drive == pytest.approx(8.0 ** 2 * 0.370e-3, rel=1e-12)      # eta^2 Jm: R3 itself has none
     sc = make_scenario(duration=1.0, controllers=list(LAWS), estimator="fd")
-    ss, zt, dk = (make_controller(c, sc, i) for i, c in enumerate(sc.controllers))
+    ss, zt, dk = (make_controller(c, context_for(sc, i)) for i, c in enumerate(sc.controllers))
     assert ss.Kp == pytest.approx(2 * t.Z) and ss.Ki == pytest.approx((2 * math.pi * t.f_ss) ** 2 * t.J_drive)
     assert zt.gain == pytest.approx(0.35 / t.Z) and zt.tau_hp == pytest.approx(2.0 / t.f_ss)
     assert dk.gain == pytest.approx(2 * t.Z / (0.040 * 0.306), rel=1e-12) and dk.gain == pytest.approx(17.96, abs=0.01)
@@ -51,7 +51,7 @@ def test_auto_tuning_on_rig3_hand_computed():
     # the options override the derived values
     sc2 = make_scenario(duration=1.0, controllers=[{"name": "s", "kind": "softspeed", "kp_factor": 3.0, "f_t": 0.5},
                                                    {"name": "d", "kind": "doskil", "gain": 20.0}], estimator="fd")
-    s2, d2 = (make_controller(c, sc2, i) for i, c in enumerate(sc2.controllers))
+    s2, d2 = (make_controller(c, context_for(sc2, i)) for i, c in enumerate(sc2.controllers))
     assert s2.Kp == pytest.approx(3 * t.Z) and s2.Ki == pytest.approx((2 * math.pi * 0.5) ** 2 * t.J_drive)
     assert d2.gain == 20.0
 
@@ -61,7 +61,7 @@ def established():
     """rig3 at 30 rpm, N1 = 20 N from rest: stick-slip established by 20 s, control from 20 s to 60 s."""
     sc = make_scenario(name="established", duration=60.0, seed=1, inputs={"omega_ref": "30 rpm", "n1": 20.0},
                        controllers=["pi", *LAWS], estimator="fd", control_start=20.0)
-    pi = run_closed_loop(sc, make_controller(sc.controllers[0], sc, 0))
+    pi = run_closed_loop(sc, make_controller(sc.controllers[0], context_for(sc, 0)))
     return sc, closed_loop_metrics(pi, sc)
 
 
@@ -74,7 +74,7 @@ def test_pi_alone_keeps_the_stick_slip(established):
 def test_each_law_suppresses_the_established_stick_slip(established, kind):
     sc, m_pi = established
     i = 1 + LAWS.index(kind)
-    r = run_closed_loop(sc, make_controller(sc.controllers[i], sc, i))
+    r = run_closed_loop(sc, make_controller(sc.controllers[i], context_for(sc, i)))
     m = closed_loop_metrics(r, sc)
     assert r.status is Status.OK and m["controller_fallbacks"] == 0
     assert m["sss_final"] < 0.05 < 1.0 < m_pi["sss_final"]          # severity over the last 5 s
@@ -105,8 +105,8 @@ class Recording(dict):
 def test_the_laws_use_measured_channels_only_never_the_estimate(kind):
     sc = make_scenario(duration=3.0, seed=2, inputs={"omega_ref": "30 rpm", "n1": 20.0}, controllers=["pi", kind],
                        estimator="fd")
-    r = run_closed_loop(sc, make_controller(sc.controllers[0], sc, 0))
-    a, b = make_controller(sc.controllers[1], sc, 1), make_controller(sc.controllers[1], sc, 1)
+    r = run_closed_loop(sc, make_controller(sc.controllers[0], context_for(sc, 0)))
+    a, b = make_controller(sc.controllers[1], context_for(sc, 1)), make_controller(sc.controllers[1], context_for(sc, 1))
     junk = Estimate(0.0, np.full(7, 1e3), np.eye(7), sc.model.states)
     read = set()
     for k in range(len(r.t)):
@@ -145,7 +145,7 @@ def test_without_the_torque_cell_or_the_motor_encoder_softspeed_and_ztorque_say_
     assert "motor_torque" not in get_model(rig).measured
     sc = _scenario_on(rig, kind, tmp_path)
     with pytest.raises(ConfigError) as ei:
-        make_controller(sc.controllers[0], sc, 0)
+        make_controller(sc.controllers[0], context_for(sc, 0))
     msg = str(ei.value)
     assert "\n" not in msg and msg.startswith("t.toml: controllers[0]: needs the torque at the drive")
     assert "'rig3_no_torque'" in msg
@@ -153,7 +153,7 @@ def test_without_the_torque_cell_or_the_motor_encoder_softspeed_and_ztorque_say_
     sc = _scenario_on(rig, kind, tmp_path)
     with pytest.raises(ConfigError, match=r"^t\.toml: controllers\[0\]: needs the drive's speed, which rig "
                                           r"'rig3_no_motor_encoder' does not measure \(add an encoder"):
-        make_controller(sc.controllers[0], sc, 0)
+        make_controller(sc.controllers[0], context_for(sc, 0))
 
 
 def test_without_a_servo_doskil_says_so(tmp_path):
@@ -162,9 +162,9 @@ def test_without_a_servo_doskil_says_so(tmp_path):
     sc = _scenario_on(rig, "doskil", tmp_path)
     with pytest.raises(ConfigError, match=r"^t\.toml: controllers\[0\]: D-OSKIL needs a servo on a contact's normal "
                                           r"force; rig 'rig3_no_servo' has no actuator$"):
-        make_controller(sc.controllers[0], sc, 0)
+        make_controller(sc.controllers[0], context_for(sc, 0))
     # the speed laws need no servo
-    make_controller(_scenario_on(rig, "softspeed", tmp_path).controllers[0], sc, 0)
+    make_controller(_scenario_on(rig, "softspeed", tmp_path).controllers[0], context_for(sc, 0))
 
 
 @pytest.mark.parametrize("kind", ["softspeed", "ztorque"])
@@ -174,10 +174,10 @@ def test_on_a_torque_drive_the_law_commands_the_torque(kind):
     (NORCE: Ki = 5 J_drive) is slow, so it gets there within 5 % only after some 20 s."""
     sc = make_scenario(name="r2", model="rig2", duration=30.0, inputs={"motor_torque": 0.0}, controllers=[kind],
                        estimator="fd")
-    c = make_controller(sc.controllers[0], sc, 0)
+    c = make_controller(sc.controllers[0], context_for(sc, 0))
     a = c.step(0.0, {"omega1": 0.0, "omega3": 0.0, "theta1": 0.0, "theta3": 0.0, "motor_torque": 0.0}, None)
     assert set(a.u) == {"motor_torque"} and a.status is Status.OK
-    r = run_closed_loop(sc, make_controller(sc.controllers[0], sc, 0))
+    r = run_closed_loop(sc, make_controller(sc.controllers[0], context_for(sc, 0)))
     assert r.status is Status.OK
     tail = r.t > 25.0
     assert np.mean(r.state("omega_motor")[tail]) == pytest.approx(1.0, abs=0.05)

@@ -69,7 +69,7 @@ def test_a_tiny_dt_counts_like_a_long_duration(tmp_path, capsys):
 
 def test_more_samples_than_memory_holds_is_refused(tmp_path, capsys, monkeypatch):
     """Under the sample limit, but the controller runs would need more memory than the machine has."""
-    monkeypatch.setattr(scenario_mod, "_memory_bytes", lambda: 2**30)      # a 1 GiB machine
+    monkeypatch.setattr(scenario_mod, "memory_bytes", lambda: 2**30)      # a 1 GiB machine
     err = _refused(tmp_path, capsys, _copy(tmp_path, ("duration = 60.0", "duration = 20000.0")))
     n = _n_controllers()
     fit = 2**30 // (n * BYTES_PER_SAMPLE)
@@ -83,7 +83,7 @@ def test_the_shipped_scenario_is_within_both_limits(tmp_path):
     sc = scenario_mod.load_scenario(SHIPPED)
     n = len(sc.controllers)
     assert round(sc.duration / sc.dt) == 6000 and n >= 4
-    have = scenario_mod._memory_bytes()
+    have = scenario_mod.memory_bytes()
     assert have is None or have > 100 * 6000 * n * BYTES_PER_SAMPLE
 
 

@@ -86,12 +86,12 @@ def test_identification_fits_the_new_law(rig, log):
 
 def test_ekf_tracks_the_rig_with_the_new_law(rig):
     from mitigate.closedloop import run_closed_loop
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
     from mitigate.scenario import make_scenario
 
     sc = make_scenario(name="gauss", model=rig, duration=6.0, inputs={"omega_ref": 1.0, "n1": 20, "n2": 0},
                        controllers=["pi"], estimator="ekf")
-    r = run_closed_loop(sc, make_controller(sc.controllers[0], sc, 0))
+    r = run_closed_loop(sc, make_controller(sc.controllers[0], context_for(sc, 0)))
     assert r.status.success and r.estimator_counts["failures"] == 0
     i, j = r.xhat_names.index("omega_R1"), rig.speed_index("R1")
     late = r.t > 3.0
@@ -100,13 +100,13 @@ def test_ekf_tracks_the_rig_with_the_new_law(rig):
 
 def test_doskil_uses_the_kinetic_level_of_the_new_law(rig):
     from mitigate.closedloop import run_closed_loop
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
     from mitigate.controllers.tuning import tuning_for
     from mitigate.scenario import make_scenario
 
     sc = make_scenario(name="gauss_dk", model=rig, duration=4.0, inputs={"omega_ref": 1.0, "n1": 20, "n2": 0},
                        controllers=["doskil"], estimator="fd", control_start=1.0)
-    dk = make_controller(sc.controllers[0], sc, 0)
+    dk = make_controller(sc.controllers[0], context_for(sc, 0))
     p = rig.published()
     assert dk.gain == pytest.approx(2 * tuning_for(rig, p).Z / (p["r2"] * p["mu_k"]), rel=1e-12)
     r = run_closed_loop(sc, dk)

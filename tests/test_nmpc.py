@@ -20,7 +20,8 @@ import pytest
 
 from estimators.base import Estimate
 from mitigate.controllers.base import ControlContext
-from mitigate.controllers.nmpc import NMPC, MAX_HORIZON, NMPCOptions, NMPCWeights, make_nmpc, stage_functions
+from mitigate.controllers.factory import make_controller
+from mitigate.controllers.nmpc import NMPC, MAX_HORIZON, NMPCOptions, NMPCWeights, stage_functions
 from mitigate.controllers.nmpc.stage import prediction_rhs
 from mitigate.controllers.nmpc.qp import ConicQP, HpipmQP
 from mitigate.metrics import severity
@@ -43,7 +44,7 @@ def _ctx(model=M, params=None, programme=None, dt=0.01, where="nmpc"):
 
 
 def _nmpc(opts=None, **kw) -> NMPC:
-    return make_nmpc({"compile": False, **(opts or {})}, _ctx(**kw))
+    return make_controller({"kind": "nmpc", "compile": False, **(opts or {})}, _ctx(**kw))
 
 
 def _est(t, x, model=M):
@@ -186,7 +187,7 @@ def test_rti_step_at_equilibrium_matches_lqr(QP):
     control = pytest.importorskip("control")
     wn, n2 = 2 * np.pi, 10.0
     u_prog = np.array([wn, 20.0, n2])
-    c = make_nmpc({"horizon": 15, "compile": False, "qp_solver": QP, "qp_tol": 1e-9, "setpoint_rate": 1e3,
+    c = make_controller({"kind": "nmpc", "horizon": 15, "compile": False, "qp_solver": QP, "qp_tol": 1e-9, "setpoint_rate": 1e3,
                    "weights": {"speed": 1.0, "rel": 0.5, "ref": 0.3, "force": 0.0, "force_linear": 0.0, "d_ref": 0.5,
                                "d_force": 0.5, "terminal": 2.0}}, _ctx(programme=u_prog))
     ocp, L = c.ocp, c.layout
@@ -320,6 +321,22 @@ def test_fallback_chain_shift_then_programme_is_counted():
     assert acts[11].u == acts[10].u and acts[11].status is Status.HOLD
 
 
+def test_a_numerical_error_is_a_counted_failure_and_a_bug_fails_the_run(monkeypatch):
+    """CasADi's RuntimeError in a solve is a SolverFailure (the shifted plan answers, counted);
+    any other exception is a bug: step raises PluginError and the run is FAILED."""
+    from models.errors import PluginError
+    c = _nmpc({"horizon": 5})
+    x = M.steady_sliding(U0, P)
+    meas = {"n1": 20.0, "n2": 0.0}
+    assert c.step(0.0, meas, _est(0.0, x)).status is Status.OK
+    monkeypatch.setattr(type(c.ocp), "_solve_impl", lambda *a: (_ for _ in ()).throw(RuntimeError("Error in Function::call")))
+    a = c.step(0.05, meas, _est(0.05, x))
+    assert a.status is Status.FALLBACK and "RuntimeError" in a.message and c.counts.failures == 1
+    monkeypatch.setattr(type(c.ocp), "_solve_impl", lambda *a: (_ for _ in ()).throw(KeyError("bug")))
+    with pytest.raises(PluginError, match="KeyError"):
+        c.step(0.10, meas, _est(0.10, x))
+
+
 def test_no_estimate_falls_back_to_the_programme_without_raising():
     c = _nmpc({"horizon": 5})
     a = c.step(0.0, {"n1": 20.0}, None)
@@ -447,7 +464,7 @@ def test_held_normal_force_is_read_through_its_load_cell():
     """N1 and N2 are held at their load cells' readings corrected for the cells' gain and offset
     (the first reading as it is); a lost reading keeps the last deviation from the programme."""
     p = P.replace(n1_gain=2.0, n1_offset=1.0)
-    c = make_nmpc({"horizon": 5, "compile": False, "inputs": "motor"}, _ctx(params=p))
+    c = make_controller({"kind": "nmpc", "horizon": 5, "compile": False, "inputs": "motor"}, _ctx(params=p))
     seen = []
     orig = c.ocp.solve
     c.ocp.solve = lambda xa0, q, *a: seen.append(q[:M.nu].copy()) or orig(xa0, q, *a)
@@ -464,7 +481,7 @@ def test_held_normal_force_filters_the_load_cell_noise_and_follows_the_programme
     prog = lambda t: np.array([W0, 20.0 if t < 1.0 else 30.0, 0.0])   # noqa: E731
     x = M.steady_sliding(U0, P)
     for tau, tol in ((0.2, 0.1), (0.0, None)):
-        c = make_nmpc({"horizon": 5, "compile": False, "inputs": "motor", "force_filter": tau}, _ctx(programme=prog))
+        c = make_controller({"kind": "nmpc", "horizon": 5, "compile": False, "inputs": "motor", "force_filter": tau}, _ctx(programme=prog))
         seen = []
         orig = c.ocp.solve
         c.ocp.solve = lambda xa0, q, *a, seen=seen, orig=orig: seen.append(q[:M.nu].copy()) or orig(xa0, q, *a)
@@ -488,7 +505,7 @@ def test_disc_rig_with_its_speed_drive_as_the_only_command():
     base = Plant(m, m.published(), SimOptions(seed=0), sensors=None, u0=u0)
     for _ in range(1000):
         base.step(u0)
-    c = make_nmpc({"horizon": 20, "compile": False}, _ctx(model=m, programme=u0))
+    c = make_controller({"kind": "nmpc", "horizon": 20, "compile": False}, _ctx(model=m, programme=u0))
     assert c.inputs == ("omega3",) and c.body == "disc"
     plant = Plant(m, m.published(), SimOptions(seed=0), sensors=None, x0=base.x, u0=u0)
     free = Plant(m, m.published(), SimOptions(seed=0), sensors=None, x0=base.x, u0=u0)
@@ -582,7 +599,7 @@ def test_two_disc_rig_file_with_a_servo_brake(tmp_path: Path):
     path.write_text(TWO_DISC)
     m = get_model(str(path))
     u0 = np.array([W0, 20.0, 0.0])
-    c = make_nmpc({"horizon": 20, "compile": False, "inputs": "pin"}, _ctx(model=m, programme=u0))
+    c = make_controller({"kind": "nmpc", "horizon": 20, "compile": False, "inputs": "pin"}, _ctx(model=m, programme=u0))
     assert c.inputs == ("n_brake",) and c.body == "D1" and c.spec.taus == (0.04,)
     assert c.layout.states == ("twist_lower", "twist_upper", "omega_D1", "omega_D2", "servo:n_brake")
     base = Plant(m, m.published(), SimOptions(seed=0), sensors=None, u0=u0)
@@ -606,7 +623,7 @@ def test_torque_drive_rig2_holds_its_operating_speed():
     p = m.published()
     u0, _ = m.operating_point(1.0, [0.0], p)
     u0 = np.asarray(u0, float)
-    c = make_nmpc({"horizon": 20, "compile": False, "setpoint_band": 0.3, "setpoint_rate": 2.0},
+    c = make_controller({"kind": "nmpc", "horizon": 20, "compile": False, "setpoint_band": 0.3, "setpoint_rate": 2.0},
                   _ctx(model=m, programme=u0))
     assert c.inputs == ("motor_torque",) and c.body == "disc" and c.spec.setpoint_scale == 0.3
     base = Plant(m, p, SimOptions(seed=0), sensors=None, u0=u0)
@@ -625,4 +642,4 @@ def test_too_stiff_a_rig_for_the_interval_is_a_config_error():
     m = get_model("leadscrew")
     with pytest.raises(ConfigError, match=r"^nmpc\.substeps: rig 'leadscrew' needs \d+ RK4 substeps per 0.05 s "
                                           r"interval .* the limit is 200"):
-        make_nmpc({"compile": False, "dt": 0.05}, _ctx(model=m, programme=[40.3, 314.3]))
+        make_controller({"kind": "nmpc", "compile": False, "dt": 0.05}, _ctx(model=m, programme=[40.3, 314.3]))

@@ -18,7 +18,7 @@ from scipy.optimize import brentq
 
 from estimators.base import Estimate
 from mitigate.controllers.base import ControlContext
-from mitigate.controllers.nmpc import make_nmpc
+from mitigate.controllers.factory import context_for, make_controller
 from mitigate.controllers.nmpc.ocp import make_ocp_solver
 from mitigate.controllers.nmpc.schedule import CalmSchedule
 from mitigate.controllers.nmpc.stage import stage_functions
@@ -81,18 +81,18 @@ def test_defaults_come_from_the_rig_at_both_scales():
     """rig3 gets the values it was tuned with; the field string (10^3 kg m^2, 10 kN m, torque
     drive) gets its own: dt a 40th of its free-chain period, a band of its programmed torque."""
     rig3 = get_model("rig3")
-    c = make_nmpc({"compile": False}, _ctx(rig3, [math.pi, 20.0, 0.0]))
+    c = make_controller({"kind": "nmpc", "compile": False}, _ctx(rig3, [math.pi, 20.0, 0.0]))
     assert c.cfg.dt == pytest.approx(0.05) and c.cfg.eps == pytest.approx(0.016 * math.pi)
     assert c.cfg.setpoint_band == pytest.approx(math.pi) and c.cfg.setpoint_rate == pytest.approx(20.19, rel=1e-3)
     field = get_model(str(FIELD))
-    c = make_nmpc({"compile": False}, _ctx(field, [1.0e4, 97347.0]))
+    c = make_controller({"kind": "nmpc", "compile": False}, _ctx(field, [1.0e4, 97347.0]))
     assert 6.5 < c.period < 8.0                     # the free chain's lowest mode (0.139 Hz), not the held table's
     assert c.cfg.dt == pytest.approx(math.floor(c.period / 40 / 0.01) * 0.01)
     assert c.cfg.setpoint_band == pytest.approx(1.0e4)                  # N m: the programme's torque
     assert c.cfg.eps == pytest.approx(0.016 * 5.0)                      # 1.6 % of operating_point.speed
     assert c.cfg.setpoint_rate == pytest.approx(15 * 1.0e4 / c.period)
     assert set(c.cfg.derived) == {"dt", "eps", "setpoint_band", "setpoint_rate", "force_filter"}
-    given = make_nmpc({"compile": False, "dt": 0.2, "setpoint_band": 3000.0}, _ctx(field, [1.0e4, 97347.0]))
+    given = make_controller({"kind": "nmpc", "compile": False, "dt": 0.2, "setpoint_band": 3000.0}, _ctx(field, [1.0e4, 97347.0]))
     assert given.cfg.dt == 0.2 and given.cfg.setpoint_band == 3000.0 and "dt" not in given.cfg.derived
 
 
@@ -108,7 +108,7 @@ def test_nmpc_on_the_field_string_suppresses_without_failures():
     base = Plant(m, p, SimOptions(dt=dt, nsub=4, seed=0), sensors=None, u0=u0)
     for _ in range(int(100 / dt)):
         base.step(u0)
-    c = make_nmpc({"compile": False}, _ctx(m, u0, dt=dt))
+    c = make_controller({"kind": "nmpc", "compile": False}, _ctx(m, u0, dt=dt))
     plant = Plant(m, p, SimOptions(dt=dt, nsub=4, seed=0), sensors=None, x0=base.x, u0=u0)
     w, acts, _ = _loop(c, plant, m, u0, int(60 / dt), dt, t0=100.0)
     tail = w[-int(15 / dt):]
@@ -124,7 +124,7 @@ def test_servo_force_residual_is_zero_at_the_programmed_weight_on_bit_not_at_zer
     """Drilling: the force term of the stage cost is (command - programme) / n_max, and the linear
     term acts only where the programme holds the servo at its lower limit (rig3's pin at 0 N)."""
     m = get_model("drillstring_motor")
-    c = make_nmpc({"compile": False, "horizon": 5}, _ctx(m, [3.0, 200.0], dt=0.002))
+    c = make_controller({"kind": "nmpc", "compile": False, "horizon": 5}, _ctx(m, [3.0, 200.0], dt=0.002))
     L = c.layout
     _, cost, _, _ = stage_functions(m, c.spec)
     x = m.steady_sliding(np.array([3.0, 200.0]), m.published())
@@ -149,7 +149,7 @@ def test_weight_on_bit_stays_at_the_programme_while_the_nmpc_suppresses():
     base = Plant(m, p, SimOptions(dt=dt, nsub=2, seed=0), sensors=None, u0=u0)
     for _ in range(int(4 / dt)):
         base.step(u0)
-    c = make_nmpc({"compile": False}, _ctx(m, u0, dt=dt))
+    c = make_controller({"kind": "nmpc", "compile": False}, _ctx(m, u0, dt=dt))
     plant = Plant(m, p, SimOptions(dt=dt, nsub=2, seed=0), sensors=None, x0=base.x, u0=u0)
     w, _, U = _loop(c, plant, m, u0, int(3 / dt), dt, t0=4.0)
     assert c.counts.failures == 0
@@ -182,7 +182,7 @@ def test_schedule_scales_the_tracking_weights_the_plan_sees():
     m = get_model("rig3")
     u0 = np.array([math.pi, 20.0, 0.0])
     x = m.steady_sliding(u0, m.published())
-    c = make_nmpc({"compile": False, "horizon": 5}, _ctx(m, u0))
+    c = make_controller({"kind": "nmpc", "compile": False, "horizon": 5}, _ctx(m, u0))
     seen = []
     orig = c.ocp.solve
     c.ocp.solve = lambda xa0, q, *a: seen.append(q.copy()) or orig(xa0, q, *a)
@@ -202,7 +202,7 @@ def test_friction_factor_is_held_while_the_contact_sticks():
     rig3): the plan takes it only while the contact body slides."""
     m = get_model("rig3")
     u0 = np.array([math.pi, 20.0, 0.0])
-    c = make_nmpc({"compile": False, "horizon": 5}, _ctx(m, u0))
+    c = make_controller({"kind": "nmpc", "compile": False, "horizon": 5}, _ctx(m, u0))
     seen = []
     orig = c.ocp.solve
     c.ocp.solve = lambda xa0, q, *a: seen.append(q[c.layout.q_fc:c.layout.q_fc + 2].copy()) or orig(xa0, q, *a)
@@ -222,11 +222,11 @@ def test_from_rest_with_the_ekf_no_overshoot_and_no_fallback():
     peak stays below 1.2 x 30 rpm and no fallback is needed."""
     from mitigate import make_scenario
     from mitigate.closedloop import run_closed_loop
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
 
     sc = make_scenario(name="from_rest", model="rig3", duration=8.0, inputs={"omega_ref": "30 rpm", "n1": 26.0},
                        controllers=[{"name": "NMPC", "kind": "nmpc"}], estimator="ekf", control_start=0.0, seed=11)
-    res = run_closed_loop(sc, make_controller(sc.controllers[0], sc, 0))
+    res = run_closed_loop(sc, make_controller(sc.controllers[0], context_for(sc, 0)))
     w = res.objective_speed
     assert res.status is Status.OK and res.controller_counts["fallbacks"] == 0
     assert np.max(w) < 1.2 * math.pi
@@ -239,16 +239,16 @@ def test_estimator_first_update_from_rest_sees_a_rig_at_rest():
     off at t = 0)."""
     from mitigate import make_scenario
     from mitigate.closedloop import run_closed_loop
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
 
     sc = make_scenario(name="rest", model="rig3", duration=0.05, inputs={"omega_ref": "30 rpm", "n1": 26.0},
                        controllers=["pi"], estimator="ekf", control_start=0.0)
-    res = run_closed_loop(sc, make_controller(sc.controllers[0], sc, 0))
+    res = run_closed_loop(sc, make_controller(sc.controllers[0], context_for(sc, 0)))
     assert np.max(np.abs(res.xhat[0, :2])) < 0.01
 
 
 def test_unknown_ocp_solver_is_a_config_error():
     m = get_model("rig3")
-    c = make_nmpc({"compile": False, "horizon": 5}, _ctx(m, [math.pi, 20.0, 0.0]))
+    c = make_controller({"kind": "nmpc", "compile": False, "horizon": 5}, _ctx(m, [math.pi, 20.0, 0.0]))
     with pytest.raises(ConfigError, match=r"^solver must be one of rti, sqp, ipopt, got 'acados'$"):
         make_ocp_solver(m, c.spec, solver="acados")

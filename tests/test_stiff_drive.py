@@ -46,7 +46,7 @@ def test_user_rig_small_motor_runs_ekf_and_nmpc_with_zero_fallbacks(tmp_path):
     from estimators.base import EstimatorContext
     from estimators.online.factory import make_estimator
     from mitigate.closedloop import run_closed_loop
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
     from mitigate.scenario import make_scenario
 
     m = _rig(tmp_path, 0.5)
@@ -55,7 +55,7 @@ def test_user_rig_small_motor_runs_ekf_and_nmpc_with_zero_fallbacks(tmp_path):
     ekf = make_estimator(sc.estimator, EstimatorContext(m, sc.model_params, sc.dt, sc.sensors, None, "estimator"))
     # the estimator states how it integrates the stiff motor
     assert "current treated quasi-statically: L/R = 0.5 ms" in ekf.em.integration.note
-    ctrl = make_controller(sc.controllers[0], sc, 0)
+    ctrl = make_controller(sc.controllers[0], context_for(sc, 0))
     assert ctrl.integration.quasi_static and "quasi-statically" in ctrl.integration.note
     res = run_closed_loop(sc, ctrl, estimator=ekf)
     assert res.status.success, res.message
@@ -159,13 +159,13 @@ def test_benchmark_script_has_help_and_quick_mode():
 
 def test_mhe_on_a_0_05_ms_motor_tracks_without_failures(tmp_path):
     from mitigate.closedloop import run_closed_loop
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
     from mitigate.scenario import make_scenario
 
     m = _rig(tmp_path, 0.05)
     sc = make_scenario(name="mhe_fast", model=m, duration=3.0, inputs={"omega_ref": "30 rpm", "brake_force": 15},
                        controllers=["pi"], estimator="mhe")
-    r = run_closed_loop(sc, make_controller(sc.controllers[0], sc, 0))
+    r = run_closed_loop(sc, make_controller(sc.controllers[0], context_for(sc, 0)))
     assert r.status.success and r.estimator_counts["failures"] == 0 and r.estimator_counts["fallbacks"] == 0
     i, j = r.xhat_names.index("omega_B"), m.speed_index("B")
     late = r.t > 1.5

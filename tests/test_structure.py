@@ -268,7 +268,7 @@ def test_the_controllers_and_the_estimator_keep_the_nominal_model():
     sc = sc.replace(duration=1.0, control_start=0.5, estimator={"kind": "fd"})
     for i, spec in enumerate(sc.controllers):
         if spec.kind != "nmpc":
-            c = make_controller(spec, sc, i)
+            c = make_controller(spec, context_for(sc, i))
             assert c.context.model is sc.model and c.context.params is sc.model_params
     spy = Spy(None, context_for(sc))
     r = run_closed_loop(sc, spy)
@@ -283,7 +283,7 @@ def test_realistic_scenario_runs_10_s_with_pi():
     sc = load_scenario(ROOT / "scenarios" / "realistic.toml")
     sc = sc.replace(duration=10.0, control_start=5.0, estimator={"kind": "fd"})
     i = next(i for i, c in enumerate(sc.controllers) if c.kind == "pi")
-    r = run_closed_loop(sc, make_controller(sc.controllers[i], sc, i))
+    r = run_closed_loop(sc, make_controller(sc.controllers[i], context_for(sc, i)))
     assert r.status is Status.OK and r.t[-1] == pytest.approx(10.0)
     assert np.all(np.isfinite(r.x)) and np.max(np.abs(r.state("omega_R1"))) < 10.0
     assert np.mean(r.state("omega_R3")[r.t > 5]) == pytest.approx(math.pi, rel=0.05)   # the drive holds 30 rpm

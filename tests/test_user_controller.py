@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from mitigate import run
-from mitigate.controllers.factory import controller_class, make_controller
+from mitigate.controllers.factory import context_for, controller_class, make_controller
 from mitigate.scenario import parse_scenario
 from models.errors import ConfigError
 
@@ -87,10 +87,10 @@ def _scenario(kind, **options):
 def test_its_options_are_validated_like_the_built_in_ones():
     sc = _scenario(REF, gain=-1.0)
     with pytest.raises(ConfigError, match=r"^t\.toml: controllers\[1\]\.gain must be >= 0 rad/s per N m, got -1\.0$"):
-        make_controller(sc.controllers[1], sc, 1)
+        make_controller(sc.controllers[1], context_for(sc, 1))
     sc = _scenario(REF, gian=1.0)
     with pytest.raises(ConfigError, match=r"^t\.toml: controllers\[1\]\.gian: unknown option; expected one of gain, tau"):
-        make_controller(sc.controllers[1], sc, 1)
+        make_controller(sc.controllers[1], context_for(sc, 1))
 
 
 @pytest.mark.parametrize("kind, match", [
@@ -105,7 +105,7 @@ def test_its_options_are_validated_like_the_built_in_ones():
 def test_a_bad_reference_is_a_one_line_error_naming_the_kind(kind, match):
     sc = _scenario(kind)
     with pytest.raises(ConfigError, match=match) as ei:
-        make_controller(sc.controllers[1], sc, 1)
+        make_controller(sc.controllers[1], context_for(sc, 1))
     assert "\n" not in str(ei.value) and str(ei.value).startswith("t.toml: controllers[1].kind")
 
 
@@ -117,7 +117,7 @@ def test_a_module_that_fails_to_import_is_a_one_line_error(tmp_path, monkeypatch
                      ("broken_syntax", "SyntaxError")):
         sc = _scenario(f"{mod}:C")
         with pytest.raises(ConfigError) as ei:
-            make_controller(sc.controllers[1], sc, 1)
+            make_controller(sc.controllers[1], context_for(sc, 1))
         msg = str(ei.value)
         assert msg.startswith(f"t.toml: controllers[1].kind: module '{mod}' could not be imported: {why}")
         assert "\n" not in msg
@@ -138,7 +138,7 @@ def test_the_example_law_hand_computed():
     at once, with a = 1 - exp(-dt / tau), and the high-pass decays by (1 - a) per sample."""
     import math
     sc = _scenario(REF, gain=2.0, tau=5.0)
-    c = make_controller(sc.controllers[1], sc, 1)
+    c = make_controller(sc.controllers[1], context_for(sc, 1))
     c.reset()
     assert c.step(0.0, {"motor_torque": 0.3}, None).u == {"omega_ref": pytest.approx(3.0)}
     a = 1 - math.exp(-0.01 / 5.0)

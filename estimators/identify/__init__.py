@@ -7,6 +7,7 @@ Problem, function, result (as python-control's ``optimal``)::
     fit.status, fit.message          # Status.OK / WARNING / NOT_CONVERGED / FAILED, and why
     fit.estimate, fit.stderr, fit.params
     fit.condition, fit.weak_directions
+    fit.method, fit.structure       # how it was solved; what the model's structure misses in the data
     boot = bootstrap(fit)            # the fit keeps its problem: nothing else is needed
 
 Modules (one concept each):
@@ -18,6 +19,10 @@ Modules (one concept each):
 - :mod:`~estimators.identify.shooting`: per-sample sensitivities, residuals, gaps, sparse Jacobians
 - :mod:`~estimators.identify.problem`: :class:`IdentificationProblem` (``.solve()``, ``.refit()``)
 - :mod:`~estimators.identify.gauss_newton`, :mod:`~estimators.identify.ipopt`: the solvers
+- :mod:`~estimators.identify.continuation`: the globalisation (a continuation in eps when the direct
+  fit fails or its structure misses)
+- :mod:`~estimators.identify.diagnostics`: what the structure misses (the residual's slow part,
+  spectrum and whiteness; the continuity gaps)
 - :mod:`~estimators.identify.covariance`: standard errors, correlations, conditioning, weak directions
 - :mod:`~estimators.identify.result`: :class:`FitResult`
 - :mod:`~estimators.identify.validation`: hold-out prediction with the exact plant
@@ -28,7 +33,9 @@ from __future__ import annotations
 
 from models.params import ParameterSet
 from estimators.identify.bootstrap import BootstrapOptions, BootstrapResult, bootstrap
+from estimators.identify.continuation import Attempt
 from estimators.identify.covariance import WeakDirection
+from estimators.identify.diagnostics import StructureDiagnostics
 from estimators.identify.guess import Guess, initial_guess
 from estimators.identify.noise import detect_input_noise, input_noise_hints
 from estimators.identify.options import IdentifyOptions, LinearConstraint
@@ -38,7 +45,8 @@ from estimators.identify.validation import Validation
 
 __all__ = ["IdentifyOptions", "LinearConstraint", "IdentificationProblem", "FitResult", "Validation",
            "WeakDirection", "IdentifiabilityWarning", "identify", "initial_guess", "Guess", "bootstrap",
-           "BootstrapOptions", "BootstrapResult", "detect_input_noise", "input_noise_hints"]
+           "BootstrapOptions", "BootstrapResult", "detect_input_noise", "input_noise_hints", "StructureDiagnostics",
+           "Attempt"]
 
 
 def identify(logs, model, initial: ParameterSet | None = None, options: IdentifyOptions | None = None, *,

@@ -7,7 +7,10 @@ problem with the Gauss-Newton Hessian ``J^T J``::
     [ A              0     0     ] [lam] = [ -g      ]
     [ G_a            0     0     ] [nu ]   [ h_a - G_a w ]
 
-(scipy SuperLU on a banded ordering with a border), where ``A`` is the Jacobian of the
+(scipy SuperLU on a banded ordering with a border; the zero block is regularised to ``-1e-12 I`` so
+that the factorisation may pivot in that order, and every solve is refined iteratively against the
+exact matrix: the multipliers of stuck intervals reach 1e8, and the regularisation alone left their
+``1e-12 lambda`` behind as continuity gaps no step could close), where ``A`` is the Jacobian of the
 continuity gaps ``g`` and ``G_a w <= h_a`` the *active* linear inequalities on the border
 variables (the parameters' bounds, ``mu_k <= mu_s``, user constraints).  The active set is
 updated inside the iteration: a row whose multiplier has the wrong sign is released, the most
@@ -83,6 +86,37 @@ class GNResult:
     history: tuple = field(default=(), repr=False)
 
 
+#: regularisation of the KKT matrix's constraint block (it makes the matrix quasi-definite, so the
+#: factorisation may take its pivots in the banded order); every solve is refined against the exact
+#: KKT matrix, because the multipliers of stiff (stuck) intervals reach 1e8 and ``delta * lambda``
+#: would otherwise stay behind as a continuity gap of 1e-4 that no step closes
+_DELTA = 1e-12
+
+
+class _Refined:
+    """Solves with the regularised factorisation ``fac``, refined iteratively against the exact KKT
+    matrix ``K0`` (same unknowns, original order) until its residual stops falling."""
+
+    def __init__(self, fac, K0):
+        self.fac, self.K0 = fac, K0.tocsr()
+
+    def solve(self, rhs):
+        x = self.fac.solve(rhs)
+        scale = float(np.max(np.abs(rhs))) + 1e-300
+        res = rhs - self.K0 @ x
+        err = float(np.max(np.abs(res)))
+        for _ in range(8):
+            if err <= 1e-14 * scale:
+                break
+            x_new = x + self.fac.solve(res)
+            res_new = rhs - self.K0 @ x_new
+            err_new = float(np.max(np.abs(res_new)))
+            if not err_new < 0.5 * err:
+                break
+            x, res, err = x_new, res_new, err_new
+        return x
+
+
 def _kkt_solve(prob, H, mu, grad, A, g, G, h, w, active, ng):
     """Solve the KKT system for the step with the active-set update; returns (dw, lam, active, factor, Aall)."""
     nw, nb = prob.nw, prob.nb
@@ -100,8 +134,8 @@ def _kkt_solve(prob, H, mu, grad, A, g, G, h, w, active, ng):
         else:
             Aall = A.tocsc()
             rhs_c = -g
-        K = sp.bmat([[Hm, Aall.T], [Aall, -1e-12 * sp.identity(Aall.shape[0], format="csc")]], format="csc")
-        fac = KKTFactor(prob, K, na)
+        K = sp.bmat([[Hm, Aall.T], [Aall, -_DELTA * sp.identity(Aall.shape[0], format="csc")]], format="csc")
+        fac = _Refined(KKTFactor(prob, K, na), sp.bmat([[Hm, Aall.T], [Aall, None]], format="csc"))
         sol = fac.solve(np.r_[-grad, rhs_c])
         if not np.all(np.isfinite(sol)):
             raise RuntimeError("non-finite KKT solution")

@@ -15,9 +15,10 @@ from typing import Mapping
 from models.errors import ConfigError
 from models.sensors import SensorOptions
 
-__all__ = ["IdentifyOptions", "LinearConstraint", "SOLVERS", "ENCODER_ZERO"]
+__all__ = ["IdentifyOptions", "LinearConstraint", "SOLVERS", "ENCODER_ZERO", "GLOBALISE"]
 
 SOLVERS = ("gn", "ipopt")
+GLOBALISE = ("auto", "always", "off")
 #: "free": each log's encoders were zeroed at an unknown twist (one unknown per angle difference
 #: and log); "untwisted": the rig was untwisted when the encoders were zeroed
 ENCODER_ZERO = ("free", "untwisted")
@@ -169,6 +170,10 @@ class IdentifyOptions:
     solver : "gn" (constrained Gauss-Newton / Levenberg-Marquardt on the sparse KKT system,
         compiled sensitivities) or "ipopt" (IPOPT with the Gauss-Newton Hessian, uncompiled;
         no errors in the variables)
+    globalise : GN: "auto" (default): when the direct fit does not converge, or converges with a
+        residual showing that the structure misses, solve again along a continuation in eps (10 eps
+        down to eps) and keep the better end; "always"; "off" (the direct fit only).  See
+        :mod:`~estimators.identify.continuation`
     compile : GN: build the per-sample sensitivity function with gcc (cached on disk); None:
         if gcc is available
     input_cutoff : ``{input channel: cutoff [Hz]}``: zero-phase low-pass of those logged inputs
@@ -205,6 +210,7 @@ class IdentifyOptions:
     tol: float = 1e-8
     trust_radius: float = 1.0
     solver: str = "gn"
+    globalise: str = "auto"
     compile: bool | None = None
     input_cutoff: Mapping[str, float] | None = None
     input_noise: Mapping[str, float] | str | None = "auto"
@@ -268,6 +274,8 @@ class IdentifyOptions:
         _pos_number(self.trust_radius, "options.trust_radius")
         if self.solver not in SOLVERS:
             raise ConfigError(f"options.solver must be one of {', '.join(SOLVERS)}, got {self.solver!r}")
+        if self.globalise not in GLOBALISE:
+            raise ConfigError(f"options.globalise must be one of {', '.join(GLOBALISE)}, got {self.globalise!r}")
         if self.compile not in (None, True, False):
             raise ConfigError(f"options.compile must be true, false or unset, got {self.compile!r}")
         if not (isinstance(self.corr_warn, (int, float)) and 0 < self.corr_warn <= 1):

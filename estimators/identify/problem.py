@@ -45,14 +45,17 @@ from models.rig import RigModel, get_model
 from models.signals import lowpass, moving_average
 from models.status import Status
 from estimators.identify.covariance import uncertainty
+from estimators.identify.continuation import (GN_METHOD, attempt, choose, continuation_method, solve_continuation,
+                                              wants_continuation)
 from estimators.identify.gauss_newton import solve_gn
+from estimators.identify.diagnostics import diagnose, gap_locator
 from estimators.identify.guess import initial_guess
 from models.discretise import MAX_SUBSTEPS, integration, rate_jacobian
 from estimators.identify.ipopt import solve_ipopt
 from estimators.identify.noise import detect_input_noise, input_noise_hints, output_noise
 from estimators.identify.options import IdentifyOptions, LinearConstraint
 from estimators.identify.outputs import input_delays, output_function, plan_channels
-from estimators.identify.result import FitResult, IdentifiabilityWarning, convergence_message
+from estimators.identify.result import FitResult, IdentifiabilityWarning, convergence_message, fit_status
 from estimators.identify.shooting import ShootingProblem, compiled_or_none, sample_function
 from estimators.identify.validation import validate
 
@@ -620,8 +623,8 @@ class IdentificationProblem:
                 fit = replace(fit, initial=first.initial, guess_notes=first.guess_notes,
                               warnings=fit.warnings + (f"RK4 substeps raised from {old} to {need} for the fitted "
                                                        f"parameters (stiffer than the initial ones) and refitted",))
-            return prob._finish(fit)
-        return self._finish(fit)
+            return prob._finish(prob._globalise(fit, warm))
+        return self._finish(self._globalise(fit, warm))
 
     def _feasible(self, theta):
         """``theta`` moved onto the constraints it violates by round-off (the regularised KKT rows
@@ -674,13 +677,20 @@ class IdentificationProblem:
             n_out = sum(d.nint * o.shoot_every for d in p.data) * len(p.channels)
             costs[dly] = 2 * f.cost / max(n_out, 1)
         best = min(costs, key=costs.get)
-        fit = fits[best]
+        fit = probs[best]._globalise(fits[best], None)
         note = (f"DAQ delay: an extra delay of {best} sample(s) fits best (cost per residual "
                 + ", ".join(f"{d}: {c:.4g}" for d, c in costs.items()) + ")")
         fit = replace(fit, delay=o.extra_delay + best, delay_costs=costs, message=f"{fit.message}; {note}")
         return probs[best]._finish(fit)
 
-    def _fit(self, warm: FitResult | None) -> FitResult:
+    def _globalise(self, fit: FitResult, warm: FitResult | None) -> FitResult:
+        """``fit`` (direct), or the better of it and a cold refit along a continuation in eps
+        (:mod:`~estimators.identify.continuation`)."""
+        o = self.options
+        why = wants_continuation(fit, o.globalise if o.solver == "gn" else "off", warm is not None)
+        return fit if why is None else choose(fit, self._fit(None, continuation=True), why)
+
+    def _fit(self, warm: FitResult | None, continuation: bool = False) -> FitResult:
         t_start = time.perf_counter()
         m, o = self.model, self.options
         sh = self._shooting()
@@ -693,13 +703,20 @@ class IdentificationProblem:
             sys.stderr.flush()
 
         if o.solver == "gn":
-            res = solve_gn(sh, w0, G, h, max_iter=o.max_iter, tol=o.tol, trust_radius=o.trust_radius,
-                           callback=_progress if o.progress else None, admissible=self._rk4_stable)
+            gn = dict(max_iter=o.max_iter, tol=o.tol, trust_radius=o.trust_radius,
+                      callback=_progress if o.progress else None, admissible=self._rk4_stable)
+            if continuation:
+                res, _ = solve_continuation(sh, w0, G, h, o.eps, **gn)
+                method = continuation_method(o.eps)
+            else:
+                res, method = solve_gn(sh, w0, G, h, **gn), GN_METHOD
             costs = res.costs
         else:
             res = solve_ipopt(sh, self._S_val, w0, G, h, max_iter=o.max_iter, tol=o.tol, progress=o.progress,
                               label=label)
             costs = ()
+            method = "IPOPT (Gauss-Newton Hessian, MUMPS)"
+        attempts = (attempt(method, res, t_start),)
         if o.progress and o.solver == "gn":
             sys.stderr.write("\n")
         w = res.w
@@ -741,10 +758,6 @@ class IdentificationProblem:
             warns.append(f"constraint {c} is active at the solution")
         for msg in warns:
             warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
-        if res.success:
-            status = Status.WARNING if warns else Status.OK
-        else:
-            status = Status.NOT_CONVERGED
         message = convergence_message(res.reason, res.success, iterations=res.iterations, max_iter=o.max_iter,
                                       costs=costs, at_bound=at_bound, max_gap=res.max_gap,
                                       condition=unc.condition, weak=unc.weak, solver=o.solver,
@@ -774,6 +787,12 @@ class IdentificationProblem:
             iv += d.nint
             node += d.nint + 1
             col += ncol
+        structure = diagnose(res_l, meas_l, self.dt, sigma2=unc.sigma2, gaps=g,
+                             gap_locator=gap_locator([d.nint for d in self.data], [d.t for d in self.data], M,
+                                                     m.states))
+        status, message = fit_status(res.reason, res.success, message, warned=bool(warns), structure=structure,
+                                     history=getattr(res, "history", ()), cost=0.5 * float(r @ r),
+                                     stalled=attempts[0].stalled)
         nrmse = {}
         for j, c in enumerate(names):
             span = float(np.ptp(Ym[:, j]))
@@ -787,7 +806,8 @@ class IdentificationProblem:
             encoder_zero=tuple(zeros), input_corrections=tuple(corr_l), status=status, message=message, reason=res.reason,
             iterations=res.iterations, wall_time=time.perf_counter() - t_start, warnings=tuple(warns),
             at_bound=at_bound, active_constraints=active, condition=unc.condition, weak_directions=unc.weak,
-            input_noise=dict(self.input_noise), delay=o.extra_delay, guess_notes=self.guess_notes)
+            input_noise=dict(self.input_noise), delay=o.extra_delay, guess_notes=self.guess_notes, method=method,
+            attempts=attempts, structure=structure)
 
     def _systematic(self, fit: FitResult) -> FitResult:
         """``|theta(eps) - theta(eps/2)|``: refit warm-started from ``fit`` with the regularisation

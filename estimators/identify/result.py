@@ -4,6 +4,15 @@ A result keeps the :class:`~estimators.identify.problem.IdentificationProblem` i
 (``fit.problem``), so a bootstrap, a refit or a validation needs nothing else.  Its ``status``
 (:class:`models.status.Status`) is OK, WARNING (converged, with identifiability warnings),
 NOT_CONVERGED or FAILED; ``message`` says why, and for an unconverged fit what to try.
+
+A fit whose residual shows that the model's structure misses something in the data
+(:mod:`~estimators.identify.diagnostics`: a slow residual above the sensors' noise, a dominant
+residual frequency, gaps left at the nodes) is the best fit the model allows, not a model that
+explains the log: its status is WARNING and its message starts with ``"best fit within the model
+(...); structure misses: ..."``.  So is a fit whose solver stopped without meeting its tolerance
+(a failed line search) where the cost would fall by less than 0.1 % more and the structure
+misses, and a fit stopped at its iteration limit whose cost fell by less than 0.1 % over the last
+five iterations.  Every other unconverged fit is NOT_CONVERGED, with advice.
 """
 
 from __future__ import annotations
@@ -16,7 +25,10 @@ import numpy as np
 from models.params import ParameterSet
 from models.status import Status
 
-__all__ = ["FitResult", "IdentifiabilityWarning", "convergence_message"]
+__all__ = ["FitResult", "IdentifiabilityWarning", "convergence_message", "fit_status", "BEST_FIT"]
+
+#: how a fit that converged (or stopped stationary) but whose structure misses is reported
+BEST_FIT = "best fit within the model"
 
 
 class IdentifiabilityWarning(UserWarning):
@@ -74,6 +86,36 @@ def convergence_message(reason: str, success: bool, *, iterations: int, max_iter
     return why + ". Try: " + "; ".join(dict.fromkeys(hints)) + "."
 
 
+def fit_status(reason: str, success: bool, message: str, *, warned: bool, structure=None, history=(),
+               cost: float = float("nan"), stalled: bool = False):
+    """``(Status, message)`` of a fit (see the module docstring).
+
+    Parameters
+    ----------
+    reason, success : the solver's stop reason and whether it converged
+    message : :func:`convergence_message` for that end
+    warned : identifiability warnings were raised
+    structure : :class:`~estimators.identify.diagnostics.StructureDiagnostics` or None
+    history : the solver's diagnostics at a failed line search (``(("predicted_decrease", x), ...)``)
+    cost : ``0.5 |r|^2`` at the end
+    stalled : at the iteration limit, the cost fell by less than 0.1 % over the last five iterations
+    """
+    misses = tuple(structure.misses) if structure is not None else ()
+    if success:
+        if misses:
+            return Status.WARNING, f"{BEST_FIT} ({message}); structure misses: " + "; ".join(misses)
+        return (Status.WARNING if warned else Status.OK), message
+    pred = dict(history).get("predicted_decrease", float("inf"))
+    why = message.split(". Try:")[0]
+    if misses and reason == "line_search" and np.isfinite(cost) and 0 <= pred <= 1e-3 * cost:
+        return Status.WARNING, (f"{BEST_FIT} (the solver stopped: {why}; the cost would fall by less than 0.1 % "
+                                f"more); structure misses: " + "; ".join(misses))
+    if misses and reason == "max_iter" and stalled:
+        return Status.WARNING, (f"{BEST_FIT} (the solver stopped: {why}; the cost fell by less than 0.1 % over "
+                                f"its last five iterations); structure misses: " + "; ".join(misses))
+    return Status.NOT_CONVERGED, message
+
+
 @dataclass(frozen=True)
 class FitResult:
     """Result of :meth:`IdentificationProblem.solve` / :func:`identify` (SI units, ``names`` order).
@@ -110,6 +152,11 @@ class FitResult:
     input_noise : ``{input channel: std}`` treated as errors in the variables
     delay : extra whole-sample delay used; delay_costs : ``{delay: cost per residual}`` when detected
     guess_notes : how the data-derived guess was obtained (empty if the initial set was given)
+    method : how the fit was solved (the solver, its globalisation, a continuation in eps and why)
+    attempts : every solve, in order (:class:`~estimators.identify.continuation.Attempt`)
+    structure : what the structure misses
+        (:class:`~estimators.identify.diagnostics.StructureDiagnostics`: the residual's slow part,
+        spectrum and whiteness, the continuity gaps) or None
     """
 
     problem: Any = field(repr=False)
@@ -151,6 +198,9 @@ class FitResult:
     delay: int = 0
     delay_costs: dict = field(default_factory=dict)
     guess_notes: tuple = ()
+    method: str = ""
+    attempts: tuple = ()
+    structure: Any = None
 
     @property
     def success(self) -> bool:
@@ -198,6 +248,9 @@ class FitResult:
             "delay": self.delay,
             "delay_costs": {str(k): v for k, v in self.delay_costs.items()},
             "guess_notes": list(self.guess_notes),
+            "method": self.method,
+            "attempts": [a.as_dict() for a in self.attempts],
+            "structure": None if self.structure is None else self.structure.as_dict(),
             "validation": None if v is None else {
                 "nrmse": dict(v.nrmse), "period_measured": v.period_measured, "period_simulated": v.period_simulated,
                 "period_error": v.period_error, "amplitude_measured": v.amplitude_measured,

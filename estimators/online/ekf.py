@@ -37,7 +37,7 @@ from estimators.online.model import EstimationModel, build_estimation_model
 from estimators.online.observability import MIN_GAIN, ObservabilityReport, linearisation_function, observability
 from estimators.online.options import EKFOptions
 from models.codegen import CtypesFunction, compile_cached
-from models.errors import ConfigError
+from models.errors import ConfigError, PluginError, SolverFailure
 from models.status import Status
 
 __all__ = ["EKF", "ekf_step_function", "ObservabilityMixin"]
@@ -305,6 +305,20 @@ class EKF(ObservabilityMixin, StateEstimator):
             self._delayed_zeros(u)
             self.x0_used = self.x.copy()
         uh = self._push_input(u)
+        try:
+            x, P = self._filter(uh, y, mask)
+        except (SolverFailure, PluginError):
+            raise
+        except (RuntimeError, FloatingPointError, np.linalg.LinAlgError) as exc:   # CasADi's or the C step's
+            raise SolverFailure(f"{type(exc).__name__}: {exc}") from exc
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+            raise SolverFailure("non-finite estimate")     # the documented fallback: prediction only
+        self.x, self.P = x, P
+        status, msg = self._status(mask, P)
+        return Estimate(t, x, P, self.names, status, msg, bool(mask.any()))
+
+    def _filter(self, uh, y, mask):
+        """One predict + correct step: ``(x, P)``."""
         nx = self.em.nx
         if self._c is not None:
             c = self._c
@@ -322,9 +336,7 @@ class EKF(ObservabilityMixin, StateEstimator):
                                   self.em.p, self.em.q, self.em.r)
             x = np.array(xo).ravel()
             P = np.array(Po).reshape(nx, nx, order="F")
-        self.x, self.P = x, P
-        status, msg = self._status(mask, P)
-        return Estimate(t, x, P, self.names, status, msg, bool(mask.any()))
+        return x, P
 
     def reset(self, x, P=None) -> None:
         """Restart from the estimator state ``x`` and covariance ``P`` (the prior's if None)."""

@@ -51,7 +51,7 @@ from estimators.base import Estimate, EstimatorContext, StateEstimator
 from estimators.online.ekf import EKF, ObservabilityMixin
 from estimators.online.options import MHEOptions
 from models.codegen import compile_cached
-from models.errors import ConfigError
+from models.errors import ConfigError, PluginError, SolverFailure
 from models.sensors import FLOOR
 from models.status import Status
 
@@ -208,7 +208,7 @@ class MHE(ObservabilityMixin, StateEstimator):
     def _update_impl(self, t, y, mask, u):
         e_ekf = self.ekf.update(t, dict(zip(self.channels, y)), u)     # runs every step (fallback, warm start)
         if e_ekf.status is Status.FALLBACK:
-            raise RuntimeError(f"EKF alongside failed: {e_ekf.message}")
+            raise SolverFailure(f"EKF alongside failed: {e_ekf.message}")
         yi, mi = self._internal(y, mask)
         if not self._UH:       # the EKF's prior of the first update (it may take the measured speeds)
             self._XE[0] = (self.ekf.x0_used.copy(), self.em.P0.copy())
@@ -221,6 +221,16 @@ class MHE(ObservabilityMixin, StateEstimator):
             status, msg = self._status(mask, e_ekf.P)
             return Estimate(t, e_ekf.x, e_ekf.P, self.names, status,
                             f"{msg}; window filling ({len(self._Y)}/{N + 1}): EKF estimate", e_ekf.corrected)
+        try:
+            return self._solve(t, mask, e_ekf)
+        except (SolverFailure, PluginError):
+            raise
+        except (RuntimeError, FloatingPointError, np.linalg.LinAlgError) as exc:   # CasADi's and the C step's
+            raise SolverFailure(f"{type(exc).__name__}: {exc}") from exc
+
+    def _solve(self, t, mask, e_ekf):
+        """The window's Gauss-Newton solve (the EKF has run; the window is full)."""
+        nx, N = self.em.nx, self.N
         # warm start: the previous solution shifted by one node, the new node the EKF's
         if self._w is None:
             self._w = np.concatenate([xe for xe, _ in list(self._XE)[1:]])
@@ -256,17 +266,17 @@ class MHE(ObservabilityMixin, StateEstimator):
                               lbx=self._lbw - w, ubx=self._ubw - w)
                 if not self.qp.stats()["success"]:
                     self.qp_failures += 1
-                    raise RuntimeError(f"QP ({self.options.qpsol}) failed: {self.qp.stats().get('return_status', '?')}")
+                    raise SolverFailure(f"QP ({self.options.qpsol}) failed: {self.qp.stats().get('return_status', '?')}")
                 d = np.array(sol["x"]).ravel()
                 Pw = self._gn_out[4]
             if not np.all(np.isfinite(d)):
-                raise FloatingPointError("non-finite Gauss-Newton step")
+                raise SolverFailure("non-finite Gauss-Newton step")
             w = np.clip(w + d, self._lbw, self._ubw)
         self._w = w
         P = Pw.reshape(nx, nx, order="F")
         P = 0.5 * (P + P.T)
         if not np.all(np.diag(P) > 0):
-            raise FloatingPointError("Gauss-Newton Hessian not positive definite")
+            raise SolverFailure("Gauss-Newton Hessian not positive definite")
         x = w[-nx:].copy()
         status, msg = self._status(mask, P)
         return Estimate(t, x, P, self.names, status, msg, bool(mask.any()))

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any, ClassVar, Mapping
+from typing import Any, Mapping
 
 from models.errors import ConfigError
 
@@ -103,7 +103,6 @@ class EKFOptions:
     why"); the noise levels ``q_torque``, ``p0_*`` are in SI units and sized for it.
     """
 
-    kind_name: ClassVar[str] = "ekf"
 
     channels: tuple | None = None
     angles: str = "zeroed"
@@ -162,7 +161,6 @@ class MHEOptions(EKFOptions):
         weights of exact constraints (power-on twists, lagged states)
     """
 
-    kind_name: ClassVar[str] = "mhe"
 
     window: int = 20
     max_iter: int = 1
@@ -190,7 +188,6 @@ class FDOptions:
         twist of the context's ``x0``) or "absolute" (the differences are the twists)
     """
 
-    kind_name: ClassVar[str] = "fd"
 
     angles: str = "zeroed"
 
@@ -199,8 +196,8 @@ class FDOptions:
             raise ConfigError(f"{_W}.angles must be 'zeroed' or 'absolute', got {self.angles!r}")
 
 
-def options_from_mapping(cls, table: Mapping[str, Any], where: str = "estimator"):
-    """Options of class ``cls`` from a TOML table (without ``kind``).
+def options_from_mapping(cls, table: Mapping[str, Any], where: str = "estimator", kind: str = "?"):
+    """Options of class ``cls`` (of the estimator kind ``kind``) from a TOML table (without ``kind``).
 
     Raises
     ------
@@ -210,10 +207,12 @@ def options_from_mapping(cls, table: Mapping[str, Any], where: str = "estimator"
     allowed = [f.name for f in fields(cls)]
     unknown = [k for k in table if k not in allowed]
     if unknown:
-        raise ConfigError(f"{where}: unknown key {unknown[0]!r} for kind {cls.kind_name!r}; "
+        raise ConfigError(f"{where}: unknown key {unknown[0]!r} for kind {kind!r}; "
                           f"expected some of {', '.join(sorted(allowed))}")
     try:
         return cls(**dict(table))
     except ConfigError as exc:
         msg = str(exc)
         raise ConfigError(where + msg[len(_W):] if msg.startswith(_W) else f"{where}: {msg}") from None
+    except Exception as exc:  # noqa: BLE001 - a plug-in's options class may check with anything: still bad input
+        raise ConfigError(f"{where}: {type(exc).__name__}: {exc}") from None

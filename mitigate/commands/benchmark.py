@@ -64,26 +64,23 @@ def parse_controller(text: str) -> dict:
 
 
 def run(args) -> int:
-    from mitigate.benchmark import load_suite, run_benchmark, write_benchmark
+    from mitigate.benchmark import BENCHMARK_FILES, load_suite, run_benchmark, write_benchmark
+    from mitigate.controllers.factory import controller_class, options_of
+    from models.files import check_output_dir, output_set
 
-    from models.files import refuse_overwrite
-    from pathlib import Path
-
+    out = check_output_dir(args.out)                 # before anything: a usable folder
+    if isinstance(args.jobs, int) and args.jobs < 1:
+        raise ConfigError(f"--jobs must be an integer >= 1, got {args.jobs}")
     extra = [parse_controller(c) for c in args.controller]
     suite = load_suite(args.suite, extra_controllers=extra, only=args.only)
-    out = Path(args.out)
-    for name in ("ranking.md", "results.csv", "results.json", "benchmark.png"):
-        refuse_overwrite(out / name, args.force, "force")
     for sc in suite.scenarios:                       # every controller's options, before anything runs
-        from mitigate.controllers.factory import controller_class, parse_options
         for i, c in enumerate(sc.controllers):
-            cls = controller_class(c.kind, f"{sc.where}: controllers[{i}]")
-            oc = getattr(cls, "options_class", None)
-            if oc is not None:
-                parse_options(oc, dict(c.options), f"{sc.where}: controllers[{i}]")
-    res = run_benchmark(suite, jobs=args.jobs, progress=not args.json)
+            where = f"{sc.where}: controllers[{i}]"
+            options_of(controller_class(c.kind, where), c.options, where)
     command = "mitigate benchmark " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if len(sys.argv) > 2 else ""
-    files = write_benchmark(res, out, force=True, command=command)
+    with output_set(out, BENCHMARK_FILES.values(), force=args.force) as w:   # locked, written as one set
+        res = run_benchmark(suite, jobs=args.jobs, progress=not args.json)
+        files = write_benchmark(res, w, command=command)
     if args.json:
         d = res.as_dict()
         d["files"] = {k: str(v) for k, v in files.items()}
@@ -93,4 +90,4 @@ def run(args) -> int:
         rows = [[r["controller"]] + [r.get(k, float("nan")) for k, *_ in RANK_COLUMNS] for r in res.table]
         print(format_table(["controller"] + [h for _k, h, *_ in RANK_COLUMNS], rows))
         print(f"\n{res.message}; {res.elapsed:.0f} s; ranking in {files['ranking']}")
-    return 0
+    return 0 if res.status.success else 1

@@ -9,6 +9,10 @@ conditioning and how the fit ended, and writes the fitted set as a parameter TOM
 The library names its own arguments in errors ("options.free", "holdout"); this command
 translates them to its flags.  Bad input is one line on stderr and exit code 2; an unconverged
 fit exits 1 (its message says why and what to try); nothing is overwritten without ``--force``.
+A fit that is the best its model allows but whose residual shows that the model's structure misses
+something in the log (a slow residual above the sensors' noise, a dominant residual frequency, gaps
+left at the shooting nodes) ends with status WARNING, the line ``best fit within the model (...);
+structure misses: ...`` and exit 0.
 """
 
 from __future__ import annotations
@@ -49,7 +53,7 @@ _FLAGS = {
     "input_cutoff": "--input-cutoff", "input_noise": "--input-noise", "outputs": "--outputs", "exclude": "--exclude",
     "constraints": "--constraint", "encoder_zero": "--encoder-zero", "input_row": "--input-row",
     "extra_delay": "--delay", "detect_delay": "--detect-delay", "solver": "--solver", "bounds": "--params [bounds]",
-    "systematic_iter": "--systematic", "tol": "--tol",
+    "systematic_iter": "--systematic", "tol": "--tol", "globalise": "--globalise",
 }
 
 
@@ -95,6 +99,10 @@ def register(subparsers) -> None:
     p.add_argument("--max-iter", type=int, default=100, metavar="N", help="iteration limit (default 100)")
     p.add_argument("--solver", choices=("gn", "ipopt"), default="gn",
                    help="gn: constrained Gauss-Newton, compiled (default); ipopt: cross-check, slower")
+    p.add_argument("--globalise", choices=("auto", "always", "off"), default="auto",
+                   help="gn: auto (default) repeats a fit that does not converge, or whose residual shows that the "
+                        "model's structure misses, along a continuation in --eps from 10x down and keeps the better "
+                        "end; always; off (the direct fit only)")
     p.add_argument("--encoder-zero", choices=("free", "untwisted"), default="free",
                    help="free: one unknown twist at power-on per angle difference and log (default); untwisted: "
                         "the logs started untwisted")
@@ -234,7 +242,7 @@ def _run(args) -> int:
                                 workers=args.workers, progress=(not args.json) and sys.stderr.isatty())
     options = IdentifyOptions(
         free=free, eps=args.eps, nsub=args.nsub, shoot_every=args.shoot_every, max_iter=args.max_iter,
-        solver=args.solver, encoder_zero=args.encoder_zero, input_row=args.input_row, outputs=_names(args.outputs),
+        solver=args.solver, globalise=args.globalise, encoder_zero=args.encoder_zero, input_row=args.input_row, outputs=_names(args.outputs),
         exclude=_names(args.exclude) or (), constraints=tuple(args.constraint),
         order_friction=not args.no_order_friction, extra_delay=args.delay, detect_delay=args.detect_delay,
         input_cutoff=_channel_values(args.input_cutoff, "--input-cutoff", "CHANNEL=HZ (e.g. n1=0.5)") or None,
@@ -300,7 +308,15 @@ def _run(args) -> int:
         head = ["parameter", "estimate", "std. error", "syst. error", "total error", "initial", "published", "unit"]
     print(format_table(head, rows))
     print(f"status: {fit.status.value}: {fit.message} ({fit.iterations} iterations, {fit.wall_time:.1f} s)")
+    print(f"method: {fit.method}")
     print("NRMSE: " + ", ".join(f"{k} {100 * v:.1f} %" for k, v in fit.nrmse.items()))
+    if fit.structure is not None:
+        st = fit.structure
+        print("residual: " + ", ".join(f"{k} {st.rms[k]:.2g} ({st.slow_rms[k]:.2g} below {st.cutoff[k]:.3g} Hz)"
+                                       for k in st.rms)
+              + f" noise levels; largest spectral peak {st.peak_frequency:.3g} Hz ({100 * st.peak_share:.0f} % of "
+              f"the {st.channel} residual's energy), lag-1 autocorrelation {st.lag1:.2f}; largest continuity gap "
+              f"{st.max_gap:.2g} (scaled)" + (f" at t = {st.gap_time:.4g} s, {st.gap_state}" if st.gap_state else ""))
     if fit.weak_directions:
         w = fit.weak_directions[0]
         print(f"conditioning: condition number {fit.condition:.3g} (relative units); weakest direction {w.text} "

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 from pathlib import Path
 
 import numpy as np
 
-from mitigate.cliutil import add_common, check_outputs, emit_json, format_table, savefig_atomic
+from mitigate.cliutil import add_common, emit_json, format_table, savefig_atomic
+from models.files import check_output_dir, output_set
 from models.errors import ConfigError
 from models.modal import VARIANTS, compare_measured, modes, stability_map
 from models.rig import load_params
@@ -110,13 +112,31 @@ def run(args) -> int:
             raise ConfigError(f"{name} must be a finite number, got {v}")
     if args.load is not None and args.load < 0:
         raise ConfigError(f"--load must be >= 0 N, got {args.load}")
-    out = Path(args.out) if args.out is not None else None
+    out = check_output_dir(args.out) if args.out is not None else None
     loads = [n for n, k in zip(model.inputs, model.input_kinds) if k == "force"]
     do_map = out is not None and (not args.no_map) and model.drive_kind != "torque" and bool(loads)
-    if out is not None:
-        shapes_png = out / f"modal_{model.cname}.png"
-        map_png = out / f"stability_map_{model.cname}.png"
-        check_outputs([shapes_png] + ([map_png] if do_map else []), args.force)
+    with contextlib.ExitStack() as stack:
+        w = None
+        if out is not None:
+            shapes_png = out / f"modal_{model.cname}.png"
+            map_png = out / f"stability_map_{model.cname}.png"
+            w = stack.enter_context(output_set(out, [shapes_png.name] + ([map_png.name] if do_map else []),
+                                               force=args.force))
+        payload, lines = _analyse(args, model, params, variants, out, w, do_map, loads)
+    if args.json:
+        emit_json(payload)
+    else:
+        measured = model.spec.extra.get("measured_modes_hz", ())
+        print(f"modal analysis of {model.name} ({args.params or 'published parameters'})"
+              + (f"; measured: {', '.join(f'{f:g}' for f in measured)} Hz" if measured else ""))
+        print("\n".join(lines))
+        if out is not None:
+            print(f"\nwrote {payload['png']}" + (f" and {payload['stability_map']['png']}" if do_map else ""))
+    return 0
+
+
+def _analyse(args, model, params, variants, out, w, do_map, loads):
+    """The modes (and, with ``w``, the PNGs written into the output set): ``(payload, lines)``."""
 
     results = [modes(model, params, v, omega=args.omega, load=args.load) for v in variants]
     measured = model.spec.extra.get("measured_modes_hz", ())
@@ -139,10 +159,10 @@ def run(args) -> int:
         if cmp:
             lines.append(format_table(["mode", "model [Hz]", "measured [Hz]", "error [%]"],
                                       [list(c) for c in cmp]))
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        _plot_shapes(results, shapes_png, f"Mode shapes of {model.name} ({args.params or 'published parameters'})")
-        payload["png"] = str(shapes_png)
+    if w is not None:
+        _plot_shapes(results, w.path(f"modal_{model.cname}.png"),
+                     f"Mode shapes of {model.name} ({args.params or 'published parameters'})")
+        payload["png"] = str(w.final(f"modal_{model.cname}.png"))
     if do_map:
         from models.modal import operating_point
         u_op, _ = operating_point(model, params)
@@ -151,14 +171,8 @@ def run(args) -> int:
         n1 = np.linspace(0.0, 2.0 * n_op, 21)
         om = np.linspace(0.15 * w_op, 2.0 * w_op, 23)   # >= 10 eps: the regularisation does not set the slope
         M = stability_map(model, params, n1, om)
-        _plot_map(n1, om, M, map_png, f"Stability of steady sliding, {model.name}", loads[0])
-        payload["stability_map"] = {"png": str(map_png), "load": loads[0], "values": n1, "omega": om, "max_real": M}
-    if args.json:
-        emit_json(payload)
-    else:
-        print(f"modal analysis of {model.name} ({args.params or 'published parameters'})"
-              + (f"; measured: {', '.join(f'{f:g}' for f in measured)} Hz" if measured else ""))
-        print("\n".join(lines))
-        if out is not None:
-            print(f"\nwrote {shapes_png}" + (f" and {map_png}" if do_map else ""))
-    return 0
+        name = f"stability_map_{model.cname}.png"
+        _plot_map(n1, om, M, w.path(name), f"Stability of steady sliding, {model.name}", loads[0])
+        payload["stability_map"] = {"png": str(w.final(name)), "load": loads[0], "values": n1, "omega": om,
+                                    "max_real": M}
+    return payload, lines

@@ -14,7 +14,11 @@ its sensors and servos, parameter mismatch and [structure]), each in its own pro
 writes to DIR: a terminal table, metrics.csv, metrics.json, log_<controller>.csv (measured
 channels, commands, true twists and speeds), timeseries_<controller>.png, comparison.png,
 phase.png, metrics.png and report.md.
-Nothing is run or written if the scenario is invalid or an output exists (use --force).
+Nothing is run or written if the scenario is invalid, DIR cannot be a folder, another command is
+writing into DIR, or an output exists (use --force); the outputs are written as one set (a killed
+run leaves DIR as it was). Exit codes: 0 every run ok (or with warnings), 1 a run FAILED or diverged
+(a controller or estimator that raised, returned NaN or hung past [control] timeout; the reason is
+in the table, metrics.json and report.md), 2 bad input.
 
 Example:
   mitigate run scenarios/stick_slip_30rpm.toml --out out/

@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 
 from mitigate import metrics
-from mitigate.cliutil import add_common, check_outputs, emit_json, format_table
+from mitigate.cliutil import add_common, emit_json, format_table
 from mitigate.scenario import load_scenario
 from models.errors import SolverFailure
+from models.files import check_output_dir, file_stem, output_set
 from models.plant import simulate
 
 EPILOG = """examples:
@@ -63,27 +63,28 @@ def summarise(t: np.ndarray, omega_true: np.ndarray, omega_meas: np.ndarray | No
 
 
 def run(args) -> int:
+    out = check_output_dir(args.out)
     sc = load_scenario(args.scenario)
     model = sc.plant_model
-    out = Path(args.out)
-    csv_path, png_path = out / f"{sc.name}.csv", out / f"{sc.name}.png"
+    stem = file_stem(sc.name, f"{sc.where}: scenario.name")     # <name>.csv stays inside --out
+    csv_path, png_path = out / f"{stem}.csv", out / f"{stem}.png"
     targets = [csv_path] + ([] if args.no_plot else [png_path])
-    check_outputs(targets, args.force)
     progress = (not args.json) and sys.stderr.isatty() and sc.samples > 2000
-    res = simulate(model, sc.plant_params, sc.programme, sc.duration, sc.sim,
-                   sensors=None if args.ideal else sc.sensors, drift=sc.drift, progress=progress)
-    if not res.success:
-        raise SolverFailure(f"simulation of {sc.name!r} failed: {res.message}")
-    log = res.to_log(measured=True, include_truth=args.truth)
-    out.mkdir(parents=True, exist_ok=True)
-    log.write_csv(csv_path, overwrite=args.force)
     body = sc.model.objective_body
-    if not args.no_plot:
-        from mitigate.timeplots import plot_log
+    with output_set(out, [p.name for p in targets], force=args.force) as w:
+        res = simulate(model, sc.plant_params, sc.programme, sc.duration, sc.sim,
+                       sensors=None if args.ideal else sc.sensors, drift=sc.drift, progress=progress)
+        if not res.success:
+            raise SolverFailure(f"simulation of {sc.name!r} failed: {res.message}")
+        log = res.to_log(measured=True, include_truth=args.truth)
+        log.write_csv(w.path(csv_path.name), overwrite=True)
+        if not args.no_plot:
+            from mitigate.timeplots import plot_log
 
-        truth = {n: res.x[:, j] for j, n in enumerate(res.states)}
-        plot_log(sc.model, res.t, res.y, f"{sc.name}: open loop ({model.name}, {sc.sim.method}; shaded: {body} stuck)",
-                 png_path, truth=truth)
+            truth = {n: res.x[:, j] for j, n in enumerate(res.states)}
+            plot_log(sc.model, res.t, res.y,
+                     f"{sc.name}: open loop ({model.name}, {sc.sim.method}; shaded: {body} stuck)",
+                     w.path(png_path.name), truth=truth)
     ch = sc.model.speed_channel(body)
     summary = summarise(res.t, res.state(f"omega_{body}"), res.y.get(ch) if ch else None)
     payload = {"scenario": sc.name, "model": model.name, "body": body, "method": sc.sim.method,

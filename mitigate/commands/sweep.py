@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 
 from models.errors import ConfigError
+from models.files import check_output_dir, file_stem, output_set
 from mitigate.cliutil import add_common, emit_json, format_table
 
 EPILOG = """\
@@ -64,6 +65,8 @@ def run(args) -> int:
                                 plan_sweep, run_sweep)
     from mitigate.sweep.maps import plot_maps
 
+    if args.out is not None:
+        check_output_dir(args.out)
     sc = load_scenario(args.scenario)
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
@@ -82,20 +85,23 @@ def run(args) -> int:
         if args.controller not in names:
             raise ConfigError(f"--controller must be one of the scenario's [[controllers]] names {names}, "
                               f"got {args.controller!r}")
-    out = Path(args.out) if args.out else Path("out") / f"sweep-{sc.name}"
+    out = check_output_dir(Path(args.out) if args.out else Path("out") / f"sweep-{file_stem(sc.name, 'scenario.name')}")
     t0 = time.perf_counter()
+    model = sc.plant_model
+    amp_unit = model.state_units[model.states.index(opts.amplitude_of)]
     client = connect_scheduler(args.scheduler, args.scheduler_timeout) if args.scheduler else None   # before any file is written
     try:
-        store = SweepStore(out, plan.definition(args.controller), force=args.force)
-        res = run_sweep(plan, store, workers=args.workers, client=client, controller=args.controller,
-                        progress=not (args.no_progress or args.json), stability=not args.no_stability)
+        # the store's hash guards a different sweep; the lock guards a second command into the same folder
+        with output_set(out, [], force=True) as w:
+            store = SweepStore(out, plan.definition(args.controller), force=args.force)
+            res = run_sweep(plan, store, workers=args.workers, client=client, controller=args.controller,
+                            progress=not (args.no_progress or args.json), stability=not args.no_stability)
+            files = [w.final(f.name) for f in plot_maps(res, w.dir, title=f"{sc.name} ({opts.amplitude_of} amplitude)",
+                                                        amp_unit=amp_unit, threshold=opts.threshold,
+                                                        units=axis_units(sc))]
     finally:
         if client is not None:
             client.close()
-    model = sc.plant_model
-    amp_unit = model.state_units[model.states.index(opts.amplitude_of)]
-    files = plot_maps(res, out, title=f"{sc.name} ({opts.amplitude_of} amplitude)", amp_unit=amp_unit,
-                      threshold=opts.threshold, units=axis_units(sc))
     elapsed = time.perf_counter() - t0
     summary = []
     for start, maps in res.maps.items():

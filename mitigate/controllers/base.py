@@ -13,9 +13,19 @@ same call::
   scenario's programme.
 
 The public :meth:`Controller.step` guards, times and counts; a subclass implements
-``_step_impl`` with the same arguments.  It never raises inside a closed loop: an exception
-or a non-finite command is counted as a failure and answered by the fallback, the scenario's
-programme (the rig as it runs without the controller), with ``Status.FALLBACK``.
+``_step_impl`` with the same arguments.  What a failure does (:mod:`models.plugins`):
+
+- ``SolverFailure`` raised by ``_step_impl`` is a transient failure: counted (``failures``) and
+  answered by the controller's documented fallback (:meth:`Controller._fallback`; by default the
+  scenario's programme, the rig as it runs without the controller), ``Status.FALLBACK``.  So is a
+  fallback the controller returns itself (the NMPC's shifted plan).  Both count as ``fallbacks``;
+  a run whose fallbacks exceed 1 % of its calls ends with ``Status.WARNING``;
+- with a ``deadline`` in the context (``[control] deadline``), an answer that took longer is a
+  counted deadline miss (``deadline_misses``, also a fallback) and the fallback acts instead;
+- anything else -- another exception (also ``SystemExit``), a non-finite command, a command for an
+  input the rig cannot set, a result that is not an :class:`Action`, a call that does not return
+  within the context's ``timeout`` -- raises :class:`models.errors.PluginError` with the
+  exception's type and first line: the closed loop ends that run as FAILED.
 
 Your own controller is a subclass in any importable module, named in a scenario as
 ``kind = "my_module:MyController"`` (README, "Your own controller").
@@ -31,12 +41,26 @@ from typing import Any, Callable, ClassVar, Mapping
 
 import numpy as np
 
-from models.errors import ConfigError
+from models import plugins
+from models.errors import ConfigError, PluginError, SolverFailure, quote
 from models.params import ParameterSet
 from models.sensors import SensorOptions
 from models.status import Status
 
-__all__ = ["Action", "Controller", "ControllerCounts", "ControlContext"]
+__all__ = ["Action", "Controller", "ControllerCounts", "ControlContext", "reading"]
+
+
+def reading(measurement: Mapping[str, float] | None, channel: str) -> float:
+    """The finite value of ``channel`` in a DAQ sample [SI]; a missing or non-finite reading (a
+    dropout) raises :class:`SolverFailure`, which the built-in laws answer with their fallback."""
+    v = measurement.get(channel) if measurement is not None else None
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        raise SolverFailure(f"no reading of channel {channel!r} in this sample") from None
+    if not math.isfinite(v):
+        raise SolverFailure(f"channel {channel!r} reads {v} in this sample")
+    return v
 
 
 @dataclass(frozen=True)
@@ -77,6 +101,10 @@ class ControlContext:
     schedule : ``{input: t -> value}``, the same per input (faster for a law that needs one)
     sensors : the sensor settings (noise levels follow from the rig file and these)
     where : prefix of error messages (``"scenario.toml: controllers[2]"``)
+    deadline : wall time a call may take [s] before its answer counts as a deadline miss and the
+        fallback acts instead (None: no deadline; ``[control] deadline``)
+    timeout : wall time after which a call that has not returned fails the run [s]
+        (``[control] timeout``; None: never)
     """
 
     model: Any
@@ -87,6 +115,8 @@ class ControlContext:
     sensors: SensorOptions = SensorOptions()
     where: str = "controller"
     schedule: Mapping[str, Callable[[float], float]] = field(default_factory=dict)
+    deadline: float | None = None
+    timeout: float | None = None
 
     def scheduled(self, t: float, name: str) -> float:
         """The programme's value of input ``name`` at ``t`` (one input's profile when the context
@@ -114,23 +144,28 @@ class ControllerCounts:
     """How often a controller degraded (reported by the runner)."""
 
     steps: int = 0
-    failures: int = 0
-    fallbacks: int = 0
+    failures: int = 0          # SolverFailure answered by the fallback
+    fallbacks: int = 0         # actions that came from a fallback (failures, deadline misses, the controller's own)
     holds: int = 0
+    deadline_misses: int = 0   # answers later than the context's deadline (the fallback acted)
 
     def as_dict(self) -> dict[str, int]:
-        return dict(steps=self.steps, failures=self.failures, fallbacks=self.fallbacks, holds=self.holds)
+        return dict(steps=self.steps, failures=self.failures, fallbacks=self.fallbacks, holds=self.holds,
+                    deadline_misses=self.deadline_misses)
 
 
 class Controller(ABC):
     """Template: :meth:`step` guards, times and counts; subclasses implement ``_step_impl``.
 
     Subclasses set ``kind`` (the scenario name) and ``options_class`` (a frozen, keyword-only
-    dataclass that validates itself; None to take the raw options table as a dict).
+    dataclass that validates itself; None to take the raw options table as a dict), optionally
+    ``derived`` (attributes that hold self-derived tuning values).
     """
 
     kind: ClassVar[str] = "controller"
     options_class: ClassVar[type | None] = None
+    #: names of attributes holding values the controller derived (reported with a set-point chatter warning)
+    derived: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, options: Any, context: ControlContext):
         self.options = options
@@ -145,27 +180,67 @@ class Controller(ABC):
         """Forget internal state (called before a run)."""
 
     def step(self, t: float, measurement: Mapping[str, float], estimate=None) -> Action:
-        """One control decision at time ``t`` [s] (module docstring)."""
+        """One control decision at time ``t`` [s] (module docstring).
+
+        Raises
+        ------
+        PluginError : the controller broke its contract (module docstring); its run is FAILED.
+        """
+        ctx = self.context
         t0 = time.perf_counter()
         self.counts.steps += 1
         try:
-            a = self._step_impl(float(t), measurement, estimate)
-            if not isinstance(a, Action):
-                raise TypeError(f"_step_impl must return an Action, got {type(a).__name__}")
-            for k, v in a.u.items():
-                if k not in self.context.model.commands:
-                    raise ValueError(f"command for {k!r}, which the rig cannot set "
-                                     f"({', '.join(self.context.model.commands)})")
-                if not math.isfinite(float(v)):
-                    raise FloatingPointError(f"non-finite command {k} = {v}")
-        except Exception as exc:  # never raise inside a closed loop
+            a = plugins.call(self._step_impl, float(t), measurement, estimate, timeout=ctx.timeout, what="step")
+            self._check_action(a)
+        except SolverFailure as exc:
             self.counts.failures += 1
-            a = self._fallback(f"{type(exc).__name__}: {exc}")
+            a = self._guarded_fallback(f"SolverFailure: {exc}")
+        took = time.perf_counter() - t0
+        if ctx.deadline is not None and took > ctx.deadline:
+            self.counts.deadline_misses += 1
+            a = self._guarded_fallback(f"deadline miss: the answer took {1e3 * took:.3g} ms > "
+                                       f"{1e3 * ctx.deadline:g} ms")
         if a.status is Status.FALLBACK:
             self.counts.fallbacks += 1
         elif a.status is Status.HOLD:
             self.counts.holds += 1
-        return Action(dict(a.u), a.status, a.message, time.perf_counter() - t0)
+        return Action(dict(a.u), a.status, a.message, took)
+
+    def _check_action(self, a) -> None:
+        if not isinstance(a, Action):
+            raise PluginError(f"TypeError: step must return an Action, got {type(a).__name__}")
+        if not isinstance(a.status, Status):
+            raise PluginError(f"TypeError: Action.status must be a Status, got {a.status!r}")
+        if not isinstance(a.u, Mapping):
+            raise PluginError(f"TypeError: Action.u must be a mapping {{input: value}}, got {type(a.u).__name__}")
+        for k, v in a.u.items():
+            if k not in self.context.model.commands:
+                raise PluginError(f"ValueError: command for {k!r}, which the rig cannot set "
+                                  f"({', '.join(self.context.model.commands)})")
+            try:
+                ok = math.isfinite(float(v))
+            except (TypeError, ValueError):
+                raise PluginError(f"TypeError: command {k} must be a number, got {quote(v)} ({type(v).__name__})") from None
+            if not ok:
+                raise PluginError(f"FloatingPointError: non-finite command {k} = {v}")
+
+    def _guarded_fallback(self, why: str) -> Action:
+        try:
+            a = plugins.call(self._fallback, why, timeout=self.context.timeout, what="fallback")
+        except SolverFailure as exc:
+            raise PluginError(f"the fallback failed: SolverFailure: {exc}") from exc
+        self._check_action(a)
+        return a
+
+    def tuning_values(self) -> dict[str, float]:
+        """The values the controller derived for itself (gains, filter times), by name, for
+        reports and warnings: the attributes named in ``derived`` (a class attribute)."""
+        out = {}
+        for n in getattr(self, "derived", ()):
+            v = getattr(self, n, None)
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                out[n] = float(v)
+        return out
 
     @abstractmethod
     def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:

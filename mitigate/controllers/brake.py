@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import Mapping
 
 from mitigate.controllers._opts import check_bool, check_number
-from mitigate.controllers.base import Action, Controller, ControlContext
+from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from models.errors import ConfigError
 
 __all__ = ["BrakeOptions", "BrakeController", "body_speed"]
@@ -69,7 +69,7 @@ def body_speed(model, body: str, estimate, measurement: Mapping[str, float], use
     if use_estimate and estimate is not None and name in estimate.names:
         return estimate.get(name)
     ch = model.speed_channel(body)
-    return float(measurement[ch])
+    return reading(measurement, ch)
 
 
 class BrakeController(Controller):

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from typing import Mapping
 
 from mitigate.controllers._opts import check_number
-from mitigate.controllers.base import Action, Controller, ControlContext
+from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.controllers.tuning import drive_speed_channel, first_order, np_clip, tuning_for
 from models.errors import ConfigError
 
@@ -67,6 +67,7 @@ class DOSKIL(Controller):
 
     kind = "doskil"
     options_class = DOSKILOptions
+    derived = ("gain", "tau", "n_min", "n_max")
 
     def __init__(self, options: DOSKILOptions, context: ControlContext):
         super().__init__(options, context)
@@ -102,7 +103,7 @@ class DOSKIL(Controller):
         self._d = None
 
     def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
-        d = float(measurement[self.body_ch]) - float(measurement[self.top_ch])
+        d = reading(measurement, self.body_ch) - reading(measurement, self.top_ch)
         self._d = d if self._d is None else first_order(self._d, d, self.context.period, self.tau)
         n = self.context.scheduled(t, self.input) + self.gain * self._d
         return Action({self.input: np_clip(n, self.n_min, self.n_max)})

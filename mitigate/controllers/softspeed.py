@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from typing import Mapping
 
 from mitigate.controllers._opts import check_number
-from mitigate.controllers.base import Action, Controller, ControlContext
+from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.controllers.tuning import PipeTorque, drive_speed_channel, np_clip, tuning_for
 from models.errors import ConfigError
 
@@ -77,6 +77,7 @@ class SoftSpeed(Controller):
 
     kind = "softspeed"
     options_class = SoftSpeedOptions
+    derived = ("Z", "J_v", "Kp", "Ki", "f_t")
 
     def __init__(self, options: SoftSpeedOptions, context: ControlContext):
         super().__init__(options, context)
@@ -105,7 +106,7 @@ class SoftSpeed(Controller):
         m, dt = self.context.model, self.context.period
         w_nom = self.context.scheduled(t, m.drive_input) if not self.torque_drive else self._w_nominal(t)
         T_pipe = self.pipe.update(measurement)
-        w_meas = float(measurement[self.speed_ch])
+        w_meas = reading(measurement, self.speed_ch)
         if self.torque_drive:
             if self._I is None:
                 self._I = T_pipe

@@ -28,7 +28,7 @@ from typing import Mapping
 import numpy as np
 
 from mitigate.controllers._opts import check_number
-from mitigate.controllers.base import Action, Controller, ControlContext
+from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from models.errors import ConfigError
 
 __all__ = ["SupervisorOptions", "SpeedSupervisor"]
@@ -117,7 +117,7 @@ class SpeedSupervisor(Controller):
 
     def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
         o = self.options
-        w1 = float(measurement[self.channel])
+        w1 = reading(measurement, self.channel)
         h = self.dt if self._t is None else max(t - self._t, 0.0)
         self._t = t
         if np.isfinite(w1):

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mitigate.controllers.base import reading
 from models.errors import ConfigError
 
 __all__ = ["DriveTuning", "string_impedance", "stick_slip_frequency", "drive_inertia", "tuning_for"]
@@ -193,8 +194,8 @@ class PipeTorque:
 
     def update(self, measurement) -> float:
         """The new estimate [N m] from one DAQ sample (measured drive speed and torque)."""
-        w = float(measurement[self.speed_ch])
-        T = float(measurement[self.torque_ch])
+        w = reading(measurement, self.speed_ch)
+        T = reading(measurement, self.torque_ch)
         if self._w is not None:
             self._acc = first_order(self._acc, (w - self._w) / self.dt, self.dt, self.tau_acc)
             # the torque through the SAME filter as the acceleration: LP(T) - J LP(w') = LP(T - J w'),

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import Mapping
 
 from mitigate.controllers._opts import check_number
-from mitigate.controllers.base import Action, Controller, ControlContext
+from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.controllers.tuning import PipeTorque, drive_speed_channel, first_order, np_clip, tuning_for
 
 __all__ = ["ZTorqueOptions", "ZTorque"]
@@ -69,6 +69,7 @@ class ZTorque(Controller):
 
     kind = "ztorque"
     options_class = ZTorqueOptions
+    derived = ("Z", "gain", "tau_hp", "Kp", "Ki")
 
     def __init__(self, options: ZTorqueOptions, context: ControlContext):
         super().__init__(options, context)
@@ -98,7 +99,7 @@ class ZTorque(Controller):
         hp = T - self._lp
         if self.torque_drive:
             w_nom = m.nominal_speed()
-            e = w_nom - float(measurement[self.speed_ch]) - self.gain * hp
+            e = w_nom - reading(measurement, self.speed_ch) - self.gain * hp
             if self._I is None:
                 self._I = T
             self._I += self.Ki * e * dt

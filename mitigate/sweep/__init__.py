@@ -82,6 +82,9 @@ def sweep(scenario, axes=(), *, out, controller=None, force=False, workers=None,
     from models.errors import ConfigError
     from mitigate.scenario import Scenario, load_scenario
 
+    from models.files import check_output_dir, output_set
+
+    check_output_dir(out)
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     opts = options_from_scenario(sc, **options)
     axes = list(axes) or list(sc.sweep.get("vary", []))
@@ -89,17 +92,18 @@ def sweep(scenario, axes=(), *, out, controller=None, force=False, workers=None,
         raise ConfigError(f"axes must be 'name=start:stop:count' strings or Axis objects, got {axes!r}")
     axes = [a if isinstance(a, Axis) else parse_axis(a) for a in axes]
     plan = plan_sweep(sc, axes, opts)
-    store = SweepStore(out, plan.definition(controller), force=force)
-    res = run_sweep(plan, store, workers=workers, scheduler=scheduler, controller=controller, progress=progress,
-                    stability=stability)
-    if maps:
-        from mitigate.sweep.maps import plot_maps
-        model = sc.plant_model
-        unit = model.state_units[model.states.index(opts.amplitude_of)]
-        files = plot_maps(res, store.root, title=f"{sc.name} ({opts.amplitude_of} amplitude)", amp_unit=unit,
-                          threshold=opts.threshold, units=axis_units(sc))
-        res = dataclasses.replace(res, files={"results": store.root / "results.csv",
-                                              **{f.stem: f for f in files}})
+    with output_set(out, [], force=True) as w:     # the lock: no second command into this folder meanwhile
+        store = SweepStore(out, plan.definition(controller), force=force)
+        res = run_sweep(plan, store, workers=workers, scheduler=scheduler, controller=controller, progress=progress,
+                        stability=stability)
+        if maps:
+            from mitigate.sweep.maps import plot_maps
+            model = sc.plant_model
+            unit = model.state_units[model.states.index(opts.amplitude_of)]
+            files = [w.final(f.name) for f in plot_maps(res, w.dir, title=f"{sc.name} ({opts.amplitude_of} amplitude)",
+                                                        amp_unit=unit, threshold=opts.threshold, units=axis_units(sc))]
+            res = dataclasses.replace(res, files={"results": store.root / "results.csv",
+                                                  **{f.stem: f for f in files}})
     return res
 
 

@@ -183,7 +183,7 @@ def _run_chunk_closed_loop(task: ChunkTask) -> dict[str, np.ndarray]:
     import dataclasses
 
     from mitigate.closedloop import run_closed_loop
-    from mitigate.controllers.factory import make_controller
+    from mitigate.controllers.factory import context_for, make_controller
     from mitigate.profiles import Profile
     from models.plant import Plant
 
@@ -201,7 +201,7 @@ def _run_chunk_closed_loop(task: ChunkTask) -> dict[str, np.ndarray]:
         u0 = sc.programme(0.0)
         x0, started[j] = _x0(model, task.start, u0, task.P[j], task.perturbation)
         plant = Plant(model, params, sim, sensors=sc.sensors, x0=x0, u0=u0, drift=sc.drift)
-        res = run_closed_loop(sc, make_controller(sc.controllers[index], sc, index), plant=plant)
+        res = run_closed_loop(sc, make_controller(sc.controllers[index], context_for(sc, index)), plant=plant)
         X = np.asarray(res.x)
         if not res.success or X.shape[0] < task.settle_steps + 4:
             rows.append({k: float("nan") for k in METRICS[:-2]} | {"limit_cycle": float("nan"), "ok": 0.0})

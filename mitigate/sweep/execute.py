@@ -11,6 +11,7 @@ import numpy as np
 
 from models.errors import ConfigError
 from models.plant import SimOptions, plant_integration
+from models.plugins import describe
 from models.status import Status
 from mitigate.sweep.chunks import METRICS, ChunkTask, run_chunk
 from mitigate.sweep.plan import Axis, SweepPlan
@@ -116,17 +117,6 @@ class SweepResult:
         return self.status is Status.OK
 
 
-def _init_worker():
-    # one CasADi thread per process; the process pool is the parallelism
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-
-
-def _local_executor(workers: int):
-    import concurrent.futures as cf
-    import multiprocessing as mp
-    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_init_worker)
-
-
 def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None, scheduler: str | None = None,
               client=None, controller=None, progress: bool = True, on_chunk: Callable[[str], None] | None = None,
               stability: bool = True) -> SweepResult:
@@ -159,6 +149,7 @@ def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None,
         if on_chunk is not None:
             on_chunk(task.key)
 
+    failed: list[str] = []
     if pending:
         if client is not None or scheduler:
             own = client is None
@@ -168,31 +159,36 @@ def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None,
                 from distributed import as_completed
                 futs = {client.submit(run_chunk, t, pure=False, key=f"sweep-{store.hash}-{t.key}"): t for t in pending}
                 for fut in as_completed(futs):
-                    finish(futs[fut], fut.result())
+                    try:
+                        value = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - a chunk's failure is counted, the others go on
+                        failed.append(f"{futs[fut].key}: {describe(exc)}")
+                    else:
+                        finish(futs[fut], value)
             finally:
                 if own:
                     client.close()
         else:
+            from mitigate.workers import WorkerPool
+
             workers = workers or os.cpu_count() or 1
-            if workers <= 1 or len(pending) == 1:
-                for t in pending:
-                    finish(t, run_chunk(t))
-            else:
-                import concurrent.futures as cf
-                with _local_executor(min(workers, len(pending))) as ex:
-                    futs = {ex.submit(run_chunk, t): t for t in pending}
-                    try:
-                        for fut in cf.as_completed(futs):
-                            finish(futs[fut], fut.result())
-                    except BaseException:
-                        for f in futs:
-                            f.cancel()
-                        raise
+            jobs = 1 if workers <= 1 or len(pending) == 1 else min(workers, len(pending))
+            with WorkerPool(jobs) as pool:
+                for out in pool.map(run_chunk, [(t,) for t in pending]):
+                    if out.ok:
+                        finish(pending[out.index], out.value)
+                    else:
+                        failed.append(f"{pending[out.index].key}: {out.error}")
     if bar is not None:
         bar.close()
     result = assemble(plan, store, tasks)
-    return SweepResult(plan.axes, plan.grid, result[0], result[1], len(pending), reused,
-                       time.perf_counter() - t0, result[2], result[3], stability_subgrid=stability_subgrid(plan))
+    status, message = result[2], result[3]
+    if failed:
+        status = Status.FAILED
+        message = (f"{len(failed)} chunk(s) failed and were not written (the first: {failed[0]}); rerun the same "
+                   f"command to retry them; {message}")
+    return SweepResult(plan.axes, plan.grid, result[0], result[1], len(pending) - len(failed), reused,
+                       time.perf_counter() - t0, status, message, stability_subgrid=stability_subgrid(plan))
 
 
 def assemble(plan: SweepPlan, store: SweepStore, tasks):
@@ -203,8 +199,8 @@ def assemble(plan: SweepPlan, store: SweepStore, tasks):
     for start in plan.options.starts:
         arr = {m: np.full(plan.n_points, np.nan) for m in METRICS}
         for t in tasks:
-            if t.start != start or t.kind != "simulate":
-                continue
+            if t.start != start or t.kind != "simulate" or not store.chunk_path(t.key).exists():
+                continue       # a chunk that failed: its points stay NaN (and count as failed below)
             d = store.read_chunk(t.key)
             idx = d["index"].astype(int)
             for m in METRICS:
@@ -217,11 +213,13 @@ def assemble(plan: SweepPlan, store: SweepStore, tasks):
     if stab_tasks:
         stab = np.full(plan.n_points, np.nan)
         for t in stab_tasks:
+            if not store.chunk_path(t.key).exists():
+                continue
             d = store.read_chunk(t.key)
             stab[d["index"].astype(int)] = d["max_real"]
     if stab is not None:
         cols["sliding_max_real"] = stab
-    bad = int(sum(np.sum(maps[s]["ok"] == 0) for s in maps))
+    bad = int(sum(np.sum(~(maps[s]["ok"] == 1)) for s in maps))
     store.write_results(cols)
     message = "ok" if bad == 0 else f"{bad} point run(s) failed (non-finite state or no steady sliding)"
     return maps, stab, Status.OK if bad == 0 else Status.WARNING, message

@@ -15,7 +15,12 @@ import numpy as np
 
 from models.errors import ConfigError
 
-__all__ = ["Axis", "parse_axis", "SweepOptions", "options_from_scenario", "SweepPlan", "plan_sweep"]
+__all__ = ["Axis", "parse_axis", "SweepOptions", "options_from_scenario", "SweepPlan", "plan_sweep", "MAX_POINTS"]
+
+#: the most points a sweep may have (all axes multiplied; a 1000 x 1000 map), checked before anything
+#: is allocated; and the plan must fit in memory at BYTES_PER_POINT per point
+MAX_POINTS = 1_000_000
+BYTES_PER_POINT = 64
 
 _SWEEP_KEYS = {"vary", "start", "settle", "speed", "amplitude_of", "threshold", "stuck_threshold", "chunk", "block",
                "duration", "dt", "nsub", "stability_points", "perturbation"}
@@ -59,6 +64,9 @@ def parse_axis(text: str) -> Axis:
         raise ConfigError(f"axis {name}: start and stop must be finite, got {start}, {stop}")
     if count < 1 or (count == 1 and start != stop):
         raise ConfigError(f"axis {name}: count must be >= 2 (or 1 with start == stop), got {count}")
+    if count > MAX_POINTS:
+        raise ConfigError(f"axis {name}: count must be <= {MAX_POINTS:,} (the most points a sweep may have), "
+                          f"got {count:,}")
     return Axis(name, start, stop, count)
 
 
@@ -194,6 +202,26 @@ class SweepPlan:
                 "controller": controller}
 
 
+def _check_size(sc: Scenario, axes, options: SweepOptions) -> None:
+    """One-line ConfigError before anything is allocated: too many points (all axes multiplied),
+    too many time steps per point, or a plan that does not fit in this machine's memory."""
+    from mitigate.scenario import MAX_SAMPLES, memory_bytes
+
+    points = math.prod(int(a.count) for a in axes)           # exact, however large
+    counts = " x ".join(f"{a.count:,}" for a in axes)
+    if points > MAX_POINTS:
+        raise ConfigError(f"axes: {counts} = {points:,} points; the limit is {MAX_POINTS:,} (fewer values per axis)")
+    steps = options.duration / options.dt
+    if steps > MAX_SAMPLES:
+        raise ConfigError(f"sweep.duration / sweep.dt = {options.duration:g} s / {options.dt:g} s = {steps:.3g} steps "
+                          f"per point; the limit is {MAX_SAMPLES:,}")
+    per_point = BYTES_PER_POINT + 8 * (len(axes) + len(sc.plant_params.names()) + sc.plant_model.nu)
+    need, have = points * per_point + steps * 8 * sc.plant_model.nu, memory_bytes()
+    if have is not None and need > have:
+        raise ConfigError(f"axes: {counts} = {points:,} points need about {need / 2**30:.1f} GiB for the plan; this "
+                          f"machine has {have / 2**30:.1f} GiB of memory (fewer values per axis)")
+
+
 def plan_sweep(sc: Scenario, axes: list[Axis] | tuple[Axis, ...], options: SweepOptions) -> SweepPlan:
     """Resolve axes against a scenario (see module docstring for the names)."""
     if not axes:
@@ -211,6 +239,7 @@ def plan_sweep(sc: Scenario, axes: list[Axis] | tuple[Axis, ...], options: Sweep
             raise ConfigError(f"axis {n}: unknown name for rig {model.name}; expected an input "
                               f"({', '.join(model.inputs)}), a parameter ({', '.join(pnames)}), <param>_scale "
                               f"or mismatch.<param>")
+    _check_size(sc, axes, options)
     mesh = np.meshgrid(*[a.values for a in axes], indexing="ij")
     grid = np.stack([m.ravel() for m in mesh], axis=1)
     n = options.n_steps

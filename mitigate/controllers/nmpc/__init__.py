@@ -10,11 +10,11 @@ Example
 >>> action = nmpc.step(t, measurement, estimate)                     # action.u == {"n2": ...}
 """
 
-from mitigate.controllers.nmpc.controller import NMPC, make_nmpc, resolve_inputs
+from mitigate.controllers.nmpc.controller import NMPC, resolve_inputs
 from mitigate.controllers.nmpc.layout import OCPLayout, OCPSpec
 from mitigate.controllers.nmpc.ocp import OCPResult, OCPSolver, make_ocp_solver
 from mitigate.controllers.nmpc.stage import stage_functions
 from mitigate.controllers.nmpc.options import MAX_HORIZON, NMPCOptions, NMPCWeights
 
-__all__ = ["NMPC", "NMPCOptions", "NMPCWeights", "MAX_HORIZON", "make_nmpc", "resolve_inputs", "OCPSpec",
+__all__ = ["NMPC", "NMPCOptions", "NMPCWeights", "MAX_HORIZON", "resolve_inputs", "OCPSpec",
            "OCPLayout", "OCPSolver", "OCPResult", "make_ocp_solver", "stage_functions"]

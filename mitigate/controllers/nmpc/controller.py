@@ -27,7 +27,9 @@ steps reach the prediction at once.
 
 **Failures.**  A failed or bound-violating solve: the previous plan shifted to now
 (``Status.FALLBACK``); no plan left: an empty action, i.e. the programme (``Status.FALLBACK``).
-Every failure is counted in ``counts.failures``.
+Every failure is counted in ``counts.failures``.  A failure is a :class:`SolverFailure` (the OCP
+solver's numerical errors are turned into one, :func:`.ocp.solver_failures`); any other exception
+is a bug and fails the run.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ import numpy as np
 from mitigate.controllers.base import Action, ControlContext, Controller
 from mitigate.controllers.nmpc.defaults import resolve as resolve_defaults
 from mitigate.controllers.nmpc.layout import OCPSpec
-from mitigate.controllers.nmpc.ocp import make_ocp_solver
+from mitigate.controllers.nmpc.ocp import make_ocp_solver, solver_failures
 from mitigate.controllers.nmpc.options import MAX_SUBSTEPS, WEIGHT_NAMES, NMPCOptions
 from mitigate.controllers.nmpc.schedule import CalmSchedule
 from models.discretise import integration
@@ -48,7 +50,7 @@ from models.actuators import Servo
 from models.errors import ConfigError, SolverFailure
 from models.status import Status
 
-__all__ = ["NMPC", "make_nmpc", "resolve_inputs"]
+__all__ = ["NMPC", "resolve_inputs"]
 
 #: clip of the load factor taken from an estimate (a diverging estimator must not wreck the plan)
 LOAD_FACTOR_RANGE = (0.2, 5.0)
@@ -318,8 +320,9 @@ class NMPC(Controller):
             if self._prep_q is not None:
                 q, self._prep_q = self._prep_q, None
                 try:
-                    self.ocp.prepare(q)
-                except Exception:  # noqa: BLE001 - the next plan starts afresh
+                    with solver_failures("preparation"):
+                        self.ocp.prepare(q)
+                except SolverFailure:   # the next plan starts afresh
                     self.ocp.reset()
             a = self._action
             return Action(a.u, Status.HOLD, f"hold: {a.status.value}: {a.message}" if a.message else "hold")
@@ -347,7 +350,7 @@ class NMPC(Controller):
                 self.ocp.shift(steps - 1 if self.ocp.prepared else steps)
             lo, hi = self._bounds(u_prog)
             res = self.ocp.solve(xa0, q, lo, hi, self._rate)
-        except Exception as exc:  # noqa: BLE001 - every solver failure goes to the fallback chain
+        except SolverFailure as exc:   # the fallback chain; anything else is a bug and fails the run
             self.counts.failures += 1
             self.ocp.reset()   # never warm-start from a failed iterate
             return self._hold(self._shift_or_programme(t, u_prog, f"{type(exc).__name__}: {exc}"))
@@ -379,14 +382,3 @@ class NMPC(Controller):
             self._u_prev = np.array([u_prog[self.model.inputs.index(n)] for n in self.inputs], float)
         return a
 
-
-def make_nmpc(options: Mapping | NMPCOptions, context: ControlContext) -> NMPC:
-    """Validate raw scenario options (``context.where`` names them in errors) and build the NMPC.
-
-    Raises
-    ------
-    ConfigError : one line naming ``<where>.<field>``.
-    """
-    if isinstance(options, Mapping):
-        options = NMPCOptions.from_mapping(options, context.where)
-    return NMPC(options, context)

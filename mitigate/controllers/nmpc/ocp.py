@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +29,22 @@ from mitigate.controllers.nmpc.layout import OCPLayout, OCPSpec
 from mitigate.controllers.nmpc.options import SOLVERS
 from mitigate.controllers.nmpc.stage import stage_functions
 
-__all__ = ["OCPSolver", "OCPResult", "make_ocp_solver"]
+__all__ = ["OCPSolver", "OCPResult", "make_ocp_solver", "solver_failures"]
+
+#: the numerical errors of an OCP solve (CasADi raises RuntimeError; numpy's linear algebra)
+NUMERICAL_ERRORS = (RuntimeError, FloatingPointError, ArithmeticError, np.linalg.LinAlgError)
+
+
+@contextmanager
+def solver_failures(what: str):
+    """Turn the numerical errors of a solve (:data:`NUMERICAL_ERRORS`) into :class:`SolverFailure`
+    naming ``what``; any other exception (a bug) passes unchanged and fails the run."""
+    try:
+        yield
+    except SolverFailure:
+        raise
+    except NUMERICAL_ERRORS as exc:
+        raise SolverFailure(f"{what}: {type(exc).__name__}: {exc}") from exc
 
 
 @dataclass(frozen=True)
@@ -213,11 +229,12 @@ class OCPSolver:
         """
         t0 = time.perf_counter()
         xa0 = np.asarray(xa0, float)
-        if self.X is None:
-            self.initialise(xa0, q)
-        bnd = self.bounds(xa0, np.asarray(lo, float), np.asarray(hi, float), rate)
-        self.last_bounds = bnd
-        X, V, cost, iters, qp_iters, status, msg = self._solve_impl(xa0, np.asarray(q, float), bnd)
+        with solver_failures(self.solver):
+            if self.X is None:
+                self.initialise(xa0, q)
+            bnd = self.bounds(xa0, np.asarray(lo, float), np.asarray(hi, float), rate)
+            self.last_bounds = bnd
+            X, V, cost, iters, qp_iters, status, msg = self._solve_impl(xa0, np.asarray(q, float), bnd)
         self._check(X, V, xa0, bnd)
         self.X, self.V = X, V
         self._prepared = False

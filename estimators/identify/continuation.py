@@ -1,0 +1,142 @@
+"""Globalisation of a fit: Gauss-Newton first, then a continuation in the friction regularisation.
+
+The constrained Gauss-Newton solver (:func:`~estimators.identify.gauss_newton.solve_gn`) is
+globalised by Levenberg-Marquardt damping, a trust radius on the parameters and an l1 merit line
+search; on logs of a plant its model can follow, that is enough.  A model structurally simpler
+than the rig cannot follow every stick and slip of the log, and each one it misses folds the cost
+surface of the regularised model (width ``eps``): the direct fit may stop at a poor point (a
+degenerate corner where a friction parameter lost its effect) or not converge at all.
+
+The problem then solves itself again (cold, from the same start, with the substeps the direct
+fit ended with) along a path in ``eps``: :func:`solve_continuation` runs Gauss-Newton at ``10 eps``
+(a smooth friction law, a nearly convex problem), then down to ``eps`` in half-decades, each stage
+warm-started from the last, all with the same compiled function (``eps`` is one of its inputs).
+:func:`choose` keeps whichever of the two fits, both at the target ``eps`` and the same substeps,
+ends better: converged before unconverged, gaps closed before open, then the lower cost.
+:func:`wants_continuation` says when: the direct fit did not converge (at its iteration limit:
+only if it stalled, the cost falling by less than 0.1 % over five iterations; a budget that cut a
+progressing fit short is the user's), or it converged but its residual shows that the structure
+misses (:mod:`~estimators.identify.diagnostics`).  Never after a warm start (a refit from a
+solution, a bootstrap replicate stays cheap); ``globalise = "always"`` every time, ``"off"`` never.
+
+Measured on the synthetic lab string of ``tests/lab_drillstring.py`` fitted with the user's 1-DOF
+rig ``tests/data/lab_string_1dof.toml`` (``benchmarks/bench_identify.py labstring``): freeing k, d,
+mu_s, mu_k the direct fit converges (the continuation ends at the same cost); freeing the Stribeck
+speed as well, the direct fit stopped at v_s = 0, mu_s = mu_k (cost 8.8e7, a degenerate corner) or
+at its iteration limit (cost 6.7e6), the continuation converged at cost 2.6e6 / 3.5e6.  IPOPT
+(``solver = "ipopt"``) on that problem stopped after 241 s on a non-finite Hessian (cost 2.4e8):
+no automatic switch to it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from estimators.identify.gauss_newton import CONVERGED, GAP_OK, GNResult, solve_gn
+
+__all__ = ["Attempt", "attempt", "solve_continuation", "continuation_method", "wants_continuation", "choose",
+           "EPS_FACTORS", "STRATEGIES", "GN_METHOD"]
+
+#: the continuation's path: eps times these factors, the last one the target
+EPS_FACTORS = (10.0, math.sqrt(10.0), 1.0)
+STRATEGIES = ("auto", "always", "off")
+GN_METHOD = "Gauss-Newton (Levenberg-Marquardt damping, trust region, l1 merit line search)"
+
+
+@dataclass(frozen=True)
+class Attempt:
+    """One solve of a fit: how it was done and how it ended (cost ``0.5 |r|^2`` at the target eps)."""
+
+    method: str
+    reason: str
+    success: bool
+    cost: float
+    max_gap: float
+    iterations: int
+    wall_time: float
+    stalled: bool = False
+
+    def as_dict(self) -> dict:
+        return {"method": self.method, "reason": self.reason, "success": self.success, "cost": self.cost,
+                "max_gap": self.max_gap, "iterations": self.iterations, "wall_time": self.wall_time,
+                "stalled": self.stalled}
+
+
+def continuation_method(eps: float, factors=EPS_FACTORS) -> str:
+    path = " -> ".join(f"{eps * f:.3g}" for f in factors)
+    return f"{GN_METHOD} along a continuation in eps {path} rad/s"
+
+
+def solve_continuation(prob, w0, G, h, eps: float, factors=EPS_FACTORS, **gn) -> tuple[GNResult, list]:
+    """Gauss-Newton at ``eps * f`` for ``f`` in ``factors`` (the last should be 1), each stage
+    warm-started from the previous one; returns the last stage's result (its iterations: all
+    stages') and every stage's ``(eps, GNResult)``.  ``prob.eps`` is restored."""
+    stages = []
+    w = np.asarray(w0, float)
+    old = prob.eps
+    try:
+        for f in factors:
+            prob.eps = eps * f
+            res = solve_gn(prob, w, G, h, **gn)
+            stages.append((prob.eps, res))
+            if np.all(np.isfinite(res.w)):
+                w = res.w
+    finally:
+        prob.eps = old
+    last = stages[-1][1]
+    return replace(last, iterations=sum(r.iterations for _, r in stages)), stages
+
+
+def _stalled(costs) -> bool:
+    c = np.asarray(costs, float)
+    return bool(c.size >= 7 and np.all(np.isfinite(c[-6:])) and c[-6] - c[-1] < 1e-3 * abs(c[-1]))
+
+
+def wants_continuation(fit, strategy: str, warm: bool) -> str | None:
+    """Why ``fit`` (a direct fit) should be repeated along the continuation, or None (see the module
+    docstring)."""
+    if strategy not in STRATEGIES:
+        raise ValueError(f"strategy must be one of {', '.join(STRATEGIES)}, got {strategy!r}")
+    if strategy == "off" or warm:
+        return None
+    if strategy == "always":
+        return "always"
+    if fit.reason not in CONVERGED:
+        if fit.reason != "max_iter" or (fit.attempts and fit.attempts[-1].stalled):
+            return f"the direct fit did not converge ({fit.reason})"
+        return None
+    if fit.structure is not None and fit.structure.misses:
+        return "the direct fit's residual shows that the structure misses"
+    return None
+
+
+def _rank(fit):
+    gap = fit.structure.max_gap if fit.structure is not None else 0.0
+    cost = fit.cost if np.isfinite(fit.cost) else math.inf
+    return (fit.reason not in CONVERGED, gap >= GAP_OK, cost)
+
+
+def choose(direct, cont, why: str):
+    """The better of two fits of one problem (direct, continuation) with ``method`` and ``attempts``
+    telling both; iterations and wall time add up."""
+    a, b = direct.attempts[-1] if direct.attempts else None, cont.attempts[-1] if cont.attempts else None
+    pick = cont if _rank(cont) < _rank(direct) else direct
+    other = direct if pick is cont else cont
+    what = "the continuation" if pick is cont else "the direct fit"
+    base = cont.method if pick is cont else direct.method
+    method = (f"{base} ({why}; kept {what}: the direct fit stopped ({direct.reason}) at cost {direct.cost:.4g}, "
+              f"the continuation ({cont.reason}) at cost {cont.cost:.4g})")
+    attempts = tuple(x for x in (a, b) if x is not None)
+    return replace(pick, method=method, attempts=attempts, iterations=direct.iterations + cont.iterations,
+                   wall_time=direct.wall_time + cont.wall_time,
+                   guess_notes=other.guess_notes if not pick.guess_notes else pick.guess_notes)
+
+
+def attempt(method: str, res: GNResult, t_start: float) -> Attempt:
+    costs = getattr(res, "costs", ())
+    return Attempt(method, res.reason, res.success, float(costs[-1]) if costs else float("nan"),
+                   float(res.max_gap), int(res.iterations), time.perf_counter() - t_start, _stalled(costs))

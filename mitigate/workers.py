@@ -1,0 +1,314 @@
+"""The worker processes of ``mitigate run``, ``sweep`` and ``benchmark``: one pool, in one place.
+
+:class:`WorkerPool` runs independent tasks (``fn(*args)``, picklable) in at most ``jobs``
+spawned processes (``jobs = 1``: in this process, the same API) and yields each task's
+:class:`Outcome` as it finishes.  What it guarantees:
+
+- **A failing task fails alone.**  An exception in a task, a task whose worker dies (``os._exit``,
+  a crash, a kill) or stalls (no message for ``stall_timeout`` seconds: a call stuck in C code that
+  the per-call timeout of :mod:`models.plugins` cannot interrupt; the worker is killed) gives that
+  task an :class:`Outcome` with ``ok = False`` and the reason; the other tasks go on (a new worker
+  replaces a lost one).
+- **No worker outlives the command.**  Each worker asks the kernel to kill it when its parent
+  dies (Linux ``prctl(PR_SET_PDEATHSIG, SIGKILL)``, set in the worker before anything else, and a
+  check that the parent is still the one that started it), and exits when its pipe to the parent
+  closes; no ``multiprocessing.Manager`` (a server process of its own) is used.  So a
+  ``kill -9`` of the command leaves no process behind (the resource tracker exits once its last
+  holder is gone).  Ctrl-C reaches only the parent (the workers ignore SIGINT); the pool then
+  kills its workers and the command ends with "interrupted".
+- **Clean output.**  A worker's stdout is its stderr: a plug-in that prints cannot corrupt
+  ``--json`` on the parent's stdout.
+
+A program read from stdin (``python - < script.py``) cannot be imported again by a spawned worker;
+its tasks run in its own process.  A script file that starts a pool must guard its top level with
+``if __name__ == "__main__":`` (multiprocessing's spawn rule).
+
+Each worker talks to the parent over its own pipe (a killed worker cannot corrupt a shared
+queue).  Inside a task, :func:`report` sends a progress count to the parent (a no-op outside a
+pool), which calls ``on_progress(index, count)``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import multiprocessing as mp
+import os
+import signal
+import sys
+import time
+from dataclasses import dataclass
+from multiprocessing.connection import wait
+from typing import Any, Callable, Iterator, Sequence
+
+from models.errors import ConfigError
+from models.plugins import describe
+
+__all__ = ["WorkerPool", "Outcome", "report", "die_with_parent"]
+
+PR_SET_PDEATHSIG = 1
+_reporter: Callable[[int], None] | None = None
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What became of one task: ``value`` if ``ok``, else ``error`` (one line: why)."""
+
+    index: int
+    ok: bool
+    value: Any = None
+    error: str = ""
+
+
+#: a worker sends progress at most this often [s] (each message wakes the parent: fewer switches)
+REPORT_EVERY = 0.25
+_last_report = [0.0]
+
+
+def report(count: int) -> None:
+    """Tell the parent how far the current task is (e.g. samples done); a no-op outside a pool.
+    In a worker at most every :data:`REPORT_EVERY` seconds (a heartbeat for the stall watchdog)."""
+    if _reporter is not None:
+        now = time.monotonic()
+        if now - _last_report[0] >= REPORT_EVERY:
+            _last_report[0] = now
+            _reporter(int(count))
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """Ask the kernel to SIGKILL this process when its parent dies (Linux); exit now if the
+    parent is already gone (it died before the request was made)."""
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+
+def _worker_main(conn, parent_pid: int) -> None:
+    """A worker: run tasks received on ``conn`` until told to stop or the parent is gone."""
+    global _reporter
+    die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)        # Ctrl-C is the parent's to handle
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    try:                                               # the parent's stdout is for its --json only
+        sys.stdout.flush()
+        os.dup2(2, 1)
+    except OSError:
+        pass
+    sys.stdout = sys.stderr
+    try:
+        conn.send(("ready", None, None))               # the stall clock starts now, not at the spawn
+    except OSError:
+        return
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            return
+        if msg is None:
+            return
+        index, fn, args = msg
+        conn.send(("start", index, None))
+        _reporter = lambda k, i=index: conn.send(("progress", i, k))  # noqa: E731
+        try:
+            value = fn(*args)
+        except BaseException as exc:  # noqa: BLE001 - a task's failure is its outcome, never the pool's
+            # (also KeyboardInterrupt: a worker ignores SIGINT, so only the task's own code can raise it)
+            out = ("error", index, describe(exc))
+        else:
+            out = ("done", index, value)
+        _reporter = None
+        try:
+            conn.send(out)
+        except (BrokenPipeError, EOFError, OSError):
+            return
+        except Exception as exc:  # noqa: BLE001 - an unpicklable result
+            conn.send(("error", index, f"the result could not be sent back: {describe(exc)}"))
+
+
+def _main_importable() -> bool:
+    """Whether a spawned worker can import this program's ``__main__`` as it must (a module run with
+    ``-m``, a script file, or an interactive session); not a script read from stdin: then the tasks
+    run in this process."""
+    main = sys.modules.get("__main__")
+    if getattr(getattr(main, "__spec__", None), "name", None):
+        return True
+    path = getattr(main, "__file__", None)
+    return path is None or os.path.isfile(path)
+
+
+def _exit_reason(code: int | None) -> str:
+    if code is None:
+        return "did not exit"
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
+class WorkerPool:
+    """Run tasks in ``jobs`` worker processes (module docstring).
+
+    Parameters
+    ----------
+    jobs : number of worker processes; 1 runs every task in this process
+    stall_timeout : kill a worker that sent nothing for this long while on a task [s]
+        (None: never); the task's outcome says so
+
+    Use as a context manager; :meth:`map` yields outcomes as tasks finish::
+
+        with WorkerPool(2) as pool:
+            for out in pool.map(run_one, [(sc, 0), (sc, 1)]):
+                ...
+    """
+
+    def __init__(self, jobs: int, *, stall_timeout: float | None = None):
+        if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+            raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
+        if stall_timeout is not None and not stall_timeout > 0:
+            raise ConfigError(f"stall_timeout must be > 0 s or None, got {stall_timeout!r}")
+        self.jobs = jobs
+        self.stall_timeout = stall_timeout
+        self._ctx = mp.get_context("spawn")
+        self._workers: list[dict] = []
+
+    # ------------------------------------------------------------------ processes
+    def _spawn(self) -> dict:
+        parent, child = self._ctx.Pipe(duplex=True)
+        p = self._ctx.Process(target=_worker_main, args=(child, os.getpid()), daemon=True,
+                              name="stickslip-worker")
+        # the worker starts with SIGINT ignored (inherited through exec; Python keeps an ignored SIGINT),
+        # so a Ctrl-C while it is still importing does not print a traceback from it
+        try:
+            old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except ValueError:              # not the main thread: nothing to do
+            old = None
+        try:
+            p.start()
+        finally:
+            if old is not None:
+                signal.signal(signal.SIGINT, old)
+        child.close()
+        w = {"proc": p, "conn": parent, "task": None, "last": time.monotonic(), "ready": False}
+        self._workers.append(w)
+        return w
+
+    def _retire(self, w: dict, kill: bool) -> None:
+        p = w["proc"]
+        if kill and p.is_alive():
+            p.kill()
+        try:
+            w["conn"].close()
+        except OSError:
+            pass
+        p.join(timeout=5.0)
+        if w in self._workers:
+            self._workers.remove(w)
+
+    def close(self) -> None:
+        """Stop every worker (asked first, then killed); idempotent."""
+        for w in list(self._workers):
+            if w["task"] is None and w["proc"].is_alive():
+                try:
+                    w["conn"].send(None)
+                except OSError:
+                    pass
+        deadline = time.monotonic() + 2.0
+        for w in list(self._workers):
+            w["proc"].join(timeout=max(0.0, deadline - time.monotonic()))
+            self._retire(w, kill=True)
+
+    def __enter__(self) -> "WorkerPool":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ tasks
+    def map(self, fn: Callable, tasks: Sequence[tuple], *,
+            on_progress: Callable[[int, int], None] | None = None) -> Iterator[Outcome]:
+        """Run ``fn(*args)`` for every ``args`` of ``tasks``; yield an :class:`Outcome` per task
+        as it finishes (``Outcome.index``: its position in ``tasks``)."""
+        global _reporter
+        tasks = list(tasks)
+        if self.jobs == 1 or len(tasks) <= 1 and self.stall_timeout is None or not _main_importable():
+            for i, args in enumerate(tasks):
+                _reporter = (lambda k, i=i: on_progress(i, k)) if on_progress is not None else None
+                try:
+                    with contextlib.redirect_stdout(sys.stderr):     # as as in a worker: stdout is for --json
+                        value = fn(*args)
+                except KeyboardInterrupt:
+                    raise
+                except Exception as exc:  # noqa: BLE001 - a task's failure is its outcome
+                    yield Outcome(i, False, error=describe(exc))
+                else:
+                    yield Outcome(i, True, value)
+                finally:
+                    _reporter = None
+            return
+        todo = list(range(len(tasks)))[::-1]
+        left = len(tasks)
+        try:
+            while left:
+                while todo and sum(w["task"] is None for w in self._workers) < len(todo) \
+                        and len(self._workers) < min(self.jobs, left):
+                    self._spawn()                    # every worker needed, at once
+                for w in list(self._workers):
+                    if w["task"] is None and todo:
+                        i = todo.pop()
+                        try:
+                            w["conn"].send((i, fn, tasks[i]))
+                        except (BrokenPipeError, EOFError, ConnectionError):   # an idle worker that died
+                            todo.append(i)
+                            self._retire(w, kill=True)
+                            continue
+                        w["task"], w["last"] = i, time.monotonic()
+                for w in [w for w in self._workers if w["task"] is None]:
+                    if not todo:                     # nothing left for it
+                        try:
+                            w["conn"].send(None)
+                        except OSError:
+                            pass
+                        self._retire(w, kill=False)
+                busy = [w for w in self._workers if w["task"] is not None]
+                ready = wait([w["conn"] for w in busy] + [w["proc"].sentinel for w in busy], timeout=0.5)
+                for w in busy:
+                    i = w["task"]
+                    if w["conn"] in ready:
+                        try:
+                            kind, idx, payload = w["conn"].recv()
+                        except (EOFError, OSError):
+                            kind = None
+                        if kind in ("progress", "ready", "start"):
+                            w["last"], w["ready"] = time.monotonic(), True
+                            if kind == "progress" and on_progress is not None:
+                                on_progress(idx, payload)
+                            continue
+                        if kind in ("done", "error"):
+                            w["task"] = None
+                            left -= 1
+                            yield Outcome(i, kind == "done", payload if kind == "done" else None,
+                                          payload if kind == "error" else "")
+                            continue
+                    if w["proc"].sentinel in ready or w["conn"] in ready:     # died, or closed its pipe
+                        w["proc"].join(timeout=1.0)
+                        why = f"its worker process died ({_exit_reason(w['proc'].exitcode)})"
+                        self._retire(w, kill=True)
+                        left -= 1
+                        yield Outcome(i, False, error=why)
+                    elif self.stall_timeout is not None and w["ready"] \
+                            and time.monotonic() - w["last"] > self.stall_timeout:
+                        self._retire(w, kill=True)
+                        left -= 1
+                        yield Outcome(i, False, error=f"its worker sent nothing for {self.stall_timeout:g} s "
+                                                      f"(stuck); killed")
+        finally:
+            if left:
+                self.close()
