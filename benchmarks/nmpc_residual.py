@@ -75,6 +75,8 @@ NMPCS = ("nmpc", "nmpc_motor", "nmpc_pin")
 #: residual window: max(RESIDUAL_MIN_S, RESIDUAL_PERIODS periods), at most half the controlled time
 RESIDUAL_MIN_S = 5.0
 RESIDUAL_PERIODS = 3.0
+#: run statuses that finished (a run with warnings, e.g. a controller's fallbacks, finished too)
+_FINISHED = ("ok", "ok, with warnings")   # models.Status.OK.value, models.Status.WARNING.value
 
 
 def _read(path: Path) -> dict:
@@ -229,7 +231,7 @@ def summarise(rows: list[dict]) -> tuple[list[dict], list[dict]]:
                "speed_ratio": float(np.median([r.get("speed_ratio", np.nan) for r in rs])),
                "overshoot_max": float(np.max([r.get("overshoot", np.nan) for r in rs])),
                "fallbacks": int(sum(r.get("fallbacks", 0) for r in rs)),
-               "failed": int(sum(r.get("status") not in ("ok", "warning") for r in rs))}
+               "failed": int(sum(r.get("status") not in _FINISHED for r in rs))}
         forces = sorted({k for r in rs for k in r if k.startswith("force_ratio:")})
         for k in forces:
             row[k] = float(np.median([r.get(k, np.nan) for r in rs]))
@@ -243,7 +245,8 @@ def summarise(rows: list[dict]) -> tuple[list[dict], list[dict]]:
             if c in by:
                 ratio = by[c]["residual_median"] / best if best > 0 else float("nan")
                 verdict.append({"scenario": s, "controller": c, "residual": by[c]["residual_median"],
-                                "best_industry": best, "ratio": ratio, "meets_1_5x": bool(ratio <= 1.5)})
+                                "best_industry": best, "ratio": ratio,
+                                "meets_1_5x": bool(ratio <= 1.5) if math.isfinite(ratio) else None})
     return summ, verdict
 
 
@@ -318,13 +321,17 @@ def main(argv=None) -> int:
     text = render(summ, verdict, periods, args, elapsed, argv)
     print(text)
     for r in rows:
-        if r.get("status") not in ("ok", "warning"):
+        if r.get("status") not in _FINISHED:
             print(f"FAILED {r['scenario']} {r['controller']} seed {r['seed']} start {r['start']}: "
                   f"{r.get('message', r.get('status'))}")
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(text)
     return 0
+
+
+def _verdict(meets) -> str:
+    return "-" if meets is None else ("yes" if meets else "**no**")   # -: no industry run to compare
 
 
 def render(summ, verdict, periods, args, elapsed, argv) -> str:
@@ -348,7 +355,7 @@ def render(summ, verdict, periods, args, elapsed, argv) -> str:
               "|---|---|---|---|---|---|"]
     for v in verdict:
         lines.append(f"| {v['scenario']} | {v['controller']} | {v['residual']:.4f} | {v['best_industry']:.4f} "
-                     f"| {v['ratio']:.2f} | {'yes' if v['meets_1_5x'] else '**no**'} |")
+                     f"| {v['ratio']:.2f} | {_verdict(v['meets_1_5x'])} |")
     return "\n".join(lines) + "\n"
 
 

@@ -20,6 +20,7 @@ from estimators.base import Estimate
 from mitigate.controllers.base import ControlContext
 from mitigate.controllers.factory import context_for, make_controller
 from mitigate.controllers.nmpc.ocp import make_ocp_solver
+from mitigate.controllers.nmpc.defaults import sliding_is_stable
 from mitigate.controllers.nmpc.schedule import CalmSchedule
 from mitigate.controllers.nmpc.stage import stage_functions
 from mitigate.metrics import severity
@@ -91,9 +92,26 @@ def test_defaults_come_from_the_rig_at_both_scales():
     assert c.cfg.setpoint_band == pytest.approx(1.0e4)                  # N m: the programme's torque
     assert c.cfg.eps == pytest.approx(0.016 * 5.0)                      # 1.6 % of operating_point.speed
     assert c.cfg.setpoint_rate == pytest.approx(15 * 1.0e4 / c.period)
-    assert set(c.cfg.derived) == {"dt", "eps", "setpoint_band", "setpoint_rate", "force_filter"}
+    assert set(c.cfg.derived) == {"dt", "eps", "setpoint_band", "setpoint_rate", "force_filter", "hold_gain"}
     given = make_controller({"kind": "nmpc", "compile": False, "dt": 0.2, "setpoint_band": 3000.0}, _ctx(field, [1.0e4, 97347.0]))
     assert given.cfg.dt == 0.2 and given.cfg.setpoint_band == 3000.0 and "dt" not in given.cfg.derived
+
+
+def test_hold_gain_follows_the_stability_of_sliding_at_the_programme():
+    """Calm, the NMPC holds harder (60) where steady sliding at the programme is linearly stable
+    and keeps feedback (15) where it is not: rig3 at 30 rpm / 20 N is stable, at 30 rpm / 50 N
+    (the suite's unstable sliding) it is not; the field string at 10 kN m is judged at the
+    equilibrium where the bit turns at its nominal 5 rad/s (the same torque also balances an
+    unstable one at 0.92 rad/s); a given hold_gain wins."""
+    rig3 = get_model("rig3")
+    assert make_controller({"kind": "nmpc", "compile": False}, _ctx(rig3, [math.pi, 20.0, 0.0])).cfg.hold_gain == 60.0
+    assert make_controller({"kind": "nmpc", "compile": False}, _ctx(rig3, [math.pi, 50.0, 0.0])).cfg.hold_gain == 15.0
+    field = get_model(str(FIELD))
+    c = make_controller({"kind": "nmpc", "compile": False}, _ctx(field, [1.0e4, 97347.0]))
+    assert c.cfg.hold_gain == 60.0 and "hold_gain" in c.cfg.derived
+    assert sliding_is_stable(field, field.published(), [1.0e4, 97347.0], 0.92) is False
+    given = make_controller({"kind": "nmpc", "compile": False, "hold_gain": 4.0}, _ctx(field, [1.0e4, 97347.0]))
+    assert given.cfg.hold_gain == 4.0 and "hold_gain" not in given.cfg.derived
 
 
 def test_nmpc_on_the_field_string_suppresses_without_failures():
@@ -191,9 +209,9 @@ def test_schedule_scales_the_tracking_weights_the_plan_sees():
     L = c.layout
     ref, force = c._i_ref, c._i_force
     assert seen[0][ref] == pytest.approx(c.weights.ref)                       # before a window: act
-    assert seen[-1][ref] == pytest.approx(c.weights.ref * c.options.hold_gain)
-    assert seen[-1][c._i_dref] == pytest.approx(c.weights.d_ref * c.options.hold_gain)
-    assert seen[-1][force] == pytest.approx(c.weights.force * c.options.hold_gain ** 2)
+    assert seen[-1][ref] == pytest.approx(c.weights.ref * c.cfg.hold_gain)
+    assert seen[-1][c._i_dref] == pytest.approx(c.weights.d_ref * c.cfg.hold_gain)
+    assert seen[-1][force] == pytest.approx(c.weights.force * c.cfg.hold_gain ** 2)
     assert L.q_w <= ref < L.q_fc
 
 

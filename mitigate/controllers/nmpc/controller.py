@@ -137,7 +137,8 @@ class NMPC(Controller):
         # structure of the OCP; the unit-carrying settings from the options or the rig
         u0 = np.asarray(context.programme(0.0), float)
         nom0 = self._nominal(0.0, u0)
-        self.cfg = cfg = resolve_defaults(o, m, self.params, self.dt_daq, nom0, float(u0[m.inputs.index(drive)]), where)
+        self.cfg = cfg = resolve_defaults(o, m, self.params, self.dt_daq, nom0, float(u0[m.inputs.index(drive)]), where,
+                                          u=u0)
         self._tau_force = cfg.force_filter
         w_s = abs(nom0) if nom0 != 0 else 1.0
         taus = tuple(float(a.tau) if o.model_servo else 0.0 for a in acts)
@@ -164,7 +165,7 @@ class NMPC(Controller):
         self._hi = np.array(([0.0] if self.drives else []) + [a.n_max for a in acts], float)
         self._load_keys = {f"load:{c}": i for i, names in enumerate(m.contact_names) for c in names}
         self.period = cfg.period
-        self.schedule = CalmSchedule(self.period, self.dt_daq, o.calm_band, o.hold_gain)
+        self.schedule = CalmSchedule(self.period, self.dt_daq, o.calm_band, cfg.hold_gain)
         self._i_ref, self._i_force, self._i_dref = (L.q_w + WEIGHT_NAMES.index(k) for k in ("ref", "force", "d_ref"))
         self._i_speed = m.speed_index(self.body)
         self._names_seen = None

@@ -16,7 +16,19 @@ setpoint_rate  15 x band / T (the set-point may cross its band in 1/15 of   20 r
                a period)
 force_filter   the horizon, horizon x dt                                     1.0 s
 schedule       one period T                                                  2.3 s
+hold_gain      60 where steady sliding at the programme (at the nominal      60 (30 rpm, 20 N;
+               speed) is linearly stable, 15 where it is unstable or cannot  15 at 20 rpm, 15 N
+               be decided (dimensionless; the rig decides which)             or 50 N)
 ============== ============================================================= ===================
+
+Why the hold gain follows the stability of sliding.  Once the stick-slip is gone, a rig whose
+sliding equilibrium is stable needs nothing from the controller, and everything the plan does is
+the state estimate's noise fed back (the field drill string with a surface encoder only: at 15
+the table torque dithered by +-0.24 % and left a residual of 0.0007 where SoftSpeed, which then
+does nothing, leaves 0.0000; at 60, 0.0001).  On an unstable equilibrium (negative friction
+slope at the programme) the calm plan must keep damping: at 60 the residual on the suite's
+unstable-sliding and low-speed scenarios rose from 0.0044 / 0.0058 to 0.0125 / 0.0208
+(``benchmarks/results/nmpc.md``).
 
 ``T`` is the rig's stick-slip period: the lowest torsional mode with the drive held
 (:func:`mitigate.controllers.tuning.stick_slip_frequency`; rig3: 2.33 s, its stick-slip cycle at
@@ -33,7 +45,8 @@ from dataclasses import dataclass
 
 from models.errors import ConfigError
 
-__all__ = ["Resolved", "resolve", "INTERVALS_PER_PERIOD", "EPS_FRACTION", "RATE_PER_PERIOD"]
+__all__ = ["Resolved", "resolve", "sliding_is_stable", "INTERVALS_PER_PERIOD", "EPS_FRACTION", "RATE_PER_PERIOD",
+           "HOLD_GAIN_STABLE", "HOLD_GAIN_UNSTABLE"]
 
 #: OCP intervals per stick-slip period (dt = T / 40)
 INTERVALS_PER_PERIOD = 40
@@ -41,6 +54,9 @@ INTERVALS_PER_PERIOD = 40
 EPS_FRACTION = 0.016
 #: band crossings per period allowed by the set-point's rate limit
 RATE_PER_PERIOD = 15.0
+#: calm-sliding factor on the tracking weights where sliding at the programme is stable / is not
+HOLD_GAIN_STABLE = 60.0
+HOLD_GAIN_UNSTABLE = 15.0
 
 
 @dataclass(frozen=True)
@@ -48,7 +64,7 @@ class Resolved:
     """The NMPC's unit-carrying settings on one rig: given options, or the rig's defaults.
 
     period [s]; dt [s]; eps [rad/s]; setpoint_band, setpoint_rate [rad/s, rad/s^2 or N m, N m/s];
-    force_filter [s]; derived: the names of the settings that came from the rig
+    force_filter [s]; hold_gain [-]; derived: the names of the settings that came from the rig
     """
 
     period: float
@@ -57,10 +73,12 @@ class Resolved:
     setpoint_band: float
     setpoint_rate: float
     force_filter: float
+    hold_gain: float
     derived: tuple[str, ...]
 
 
-def resolve(options, model, params, dt_daq: float, nominal_speed: float, setpoint: float, where: str) -> Resolved:
+def resolve(options, model, params, dt_daq: float, nominal_speed: float, setpoint: float, where: str,
+            u=None) -> Resolved:
     """The settings of ``options`` (:class:`mitigate.controllers.nmpc.options.NMPCOptions`) with
     every None replaced by the rig's default (module docstring).
 
@@ -71,6 +89,7 @@ def resolve(options, model, params, dt_daq: float, nominal_speed: float, setpoin
     nominal_speed : nominal speed of the objective body [rad/s]
     setpoint : the programme's drive input at the start (a speed [rad/s] or a torque [N m])
     where : prefix of error messages
+    u : the programme's inputs at the start (for the hold gain; None: not known, 15)
 
     Raises
     ------
@@ -112,7 +131,32 @@ def resolve(options, model, params, dt_daq: float, nominal_speed: float, setpoin
     else:
         ff = o.horizon * dt
         derived.append("force_filter")
-    return Resolved(period, dt, eps, band, rate, ff, tuple(derived))
+    if o.hold_gain is not None:
+        hold = float(o.hold_gain)
+    else:
+        stable = u is not None and sliding_is_stable(model, params, u, nominal_speed)
+        hold = HOLD_GAIN_STABLE if stable else HOLD_GAIN_UNSTABLE
+        derived.append("hold_gain")
+    return Resolved(period, dt, eps, band, rate, ff, hold, tuple(derived))
+
+
+def sliding_is_stable(model, params, u, nominal_speed: float) -> bool | None:
+    """Whether steady sliding of the rig at inputs ``u`` is linearly stable
+    (:func:`models.modal.sliding_stability`); on a torque drive at the equilibrium with the
+    objective body at ``nominal_speed`` (a torque may sustain several; the programme's is the one
+    at the nominal speed).  None when it cannot be decided (no equilibrium found)."""
+    import numpy as np
+
+    from models.modal import sliding_stability
+    try:
+        x_op, u = None, np.asarray(u, float)
+        if model.drive_kind == "torque":
+            u, x_op = model.operating_point(float(nominal_speed), u, params)
+            if not (np.all(np.isfinite(x_op)) and np.all(np.isfinite(u))):
+                return None
+        return sliding_stability(model, params, u, x_op=x_op)[0]
+    except (ConfigError, RuntimeError, ArithmeticError, np.linalg.LinAlgError):
+        return None
 
 
 def _period(model, params) -> float | None:

@@ -136,7 +136,10 @@ class NMPCOptions:
         held normal force (None: the horizon, ``horizon dt``; 0: the raw reading)
     hold_gain : factor on the ``ref`` and ``d_ref`` weights (its square on ``force`` when the drive is
         commanded too) once the objective body slides calmly
-        (:mod:`mitigate.controllers.nmpc.schedule`; 1: the same weights always)
+        (:mod:`mitigate.controllers.nmpc.schedule`; 1: the same weights always).  None: from the
+        rig (:mod:`mitigate.controllers.nmpc.defaults`): 60 where steady sliding at the programme
+        is linearly stable (calm, the plan only has to stay out of the way), 15 where it is not
+        (calm, the plan must keep damping an unstable equilibrium)
     calm_band : ``(s_lo, s_hi)``: the estimated severity over one stick-slip period below which
         the NMPC holds (``hold_gain``) and above which it suppresses (factor 1); log-linear between
     """
@@ -160,7 +163,7 @@ class NMPCOptions:
     prepare_ahead: bool = True
     use_load_estimate: bool = True
     force_filter: float | None = None
-    hold_gain: float = 15.0
+    hold_gain: float | None = None
     calm_band: tuple[float, float] = (0.01, 0.1)
     where: str = "nmpc"
 
@@ -204,7 +207,8 @@ class NMPCOptions:
             raise ConfigError(f"{w}.qp_solver must be one of {', '.join(QP_SOLVERS)}, got {self.qp_solver!r}")
         finite_number(self.qp_tol, f"{w}.qp_tol", positive=True)
         _int(self.sqp_max_iter, f"{w}.sqp_max_iter", 1)
-        finite_number(self.hold_gain, f"{w}.hold_gain", positive=True)
+        if self.hold_gain is not None:
+            finite_number(self.hold_gain, f"{w}.hold_gain", positive=True)
         band = self.calm_band
         if not (isinstance(band, (list, tuple)) and len(band) == 2
                 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in band)
