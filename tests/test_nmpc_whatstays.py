@@ -119,22 +119,27 @@ def test_nmpc_on_the_field_string_suppresses_without_failures():
     string: no failure, the bit's severity over the last 15 s below 1 % and its mean within 1 %
     of the operating point's 5.0 rad/s (planning at the held table's period, 0.39 s, it ran 27 %
     fast), the table torque within its band."""
-    m = get_model(str(FIELD))
-    p = m.published()
-    u0 = np.array([1.0e4, 97347.0])
-    dt = 0.05
-    base = Plant(m, p, SimOptions(dt=dt, nsub=4, seed=0), sensors=None, u0=u0)
-    for _ in range(int(100 / dt)):
-        base.step(u0)
-    c = make_controller({"kind": "nmpc", "compile": False}, _ctx(m, u0, dt=dt))
-    plant = Plant(m, p, SimOptions(dt=dt, nsub=4, seed=0), sensors=None, x0=base.x, u0=u0)
-    w, acts, _ = _loop(c, plant, m, u0, int(60 / dt), dt, t0=100.0)
+    m, dt = get_model(str(FIELD)), 0.05
+    c, w, acts, _ = _from_stick_slip(m, np.array([1.0e4, 97347.0]), dt, nsub=4, before=100.0, after=60.0)
     tail = w[-int(15 / dt):]
     assert c.counts.failures == 0 and c.counts.fallbacks == 0
     assert severity(tail) < 0.01
     assert np.mean(tail) == pytest.approx(5.0, rel=0.01)
     T = np.array([a.u["table_torque"] for a in acts])
     assert np.all(np.abs(T - 1.0e4) <= c.cfg.setpoint_band * (1 + 1e-9))
+
+
+def _from_stick_slip(m, u0, dt, *, nsub, before, after):
+    """The NMPC (rig defaults, true state) switched on after ``before`` s of the programme alone
+    (established stick-slip) and run for ``after`` s: (controller, speeds, actions, inputs)."""
+    p = m.published()
+    base = Plant(m, p, SimOptions(dt=dt, nsub=nsub, seed=0), sensors=None, u0=u0)
+    for _ in range(int(before / dt)):
+        base.step(u0)
+    c = make_controller({"kind": "nmpc", "compile": False}, _ctx(m, u0, dt=dt))
+    plant = Plant(m, p, SimOptions(dt=dt, nsub=nsub, seed=0), sensors=None, x0=base.x, u0=u0)
+    w, acts, U = _loop(c, plant, m, u0, int(after / dt), dt, t0=before)
+    return c, w, acts, U
 
 
 # ----------------------------------------------------------------------------- the cost tracks the programme
@@ -160,16 +165,8 @@ def test_servo_force_residual_is_zero_at_the_programmed_weight_on_bit_not_at_zer
 def test_weight_on_bit_stays_at_the_programme_while_the_nmpc_suppresses():
     """Lab drill string, both inputs, out of established stick-slip: the mean weight on bit stays
     within 5 % of the programmed 200 N (the reviewer measured 28.7 N before: won by not drilling)."""
-    m = get_model("drillstring_motor")
-    p = m.published()
-    u0 = np.array([3.0, 200.0])
-    dt = 0.002
-    base = Plant(m, p, SimOptions(dt=dt, nsub=2, seed=0), sensors=None, u0=u0)
-    for _ in range(int(4 / dt)):
-        base.step(u0)
-    c = make_controller({"kind": "nmpc", "compile": False}, _ctx(m, u0, dt=dt))
-    plant = Plant(m, p, SimOptions(dt=dt, nsub=2, seed=0), sensors=None, x0=base.x, u0=u0)
-    w, _, U = _loop(c, plant, m, u0, int(3 / dt), dt, t0=4.0)
+    m, dt = get_model("drillstring_motor"), 0.002
+    c, w, _, U = _from_stick_slip(m, np.array([3.0, 200.0]), dt, nsub=2, before=4.0, after=3.0)
     assert c.counts.failures == 0
     assert severity(w[-int(1 / dt):]) < 0.02
     assert np.mean(U[:, m.inputs.index("wob")]) == pytest.approx(200.0, rel=0.05)
