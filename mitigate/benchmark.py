@@ -156,7 +156,7 @@ class BenchmarkResult:
     cells : ``{(scenario, controller): {metrics..., "status", "message", "applicable"}}``
     ranks : ``{(scenario, controller): rank}`` (1 = lowest severity)
     table : one row per controller, ordered by mean rank (keys of :data:`RANK_COLUMNS`)
-    status : Status.OK, or Status.WARNING if some runs failed
+    status : :meth:`Status.worst` of the runs (FAILED if some runs failed, WARNING if some warned)
     """
 
     suite: Suite = field(repr=False)
@@ -257,7 +257,7 @@ def run_benchmark(suite: Suite, *, jobs: int = 2, progress: bool = False) -> Ben
         table.append(row)
     table.sort(key=lambda r: (r.get("mean_rank", math.inf) if math.isfinite(r.get("mean_rank", math.inf)) else math.inf))
     failed = sum(v.get("failed", 0) for v in cells.values())
-    status = Status.OK if failed == 0 else Status.FAILED
+    status = Status.worst(run.status for _, _, run, _ in results if run is not None)
     return BenchmarkResult(suite, cells, ranks, table, time.perf_counter() - t0, status,
                            "ok" if failed == 0 else f"{failed} run(s) failed or diverged")
 

@@ -48,7 +48,7 @@ from models import plugins
 from models.errors import ConfigError, PluginError
 from models.logs import Log
 from models.plant import Plant
-from models.status import Status
+from models.status import Outcome, Status
 from mitigate.controllers.base import Action
 
 __all__ = ["ClosedLoopResult", "run_closed_loop", "model_twists", "setpoint_chatter", "FALLBACK_WARN_FRACTION"]
@@ -62,7 +62,7 @@ CHATTER_STEP_FRACTION = 0.1
 
 
 @dataclass(frozen=True)
-class ClosedLoopResult:
+class ClosedLoopResult(Outcome):
     """One closed-loop run; time on axis 0 (``n + 1`` samples unless the run ended early).
 
     Attributes
@@ -109,10 +109,6 @@ class ClosedLoopResult:
     observability: object = None
     status: Status = Status.OK
     message: str = "ok"
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     def state(self, name: str) -> np.ndarray:
         """True plant state trajectory by name (e.g. ``"omega_R1"``)."""

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from models.signals import dominant_frequency
+from models.status import Status
 
 __all__ = ["severity", "windowed_severity", "moving_severity", "time_to_suppress", "stuck_fraction", "amplitude",
            "dominant_frequency", "rms", "contact_work", "solve_time_stats", "closed_loop_metrics", "METRIC_UNITS",
@@ -230,7 +231,7 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
         "estimator_failures": int(ec.get("failures", 0)),
         "estimator_fallbacks": int(ec.get("fallbacks", 0)),
         "estimator_dropouts": int(ec.get("dropouts", 0)),
-        "diverged": int(result.status.name == "DIVERGED"),
+        "diverged": int(result.status is Status.DIVERGED),
     }
 
 

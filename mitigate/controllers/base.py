@@ -84,7 +84,7 @@ class Action:
 
     @property
     def success(self) -> bool:
-        return self.status is not Status.FALLBACK
+        return self.status.success
 
 
 @dataclass(frozen=True)

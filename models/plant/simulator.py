@@ -34,7 +34,7 @@ from models.plant.hybrid import hybrid_step_function
 from models.rig import get_model
 from models.rig.spec import SI_UNITS
 from models.sensors import SensorOptions, Sensors
-from models.status import Status
+from models.status import Outcome, Status
 
 __all__ = ["SimOptions", "Plant", "SimResult", "simulate", "step_function", "plant_integration", "MAX_SAMPLES"]
 
@@ -248,7 +248,7 @@ class Plant:
 
 
 @dataclass(frozen=True)
-class SimResult:
+class SimResult(Outcome):
     """Result of :func:`simulate`; time on the first axis.
 
     Attributes
@@ -271,10 +271,6 @@ class SimResult:
     inputs: tuple = ()
     status: Status = Status.OK
     message: str = "ok"
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     def state(self, name: str) -> np.ndarray:
         """A true state's trajectory by name (e.g. ``"twist_shaft1"``)."""
