@@ -75,8 +75,6 @@ NMPCS = ("nmpc", "nmpc_motor", "nmpc_pin")
 #: residual window: max(RESIDUAL_MIN_S, RESIDUAL_PERIODS periods), at most half the controlled time
 RESIDUAL_MIN_S = 5.0
 RESIDUAL_PERIODS = 3.0
-#: run statuses that finished (a run with warnings, e.g. a controller's fallbacks, finished too)
-_FINISHED = ("ok", "ok, with warnings")   # models.Status.OK.value, models.Status.WARNING.value
 
 
 def _read(path: Path) -> dict:
@@ -175,6 +173,7 @@ def run_metrics(res, sc, period: float) -> dict:
         "fallbacks": int(res.controller_counts.get("fallbacks", 0)),
         "failures": int(res.controller_counts.get("failures", 0)),
         "status": res.status.value,
+        "success": bool(res.success),
         "window_s": float(win),
     }
     for name in sc.plant_model.servo_inputs:
@@ -231,7 +230,7 @@ def summarise(rows: list[dict]) -> tuple[list[dict], list[dict]]:
                "speed_ratio": float(np.median([r.get("speed_ratio", np.nan) for r in rs])),
                "overshoot_max": float(np.max([r.get("overshoot", np.nan) for r in rs])),
                "fallbacks": int(sum(r.get("fallbacks", 0) for r in rs)),
-               "failed": int(sum(r.get("status") not in _FINISHED for r in rs))}
+               "failed": int(sum(not r.get("success", False) for r in rs))}
         forces = sorted({k for r in rs for k in r if k.startswith("force_ratio:")})
         for k in forces:
             row[k] = float(np.median([r.get(k, np.nan) for r in rs]))
@@ -321,7 +320,7 @@ def main(argv=None) -> int:
     text = render(summ, verdict, periods, args, elapsed, argv)
     print(text)
     for r in rows:
-        if r.get("status") not in _FINISHED:
+        if not r.get("success", False):
             print(f"FAILED {r['scenario']} {r['controller']} seed {r['seed']} start {r['start']}: "
                   f"{r.get('message', r.get('status'))}")
     if args.out:
