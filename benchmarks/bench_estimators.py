@@ -54,6 +54,7 @@ from estimators.online.factory import make_estimator
 from models import get_model
 from models.plant import SimOptions, simulate
 from models.rig import RigModel
+from models.status import Status
 
 ENCODERS = ("theta1", "theta2", "theta3", "omega1", "omega2", "omega3")
 ROOT = Path(__file__).resolve().parents[1]
@@ -121,7 +122,7 @@ def run_estimator(est, run: Run, full: bool = False):
         XF[k] = e.x
         P[k] = e.P[:2, :2]
         T[k] = e.solve_time
-        warn[k] = e.status.name == "WARNING"
+        warn[k] = e.status is Status.WARNING
     return (XF if full else XF[:, :2]), P, T, warn
 
 

@@ -10,10 +10,11 @@ and excluded.  Reported against the 10 ms DAQ period.
 
 Effect: the severity of R1's speed ``(max - min) / (2 mean)`` over the whole controlled window
 and over its last 2 s, the time after which R1 stays within 10 % of 30 rpm ("settled"), and
-the friction work at pin 2 [J] (``mitigate.metrics.friction_work``).
+the friction work at pin 2 [J] (``mitigate.metrics.contact_work``).
 
 Usage::
 
+    python benchmarks/bench_nmpc.py --quick                           # N = 20, rti, 2 s (CI)
     python benchmarks/bench_nmpc.py                                   # N = 20, 50; rti, sqp, ipopt
     python benchmarks/bench_nmpc.py --horizons 50 --solvers rti --duration 8
     python benchmarks/bench_nmpc.py --horizons 50 --solvers rti --inputs both pin motor
@@ -34,7 +35,7 @@ from estimators.base import Estimate
 from mitigate.controllers.base import ControlContext
 from mitigate.controllers.nmpc import NMPC, NMPCOptions, NMPCWeights
 from mitigate.controllers.nmpc.options import WEIGHT_NAMES
-from mitigate.metrics import friction_work, severity
+from mitigate.metrics import contact_work, severity
 from models import get_model
 from models.plant import Plant, SimOptions
 from models.status import Status
@@ -77,7 +78,7 @@ def run(solver: str, horizon: int, duration: float, inputs: str, extra: dict, we
     c = NMPC(opts, ctx)
     t_build = time.perf_counter() - t_build
     plant = Plant(m, pp, SimOptions(seed=0), sensors=None, x0=x0, u0=u_prog)
-    plans, prep, allc, w1, w2, n2, wref = [], [], [], [], [], [], []
+    plans, prep, allc, w1, wref, X, U = [], [], [], [], [], [], []
     after_plan = False
     rng = np.random.default_rng(1)
     speeds = [m.speed_index(b) for b in m.bodies]
@@ -100,11 +101,12 @@ def run(solver: str, horizon: int, duration: float, inputs: str, extra: dict, we
         u = u_prog.copy()
         for name, v in a.u.items():
             u[m.inputs.index(name)] = v
+        x_before = plant.x.copy()
         plant.step(u)
-        n2.append(plant.u_applied[2])   # the servo's force over the sample
+        X.append(x_before)
+        U.append(plant.u_applied.copy())   # what the servo applied over the sample
         wref.append(u[0])
         w1.append(plant.x[2])
-        w2.append(plant.x[3])
     tf = 1e3 * np.array(plans[1:])      # the first plan (warm-up, cold caches) is excluded
     tp = 1e3 * np.array(prep[1:]) if len(prep) > 1 else np.array([np.nan])
     busy = 1e3 * np.array(allc[1:])
@@ -116,7 +118,7 @@ def run(solver: str, horizon: int, duration: float, inputs: str, extra: dict, we
                 max=tf.max(), prep_median=np.median(tp), prep_p95=np.percentile(tp, 95), call_max=busy.max(),
                 per_sample=busy.mean(), plans=len(tf), failures=c.counts.failures, nsub=c.nsub, build=t_build,
                 sev=severity(w1), sev_final=severity(w1[-int(2.0 / DT):]), mean_final=float(np.mean(w1[-int(2.0 / DT):])),
-                work=friction_work(np.array(w2), np.array(n2), pp["r2"], pp["mu_s"], pp["mu_k"], pp["v_s"], DT),
+                work=contact_work(m, pp, np.array(X), np.array(U), "pin2", DT),
                 wref_lo=min(wref), wref_hi=max(wref), weights=c.weights)
 
 
@@ -190,6 +192,7 @@ def _kv(items):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="N = 20, rti, 2 s (a smoke run for CI)")
     ap.add_argument("--horizons", type=int, nargs="+", default=[20, 50])
     ap.add_argument("--solvers", nargs="+", default=["rti", "sqp", "ipopt"])
     ap.add_argument("--inputs", nargs="+", default=["both"], help="both, pin and/or motor")
@@ -209,6 +212,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="")
     ap.add_argument("--append", action="store_true", help="append the table to --out instead of replacing it")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.horizons, args.solvers, args.duration = [20], ["rti"], 2.0
     if args.qp_study:
         rows = qp_study(args.horizons[-1], args.duration)
         table = ("| hpipm mode | tol | median [ms] | iterations mean / max | first move error p95 "
@@ -222,7 +227,7 @@ def main(argv=None) -> int:
     for N in args.horizons:
         for inp in args.inputs:
             for s in args.solvers:
-                r = run(s, N, args.duration, inp, {"eps": args.eps, "prepare_ahead": not args.no_prepare,
+                r = run(s, N, args.duration, inp, {"eps": args.eps, "dt": 0.05, "prepare_ahead": not args.no_prepare,
                                                    "qp_solver": args.qp_solver}, _kv(args.weights),
                       args.mismatch, args.state_noise, args.load_factor)
                 rows.append(r)

@@ -13,6 +13,12 @@ Online state estimation (:mod:`estimators.online`): every estimator is built as
     ekf = EKF(EKFOptions(), EstimatorContext(model, params, dt))
     ekf.observability.message, ekf.observability_steady.message   # what this configuration can know
 
+Over a recorded log, as ``mitigate estimate`` does::
+
+    from estimators import estimate_log
+    res = estimate_log(read_csv("run.csv"), "ekf", "rig3")   # -> EstimationResult
+    res.state("twist_k1"), res.std, res.status, res.counts
+
 Also here: :mod:`estimators.twostep` (seed 002's two-step identification) and
 :mod:`estimators.thesis_id` (the thesis' own identification, recomputed from its raw data).
 """
@@ -26,11 +32,12 @@ from estimators.online.fd import FiniteDifference
 from estimators.online.mhe import MHE
 from estimators.online.observability import ObservabilityReport, observability
 from estimators.online.options import EKFOptions, FDOptions, MHEOptions
+from estimators.online.replay import EstimationResult, estimate_log
 
 __all__ = [
     "identify", "IdentifyOptions", "LinearConstraint", "IdentificationProblem", "FitResult", "initial_guess",
     "bootstrap", "BootstrapOptions", "BootstrapResult",
     "Estimate", "EstimatorContext", "StateEstimator",
     "EKF", "MHE", "FiniteDifference", "EKFOptions", "MHEOptions", "FDOptions", "make_estimator", "ESTIMATOR_KINDS",
-    "observability", "ObservabilityReport",
+    "observability", "ObservabilityReport", "estimate_log", "EstimationResult",
 ]

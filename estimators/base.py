@@ -35,16 +35,16 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 
 from models import plugins
-from models.errors import PluginError, SolverFailure
+from models.errors import ConfigError, PluginError, SolverFailure
 from models.params import ParameterSet
 from models.sensors import SensorOptions
-from models.status import Status
+from models.status import Outcome, Status
 
 __all__ = ["Estimate", "StateEstimator", "EstimatorCounts", "EstimatorContext"]
 
 
 @dataclass(frozen=True)
-class Estimate:
+class Estimate(Outcome):
     """A state estimate with its covariance.
 
     Attributes
@@ -67,10 +67,6 @@ class Estimate:
     message: str = "ok"
     corrected: bool = True
     solve_time: float = 0.0
-
-    @property
-    def success(self) -> bool:
-        return self.status is not Status.FALLBACK
 
     def get(self, name: str) -> float:
         return float(self.x[self.names.index(name)])
@@ -124,7 +120,7 @@ class EstimatorCounts:
 class StateEstimator(ABC):
     """Template: :meth:`update` guards, times and counts; subclasses implement ``_update_impl``.
 
-    Subclasses set ``kind``, ``options_class``, and in ``__init__`` ``self.names`` and
+    Subclasses set ``kind``, ``options_class`` (the options are checked to be one), and in ``__init__`` ``self.names`` and
     ``self.channels`` (the measurement channels used); ``_update_impl(t, y, mask, u)`` gets
     the channels in ``self.channels`` order and ``mask`` marking the finite ones.
     """
@@ -133,12 +129,40 @@ class StateEstimator(ABC):
     options_class: ClassVar[type | None] = None
     names: tuple[str, ...] = ()
     channels: tuple[str, ...] = ()
+    #: how the step functions were built ("compiled (...)", "compile failed, ..."); None: nothing compiled
+    compile_status: str | None = None
+    #: construction-time observability reports (:class:`estimators.online.observability.ObservabilityReport`);
+    #: None: not checked, or nothing to check
+    observability: Any = None
+    observability_steady: Any = None
 
     def __init__(self, options: Any, context: EstimatorContext):
+        oc = type(self).options_class
+        if oc is not None and not isinstance(options, oc):
+            raise ConfigError(f"{context.where}: {self.kind.upper()} options must be {oc.__name__}, "
+                              f"got {type(options).__name__}")
         self.options = options
         self.context = context
         self.counts = EstimatorCounts()
         self.last: Estimate | None = None
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        """SI units of :attr:`names` (default: the rig's states)."""
+        return tuple(self.context.model.state_units)
+
+    @property
+    def observability_message(self) -> str:
+        """One line: what this configuration can know (default: not checked)."""
+        return "observability not checked"
+
+    def observability_windows(self, x, u, *, window: float | None = None, max_windows: int = 12) -> list:
+        """Observability along windows of a run (default: none checked)."""
+        return []
+
+    def prior(self) -> Estimate | None:
+        """The estimate before the first sample (row 0 of a log's estimates); None: no prior."""
+        return None
 
     def update(self, t: float, measurement: Mapping[str, float], u) -> Estimate:
         """Process one DAQ sample (module docstring)."""

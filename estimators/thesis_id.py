@@ -32,6 +32,7 @@ from scipy.optimize import least_squares, root
 
 from models.errors import ConfigError
 from models.params import ParameterSet
+from models.status import Outcome, Status
 from models.rig import published
 
 __all__ = [
@@ -93,15 +94,15 @@ def modal_eigenvalues(k1: float, k2: float, J1: float, J2: float, J3: float) -> 
 
 
 @dataclass(frozen=True)
-class ModalFit:
+class ModalFit(Outcome):
     """Result of :func:`modal_stiffness`: k1, k2 [N m/rad], residual, solver status."""
 
     k1: float
     k2: float
     residual: np.ndarray
     frequencies_hz: np.ndarray
-    success: bool
-    status: str
+    status: Status
+    message: str
     variant: str
 
 
@@ -137,7 +138,7 @@ def modal_stiffness(x0=None, *, omega_n=OMEGA_N, params: ParameterSet | None = N
     sol = root(f, x0, method="hybr")
     lam = modal_eigenvalues(sol.x[0], sol.x[1], params.J1, params.J2, J3)
     return ModalFit(float(sol.x[0]), float(sol.x[1]), np.asarray(sol.fun), np.sqrt(np.abs(lam)) / (2 * math.pi),
-                    bool(sol.success), str(sol.message), motor)
+                    Status.OK if sol.success else Status.NOT_CONVERGED, str(sol.message), motor)
 
 
 def log_decrement(x_j: float, x_j1: float) -> float:
@@ -212,14 +213,14 @@ def simulate_spin_down(mu_k: float = 0.306, *, mu_s: float = 0.5, n1: float = 10
 
 
 @dataclass(frozen=True)
-class KineticFit:
+class KineticFit(Outcome):
     """mu_k by least squares; ``method`` "equation" (thesis: J1 a + T_r = 0) or "output" (fit w(t))."""
 
     mu_k: float
     stderr: float
     method: str
-    success: bool
-    status: str
+    status: Status
+    message: str
 
 
 def fit_kinetic_friction(rec: SpinDown, *, method: str = "equation", mu_s: float = 0.5, J1: float = 0.02888,
@@ -262,4 +263,5 @@ def fit_kinetic_friction(rec: SpinDown, *, method: str = "equation", mu_s: float
     dof = max(r.size - 1, 1)
     s2 = float(r @ r) / dof
     cov = s2 * np.linalg.pinv(Jm.T @ Jm)
-    return KineticFit(float(sol.x[0]), float(math.sqrt(max(cov[0, 0], 0.0))), method, bool(sol.success), str(sol.message))
+    return KineticFit(float(sol.x[0]), float(math.sqrt(max(cov[0, 0], 0.0))), method,
+                      Status.OK if sol.success else Status.NOT_CONVERGED, str(sol.message))

@@ -31,12 +31,13 @@ from scipy.optimize import minimize_scalar
 from models.errors import ConfigError, DataError
 from models import get_model
 from models.params import ParameterSet
+from models.status import Outcome, Status
 
 __all__ = ["Step1Result", "fit_step1", "steady_sliding_data", "seed002_crosscheck", "xi_w0", "fit_step2"]
 
 
 @dataclass(frozen=True)
-class Step1Result:
+class Step1Result(Outcome):
     """Result of :func:`fit_step1` (SI units; ``mu*`` via eqs. 9.26-9.28)."""
 
     speeds: np.ndarray
@@ -50,8 +51,8 @@ class Step1Result:
     mu2: float
     mu3: float
     rms_b1: float
-    status: str = "ok"
-    success: bool = True
+    status: Status = Status.OK
+    message: str = "ok"
 
     def mu(self, w):
         """Friction coefficient (9.24) at speed ``w`` [rad/s, screw side]."""
@@ -119,8 +120,8 @@ def fit_step1(speeds, forces, torques, *, r_m: float, tan_lam: float = 0.0, xi: 
     else:
         mu1, mu2, mu3 = g[0] / k + tan_lam, g[1] / k, g[2] / (k * a)
     return Step1Result(levels, b0, b1, float(Tf), float(C), g, r0, float(mu1), float(mu2), float(mu3),
-                       float(np.sqrt(np.mean(e ** 2))), str(res.message) if hasattr(res, "message") else "ok",
-                       bool(res.success))
+                       float(np.sqrt(np.mean(e ** 2))), Status.OK if res.success else Status.NOT_CONVERGED,
+                       str(getattr(res, "message", "ok")))
 
 
 def steady_sliding_data(model: str, params: ParameterSet, speeds, forces, *, torque_noise: float = 0.0,

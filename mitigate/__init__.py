@@ -17,6 +17,7 @@ from mitigate.metrics import MetricOptions, closed_loop_metrics, moving_severity
 from mitigate.runner import ControllerRun, RunResult, run, run_scenario
 from mitigate.scenario import ControllerSpec, Scenario, load_scenario, make_scenario, parse_scenario
 from mitigate.sweep import SweepResult, sweep
+from mitigate.tune import TuneResult, tune
 
 __all__ = [
     "Action", "ControlContext", "Controller", "CONTROLLER_KINDS", "context_for", "make_controller",
@@ -26,4 +27,5 @@ __all__ = [
     "ControllerSpec", "Scenario", "load_scenario", "make_scenario", "parse_scenario",
     "SweepResult", "sweep",
     "BenchmarkResult", "Suite", "load_suite", "run_benchmark", "write_benchmark",
+    "TuneResult", "tune",
 ]

@@ -22,12 +22,12 @@ __all__ = ["plot_comparison", "plot_phase_portraits", "plot_metric_bars", "BAR_M
 
 #: (metric key, axis label) of the bar chart
 BAR_METRICS = (
-    ("sss", "severity SSS [-]"),
-    ("sss_final", "SSS, last window [-]"),
-    ("time_to_suppress", "time to suppress [s]"),
+    ("residual_severity", "what stays: residual severity [-]"),
+    ("time_to_suppress", "time to suppress after switch-on [s]"),
+    ("peak_overshoot", "peak overshoot above programme [-]"),
     ("stuck_fraction", "fraction of time stuck [-]"),
-    ("speed_error_rms", "speed error RMS [rad/s]"),
-    ("pin_work", "friction work at servo pins [J]"),
+    ("setpoint_variation", "set-point variation [1/s]"),
+    ("pin_work", "brake wear at servo pins [J]"),
     ("drive_energy", "drive energy [J]"),
     ("plan_median_ms", "median planning-call time [ms]"),
 )
@@ -100,16 +100,29 @@ def plot_phase_portraits(sc, results: Mapping[str, object], title: str, path: st
 
 def plot_metric_bars(metrics: Mapping[str, Mapping[str, float]], title: str, path: str | os.PathLike,
                      keys: Sequence[tuple[str, str]] = BAR_METRICS, dpi: int = 110):
-    """One bar panel per metric, one bar per controller (NaN and inf are drawn as empty)."""
+    """One bar panel per metric, one bar per controller.  An infinite value (``time_to_suppress``:
+    never suppressed) is a hatched bar to the top of the panel labelled "never" -- the worst, not
+    an empty slot that would read as 0; a missing value (NaN) is labelled "n/a"."""
     names = list(metrics)
     cols = 4
     rows = int(np.ceil(len(keys) / cols))
     fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.2 * rows), squeeze=False)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for ax, (key, label) in zip(axes.ravel(), keys):
-        vals = [float(metrics[n].get(key, np.nan)) for n in names]
-        vals = [v if np.isfinite(v) else 0.0 for v in vals]
-        ax.bar(range(len(names)), vals, color=[colors[i % len(colors)] for i in range(len(names))])
+        vals = np.array([float(metrics[n].get(key, np.nan)) for n in names])
+        fin = vals[np.isfinite(vals)]
+        top = 1.15 * float(np.max(fin)) if fin.size and np.max(fin) > 0 else 1.0
+        for j, v in enumerate(vals):
+            c = colors[j % len(colors)]
+            if np.isinf(v):
+                ax.bar(j, top, color="white", edgecolor=c, hatch="//", lw=1.2)
+                ax.text(j, 0.5 * top, "never", ha="center", va="center", rotation=90, fontsize=8)
+            elif np.isnan(v):
+                ax.text(j, 0.02 * top, "n/a", ha="center", va="bottom", fontsize=8)
+            else:
+                ax.bar(j, v, color=c)
+        ax.set_ylim(0, top * 1.02 if np.isinf(vals).any() else None)
+        ax.set_xlim(-0.6, len(names) - 0.4)
         ax.set_xticks(range(len(names)))
         ax.set_xticklabels(names, rotation=30, ha="right", fontsize=8)
         ax.set_title(label, fontsize=9)

@@ -17,13 +17,13 @@ from mitigate.metrics import METRIC_UNITS
 __all__ = ["write_report", "render_report", "LOWER_IS_BETTER"]
 
 #: metrics where lower is better, compared in the NMPC section
-LOWER_IS_BETTER = ("sss", "sss_final", "sss_moving_mean", "time_to_suppress", "stuck_fraction", "speed_error_rms",
-                   "pin_work")
+LOWER_IS_BETTER = ("residual_severity", "time_to_suppress", "peak_overshoot", "stuck_fraction", "speed_error_rms",
+                   "setpoint_variation", "pin_work")
 
-_TABLE = ("sss", "sss_final", "sss_moving_mean", "time_to_suppress", "stuck_fraction", "stuck_fraction_measured",
-          "mean_speed", "speed_error_rms", "rms_twist", "pin_work", "mean_pin_force", "drive_energy",
-          "plan_median_ms", "plan_p95_ms", "solve_max_ms", "controller_fallbacks", "controller_failures",
-          "estimator_fallbacks", "estimator_dropouts")
+_TABLE = ("residual_severity", "time_to_suppress", "peak_overshoot", "speed_ratio", "stuck_fraction",
+          "setpoint_variation", "pin_work", "normal_force_ratio", "drive_energy", "sss", "sss_final",
+          "stuck_fraction_measured", "rms_twist", "plan_median_ms", "plan_p95_ms", "solve_max_ms",
+          "controller_fallbacks", "controller_failures", "estimator_fallbacks", "estimator_dropouts")
 
 
 def _fmt(v) -> str:
@@ -71,16 +71,31 @@ def _model_section(sc, runs) -> list[str]:
         diff.append("parameters " + ", ".join(f"{k} x{v:g}" for k, v in sc.mismatch.items()))
     if sc.structure:
         diff.append("structure " + ", ".join(sorted(sc.structure)))
-    lines += ["",
-              "Why a model-based controller can lose here: (1) it predicts with the regularised (tanh) friction "
-              "model, while the plant has exact stick, so its prediction is poorest exactly around stick; "
-              f"(2) it sees the `{est}` estimate built from quantised encoders, never the true twist"
-              + (f"; (3) the plant differs from its model ({'; '.join(diff)})" if diff else "")
-              + "; (4) a servo's force passes through a lagged, rate-limited actuator; (5) where stick-slip is a "
-              "limit cycle beside a stable sliding state, a cheap law only has to push the rig once onto the "
-              "sliding branch. Which of these matters in this run is not separated by this report; the metrics "
-              "above are what was measured.", ""]
+    why = ["it predicts with the regularised (tanh) friction model, while the plant has exact stick, so its "
+           "prediction is poorest exactly around stick",
+           f"it sees the `{est}` estimate built from the rig's sensors, never the true state"]
+    if diff:
+        why.append(f"the plant differs from its model ({'; '.join(diff)})")
+    if sc.model.servo_inputs:
+        why.append("a servo's force passes through a lagged, rate-limited actuator")
+    why.append("where stick-slip is a limit cycle beside a stable sliding state, a cheap law only has to push the "
+               "rig once onto the sliding branch")
+    lines += ["", "Why a model-based controller can lose here: "
+              + "; ".join(f"({i}) {w}" for i, w in enumerate(why, start=1))
+              + ". Which of these matters in this run is not separated by this report; the metrics above are "
+              "what was measured.", ""]
     return lines
+
+
+def _verdicts(sc, runs) -> list[str]:
+    """One sentence per controller (:func:`mitigate.benchmark.render.verdict` on a single run)."""
+    from mitigate.benchmark.stats import summarise
+    from mitigate.benchmark.render import verdict
+    recs = [{"scenario": sc.name, "controller": r.name, "applicable": True, "failed": int(not r.success),
+             "class": "", "message": r.message, "metrics": r.metrics} for r in runs]
+    entries = summarise(recs, {r.name: r.kind for r in runs})
+    prog_force = any(sc.inputs[n](sc.control_start) > 0 for n in sc.model.servo_inputs)
+    return ["## Verdicts", ""] + [f"- {verdict(entries[(sc.name, r.name)], None, prog_force)}" for r in runs] + [""]
 
 
 def render_report(sc, result, files, slug_names) -> str:
@@ -107,13 +122,15 @@ def render_report(sc, result, files, slug_names) -> str:
           + f"; wall time {result.elapsed:.1f} s", "",
           "## Metrics (after the control start)", "",
           f"All physical metrics come from the TRUE plant states and applied inputs (what the rig did), for "
-          f"`{body}`, the body whose stick-slip is suppressed: severity SSS = (max - min)/(2 mean) of its speed "
-          "after the control start (`sss_final`: over the last 5 s), the drilling convention over a moving 3 s "
-          "window (`sss_moving_mean`), the time from the control start until the moving severity stays below "
-          "0.1 (`time_to_suppress`, inf: never), the fraction of time it is stuck (true speed, exactly 0 in "
-          "stick; `stuck_fraction_measured` from the quantised measured speed with a half-tick threshold), the "
-          "RMS error of its speed against the programme, the friction work at the servo pins (`pin_work`) and "
-          "the drive's electrical energy. Solve times are wall times of the controller calls.", ""]
+          f"`{body}`, the body whose stick-slip is suppressed (`mitigate/metrics.py`): `residual_severity`, what "
+          "stays, (max - min) / (2 x programmed speed) over the last few stick-slip periods; `time_to_suppress` "
+          "from the switch-on until the moving severity stays below 0.1 (inf: never); `peak_overshoot` above "
+          "the programmed speed; `speed_ratio`, the mean speed over the programmed one; the fraction of time "
+          "stuck; `setpoint_variation`, the total variation of the commanded inputs per second, each scaled by "
+          "its programme; `pin_work`, the wear a brake's normal force causes at its pin; `normal_force_ratio`, "
+          "the mean applied normal force over its programme; the drive's electrical energy; and the "
+          "literature's SSS = (max - min)/(2 mean) after the switch-on (`sss`, `sss_final` over the last "
+          "window). Solve times are wall times of the controller calls.", ""]
     hdr = ["controller", "kind", "status"] + [f"{k} [{METRIC_UNITS[k]}]" for k in _TABLE]
     L.append("| " + " | ".join(hdr) + " |")
     L.append("|" + "---|" * len(hdr))
@@ -135,6 +152,7 @@ def render_report(sc, result, files, slug_names) -> str:
         L += ["## Tuning of the brake", "",
               "The brake gains of the scenario suite come from a grid search on `scenarios/stick_slip_30rpm.toml` "
               "(`python benchmarks/brake_tuning.py`, results in `benchmarks/results/brake_tuning.md`).", ""]
+    L += _verdicts(sc, runs)
     L += _model_section(sc, runs)
     return "\n".join(L) + "\n"
 

@@ -43,7 +43,7 @@ from pathlib import Path
 
 from models.errors import ConfigError, PluginError
 from models.files import check_output_dir, output_set
-from models.status import Status
+from models.status import Outcome, Status
 from mitigate.metrics import METRIC_UNITS, closed_loop_metrics
 from mitigate.scenario import Scenario, load_scenario
 
@@ -60,7 +60,7 @@ TABLE_COLUMNS = (
 
 
 @dataclass(frozen=True)
-class ControllerRun:
+class ControllerRun(Outcome):
     """One controller's run: its closed-loop result (:class:`mitigate.closedloop.ClosedLoopResult`;
     None when the run failed before its first sample) and metrics (NaN where there is nothing to measure)."""
 
@@ -72,13 +72,9 @@ class ControllerRun:
     status: Status = Status.OK
     message: str = "ok"
 
-    @property
-    def success(self) -> bool:
-        return self.status.success
-
 
 @dataclass(frozen=True)
-class RunResult:
+class RunResult(Outcome):
     """Every run of a scenario, and the files written (empty if none were asked for)."""
 
     scenario: Scenario = field(repr=False)
@@ -87,10 +83,6 @@ class RunResult:
     elapsed: float
     status: Status = Status.OK
     message: str = "ok"
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     def run(self, name: str) -> ControllerRun:
         """The run of the controller named ``name``."""
@@ -339,7 +331,7 @@ def run(scenario, *, out=None, force: bool = False, jobs: int = 2, progress: boo
 def _summarise(sc, runs, files, t0, notes=()) -> RunResult:
     bad = [r for r in runs if not r.success]
     warn = [r for r in runs if r.status is Status.WARNING]
-    status = Status.FAILED if bad else (Status.WARNING if warn else Status.OK)
+    status = Status.worst(runs)
     message = "; ".join(f"{r.name}: {r.message}" for r in bad + warn) or "ok"
     if notes:
         message = f"{message} ({'; '.join(notes)})"

@@ -50,7 +50,7 @@ from models.errors import ConfigError
 from models.params import ParameterSet
 from models.rig import get_model
 from models.rig.steady import nominal_operating_point
-from models.status import Status
+from models.status import Outcome, Status
 
 __all__ = [
     "LinearModel",
@@ -72,7 +72,7 @@ VARIANTS = ("free", "clamped", "closed")
 
 # ----------------------------------------------------------------------------- results
 @dataclass(frozen=True)
-class LinearModel:
+class LinearModel(Outcome):
     """A linearisation ``dx = A dx + B du``, ``dy = C dx + D du`` about ``(x_op, u_op)``.
 
     Attributes
@@ -99,11 +99,6 @@ class LinearModel:
     model: str
     status: Status = Status.OK
     message: str = "ok"
-    rig: str = ""
-
-    @property
-    def success(self) -> bool:
-        return self.status is Status.OK
 
     @cached_property
     def ss(self):
@@ -120,7 +115,7 @@ class LinearModel:
 
 
 @dataclass(frozen=True)
-class ModalResult:
+class ModalResult(Outcome):
     """Modes of one variant of a rig.
 
     Attributes
@@ -155,10 +150,6 @@ class ModalResult:
     status: Status = Status.OK
     message: str = "ok"
     rig: str = ""
-
-    @property
-    def success(self) -> bool:
-        return self.status is Status.OK
 
     def as_dict(self) -> dict:
         return {"model": self.model, "variant": self.variant, "freq_hz": self.freq_hz.tolist(),
@@ -379,7 +370,7 @@ def modes(model="rig3", params: ParameterSet | None = None, variant: str = "clos
     lin = linearise(model, params, u, eps=eps, x_op=x_op)
     speed_idx = [i for i, s in enumerate(model.states) if s.startswith("omega_")]
     res = _modes_from_A(lin.A, speed_idx, [model.states[i] for i in speed_idx], model, "closed")
-    if not lin.success:
+    if lin.status is not Status.OK:      # the linearisation's warning (or failure) is the modes' too
         res = replace(res, status=lin.status, message=lin.message)
     return res
 

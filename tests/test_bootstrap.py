@@ -62,11 +62,11 @@ def test_bootstrap_is_reproducible(fit_and_boot):
 
 @pytest.mark.parametrize("kw, match", [
     ({"replicates": 1}, "bootstrap.replicates must be an integer >= 2"),
-    ({"force_cutoff": 0.0}, "bootstrap.force_cutoff must be a frequency > 0 Hz"),
-    ({"speed_cutoff": -1.0}, "bootstrap.speed_cutoff must be a frequency > 0 Hz"),
+    ({"force_cutoff": 0.0}, "bootstrap.force_cutoff must be > 0 Hz, got 0.0"),
+    ({"speed_cutoff": -1.0}, "bootstrap.speed_cutoff must be > 0 Hz, got -1.0"),
     ({"workers": 0}, "bootstrap.workers must be an integer >= 1"),
     ({"seed": 1.5}, "bootstrap.seed must be an integer"),
-    ({"start": "guess"}, "bootstrap.start must be .initial. or .fit."),
+    ({"start": "guess"}, "bootstrap.start must be one of initial, fit, got 'guess'"),
 ])
 def test_bad_options(kw, match):
     with pytest.raises(ConfigError, match=match):

@@ -23,6 +23,7 @@ from mitigate.controllers.factory import context_for, controller_class, make_con
 from mitigate.scenario import parse_scenario
 from models.errors import ConfigError, PluginError, shorten
 from models.status import Status
+from scenario_text import PI, scenario_toml
 
 ROOT = Path(__file__).resolve().parents[1]
 F = "tests.plugins.faulty"
@@ -105,25 +106,8 @@ def test_the_readme_controller_on_a_rig_whose_torque_channel_is_torque_drive_fai
     assert 'channel = "motor_torque"' in rig
     (tmp_path / "rig3td.toml").write_text(rig.replace('channel = "motor_torque"', 'channel = "torque_drive"')
                                           .replace('name = "rig3"', 'name = "rig3td"', 1))
-    (tmp_path / "s.toml").write_text(f"""
-[scenario]
-name = "hp"
-model = "rig3td.toml"
-duration = 2.0
-[inputs]
-omega_ref = "30 rpm"
-n1 = 20.0
-[control]
-start = 1.0
-[estimator]
-kind = "fd"
-[[controllers]]
-name = "PI only"
-kind = "pi"
-[[controllers]]
-name = "mine"
-kind = "tests.plugins.my_controller:HighPassTorque"
-""")
+    (tmp_path / "s.toml").write_text(scenario_toml('[scenario]\nname = "hp"\nmodel = "rig3td.toml"\nduration = 2.0',
+                                                   controllers=[PI, ("mine", "tests.plugins.my_controller:HighPassTorque")]))
     out = tmp_path / "out"
     rc = cli.main(["run", str(tmp_path / "s.toml"), "--out", str(out), "--jobs", "1"])
     printed = capsys.readouterr().out

@@ -152,11 +152,13 @@ def test_bad_inputs(disc_logs):
 
 @pytest.mark.parametrize("kw, match", [
     ({"solver": "lm"}, "options.solver must be one of gn, ipopt"),
-    ({"input_cutoff": {"n1": -1.0}}, "options.input_cutoff.n1 must be a finite number > 0 Hz"),
+    ({"input_cutoff": {"n1": -1.0}}, "options.input_cutoff.n1 must be > 0 Hz, got -1.0"),
     ({"encoder_zero": "zero"}, "options.encoder_zero must be one of free, untwisted"),
-    ({"input_row": "middle"}, "options.input_row must be 'end' or 'start'"),
-    ({"detect_delay": 11}, "options.detect_delay must be <= 10"),
-    ({"eps": -1}, "options.eps must be a finite number > 0 rad/s"),
+    ({"input_row": "middle"}, "options.input_row must be one of end, start, got 'middle'"),
+    ({"detect_delay": 11}, r"options.detect_delay must be an integer in \[0, 10\] samples, got 11"),
+    ({"eps": -1}, "options.eps must be > 0 rad/s, got -1"),
+    ({"eps": "x"}, "options.eps must be a finite number > 0 rad/s, got 'x'"),
+    ({"outputs": ()}, r"options.outputs must be a non-empty list of channel names, got \[\]"),
     ({"input_noise": {"n1": 0.2}, "solver": "ipopt"}, "options.input_noise needs solver 'gn'"),
     ({"systematic": "yes"}, "options.systematic must be true or false"),
     ({"systematic_iter": 0}, "options.systematic_iter must be an integer >= 1"),

@@ -22,7 +22,7 @@ from estimators.base import Estimate
 from mitigate.controllers.base import ControlContext
 from mitigate.controllers.factory import make_controller
 from mitigate.controllers.nmpc import NMPC, MAX_HORIZON, NMPCOptions, NMPCWeights, stage_functions
-from mitigate.controllers.nmpc.ocp import prediction_rhs
+from mitigate.controllers.nmpc.stage import prediction_rhs
 from mitigate.controllers.nmpc.qp import ConicQP, HpipmQP
 from mitigate.metrics import severity
 from models import get_model
@@ -321,6 +321,22 @@ def test_fallback_chain_shift_then_programme_is_counted():
     assert acts[11].u == acts[10].u and acts[11].status is Status.HOLD
 
 
+def test_a_numerical_error_is_a_counted_failure_and_a_bug_fails_the_run(monkeypatch):
+    """CasADi's RuntimeError in a solve is a SolverFailure (the shifted plan answers, counted);
+    any other exception is a bug: step raises PluginError and the run is FAILED."""
+    from models.errors import PluginError
+    c = _nmpc({"horizon": 5})
+    x = M.steady_sliding(U0, P)
+    meas = {"n1": 20.0, "n2": 0.0}
+    assert c.step(0.0, meas, _est(0.0, x)).status is Status.OK
+    monkeypatch.setattr(type(c.ocp), "_solve_impl", lambda *a: (_ for _ in ()).throw(RuntimeError("Error in Function::call")))
+    a = c.step(0.05, meas, _est(0.05, x))
+    assert a.status is Status.FALLBACK and "RuntimeError" in a.message and c.counts.failures == 1
+    monkeypatch.setattr(type(c.ocp), "_solve_impl", lambda *a: (_ for _ in ()).throw(KeyError("bug")))
+    with pytest.raises(PluginError, match="KeyError"):
+        c.step(0.10, meas, _est(0.10, x))
+
+
 def test_no_estimate_falls_back_to_the_programme_without_raising():
     c = _nmpc({"horizon": 5})
     a = c.step(0.0, {"n1": 20.0}, None)
@@ -376,7 +392,7 @@ def test_inputs_respect_bounds_and_rate_limits(variants):
     r = variants["both"]
     c, acts, forces = r["c"], r["acts"], r["forces"]
     servo = M.actuator("n2")
-    o = c.options
+    o = c.cfg          # the settings in force: the rig's defaults here
     wref = np.array([a.u["omega_ref"] for a in acts])
     n2 = np.array([a.u["n2"] for a in acts])
     assert np.all(n2 >= servo.n_min - 1e-9) and np.all(n2 <= servo.n_max + 1e-9)
@@ -445,7 +461,8 @@ def test_load_estimate_scales_the_friction_of_its_contact(use, factor, monkeypat
 
 
 def test_held_normal_force_is_read_through_its_load_cell():
-    """N1 and N2 are held at their load cells' readings corrected for the cells' gain and offset."""
+    """N1 and N2 are held at their load cells' readings corrected for the cells' gain and offset
+    (the first reading as it is); a lost reading keeps the last deviation from the programme."""
     p = P.replace(n1_gain=2.0, n1_offset=1.0)
     c = make_controller({"kind": "nmpc", "horizon": 5, "compile": False, "inputs": "motor"}, _ctx(params=p))
     seen = []
@@ -453,9 +470,30 @@ def test_held_normal_force_is_read_through_its_load_cell():
     c.ocp.solve = lambda xa0, q, *a: seen.append(q[:M.nu].copy()) or orig(xa0, q, *a)
     c.step(0.0, {"n1": 41.0, "n2": 3.0}, _est(0.0, M.steady_sliding(U0, P)))
     np.testing.assert_allclose(seen[0], [W0, 20.0, 3.0])
-    # a lost reading: the programme's value (N1 = 20 N, N2 = 0 N) until it comes back
     c.step(0.05, {"n1": float("nan")}, _est(0.05, M.steady_sliding(U0, P)))
-    np.testing.assert_allclose(seen[1], [W0, 20.0, 0.0])
+    np.testing.assert_allclose(seen[1], [W0, 20.0, 3.0])
+
+
+def test_held_normal_force_filters_the_load_cell_noise_and_follows_the_programme_at_once():
+    """Load-cell noise reaches the plan low-passed (time constant ``force_filter``): +-1 N of
+    alternating noise on N1 moves the held force by < 0.1 N; a programme step of N1 (20 -> 30 N)
+    reaches it in the same sample.  With ``force_filter = 0`` the raw reading is held."""
+    prog = lambda t: np.array([W0, 20.0 if t < 1.0 else 30.0, 0.0])   # noqa: E731
+    x = M.steady_sliding(U0, P)
+    for tau, tol in ((0.2, 0.1), (0.0, None)):
+        c = make_controller({"kind": "nmpc", "horizon": 5, "compile": False, "inputs": "motor", "force_filter": tau}, _ctx(programme=prog))
+        seen = []
+        orig = c.ocp.solve
+        c.ocp.solve = lambda xa0, q, *a, seen=seen, orig=orig: seen.append(q[:M.nu].copy()) or orig(xa0, q, *a)
+        for k in range(150):
+            t = 0.01 * k
+            c.step(t, {"n1": float(prog(t)[1]) + (1.0 if k % 2 else -1.0), "n2": 0.0}, _est(t, x))
+        n1 = np.array([s[1] for s in seen])       # one plan every 5 samples: t = 0, 0.05, ...
+        if tol is None:
+            assert np.all(np.abs(np.abs(n1 - np.where(np.arange(len(n1)) < 20, 20.0, 30.0)) - 1.0) < 1e-9)
+        else:
+            assert np.max(np.abs(n1[12:20] - 20.0)) < tol   # the first reading (-1 N) has decayed
+            assert abs(n1[20] - 30.0) < tol        # t = 1.0 s: the step of the programme, at once
 
 
 # ----------------------------------------------------------------------------- other rigs
@@ -604,4 +642,4 @@ def test_too_stiff_a_rig_for_the_interval_is_a_config_error():
     m = get_model("leadscrew")
     with pytest.raises(ConfigError, match=r"^nmpc\.substeps: rig 'leadscrew' needs \d+ RK4 substeps per 0.05 s "
                                           r"interval .* the limit is 200"):
-        make_controller({"kind": "nmpc", "compile": False}, _ctx(model=m, programme=[40.3, 314.3]))
+        make_controller({"kind": "nmpc", "compile": False, "dt": 0.05}, _ctx(model=m, programme=[40.3, 314.3]))

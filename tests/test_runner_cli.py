@@ -12,38 +12,18 @@ import mitigate.cli as cli
 from mitigate.runner import run
 from models.logs import read_csv
 from models.status import Status
+from scenario_text import PI, scenario_toml
 
 ROOT = Path(__file__).resolve().parents[1]
 
-TINY = """
+TINY = scenario_toml("""
 [scenario]
 name = "tiny"
 description = "tiny test scenario"
 duration = 2.0
 seed = 2
-
-[inputs]
-omega_ref = { kind = "constant", value = 30, unit = "rpm" }
-n1 = 20
-
-[control]
-start = 1.0
-
-[estimator]
-kind = "fd"
-
-[[controllers]]
-name = "PI only"
-kind = "pi"
-
-[[controllers]]
-name = "R2 brake"
-kind = "brake"
-
-[[controllers]]
-name = "supervisor"
-kind = "supervisor"
-"""
+""", inputs='omega_ref = { kind = "constant", value = 30, unit = "rpm" }\nn1 = 20',
+                     controllers=[PI, ("R2 brake", "brake"), ("supervisor", "supervisor")])
 
 EXPECTED = ["metrics.csv", "metrics.json", "report.md", "comparison.png", "phase.png", "metrics.png",
             "log_pi_only.csv", "log_r2_brake.csv", "log_supervisor.csv", "timeseries_pi_only.png",

@@ -12,8 +12,9 @@ from mitigate import make_scenario, parse_scenario, run
 from mitigate.scenario import Scenario, load_scenario
 from models import get_model
 from models.errors import ConfigError
+from scenario_text import PI, scenario_toml
 
-TOML = """
+TOML = scenario_toml("""
 [scenario]
 name = "demo"
 model = "rig3"
@@ -38,26 +39,8 @@ noise_scale = 2.0
 [actuators.servo2]
 n_max = "30 N"
 
-[inputs]
-omega_ref = "30 rpm"
-n1 = { kind = "steps", times = [0, 1.5], values = [20, 25] }
-
-[control]
-start = 1.0
-every = 2
-
-[estimator]
-kind = "fd"
-
-[[controllers]]
-name = "PI only"
-kind = "pi"
-
-[[controllers]]
-name = "brake"
-kind = "brake"
-gain_overspeed = 80.0
-"""
+""", inputs='omega_ref = "30 rpm"\nn1 = { kind = "steps", times = [0, 1.5], values = [20, 25] }',
+   control="start = 1.0\nevery = 2", controllers=[PI, ("brake", "brake", "gain_overspeed = 80.0")])
 
 KW = dict(name="demo", model="rig3", duration=3.0, dt=0.01, seed=4,
           inputs={"omega_ref": "30 rpm", "n1": {"kind": "steps", "times": [0, 1.5], "values": [20, 25]}},

@@ -17,36 +17,13 @@ from mitigate import run
 from mitigate.controllers.factory import context_for, controller_class, make_controller
 from mitigate.scenario import parse_scenario
 from models.errors import ConfigError
+from scenario_text import PI, scenario_toml
 
 ROOT = Path(__file__).resolve().parents[1]
 REF = "tests.plugins.my_controller:HighPassTorque"
 
-SCENARIO = f"""
-[scenario]
-name = "mine"
-duration = 35.0
-seed = 1
-
-[inputs]
-omega_ref = "30 rpm"
-n1 = 20.0
-
-[control]
-start = 15.0
-
-[estimator]
-kind = "fd"
-
-[[controllers]]
-name = "PI only"
-kind = "pi"
-
-[[controllers]]
-name = "my law"
-kind = "{REF}"
-gain = 2.0
-tau = 5.0
-"""
+SCENARIO = scenario_toml('[scenario]\nname = "mine"\nduration = 35.0\nseed = 1', control="start = 15.0",
+                         controllers=[PI, ("my law", REF, "gain = 2.0", "tau = 5.0")])
 
 
 @pytest.fixture(autouse=True)

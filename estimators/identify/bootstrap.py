@@ -37,11 +37,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from models.checks import choice, integer, number, prefix
 from models.errors import ConfigError, DataError
 from models.plant import SimOptions, simulate
 from models.sensors import SensorOptions
 from models.signals import lowpass
-from models.status import Status
+from models.status import Outcome, Status
 
 __all__ = ["BootstrapOptions", "BootstrapResult", "bootstrap"]
 
@@ -78,27 +79,20 @@ class BootstrapOptions:
     progress: bool = False
 
     def __post_init__(self):
-        for name, least in (("replicates", 2), ("sim_nsub", 1), ("max_iter", 1), ("workers", 1)):
-            v = getattr(self, name)
-            if name == "max_iter" and v is None:
-                continue
-            if isinstance(v, bool) or not isinstance(v, int) or v < least:
-                raise ConfigError(f"bootstrap.{name} must be an integer >= {least}, got {v!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
-            raise ConfigError(f"bootstrap.seed must be an integer, got {self.seed!r}")
+        w = prefix("bootstrap")
+        for name, least in (("replicates", 2), ("sim_nsub", 1), ("workers", 1)):
+            integer(getattr(self, name), f"{w}.{name}", lo=least)
+        integer(self.max_iter, f"{w}.max_iter", lo=1, none=True)
+        integer(self.seed, f"{w}.seed")
         for name in ("force_cutoff", "speed_cutoff"):
-            fc = getattr(self, name)
-            if fc is not None and (isinstance(fc, bool) or not (isinstance(fc, (int, float)) and np.isfinite(fc)
-                                                                and fc > 0)):
-                raise ConfigError(f"bootstrap.{name} must be a frequency > 0 Hz, got {fc!r}")
-        if self.start not in ("initial", "fit"):
-            raise ConfigError(f"bootstrap.start must be 'initial' or 'fit', got {self.start!r}")
+            number(getattr(self, name), f"{w}.{name}", lo=0.0, lo_open=True, unit="Hz", none=True)
+        choice(self.start, f"{w}.start", ("initial", "fit"))
         if not isinstance(self.sensors, SensorOptions):
-            raise ConfigError(f"bootstrap.sensors must be SensorOptions, got {type(self.sensors).__name__}")
+            raise ConfigError(f"{w}.sensors must be SensorOptions, got {type(self.sensors).__name__}")
 
 
 @dataclass(frozen=True)
-class BootstrapResult:
+class BootstrapResult(Outcome):
     """Result of :func:`bootstrap` (SI units; parameters in ``names`` order).
 
     Attributes
@@ -127,10 +121,6 @@ class BootstrapResult:
     status: Status
     message: str
     wall_time: float
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     def as_dict(self) -> dict:
         return {"names": list(self.names), "estimate": self.estimate.tolist(), "bias": self.bias.tolist(),
@@ -205,7 +195,7 @@ def bootstrap(fit, options: BootstrapOptions | None = None) -> BootstrapResult:
         raise DataError("bootstrap needs a FitResult that carries its problem (from identify or problem.solve)")
     boot = options
     inputs = [_replicate_inputs(problem, fit, j, boot) for j in range(len(problem.data))]
-    start = fit.params if boot.start == "fit" else problem._initial_arg
+    start = fit.params if boot.start == "fit" else problem.given_initial
     jobs = [(b, problem, fit.params, start, inputs, boot) for b in range(boot.replicates)]
     results = []
     bar = None

@@ -41,10 +41,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimators.identify.guess_data import GuessData, N_AVG, active_contacts, far_body, far_side, stuck_threshold
 from models.logs import Log
 from models.params import ParameterSet
 from models.rig.spec import NODE_DRIVE, NODE_GROUND
-from models.sensors import channel_std
 from models.signals import moving_average, stick_slip_cycles
 
 __all__ = ["Guess", "initial_guess"]
@@ -57,102 +57,6 @@ class Guess:
     params: ParameterSet
     values: dict
     notes: tuple[str, ...]
-
-
-def _stuck_threshold(model, channel: str, dt: float, omega_scale: float, n_avg: int = 1) -> float:
-    """Below this a measured speed (averaged over ``n_avg`` samples) counts as stuck: half an
-    encoder tick over the averaging window, or 3 standard deviations of a speed sensor's mean;
-    at least 1e-3 of the speed scale."""
-    s = model.sensor_of(channel)
-    if s is not None and s.kind == "encoder":
-        thr = 0.5 * 2 * math.pi / (s.ticks * s.ratio) / (n_avg * dt)
-    else:
-        thr = 3 * channel_std(model, channel, dt) / math.sqrt(n_avg)
-    return max(thr, 1e-3 * abs(omega_scale), 1e-9)
-
-
-#: samples the measured speed is averaged over before stick is detected (a quantised encoder
-#: speed of a slowly sliding body reads 0 in single samples)
-N_AVG = 5
-
-
-class _Data:
-    """The log's inputs (corrected with the base set), measured speeds and their derivatives."""
-
-    def __init__(self, model, log: Log, P: dict, input_row: str):
-        self.model, self.log, self.dt, self.P = model, log, log.dt, P
-        n = len(log.t)
-        U = np.column_stack([np.asarray(log[n_], float) for n_ in model.inputs]) if model.nu else np.zeros((n, 0))
-        Um = np.array(model.input_from_measured([U[:, j] for j in range(model.nu)], P)).T if model.nu else U
-        self.u = {name: Um[:, j] for j, name in enumerate(model.inputs)}
-        self.speeds: dict[str, np.ndarray] = {}
-        for b in model.bodies:
-            ch = model.speed_channel(b)
-            if ch is not None and ch in log.channels:
-                self.speeds[b] = np.asarray(log[ch], float)
-        if model.drive_kind == "speed":
-            self.speeds[NODE_DRIVE] = self.u[model.drive_input]
-        self.speeds[NODE_GROUND] = np.zeros(n)
-
-    def speed(self, node):
-        return self.speeds.get(node)
-
-    def accel(self, node):
-        w = self.speeds.get(node)
-        return None if w is None else np.gradient(moving_average(w, 5), self.dt)
-
-    def angle(self, node):
-        ch = self.model.angle_channel(node) if node != NODE_DRIVE else next(
-            (s.channels[0] for s in self.model.sensors if s.kind == "encoder" and s.target == NODE_DRIVE), None)
-        return np.asarray(self.log[ch], float) if ch is not None and ch in self.log.channels else None
-
-    def scale(self, contact):
-        """``N r`` of a contact over the log (array), 1 where it has neither."""
-        N, r, _ = self.model.contact_args(contact, self.P, self.u)
-        return np.broadcast_to(np.asarray(N, float) * float(r), self.log.t.shape)
-
-    def friction_terms(self, contact):
-        """The contact's friction magnitude over the log as ``rest + sum(value(ref) * column)``
-        over the parameters its law is linear in (:attr:`models.friction.FrictionLaw.linear_params`):
-        ``([(ref, column)], rest)``, arrays over the log; None if the law declares none."""
-        law = self.model.law(contact.name)
-        names = law.linear_params
-        if not names:
-            return None
-        N, r, LP = self.model.contact_args(contact, self.P, self.u)
-        N = np.broadcast_to(np.asarray(N, float), self.log.t.shape)
-        aw = np.abs(self.speed(contact.body))
-        zero = dict({k: float(v) for k, v in LP.items()}, **{n: 0.0 for n in names})
-        rest = np.asarray(law.magnitude_at(aw, N, float(r), zero), float)
-        refs = dict(contact.params)
-        terms = [(refs[n], np.asarray(law.magnitude_at(aw, N, float(r), dict(zero, **{n: 1.0})), float) - rest)
-                 for n in names]
-        return terms, rest
-
-
-def _side(model, conn) -> set[str]:
-    """Bodies on the side of ``conn`` away from the reference node (the drive)."""
-    ref = model.spec.reference_node
-    adj: dict[str, list] = {}
-    for c in model.spec.connections:
-        if c is conn:
-            continue
-        adj.setdefault(c.a, []).append(c.b)
-        adj.setdefault(c.b, []).append(c.a)
-
-    def reach(start):
-        seen, stack = {start}, [start]
-        while stack:
-            n = stack.pop()
-            for m in adj.get(n, []):
-                if m not in seen and m != NODE_GROUND:
-                    seen.add(m)
-                    stack.append(m)
-        return seen
-
-    a_side = reach(conn.a)
-    side = reach(conn.b) if ref in a_side or conn.a == NODE_DRIVE else a_side
-    return {b for b in side if b in model.bodies}
 
 
 def _regress_friction(model, P, data, contacts, F, mask, free) -> dict:
@@ -206,7 +110,7 @@ def _cycle_guess(model, P, data, body, log, free, notes, values):
     if abs(Omega) < 1e-6:
         return
     sgn = 1.0 if Omega > 0 else -1.0
-    thr = _stuck_threshold(model, ch, dt, Omega, N_AVG)
+    thr = stuck_threshold(model, ch, dt, Omega, N_AVG)
     ws = moving_average(sgn * w_b, N_AVG)
     cyc = stick_slip_cycles(ws, dt, thr, skip=min(1.0, 0.1 * (log.t[-1] - log.t[0])))
     if cyc is None:
@@ -255,28 +159,11 @@ def _cycle_guess(model, P, data, body, log, free, notes, values):
     return {"delta": delta, "thr": thr, "src": src, "spring": c, "other": other, "k": k}
 
 
-def _active_contacts(model, data, contacts):
-    """Contacts that carry a real normal load: mean ``|N r|`` above 5 % of the largest (a logged
-    zero force with load-cell noise is not a load)."""
-    sc = {c.name: float(np.mean(np.abs(data.scale(c)))) for c in model.spec.contacts}
-    top = max(sc.values(), default=0.0)
-    return [c for c in contacts if sc[c.name] > max(0.05 * top, 1e-12)]
-
-
-def _far_body(model, conn):
-    """The body of ``conn`` on its side away from the drive (None if that end is the ground)."""
-    side = _side(model, conn)
-    for n in (conn.a, conn.b):
-        if n in side:
-            return n
-    return None
-
-
 def _walk_chain(model, P, data, conn, T_conn, free, values, notes, source):
     """Stiffness and damping of ``conn`` (and onward along the chain) from its torque ``T_conn``
     (its reading convention, ``k phi + d (w_a - w_b)``) regressed on the encoder twist; the torque
     passes on through every body without friction that joins exactly two springs."""
-    active = {c.body for c in _active_contacts(model, data, model.spec.contacts)}
+    active = {c.body for c in active_contacts(model, data, model.spec.contacts)}
     c, Tc = conn, T_conn
     for _ in range(len(model.spec.connections)):
         tha, thb = data.angle(c.a), data.angle(c.b)
@@ -289,7 +176,7 @@ def _walk_chain(model, P, data, conn, T_conn, free, values, notes, source):
                     values[ref.name] = float(v)
                     P[ref.name] = float(v)
                     notes.append(f"{ref.name} = {v:.4g} from {source} regressed on the encoder twist of {c.name} ({what})")
-        b = _far_body(model, c)
+        b = far_body(model, c)
         if b is None or b in active or data.speed(b) is None:
             return
         others = [o for o in model.spec.connections if o is not c and b in (o.a, o.b) and NODE_GROUND not in (o.a, o.b)]
@@ -407,7 +294,7 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
     P = base.as_dict()
     values: dict[str, float] = {}
     notes: list[str] = []
-    data = _Data(model, log, P, input_row)
+    data = GuessData(model, log, P, input_row)
     dt = data.dt
 
     # the friction body: the objective body if it has friction, else the first contact body
@@ -444,7 +331,7 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
                         k_conn = (c2, delivered if d.body == c2.a else -delivered)
         else:
             c = next(c for c in model.spec.connections if c.name == tq.target)
-            side = _side(model, c)
+            side = far_side(model, c)
             T_in = T if (c.b in side) else -T
             k_conn = (c, T)
         # stiffness and damping from the connection's torque and its encoders, along the chain (piece 3)
@@ -460,11 +347,11 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
                     b = c.a if c.a in side else c.b
                     F = F - float(c.damping.value(P)) * data.speed(b)
             contacts = [c for c in model.spec.contacts if c.body in side]
-            active = _active_contacts(model, data, contacts)
+            active = active_contacts(model, data, contacts)
             if active:
                 wref = data.speed(active[0].body)
                 sgn = 1.0 if np.mean(wref) >= 0 else -1.0
-                thr = _stuck_threshold(model, model.speed_channel(active[0].body) or "", dt, float(np.mean(wref))) \
+                thr = stuck_threshold(model, model.speed_channel(active[0].body) or "", dt, float(np.mean(wref))) \
                     if model.speed_channel(active[0].body) else 1e-3
                 mask = np.ones(len(log.t), bool)
                 for c in active:
@@ -485,7 +372,7 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
     if bodies:
         b0 = bodies[0]
         ch0 = model.speed_channel(b0)
-        thr0 = _stuck_threshold(model, ch0, dt, float(np.mean(np.abs(data.speed(b0)))), N_AVG)
+        thr0 = stuck_threshold(model, ch0, dt, float(np.mean(np.abs(data.speed(b0)))), N_AVG)
         _equation_error(model, P, data, b0, free, values, notes, thr0, encoder_zero)
     # the stick-slip cycle: stiffness (or inertia) not found above, and the friction drop
     cyc = None

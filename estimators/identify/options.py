@@ -12,16 +12,19 @@ import re
 from dataclasses import dataclass, field
 from typing import Mapping
 
+from models.checks import choice, flag, integer, names, number, prefix
 from models.errors import ConfigError
 from models.sensors import SensorOptions
 
-__all__ = ["IdentifyOptions", "LinearConstraint", "SOLVERS", "ENCODER_ZERO", "GLOBALISE"]
+__all__ = ["IdentifyOptions", "LinearConstraint", "SOLVERS", "ENCODER_ZERO", "GLOBALISE", "INPUT_ROWS"]
 
 SOLVERS = ("gn", "ipopt")
 GLOBALISE = ("auto", "always", "off")
 #: "free": each log's encoders were zeroed at an unknown twist (one unknown per angle difference
 #: and log); "untwisted": the rig was untwisted when the encoders were zeroed
 ENCODER_ZERO = ("free", "untwisted")
+#: "end": row k+1 holds the input held over [t_k, t_k+1) (the plant's logs); "start": row k holds it
+INPUT_ROWS = ("end", "start")
 
 _TERM = re.compile(r"\s*([+-]?)\s*((?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)?\s*\*?\s*([A-Za-z_][A-Za-z0-9_]*)\s*")
 _NUM = re.compile(r"^\s*[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?\s*$")
@@ -52,8 +55,7 @@ class LinearConstraint:
             if not isinstance(name, str) or isinstance(c, bool) or not isinstance(c, (int, float)) \
                     or not math.isfinite(c):
                 raise ConfigError(f"constraint term must be (name, finite coefficient), got {(name, c)!r}")
-        if isinstance(self.upper, bool) or not isinstance(self.upper, (int, float)) or not math.isfinite(self.upper):
-            raise ConfigError(f"constraint right-hand side must be a finite number, got {self.upper!r}")
+        number(self.upper, "constraint right-hand side")
         if not self.text:
             object.__setattr__(self, "text", self.describe())
 
@@ -99,26 +101,6 @@ class LinearConstraint:
             pos = m.end()
         terms = {n: c for n, c in terms.items() if c != 0.0}
         return cls(tuple((n, sign * c) for n, c in terms.items()), sign * float(rhs), text.strip())
-
-
-def _pos_number(v, where: str, unit: str = "", *, allow_none: bool = False) -> None:
-    if v is None and allow_none:
-        return
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not v > 0:
-        raise ConfigError(f"{where} must be a finite number > 0{' ' + unit if unit else ''}, got {v!r}")
-
-
-def _names(v, where: str) -> tuple[str, ...]:
-    if isinstance(v, str):
-        v = [s.strip() for s in v.split(",") if s.strip()]
-    try:
-        out = tuple(v)
-    except TypeError:
-        raise ConfigError(f"{where} must be a list of names, got {v!r}") from None
-    for n in out:
-        if not isinstance(n, str) or not n:
-            raise ConfigError(f"{where} must hold names, got {n!r}")
-    return out
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -221,80 +203,67 @@ class IdentifyOptions:
     progress: bool = False
 
     def __post_init__(self):
-        free = _names(self.free, "options.free")
+        w = prefix("options")
+        free = names(self.free, f"{w}.free", what="parameter names", split=True)
         if not free:
-            raise ConfigError("options.free must name at least one parameter, got none")
+            raise ConfigError(f"{w}.free must name at least one parameter, got none")
         dup = sorted({n for n in free if free.count(n) > 1})
         if dup:
-            raise ConfigError(f"options.free must not repeat names, got {', '.join(dup)} twice")
+            raise ConfigError(f"{w}.free must not repeat names, got {', '.join(dup)} twice")
         object.__setattr__(self, "free", free)
         if self.outputs is not None:
-            outs = _names(self.outputs, "options.outputs")
-            if not outs:
-                raise ConfigError("options.outputs must name at least one channel, got none")
-            object.__setattr__(self, "outputs", outs)
-        object.__setattr__(self, "exclude", _names(self.exclude, "options.exclude"))
+            object.__setattr__(self, "outputs", names(self.outputs, f"{w}.outputs", what="channel names", split=True,
+                                                      nonempty=True))
+        object.__setattr__(self, "exclude", names(self.exclude, f"{w}.exclude", what="channel names", split=True))
         cons = []
         for c in (self.constraints if not isinstance(self.constraints, (str, LinearConstraint)) else (self.constraints,)):
             if isinstance(c, str):
-                c = LinearConstraint.parse(c)
+                c = LinearConstraint.parse(c, f"{w}.constraints")
             if not isinstance(c, LinearConstraint):
-                raise ConfigError(f"options.constraints must hold LinearConstraint or text, got {type(c).__name__}")
+                raise ConfigError(f"{w}.constraints must hold LinearConstraint or text, got {type(c).__name__}")
             cons.append(c)
         object.__setattr__(self, "constraints", tuple(cons))
         if self.bounds is not None:
             if not isinstance(self.bounds, Mapping):
-                raise ConfigError(f"options.bounds must be a table {{name: (lower, upper)}}, got {self.bounds!r}")
+                raise ConfigError(f"{w}.bounds must be a table {{name: (lower, upper)}}, got {self.bounds!r}")
             for n, b in self.bounds.items():
                 ok = isinstance(b, (tuple, list)) and len(b) == 2 and all(
                     isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v) for v in b)
                 if not ok or not b[0] < b[1]:
-                    raise ConfigError(f"options.bounds.{n} must be (lower, upper) with lower < upper, got {b!r}")
-        for flag in ("order_friction", "speed_average", "use_twist", "systematic", "progress"):
-            if getattr(self, flag) not in (True, False):
-                raise ConfigError(f"options.{flag} must be true or false, got {getattr(self, flag)!r}")
+                    raise ConfigError(f"{w}.bounds.{n} must be (lower, upper) with lower < upper, got {b!r}")
+        for name in ("order_friction", "speed_average", "use_twist", "systematic", "progress"):
+            flag(getattr(self, name), f"{w}.{name}")
         if not isinstance(self.sensors, SensorOptions):
-            raise ConfigError(f"options.sensors must be SensorOptions, got {type(self.sensors).__name__}")
-        _pos_number(self.eps, "options.eps", "rad/s")
-        for name, least in (("nsub", 1), ("shoot_every", 1), ("max_iter", 1), ("systematic_iter", 1),
-                            ("extra_delay", 0), ("detect_delay", 0)):
-            v = getattr(self, name)
-            if name == "nsub" and v is None:
-                continue
-            if isinstance(v, bool) or not isinstance(v, int) or v < least:
-                raise ConfigError(f"options.{name} must be an integer >= {least}, got {v!r}")
-        if self.detect_delay > 10 or self.extra_delay > 100:
-            raise ConfigError(f"options.detect_delay must be <= 10 and options.extra_delay <= 100 samples, "
-                              f"got {self.detect_delay} and {self.extra_delay}")
-        if self.encoder_zero not in ENCODER_ZERO:
-            raise ConfigError(f"options.encoder_zero must be one of {', '.join(ENCODER_ZERO)}, got {self.encoder_zero!r}")
-        if self.input_row not in ("end", "start"):
-            raise ConfigError(f"options.input_row must be 'end' or 'start', got {self.input_row!r}")
-        _pos_number(self.tol, "options.tol")
-        _pos_number(self.trust_radius, "options.trust_radius")
-        if self.solver not in SOLVERS:
-            raise ConfigError(f"options.solver must be one of {', '.join(SOLVERS)}, got {self.solver!r}")
-        if self.globalise not in GLOBALISE:
-            raise ConfigError(f"options.globalise must be one of {', '.join(GLOBALISE)}, got {self.globalise!r}")
-        if self.compile not in (None, True, False):
-            raise ConfigError(f"options.compile must be true, false or unset, got {self.compile!r}")
-        if not (isinstance(self.corr_warn, (int, float)) and 0 < self.corr_warn <= 1):
-            raise ConfigError(f"options.corr_warn must be in (0, 1], got {self.corr_warn!r}")
-        _pos_number(self.rse_warn, "options.rse_warn")
+            raise ConfigError(f"{w}.sensors must be SensorOptions, got {type(self.sensors).__name__}")
+        number(self.eps, f"{w}.eps", lo=0.0, lo_open=True, unit="rad/s")
+        integer(self.nsub, f"{w}.nsub", lo=1, none=True)
+        for name in ("shoot_every", "max_iter", "systematic_iter"):
+            integer(getattr(self, name), f"{w}.{name}", lo=1)
+        integer(self.extra_delay, f"{w}.extra_delay", lo=0, hi=100, unit="samples")
+        integer(self.detect_delay, f"{w}.detect_delay", lo=0, hi=10, unit="samples")
+        choice(self.encoder_zero, f"{w}.encoder_zero", ENCODER_ZERO)
+        choice(self.input_row, f"{w}.input_row", INPUT_ROWS)
+        number(self.tol, f"{w}.tol", lo=0.0, lo_open=True)
+        number(self.trust_radius, f"{w}.trust_radius", lo=0.0, lo_open=True)
+        choice(self.solver, f"{w}.solver", SOLVERS)
+        choice(self.globalise, f"{w}.globalise", GLOBALISE)
+        flag(self.compile, f"{w}.compile", none=True)
+        number(self.corr_warn, f"{w}.corr_warn", lo=0.0, hi=1.0, lo_open=True)
+        number(self.rse_warn, f"{w}.rse_warn", lo=0.0, lo_open=True)
         for k, v in (self.input_cutoff or {}).items():
-            _pos_number(v, f"options.input_cutoff.{k}", "Hz")
+            number(v, f"{w}.input_cutoff.{k}", lo=0.0, lo_open=True, unit="Hz")
         if isinstance(self.input_noise, str):
             if self.input_noise not in ("auto", "off"):
-                raise ConfigError(f"options.input_noise must be 'auto', 'off' or a table of standard deviations, "
+                raise ConfigError(f"{w}.input_noise must be 'auto', 'off' or a table of standard deviations, "
                                   f"got {self.input_noise!r}")
         elif self.input_noise is not None:
             for k, v in self.input_noise.items():
-                _pos_number(v, f"options.input_noise.{k}")
+                number(v, f"{w}.input_noise.{k}", lo=0.0, lo_open=True)
             if self.input_noise and self.solver != "gn":
-                raise ConfigError(f"options.input_noise needs solver 'gn' (errors in the variables), got solver "
+                raise ConfigError(f"{w}.input_noise needs solver 'gn' (errors in the variables), got solver "
                                   f"{self.solver!r}")
         for k, v in (self.noise or {}).items():
-            _pos_number(v, f"options.noise.{k}")
+            number(v, f"{w}.noise.{k}", lo=0.0, lo_open=True)
 
     def replace(self, **changes) -> "IdentifyOptions":
         """A copy with some fields changed (validated again)."""

@@ -32,99 +32,38 @@ import math
 import sys
 import time
 import warnings
-from dataclasses import dataclass, replace
-from typing import Sequence
+from dataclasses import replace
 
-import casadi as ca
 import numpy as np
 
-from models.errors import ConfigError, DataError, SolverFailure
-from models.logs import Log
+from models.errors import ConfigError, SolverFailure
 from models.params import ParameterSet
 from models.rig import RigModel, get_model
-from models.signals import lowpass, moving_average
 from models.status import Status
+from models.discretise import MAX_SUBSTEPS, integration
 from estimators.identify.covariance import uncertainty
 from estimators.identify.continuation import (GN_METHOD, attempt, choose, continuation_method, solve_continuation,
                                               wants_continuation)
-from estimators.identify.gauss_newton import solve_gn
+from estimators.identify.data import align_logs, check_logs, check_option_names, nrmse, split_by_log
 from estimators.identify.diagnostics import diagnose, gap_locator
+from estimators.identify.functions import StiffRate, shooting_functions
+from estimators.identify.gauss_newton import solve_gn
 from estimators.identify.guess import initial_guess
-from models.discretise import MAX_SUBSTEPS, integration, rate_jacobian
 from estimators.identify.ipopt import solve_ipopt
 from estimators.identify.noise import detect_input_noise, input_noise_hints, output_noise
-from estimators.identify.options import IdentifyOptions, LinearConstraint
-from estimators.identify.outputs import input_delays, output_function, plan_channels
-from estimators.identify.result import FitResult, IdentifiabilityWarning, convergence_message, fit_status
-from estimators.identify.shooting import ShootingProblem, compiled_or_none, sample_function
+from estimators.identify.options import IdentifyOptions
+from estimators.identify.outputs import input_delays, plan_channels
+from estimators.identify.result import (FitResult, IdentifiabilityWarning, convergence_message, fit_status,
+                                        identifiability_warnings)
+from estimators.identify.shooting import ShootingProblem
+from estimators.identify.start import (constraint_rows, constraints, feasible, free_bounds, initial_nodes,
+                                      scaled_constraints)
+from estimators.identify.systematic import systematic_error
 from estimators.identify.validation import validate
 
 __all__ = ["IdentificationProblem"]
 
 _KEEP = object()
-_KIND = {"speed": "speed", "torque": "torque", "force": "force"}
-
-
-@dataclass(frozen=True)
-class LogData:
-    """One log, aligned: row k of ``U`` (logged inputs) and ``Y`` (compared channels) belongs to
-    time ``t[k]`` after every channel is shifted back by its delay.  ``nint`` shooting intervals
-    of the training part (the first ``ntr`` rows) are fitted."""
-
-    log: Log
-    t: np.ndarray
-    U: np.ndarray
-    Y: np.ndarray
-    n: int
-    ntr: int
-    nint: int
-
-
-class StiffRate:
-    """The largest eigenvalue magnitude [1/s] of the regularised model's Jacobian at zero contact
-    speed (its stiffest point), as a function of the parameter vector, for inputs ``u`` (with a
-    quasi-static current when the integration treats it so)."""
-
-    def __init__(self, model, params: ParameterSet, u, eps: float, reduced: bool = False):
-        J = rate_jacobian(model, eps, reduced)
-        self._J = lambda x, p: J(x, ca.DM(u), p)
-        try:
-            x0 = np.asarray(model.sliding_guess(u, params), dtype=float)
-        except Exception:  # noqa: BLE001 - any finite point will do
-            x0 = np.zeros(model.nx)
-        x0 = np.where(np.isfinite(x0), x0, 0.0)
-        for idx in model.contacts:
-            x0[idx] = 0.0
-        self.x0 = x0
-
-    def __call__(self, p) -> float:
-        J = np.array(self._J(self.x0, np.asarray(p, float)))
-        if not np.all(np.isfinite(J)):
-            return float("inf")
-        lam = np.linalg.eigvals(J)
-        return float(np.max(np.abs(lam))) if lam.size else 0.0
-
-
-def _functions(model, integ, channels, avg, free_idx, input_jac: bool, compile_: bool):
-    """(sensitivity function to run, values function to run, values function uncompiled, compiled?), cached on
-    the model object (never by ``id``: a freed rig's id is reused by the next one)."""
-    nsub, qs = integ.nsub, integ.quasi_static
-    key = ("identify", nsub, qs, tuple((c.name, c.kind) for c in channels), tuple(avg), tuple(free_idx),
-           input_jac, compile_)
-    cache = model._fcache
-    if key not in cache:
-        h = output_function(model, channels)
-        S = sample_function(model, nsub, h, avg, free_idx, input_jac=input_jac, quasi_static=qs)
-        Sv = sample_function(model, nsub, h, avg, free_idx, values_only=True, quasi_static=qs)
-        S_run, Sv_run = S, Sv
-        if compile_:
-            S_run = compiled_or_none(S) or S
-            if S_run is not S:
-                Sv_run = compiled_or_none(Sv) or Sv
-        cache[key] = (S_run, Sv_run, Sv, S_run is not S)
-    return cache[key]
-
-
 def _model_from(spec, key: str) -> RigModel:
     try:
         m = get_model(key)
@@ -169,44 +108,13 @@ class IdentificationProblem:
         if isinstance(holdout, bool) or not (isinstance(holdout, (int, float)) and 0 <= holdout < 0.9):
             raise ConfigError(f"holdout must be a fraction in [0, 0.9), got {holdout!r}")
         self.holdout = float(holdout)
-        logs = [logs] if isinstance(logs, Log) else list(logs) if isinstance(logs, Sequence) else None
-        if not logs:
-            raise DataError("logs must be a Log or a non-empty sequence of Logs, got none")
-        for lg in logs:
-            if not isinstance(lg, Log):
-                raise DataError(f"logs must hold models.logs.Log objects, got {type(lg).__name__}")
-        self.logs = tuple(logs)
         o = options
-        for n in o.free:
-            if n not in m.param_names:
-                raise ConfigError(f"options.free: {n!r} is not a parameter of rig {m.name!r}; expected some of "
-                                  f"{', '.join(m.param_names)}")
-        for n in (o.bounds or {}):
-            if n not in o.free:
-                raise ConfigError(f"options.bounds.{n}: not a free parameter (free: {', '.join(o.free)})")
-        for what, table in (("input_cutoff", o.input_cutoff or {}),
-                            ("input_noise", o.input_noise if isinstance(o.input_noise, dict) else {})):
-            for n in table:
-                if n not in m.inputs:
-                    raise ConfigError(f"options.{what}.{n}: not an input of rig {m.name!r} "
-                                      f"(inputs: {', '.join(m.inputs)})")
-        # ---- data checks
-        self.dt = logs[0].dt
-        for lg in logs:
-            if abs(lg.dt - self.dt) > 1e-9 * max(1.0, self.dt):
-                raise DataError(f"{lg.source}: sample period {lg.dt:g} s differs from {self.dt:g} s of "
-                                f"{logs[0].source}; resample the logs to one period")
-            for name, kind in zip(m.inputs, m.input_kinds):
-                if name not in lg.channels:
-                    raise DataError(f"{lg.source}: missing input column {name!r} needed by rig {m.name!r} "
-                                    f"(inputs: {', '.join(m.inputs)})")
-                lg.require_kind(name, _KIND[kind])
-        for n, fc in (o.input_cutoff or {}).items():
-            if not fc < 0.5 / self.dt:
-                raise ConfigError(f"options.input_cutoff.{n} must be below the Nyquist frequency {0.5 / self.dt:g} Hz, "
-                                  f"got {fc:g}")
+        check_option_names(m, o)
+        self.logs, self.dt = check_logs(m, logs, o)
+        logs = self.logs
         # ---- initial set (data-derived guess if none)
-        self._initial_arg = initial
+        #: the initial set as given (None: guessed from the data)
+        self.given_initial = initial
         self.guess_notes: tuple[str, ...] = ()
         self._alternative = None
         if initial is None:
@@ -220,27 +128,10 @@ class IdentificationProblem:
         self.initial = initial
         self.free = o.free
         self.free_idx = [m.param_names.index(n) for n in o.free]
-        nf = len(o.free)
-        self.theta0 = initial.vector(o.free)
-        self.lo, self.hi = np.empty(nf), np.empty(nf)
-        law_lo, law_hi = self._law_bounds()
-        for i, n in enumerate(o.free):
-            b = (o.bounds or {}).get(n)
-            if b is None:
-                b = initial.bounds(n)
-                b = (max(b[0], law_lo.get(n, -math.inf)), min(b[1], law_hi.get(n, math.inf)))
-            self.lo[i], self.hi[i] = float(b[0]), float(b[1])
-            if not self.lo[i] < self.hi[i]:
-                raise ConfigError(f"bounds.{n} must have lower < upper, got [{self.lo[i]:g}, {self.hi[i]:g}]")
-            if not self.lo[i] <= self.theta0[i] <= self.hi[i]:
-                if initial is not self._initial_arg:    # a guessed value: clip it
-                    self.theta0[i] = min(max(self.theta0[i], self.lo[i]), self.hi[i])
-                else:
-                    raise ConfigError(f"initial {n} = {self.theta0[i]:g} lies outside its bounds "
-                                      f"[{self.lo[i]:g}, {self.hi[i]:g}]")
-        self.constraints = self._constraints()
+        self.theta0, self.lo, self.hi = free_bounds(m, initial, o, guessed=self.given_initial is None)
+        self.constraints = constraints(m, o)
         Gp, hp = self._constraint_rows()
-        if Gp.shape[0] and self._initial_arg is None and np.any(Gp @ self.theta0 - hp > 1e-9 * np.maximum(1.0, np.abs(hp))):
+        if Gp.shape[0] and self.given_initial is None and np.any(Gp @ self.theta0 - hp > 1e-9 * np.maximum(1.0, np.abs(hp))):
             # the data-derived guess breaks a constraint: start from the rig file's values instead
             self.guess_notes = ("guess not used: it breaks a constraint; started from the rig file's values",)
             self.initial, self._alternative = m.published(), None
@@ -251,39 +142,14 @@ class IdentificationProblem:
             if viol[j] > 1e-9 * max(1.0, abs(hp[j])):
                 c = self.constraints[j]
                 vals = ", ".join(f"{n} = {self.theta0[o.free.index(n)]:g}" for n in c.names if n in o.free)
-                if self._initial_arg is None:
+                if self.given_initial is None:
                     raise ConfigError(f"the rig file's {vals} and the data-derived guess violate the constraint {c.text}; "
                                       f"give a starting set that satisfies it (initial, CLI --params)")
                 raise ConfigError(f"initial {vals} violates the constraint {c.text}")
         # ---- channels, delays, alignment
         self.channels = plan_channels(m, logs[0], o)
-        for lg in logs[1:]:
-            for c in self.channels:
-                for p in c.parts:
-                    if p not in lg.channels:
-                        raise DataError(f"{lg.source}: missing output column {p!r} (present in {logs[0].source})")
         self.input_delays = input_delays(m, o.extra_delay)
-        D = max([c.max_delay for c in self.channels] + list(self.input_delays))
-        M = o.shoot_every
-        data = []
-        for lg in logs:
-            n = len(lg.t) - D
-            ntr = n if self.holdout == 0 else int(round(n * (1 - self.holdout)))
-            nint = (ntr - 1) // M
-            if nint < 1:
-                raise DataError(f"{lg.source}: needs at least {M + 1 + D} samples for shoot_every = {M}"
-                                f"{f' and a delay of {D} samples' if D else ''}, got {len(lg.t)}"
-                                f"{' (after the hold-out)' if self.holdout else ''}")
-            cols = []
-            for name, d in zip(m.inputs, self.input_delays):
-                x = np.asarray(lg[name], float)
-                if name in (o.input_cutoff or {}):
-                    x = lowpass(x, lg.dt, o.input_cutoff[name])
-                cols.append(x[d:d + n])
-            U = np.column_stack(cols) if cols else np.zeros((n, 0))
-            Y = np.column_stack([c.measured(lg, 0, n) for c in self.channels])
-            data.append(LogData(lg, np.asarray(lg.t[:n], float), U, Y, n, ntr, nint))
-        self.data = tuple(data)
+        self.data = align_logs(m, logs, self.channels, self.input_delays, o, self.holdout)
         self.noise, self.noise_source = {}, {}
         for c in self.channels:
             self.noise[c.name], self.noise_source[c.name] = output_noise(m, c, logs[0], o, self.dt)
@@ -309,7 +175,7 @@ class IdentificationProblem:
 
     # ------------------------------------------------------------------ pickling, derived problems
     def __reduce__(self):
-        return (_rebuild, (self.model.spec, self.model.key, self.logs, self._initial_arg, self.options, self.holdout))
+        return (_rebuild, (self.model.spec, self.model.key, self.logs, self.given_initial, self.options, self.holdout))
 
     def __repr__(self) -> str:
         return (f"IdentificationProblem({self.model.name!r}: {len(self.logs)} log(s), free {', '.join(self.free)}, "
@@ -319,7 +185,7 @@ class IdentificationProblem:
         """The same problem with other logs, another initial set (None: guess from the data), another
         hold-out or other options (``changes`` are :class:`IdentifyOptions` fields)."""
         return IdentificationProblem(self.model, self.logs if logs is None else logs,
-                                     self._initial_arg if initial is _KEEP else initial,
+                                     self.given_initial if initial is _KEEP else initial,
                                      self.options.replace(**changes) if changes else self.options,
                                      holdout=self.holdout if holdout is None else holdout)
 
@@ -330,64 +196,9 @@ class IdentificationProblem:
         return self.derive(logs=logs, initial=initial, holdout=holdout, **changes).solve(warm)
 
     # ------------------------------------------------------------------ constraints
-    def _law_bounds(self):
-        """Physical bounds the friction laws declare for their parameters (e.g. levels >= 0),
-        ``({name: lower}, {name: upper})`` for the rig parameters that feed them."""
-        from models.friction import get_law
-
-        lo, hi = {}, {}
-        for c in self.model.spec.contacts:
-            law = get_law(c.law)
-            refs = dict(c.params)
-            for prm in law.params:
-                ref = refs.get(prm.name)
-                if ref is None or ref.kind != "param":
-                    continue
-                lo[ref.name] = max(lo.get(ref.name, -math.inf), prm.lower)
-                hi[ref.name] = min(hi.get(ref.name, math.inf), prm.upper)
-        return lo, hi
-
-    def _constraints(self) -> tuple[LinearConstraint, ...]:
-        """Bounds excluded: ``kinetic <= static`` level per contact whose law declares both (e.g. Stribeck's
-        ``mu_k <= mu_s``) with both free, and the options'."""
-        m, o = self.model, self.options
-        out = []
-        if o.order_friction:
-            seen = set()
-            for c in m.spec.contacts:
-                order = m.law(c.name).level_order
-                if order is None:
-                    continue
-                pr = dict(c.params)
-                k, s = pr.get(order[0]), pr.get(order[1])
-                if s is not None and k is not None and s.kind == k.kind == "param" and s.name in o.free \
-                        and k.name in o.free and (k.name, s.name) not in seen:
-                    seen.add((k.name, s.name))
-                    out.append(LinearConstraint(((k.name, 1.0), (s.name, -1.0)), 0.0,
-                                                f"{k.name} <= {s.name} (contact {c.name})"))
-        for c in o.constraints:
-            fixed = [n for n in c.names if n not in o.free]
-            for n in fixed:
-                if n not in m.param_names:
-                    raise ConfigError(f"options.constraints: {n!r} in {c.text!r} is not a parameter of rig {m.name!r}")
-            if len(fixed) == len(c.names):
-                raise ConfigError(f"options.constraints: {c.text!r} involves no free parameter "
-                                  f"(free: {', '.join(o.free)})")
-            out.append(c)
-        return tuple(out)
-
     def _constraint_rows(self):
         """``G theta <= h`` for the non-bound constraints (fixed parameters moved to the right-hand side)."""
-        nf = len(self.free)
-        G, h = np.zeros((len(self.constraints), nf)), np.zeros(len(self.constraints))
-        for i, c in enumerate(self.constraints):
-            h[i] = c.upper
-            for n, coef in c.terms:
-                if n in self.free:
-                    G[i, self.free.index(n)] += coef
-                else:
-                    h[i] -= coef * self.initial[n]
-        return G, h
+        return constraint_rows(self.constraints, self.free, self.initial)
 
     # ------------------------------------------------------------------ the numerical problem
     def _shooting(self) -> ShootingProblem:
@@ -398,7 +209,7 @@ class IdentificationProblem:
         avg = [c.kind == "speed" for c in self.channels]
         eiv = self.input_noise
         use_c = o.compile if o.compile is not None else (o.solver == "gn")
-        S_run, Sv_run, Sv, self.compiled = _functions(m, self.integration, self.channels, avg, self.free_idx, bool(eiv), use_c)
+        S_run, Sv_run, Sv, self.compiled = shooting_functions(m, self.integration, self.channels, avg, self.free_idx, bool(eiv), use_c)
         self._S_val = Sv
         Ub, Yb, starts, zmap = [], [], [], []
         node_off = 0
@@ -479,66 +290,9 @@ class IdentificationProblem:
         self._alternative = None
 
     def _initial_nodes(self, S_val):
-        """Node states from the data (measured speeds and twists) and a smooth simulation with the
-        initial parameters for the unmeasured states; the encoder zeros' starting values."""
-        m, o = self.model, self.options
-        M = o.shoot_every
-        p0 = self.initial.vector()
-        P0 = m.unpack(p0)
-        chan_names = [c.name for c in self.channels]
-        # which states the data measure: speeds (speed channels), twists (single-twist angle differences)
-        speed_of = {}
-        for b in m.bodies:
-            ch = m.speed_channel(b)
-            if ch in chan_names:
-                speed_of[m.speed_index(b)] = chan_names.index(ch)
-        twist_of = {}
-        for j, c in enumerate(self.channels):
-            if c.kind == "twist":
-                v = np.asarray(c.coefficients)
-                nz = np.flatnonzero(np.abs(v) > 1e-12)
-                if nz.size == 1 and abs(abs(v[nz[0]]) - 1) < 1e-12:
-                    twist_of[int(nz[0])] = (j, float(v[nz[0]]))
-        nodes_all, z0 = [], []
-        for d in self.data:
-            n_used = d.nint * M + 1
-            Um = np.array(m.input_from_measured([d.U[:, j] for j in range(m.nu)], P0), float).T.reshape(d.n, m.nu)
-            try:
-                xs = np.asarray(m.sliding_guess(np.mean(Um[:n_used], axis=0), self.initial), float)
-                if not np.all(np.isfinite(xs)):
-                    raise ValueError
-            except Exception:  # noqa: BLE001 - a failed solve only worsens the start
-                xs = np.zeros(m.nx)
-            # encoder zero guesses: the mean measured difference matches the steady-sliding twist
-            zlog = {}
-            for j, c in enumerate(self.channels):
-                if c.zero:
-                    zlog[j] = float(np.dot(c.coefficients, xs) - np.mean(d.Y[:n_used, j]))
-                    z0.append(zlog[j])
-            known = {}
-            for idx, j in speed_of.items():
-                known[idx] = moving_average(d.Y[:, j], 5)
-                s = m.sensor_of(chan_names[j])
-                if s is not None and s.kind == "speed":
-                    known[idx] = (known[idx] - float(s.offset.value(P0))) / float(s.gain.value(P0))
-            for idx, (j, sgn) in twist_of.items():
-                known[idx] = sgn * (moving_average(d.Y[:, j], 3) + zlog.get(j, 0.0))
-            row0 = 1 if o.input_row == "end" else 0
-            x = xs.copy() if abs(Um[row0, m.drive_speed_index()] if m.drive_speed_index() is not None else 1.0) > 0 \
-                else np.zeros(m.nx)
-            nodes = np.empty((d.nint + 1, m.nx))
-            for k in range(d.nint + 1):
-                for idx, v in known.items():
-                    x[idx] = v[k * M]
-                nodes[k] = x
-                if k < d.nint:
-                    Ub = d.U[(k * M + 1 if o.input_row == "end" else k * M):][:M]
-                    xn = x.copy()
-                    for Uk in Ub:
-                        xn = np.array(S_val(xn, Uk, self.theta0, p0, self.dt, o.eps)[0]).ravel()
-                    x = xn if np.all(np.isfinite(xn)) and np.max(np.abs(xn)) < 1e6 else nodes[k].copy()
-            nodes_all.append(nodes)
-        return nodes_all, np.array(z0)
+        """:func:`~estimators.identify.start.initial_nodes` of this problem."""
+        return initial_nodes(self.model, self.channels, self.data, self.initial, self.theta0, self.options, self.dt,
+                             S_val)
 
     def _start(self, warm: FitResult | None):
         sh = self._shooting()
@@ -565,31 +319,8 @@ class IdentificationProblem:
 
     def _scaled_constraints(self):
         """All inequalities, bounds included, on the scaled border variables: ``G w[:nb] <= h``."""
-        sh = self._shooting()
-        nf, nb = sh.nf, sh.nb
-        Gp, hp = self._constraint_rows()
-        rows, rhs, labels = [], [], []
-        for i, n in enumerate(self.free):
-            if np.isfinite(self.lo[i]):
-                r = np.zeros(nb)
-                r[i] = -sh.th_scale[i]
-                rows.append(r)
-                rhs.append(-self.lo[i])
-                labels.append(("bound", n, "lower"))
-            if np.isfinite(self.hi[i]):
-                r = np.zeros(nb)
-                r[i] = sh.th_scale[i]
-                rows.append(r)
-                rhs.append(self.hi[i])
-                labels.append(("bound", n, "upper"))
-        for i, c in enumerate(self.constraints):
-            r = np.zeros(nb)
-            r[:nf] = Gp[i] * sh.th_scale
-            rows.append(r)
-            rhs.append(hp[i])
-            labels.append(("constraint", c.text, ""))
-        G = np.array(rows) if rows else np.zeros((0, nb))
-        return G, np.array(rhs, float), labels
+        return scaled_constraints(self._shooting(), self.free, self.lo, self.hi, self.constraints,
+                                  *self._constraint_rows())
 
     # ------------------------------------------------------------------ solving
     def solve(self, warm: FitResult | None = None) -> FitResult:
@@ -602,7 +333,7 @@ class IdentificationProblem:
         """
         if self.options.detect_delay and warm is None:
             return self._detect_delay()
-        fit = self._fit(warm)
+        fit = self.fit_once(warm)
         if self.options.nsub is None and np.all(np.isfinite(fit.estimate)):
             # the fitted parameters may be stiffer than the initial ones: refit (warm) with the
             # substeps they need, at most twice
@@ -619,26 +350,12 @@ class IdentificationProblem:
                     break
                 old = prob.nsub
                 prob = prob.derive(nsub=need)
-                fit = prob._fit(fit)
+                fit = prob.fit_once(fit)
                 fit = replace(fit, initial=first.initial, guess_notes=first.guess_notes,
                               warnings=fit.warnings + (f"RK4 substeps raised from {old} to {need} for the fitted "
                                                        f"parameters (stiffer than the initial ones) and refitted",))
             return prob._finish(prob._globalise(fit, warm))
         return self._finish(self._globalise(fit, warm))
-
-    def _feasible(self, theta):
-        """``theta`` moved onto the constraints it violates by round-off (the regularised KKT rows
-        leave ~1e-7) and clipped into the bounds."""
-        theta = np.clip(np.asarray(theta, float), self.lo, self.hi)
-        Gp, hp = self._constraint_rows()
-        for _ in range(5):
-            viol = Gp @ theta - hp if Gp.shape[0] else np.zeros(0)
-            if not np.any(viol > 0):
-                break
-            for i in np.flatnonzero(viol > 0):
-                theta = theta - Gp[i] * (viol[i] / float(Gp[i] @ Gp[i])) * (1 + 1e-12)
-            theta = np.clip(theta, self.lo, self.hi)
-        return theta
 
     def stiff_rate(self, theta) -> float:
         """The model's stiffest rate [1/s] with the free parameters at ``theta`` (largest logged inputs)."""
@@ -662,7 +379,7 @@ class IdentificationProblem:
 
     def _finish(self, fit: FitResult) -> FitResult:
         if self.options.systematic and fit.status is not Status.FAILED:
-            fit = self._systematic(fit)
+            fit = systematic_error(self, fit)
         if self.holdout > 0 and fit.status is not Status.FAILED:
             fit = replace(fit, validation=validate(self, fit))
         return fit
@@ -672,7 +389,7 @@ class IdentificationProblem:
         fits, probs, costs = {}, {}, {}
         for dly in range(o.detect_delay + 1):
             p = self.derive(extra_delay=o.extra_delay + dly, detect_delay=0, systematic=False)
-            f = p._fit(None)
+            f = p.fit_once(None)
             probs[dly], fits[dly] = p, f
             n_out = sum(d.nint * o.shoot_every for d in p.data) * len(p.channels)
             costs[dly] = 2 * f.cost / max(n_out, 1)
@@ -688,9 +405,11 @@ class IdentificationProblem:
         (:mod:`~estimators.identify.continuation`)."""
         o = self.options
         why = wants_continuation(fit, o.globalise if o.solver == "gn" else "off", warm is not None)
-        return fit if why is None else choose(fit, self._fit(None, continuation=True), why)
+        return fit if why is None else choose(fit, self.fit_once(None, continuation=True), why)
 
-    def _fit(self, warm: FitResult | None, continuation: bool = False) -> FitResult:
+    def fit_once(self, warm: FitResult | None, continuation: bool = False) -> FitResult:
+        """One solve (no delay search, no substep raise, no systematic refit): the direct fit, or with
+        ``continuation`` the cold continuation in eps, warm-started from ``warm``."""
         t_start = time.perf_counter()
         m, o = self.model, self.options
         sh = self._shooting()
@@ -724,7 +443,7 @@ class IdentificationProblem:
             raise SolverFailure(f"identify {m.name}: the solver returned non-finite values ({res.reason})")
         r, g, Jr, A, Ypred = sh.evaluate(w)
         theta, z, nodes = sh.split(w)
-        theta = self._feasible(theta)
+        theta = feasible(theta, self.lo, self.hi, *self._constraint_rows())
         unc = uncertainty(sh, w, r, Jr, A, self.free, rse_warn=o.rse_warn)
         se, corr = unc.stderr, unc.corr
         tol_b = 1e-6 * sh.th_scale
@@ -734,28 +453,8 @@ class IdentificationProblem:
         active = tuple(lab[1] for lab, s, hi in zip(labels, slack, h)
                        if lab[0] == "constraint" and s <= 1e-8 * max(1.0, abs(float(hi))))
         # ---- warnings
-        warns = list(self.hints)
-        for i, n in enumerate(self.free):
-            if not np.isfinite(se[i]):
-                warns.append(f"{n}: standard error not available (singular information matrix): not identifiable")
-            elif abs(theta[i]) > 0 and se[i] / abs(theta[i]) > o.rse_warn:
-                warns.append(f"{n}: relative standard error {100 * se[i] / abs(theta[i]):.0f} % > "
-                             f"{100 * o.rse_warn:.0f} %: poorly identifiable")
         nf = len(self.free)
-        for i in range(nf):
-            for j in range(i + 1, nf):
-                if np.isfinite(corr[i, j]) and abs(corr[i, j]) > o.corr_warn:
-                    warns.append(f"{self.free[i]} and {self.free[j]} are correlated (corr = {corr[i, j]:+.3f}): "
-                                 f"poorly identifiable separately")
-        warned = {n for n, s, v in zip(self.free, se, theta) if not np.isfinite(s) or abs(v) > 0 and s / abs(v) > o.rse_warn}
-        for d in unc.weak:
-            if d.rel_stderr > o.rse_warn and (len(d.coefficients) > 1 or not set(d.coefficients) <= warned):
-                warns.append(f"{d.text} is poorly determined (relative standard error {100 * d.rel_stderr:.0f} % "
-                             f"along that direction; condition number {unc.condition:.3g})")
-        for n in at_bound:
-            warns.append(f"{n}: estimate at its bound; the standard error is not meaningful")
-        for c in active:
-            warns.append(f"constraint {c} is active at the solution")
+        warns = list(self.hints) + identifiability_warnings(self.free, theta, se, corr, unc, at_bound, active, o)
         for msg in warns:
             warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
         message = convergence_message(res.reason, res.success, iterations=res.iterations, max_iter=o.max_iter,
@@ -766,87 +465,27 @@ class IdentificationProblem:
         fitted = self.initial.with_vector(self.free, theta).with_meta(
             stderr=tuple((n, float(s)) for n, s in zip(self.free, se) if np.isfinite(s)))
         dlt = sh.deltas(w) if sh.ne else np.zeros((sh.Nint, 0))
-        t_l, meas_l, sim_l, res_l, states, zeros, corr_l = [], [], [], [], [], [], []
-        iv = 0
-        col = 0
-        node = 0
         M = o.shoot_every
         names = [c.name for c in self.channels]
         sig = np.array([self.noise[c] for c in names])
         Yp = Ypred.reshape(-1, len(names))
         Ym = sh.Ymeas.reshape(-1, len(names))
-        for d, zi in zip(self.data, self.zero_index):
-            ncol = d.nint * M
-            t_l.append(d.t[1:ncol + 1])
-            meas_l.append({c: Ym[col:col + ncol, j] for j, c in enumerate(names)})
-            sim_l.append({c: Yp[col:col + ncol, j] for j, c in enumerate(names)})
-            res_l.append({c: (Ym[col:col + ncol, j] - Yp[col:col + ncol, j]) / sig[j] for j, c in enumerate(names)})
-            states.append(nodes[node:node + d.nint + 1].copy())
-            zeros.append({c: float(z[j]) for c, j in zi.items()})
-            corr_l.append(dlt[iv:iv + d.nint].copy())
-            iv += d.nint
-            node += d.nint + 1
-            col += ncol
+        t_l, meas_l, sim_l, res_l, states, zeros, corr_l = split_by_log(self.data, self.zero_index, M, names, sig,
+                                                                        Ym, Yp, nodes, z, dlt)
         structure = diagnose(res_l, meas_l, self.dt, sigma2=unc.sigma2, gaps=g,
                              gap_locator=gap_locator([d.nint for d in self.data], [d.t for d in self.data], M,
                                                      m.states))
         status, message = fit_status(res.reason, res.success, message, warned=bool(warns), structure=structure,
                                      history=getattr(res, "history", ()), cost=0.5 * float(r @ r),
                                      stalled=attempts[0].stalled)
-        nrmse = {}
-        for j, c in enumerate(names):
-            span = float(np.ptp(Ym[:, j]))
-            nrmse[c] = float(np.sqrt(np.mean((Ym[:, j] - Yp[:, j]) ** 2)) / span) if span > 0 else float("nan")
         return FitResult(
             problem=self, model=m.name, names=tuple(self.free), estimate=theta, stderr=se,
             initial=np.array(self.theta0 if warm is None else w0[:nf] * sh.th_scale), corr=corr, cov=unc.cov,
             params=fitted, t=tuple(t_l), measured=tuple(meas_l), simulated=tuple(sim_l), residuals=tuple(res_l),
-            nrmse=nrmse, sigma2=unc.sigma2, tau=unc.tau, cost=0.5 * float(r @ r), nsub=self.nsub,
+            nrmse=nrmse(names, Ym, Yp), sigma2=unc.sigma2, tau=unc.tau, cost=0.5 * float(r @ r), nsub=self.nsub,
             noise=dict(self.noise), noise_source=dict(self.noise_source), states=tuple(states),
             encoder_zero=tuple(zeros), input_corrections=tuple(corr_l), status=status, message=message, reason=res.reason,
             iterations=res.iterations, wall_time=time.perf_counter() - t_start, warnings=tuple(warns),
             at_bound=at_bound, active_constraints=active, condition=unc.condition, weak_directions=unc.weak,
             input_noise=dict(self.input_noise), delay=o.extra_delay, guess_notes=self.guess_notes, method=method,
             attempts=attempts, structure=structure)
-
-    def _systematic(self, fit: FitResult) -> FitResult:
-        """``|theta(eps) - theta(eps/2)|``: refit warm-started from ``fit`` with the regularisation
-        halved (a law with its own smoothing rate, such as the lead screw's r1: that rate doubled)."""
-        o, m = self.options, self.model
-        start, eps2, msg = fit.params, o.eps / 2, ""
-        smoothing = []
-        for c in m.spec.contacts:
-            from models.friction import get_law
-            sp_name = get_law(c.law).smoothing_param
-            ref = dict(c.params).get(sp_name) if sp_name else None
-            if ref is not None and ref.kind == "param":
-                smoothing.append(ref.name)
-        smoothing = sorted(set(smoothing))
-        if any(n in o.free for n in smoothing):
-            nan = np.full(len(self.free), np.nan)
-            msg = (f"systematic error not estimated: the regularisation rate {', '.join(smoothing)} is itself a free "
-                   f"parameter")
-            return replace(fit, syserr=nan, warnings=fit.warnings + (msg,))
-        if smoothing:
-            start = start.replace(**{n: 2 * start[n] for n in smoothing})
-            eps2 = o.eps
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                p2 = self.derive(initial=start, eps=eps2, nsub=None if o.nsub is None else 2 * o.nsub,
-                                 systematic=False, detect_delay=0, max_iter=o.systematic_iter, progress=False)
-                fit2 = p2._fit(fit)
-        except SolverFailure as exc:
-            fit2, msg = None, f"systematic error not estimated: the refit failed ({exc})"
-        if fit2 is None:
-            syserr = np.full(len(self.free), np.nan)
-        else:
-            syserr = np.abs(fit2.estimate - fit.estimate)
-            if not fit2.success:
-                msg = f"systematic error from an unconverged refit ({fit2.message.split('.')[0]})"
-        total = np.sqrt(fit.stderr ** 2 + syserr ** 2)
-        params = fit.params.with_meta(stderr=tuple((n, float(s)) for n, s in zip(self.free, total) if np.isfinite(s)))
-        w = fit.warnings + ((msg,) if msg else ())
-        if msg:
-            warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
-        return replace(fit, syserr=syserr, params=params, warnings=w)

@@ -23,9 +23,10 @@ from typing import Any
 import numpy as np
 
 from models.params import ParameterSet
-from models.status import Status
+from models.status import Outcome, Status
 
-__all__ = ["FitResult", "IdentifiabilityWarning", "convergence_message", "fit_status", "BEST_FIT"]
+__all__ = ["FitResult", "IdentifiabilityWarning", "convergence_message", "fit_status", "identifiability_warnings",
+           "BEST_FIT"]
 
 #: how a fit that converged (or stopped stationary) but whose structure misses is reported
 BEST_FIT = "best fit within the model"
@@ -86,6 +87,36 @@ def convergence_message(reason: str, success: bool, *, iterations: int, max_iter
     return why + ". Try: " + "; ".join(dict.fromkeys(hints)) + "."
 
 
+def identifiability_warnings(free, theta, se, corr, unc, at_bound, active, options) -> list[str]:
+    """What the data do not determine: a missing or large relative standard error, a strong
+    correlation, a weak direction of the information matrix, an estimate at its bound, an active
+    constraint (thresholds ``options.rse_warn`` and ``options.corr_warn``)."""
+    o = options
+    warns = []
+    for i, n in enumerate(free):
+        if not np.isfinite(se[i]):
+            warns.append(f"{n}: standard error not available (singular information matrix): not identifiable")
+        elif abs(theta[i]) > 0 and se[i] / abs(theta[i]) > o.rse_warn:
+            warns.append(f"{n}: relative standard error {100 * se[i] / abs(theta[i]):.0f} % > "
+                         f"{100 * o.rse_warn:.0f} %: poorly identifiable")
+    nf = len(free)
+    for i in range(nf):
+        for j in range(i + 1, nf):
+            if np.isfinite(corr[i, j]) and abs(corr[i, j]) > o.corr_warn:
+                warns.append(f"{free[i]} and {free[j]} are correlated (corr = {corr[i, j]:+.3f}): "
+                             f"poorly identifiable separately")
+    warned = {n for n, s, v in zip(free, se, theta) if not np.isfinite(s) or abs(v) > 0 and s / abs(v) > o.rse_warn}
+    for d in unc.weak:
+        if d.rel_stderr > o.rse_warn and (len(d.coefficients) > 1 or not set(d.coefficients) <= warned):
+            warns.append(f"{d.text} is poorly determined (relative standard error {100 * d.rel_stderr:.0f} % "
+                         f"along that direction; condition number {unc.condition:.3g})")
+    for n in at_bound:
+        warns.append(f"{n}: estimate at its bound; the standard error is not meaningful")
+    for c in active:
+        warns.append(f"constraint {c} is active at the solution")
+    return warns
+
+
 def fit_status(reason: str, success: bool, message: str, *, warned: bool, structure=None, history=(),
                cost: float = float("nan"), stalled: bool = False):
     """``(Status, message)`` of a fit (see the module docstring).
@@ -117,7 +148,7 @@ def fit_status(reason: str, success: bool, message: str, *, warned: bool, struct
 
 
 @dataclass(frozen=True)
-class FitResult:
+class FitResult(Outcome):
     """Result of :meth:`IdentificationProblem.solve` / :func:`identify` (SI units, ``names`` order).
 
     Attributes
@@ -201,10 +232,6 @@ class FitResult:
     method: str = ""
     attempts: tuple = ()
     structure: Any = None
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     @property
     def error(self) -> np.ndarray:

@@ -140,6 +140,10 @@ class ObservabilityMixin:
             self.observability_steady = None
 
     @property
+    def units(self) -> tuple[str, ...]:
+        return tuple(self.em.units)
+
+    @property
     def observability_message(self) -> str:
         """One line: the verdicts of both construction-time checks."""
         parts = [r.message for r in (self.observability, self.observability_steady) if r is not None]
@@ -226,8 +230,6 @@ class EKF(ObservabilityMixin, StateEstimator):
     options_class = EKFOptions
 
     def __init__(self, options: EKFOptions, context: EstimatorContext):
-        if not isinstance(options, EKFOptions):
-            raise ConfigError(f"{context.where}: EKF options must be EKFOptions, got {type(options).__name__}")
         options = for_rig(options, context.model, context.params)      # unit-carrying defaults from the rig
         super().__init__(options, context)
         self.em = build_estimation_model(context.model, context.params, options, context.dt, context.sensors,
@@ -338,6 +340,10 @@ class EKF(ObservabilityMixin, StateEstimator):
             x = np.array(xo).ravel()
             P = np.array(Po).reshape(nx, nx, order="F")
         return x, P
+
+    def prior(self) -> Estimate:
+        """The prior mean and covariance, before the first sample (``t`` NaN, not corrected)."""
+        return Estimate(float("nan"), self.x.copy(), self.P.copy(), self.names, Status.OK, "prior", False)
 
     def reset(self, x, P=None) -> None:
         """Restart from the estimator state ``x`` and covariance ``P`` (the prior's if None)."""

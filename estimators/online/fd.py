@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.base import Estimate, EstimatorContext, StateEstimator
-from estimators.online.model import angle_combination, default_channels
+from estimators.online.channels import angle_combination, default_channels
 from estimators.online.options import EKFOptions, FDOptions, for_rig
 from models.errors import ConfigError
 from models.rig import RigModel
@@ -43,8 +43,6 @@ class FiniteDifference(StateEstimator):
     options_class = FDOptions
 
     def __init__(self, options: FDOptions, context: EstimatorContext):
-        if not isinstance(options, FDOptions):
-            raise ConfigError(f"{context.where}: fd options must be FDOptions, got {type(options).__name__}")
         super().__init__(options, context)
         model = context.model
         if not isinstance(model, RigModel):
@@ -94,6 +92,10 @@ class FiniteDifference(StateEstimator):
         for j, i in self._speeds:
             P[i, i] = channel_variance(model, chans[j], dt, context.sensors)
         self._P = P
+
+    @property
+    def observability_message(self) -> str:
+        return "fd: estimates nothing it does not read"
 
     def _update_impl(self, t, y, mask, u):
         x = self._x.copy()

@@ -51,7 +51,7 @@ from estimators.base import Estimate, EstimatorContext, StateEstimator
 from estimators.online.ekf import EKF, ObservabilityMixin
 from estimators.online.options import MHEOptions, for_rig
 from models.codegen import compile_cached
-from models.errors import ConfigError, PluginError, SolverFailure
+from models.errors import PluginError, SolverFailure
 from models.sensors import FLOOR
 from models.status import Status
 
@@ -89,8 +89,6 @@ class MHE(ObservabilityMixin, StateEstimator):
     options_class = MHEOptions
 
     def __init__(self, options: MHEOptions, context: EstimatorContext):
-        if not isinstance(options, MHEOptions):
-            raise ConfigError(f"{context.where}: MHE options must be MHEOptions, got {type(options).__name__}")
         options = for_rig(options, context.model, context.params)      # unit-carrying defaults from the rig
         super().__init__(options, context)
         from dataclasses import replace
@@ -112,13 +110,13 @@ class MHE(ObservabilityMixin, StateEstimator):
         hk = em.h(xk, uk, p)
         meas = ca.Function(f"{em.model.cname}_mhe_meas", [xk, uk, p], [hk, ca.jacobian(hk, xk)],
                            ["x", "uh", "p"], ["h", "C"])
-        self.compile_status = "not requested"
+        self.compiled, self.compile_status = False, "not requested"
         if options.compile:
             try:
                 so = compile_cached([stage, meas], tag=f"{em.model.cname}_mhe")
                 stage = ca.external(stage.name(), str(so))
                 meas = ca.external(meas.name(), str(so))
-                self.compile_status = f"compiled ({so.name})"
+                self.compiled, self.compile_status = True, f"compiled ({so.name})"
             except Exception as exc:
                 self.compile_status = f"compile failed, using SX: {exc}"
         self.stage, self.meas = stage, meas
@@ -197,9 +195,9 @@ class MHE(ObservabilityMixin, StateEstimator):
         self.qp_failures = 0
         self._check_observability()
 
-    @property
-    def compiled(self) -> bool:
-        return self.compile_status.startswith("compiled")
+    def prior(self) -> Estimate:
+        """The EKF's prior (the MHE's arrival cost starts from it)."""
+        return self.ekf.prior()
 
     def _internal(self, y, mask):
         yi = self._T @ np.where(mask, y, 0.0)

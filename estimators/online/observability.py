@@ -52,7 +52,7 @@ import casadi as ca
 import numpy as np
 
 from models.errors import ConfigError
-from models.status import Status
+from models.status import Outcome, Status
 
 __all__ = ["ObservabilityReport", "WeakDirection", "observability", "linearisation_function", "compress_channels", "MIN_GAIN"]
 
@@ -83,7 +83,7 @@ class WeakDirection:
 
 
 @dataclass(frozen=True)
-class ObservabilityReport:
+class ObservabilityReport(Outcome):
     """Local observability along a window (module docstring).
 
     Attributes
@@ -119,10 +119,6 @@ class ObservabilityReport:
     message: str = ""
     twist_names: tuple = field(default=())
     regime: str = "trajectory"
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     def as_dict(self) -> dict:
         """A JSON-friendly summary."""
@@ -286,7 +282,7 @@ def observability(em, X, UH, *, min_gain: float = MIN_GAIN, lin: ca.Function | N
     observable = not weak
     twist_ok = bool(np.all(twist_rel <= 1.0 / min_gain))
     if suggest is None:
-        from estimators.online.model import default_channels
+        from estimators.online.channels import default_channels
         # only a torque channel carries the absolute level a twist trades off against
         suggest = [c for c in default_channels(em.model) if c not in em.channels
                    and em.model.sensor_of(c).kind == "torque"]

@@ -1,5 +1,7 @@
 """``mitigate estimate``: run an online state estimator over a recorded log of any rig.
 
+Argument parsing and writing around :func:`estimators.online.replay.estimate_log`.
+
 Reads a CSV log (:func:`models.logs.read_csv`) of the rig given by ``--model`` (a shipped
 rig's name or a rig file's path), runs the EKF, the MHE or the finite-difference baseline
 sample by sample exactly as in a closed loop (``update(t, measurement, u)``; the inputs of
@@ -7,7 +9,7 @@ row ``k - 1`` are taken as held over the sample that ends at row ``k``, as a DAQ
 commands), and writes the estimates as CSV: ``t [s]``, then every estimator state and its
 standard deviation (``<state> [unit]``, ``<state>_std [unit]``; an augmented state's ``:``
 becomes ``_``, e.g. ``load_pin1 [-]``), then ``corrected``, ``warning`` and ``success`` flags
-[-].  Row 0 is the prior.
+[-].  Row 0 is the prior (NaN for ``fd``, which has none).
 
 Prints the observability verdict of the configuration (one line: along a start-up at the
 rig's operating point and at steady sliding, :mod:`estimators.online.observability`), the
@@ -25,16 +27,15 @@ from pathlib import Path
 
 import numpy as np
 
-from estimators.base import EstimatorContext
-from estimators.online.factory import ESTIMATOR_KINDS, make_estimator
-from estimators.online.model import angle_combination, default_channels
+from estimators.online.factory import ESTIMATOR_KINDS
+from estimators.online.channels import default_channels
+from estimators.online.replay import EstimationResult, estimate_log, log_channels, true_twists
 from mitigate.cliutil import check_outputs, emit_json, format_table
 from models.errors import ConfigError, DataError
 from models.files import atomic_write_text
-from models.logs import TRUTH_PREFIX, read_csv
+from models.logs import read_csv
 from models.rig import load_params
 from models.rig import get_model
-from models.sensors import SensorOptions
 
 EPILOG = """examples:
   mitigate estimate out/open_stick_slip.csv --model rig3 --out out/est_ekf.csv
@@ -46,11 +47,6 @@ The twist at power-on (encoders zeroed), the friction load factor and a torque-s
 offset are estimated by default; the verdict line says whether the twist can be told from
 them (at stick-slip they separate, at steady sliding they do not).
 """
-
-#: windows of the log checked for observability: length [s] and at most how many
-OBS_WINDOW_S = 4.0
-OBS_WINDOWS_MAX = 12
-
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -107,13 +103,7 @@ def _spec(args, model, log) -> dict:
             raise DataError(f"{log.source}: --channels asks for column {missing[0]!r}, not in the log "
                             f"(present: {', '.join(c for c in known if c in log) or 'none'})")
     else:
-        chans = [c for c in known if c in log and c not in log.derived]
-        angles = [c for c in chans if model.sensor_of(c).kind == "encoder" and model.sensor_of(c).channels[0] == c]
-        if len(angles) == 1:      # one angle alone carries no twist
-            chans.remove(angles[0])
-        if not chans:
-            raise DataError(f"{log.source}: no measurement column of rig {model.name!r}; expected some of "
-                            f"{', '.join(known)}")
+        chans = log_channels(model, log)
     spec["channels"] = chans
     if args.augment is not None:
         spec["augment"] = [] if args.augment.strip().lower() == "none" else _list(args.augment, "--augment")
@@ -127,50 +117,44 @@ def _spec(args, model, log) -> dict:
     return spec
 
 
-def _true_twists(log, model) -> dict[str, np.ndarray]:
-    """True twists in the log, by estimator state name: ``true_twist_<spring>`` columns (what
-    ``simulate --truth`` writes; ``twist_<spring>`` in older logs), or ``twist<a><b>`` meaning
-    ``theta<a> - theta<b>`` when that difference is one spring's twist."""
-    out = {}
-    twists = [s for s in model.states if s.startswith("twist_")]
-    for name in twists:
-        for col in (TRUTH_PREFIX + name, name):
-            if col in log and name not in out:
-                out[name] = log[col]
+def _csv(res: EstimationResult) -> str:
+    cols = [("t [s]", res.t)]
+    cols += [(f"{nm.replace(':', '_')} [{unit}]", res.x[:, j]) for j, (nm, unit) in enumerate(zip(res.names, res.units))]
+    cols += [(f"{nm.replace(':', '_')}_std [{unit}]", res.std[:, j])
+             for j, (nm, unit) in enumerate(zip(res.names, res.units))]
+    cols += [("corrected [-]", res.corrected), ("warning [-]", res.warned), ("success [-]", res.succeeded)]
+    lines = [",".join(h for h, _ in cols)]
+    for row in zip(*[np.asarray(c, float) for _, c in cols]):
+        lines.append(",".join(f"{v:.9g}" for v in row))
+    return "\n".join(lines) + "\n"
 
-    def comb(ch):
-        s = model.sensor_of(ch)
-        if s is None or s.kind != "encoder" or s.channels[0] != ch:
-            return None
-        return angle_combination(model, s.target)
 
-    for col in log.channels:
-        if not col.startswith("twist") or col in out or col.startswith("twist_"):
+def _summary(res: EstimationResult, log, log_path, out, model) -> dict:
+    tt = res.step_times[1:] if res.step_times.size > 1 else res.step_times
+    tt = tt * 1e3
+    summary = {
+        "log": str(log_path), "out": str(out), "model": model.key, "estimator": res.kind,
+        "channels": list(res.channels), "states": list(res.names), "steps": res.counts["steps"], "dt_s": log.dt,
+        "observability": res.observability,
+        "step_time_median_ms": float(np.median(tt)) if tt.size else float("nan"),
+        "step_time_p95_ms": float(np.percentile(tt, 95)) if tt.size else float("nan"),
+        **res.counts,
+        "warned_fraction": float(np.mean(res.warned[1:])) if res.t.size > 1 else 0.0,
+    }
+    for name, rep in res.observability_reports.items():
+        summary[f"{name}_report"] = rep.as_dict()
+    if res.observability_along_log:
+        summary["observability_along_log"] = res.observability_along_log
+    if res.compile_status is not None:
+        summary["compile"] = res.compile_status
+    for tw, true in true_twists(log, model).items():
+        if tw not in res.names:
             continue
-        digits = col[len("twist"):]
-        if len(digits) != 2 or not digits.isdigit():
-            continue
-        ca_, cb = comb(f"theta{digits[0]}"), comb(f"theta{digits[1]}")
-        if ca_ is None or cb is None:
-            continue
-        d = ca_ - cb
-        nz = np.flatnonzero(np.abs(d) > 1e-12)
-        if nz.size == 1 and model.states[nz[0]] in twists and model.states[nz[0]] not in out:
-            out[model.states[nz[0]]] = d[nz[0]] * log[col]
-    return out
-
-
-def _observability_along_log(est, X, U) -> dict:
-    """Observability along windows of the estimated trajectory (``U[k]``: the input over the
-    sample that ended at row k)."""
-    if not hasattr(est, "observability_windows"):
-        return {}
-    reps = est.observability_windows(X, U, window=OBS_WINDOW_S, max_windows=OBS_WINDOWS_MAX)
-    if not reps:
-        return {}
-    worst = max(reps, key=lambda r: float(np.max(r.twist_std / r.scales[[r.names.index(t) for t in r.twist_names]])))
-    return {"windows": len(reps), "window_s": reps[0].samples * est.em.dt,
-            "twist_observable_windows": int(sum(r.twist_observable for r in reps)), "worst": worst.message}
+        summary[f"{tw}_final_rad"] = float(res.state(tw)[-1])
+        summary[f"{tw}_rmse_rad"] = res.rmse(tw, true)
+        if (res.t[1:] >= res.t[0] + 1.0).any():
+            summary[f"{tw}_rmse_after_1s_rad"] = res.rmse(tw, true, after=1.0)
+    return summary
 
 
 def run(args) -> int:
@@ -184,81 +168,18 @@ def run(args) -> int:
             raise DataError(f"{log_path}: missing input column {n!r} of rig {model.name!r} (inputs: "
                             f"{', '.join(model.inputs)})")
     params = load_params(args.params, model) if args.params else model.published()
-    spec = _spec(args, model, log)
-    dt = log.dt
-    est = make_estimator(spec, EstimatorContext(model, params, dt, SensorOptions(), where="estimator"))
-
-    n = len(log.t)
-    U = np.column_stack([log[name] for name in model.inputs])
-    chan = {c: log[c] for c in est.channels}
-    names = est.names
-    X = np.zeros((n, len(names)))
-    S = np.zeros((n, len(names)))
-    flags = np.zeros((n, 3))          # corrected, warning, success
-    src = getattr(est, "ekf", est)
-    if hasattr(src, "x") and np.shape(src.x) == (len(names),):
-        X[0] = src.x
-        S[0] = np.sqrt(np.diag(src.P))
-    flags[0] = (0.0, 0.0, 1.0)
-    times = []
-    for k in range(1, n):
-        e = est.update(float(log.t[k]), {c: v[k] for c, v in chan.items()}, U[k - 1])
-        X[k] = e.x
-        S[k] = np.sqrt(np.maximum(np.diag(e.P), 0.0))
-        flags[k] = (float(e.corrected), float(e.status.name == "WARNING"), float(e.success))
-        times.append(e.solve_time)
-
-    units = getattr(getattr(est, "em", None), "units", None) or model.state_units
-    cols = [("t [s]", log.t)]
-    for j, (nm, unit) in enumerate(zip(names, units)):
-        cols.append((f"{nm.replace(':', '_')} [{unit}]", X[:, j]))
-    for j, (nm, unit) in enumerate(zip(names, units)):
-        cols.append((f"{nm.replace(':', '_')}_std [{unit}]", S[:, j]))
-    cols += [("corrected [-]", flags[:, 0]), ("warning [-]", flags[:, 1]), ("success [-]", flags[:, 2])]
-    lines = [",".join(h for h, _ in cols)]
-    for row in zip(*[c for _, c in cols]):
-        lines.append(",".join(f"{v:.9g}" for v in row))
-    atomic_write_text(out, "\n".join(lines) + "\n", overwrite=args.force)
-
-    tt = np.array(times[1:] if len(times) > 1 else times) * 1e3
-    verdict = getattr(est, "observability_message", "fd: estimates nothing it does not read")
-    summary = {
-        "log": str(log_path), "out": str(out), "model": model.key, "estimator": args.estimator,
-        "channels": list(est.channels), "states": list(names), "steps": est.counts.steps, "dt_s": dt,
-        "observability": verdict,
-        "step_time_median_ms": float(np.median(tt)) if tt.size else float("nan"),
-        "step_time_p95_ms": float(np.percentile(tt, 95)) if tt.size else float("nan"),
-        **est.counts.as_dict(),
-        "warned_fraction": float(np.mean(flags[1:, 1])) if n > 1 else 0.0,
-    }
-    for rep_name in ("observability", "observability_steady"):
-        rep = getattr(est, rep_name, None)
-        if rep is not None:
-            summary[f"{rep_name}_report"] = rep.as_dict()
-    U_held = np.vstack([U[:1], U[:-1]])           # row k: the input over the sample ending at k
-    along = _observability_along_log(est, X, U_held)
-    if along:
-        summary["observability_along_log"] = along
-    if hasattr(est, "compile_status"):
-        summary["compile"] = est.compile_status
-    idx = {nm: i for i, nm in enumerate(names)}
-    for tw, true in _true_twists(log, model).items():
-        if tw not in idx:
-            continue
-        err = X[1:, idx[tw]] - true[1:]
-        summary[f"{tw}_final_rad"] = float(X[-1, idx[tw]])
-        summary[f"{tw}_rmse_rad"] = float(np.sqrt(np.mean(err ** 2)))
-        late = log.t[1:] >= log.t[0] + 1.0
-        if late.any():
-            summary[f"{tw}_rmse_after_1s_rad"] = float(np.sqrt(np.mean(err[late] ** 2)))
+    res = estimate_log(log, _spec(args, model, log), model, params)
+    atomic_write_text(out, _csv(res), overwrite=args.force)
+    summary = _summary(res, log, log_path, out, model)
     if args.json:
         emit_json(summary)
     else:
-        print(f"observability: {verdict}")
+        print(f"observability: {res.observability}")
         skip = ("states", "channels", "observability", "observability_report", "observability_steady_report",
                 "observability_along_log")
         rows = [[k, v] for k, v in summary.items() if k not in skip]
-        rows.insert(5, ["channels", ",".join(est.channels)])
+        rows.insert(5, ["channels", ",".join(res.channels)])
+        along = res.observability_along_log
         if along:
             rows.append(["twist observable along the log", f"{along['twist_observable_windows']}/{along['windows']} "
                                                             f"windows of {along['window_s']:g} s"])

@@ -96,7 +96,7 @@ class Action:
 
     @property
     def success(self) -> bool:
-        return self.status is not Status.FALLBACK
+        return self.status.success
 
 
 @dataclass(frozen=True)
@@ -230,6 +230,8 @@ class Controller(ABC):
 
     kind: ClassVar[str] = "controller"
     options_class: ClassVar[type | None] = None
+    #: ``{option: mitigate.tunables.Tunable}``: what a benchmark may tune (``mitigate tune``)
+    tunables: ClassVar[Mapping[str, Any]] = {}
     #: names of attributes holding values the controller derived (reported with a set-point chatter warning)
     derived: ClassVar[tuple[str, ...]] = ()
     #: what it needs of a rig (names of :data:`NEEDS`): checked for every controller of a
@@ -248,6 +250,11 @@ class Controller(ABC):
 
     def reset(self) -> None:
         """Forget internal state (called before a run)."""
+
+    def actuated_inputs(self) -> tuple[str, ...]:
+        """The rig inputs this controller sets (the benchmark's like-for-like class follows from
+        them); default: every input a controller may set.  Override it to say less."""
+        return tuple(self.context.model.commands)
 
     def step(self, t: float, measurement: Mapping[str, float], estimate=None) -> Action:
         """One control decision at time ``t`` [s] (module docstring).

@@ -24,6 +24,7 @@ from typing import Mapping
 
 from mitigate.controllers._opts import check_bool, check_number
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
+from mitigate.tunables import Tunable
 from models.errors import ConfigError
 
 __all__ = ["BrakeOptions", "BrakeController", "body_speed"]
@@ -39,7 +40,7 @@ class BrakeOptions:
     gain_overspeed : pin force per rad/s of overspeed above the programmed speed [N s/rad]
     gain_relative : pin force per rad/s of running faster than the drive body [N s/rad]
     deadband : speed error ignored [rad/s]
-    n_max : largest commanded pin force [N]
+    n_max : largest commanded pin force [N] (0: the servo's range)
     filter_tau : first-order low-pass time constant on the speeds [s] (0: none)
     use_estimate : take speeds from the state estimate when one is available
     """
@@ -48,7 +49,7 @@ class BrakeOptions:
     gain_overspeed: float = 20.0
     gain_relative: float = 0.0
     deadband: float = 0.0
-    n_max: float = 40.0
+    n_max: float = 0.0
     filter_tau: float = 0.03
     use_estimate: bool = True
 
@@ -58,7 +59,7 @@ class BrakeOptions:
         check_number(self, "gain_overspeed", lo=0.0, unit="N s/rad")
         check_number(self, "gain_relative", lo=0.0, unit="N s/rad")
         check_number(self, "deadband", lo=0.0, unit="rad/s")
-        check_number(self, "n_max", lo=0.0, lo_open=True, unit="N")
+        check_number(self, "n_max", lo=0.0, unit="N")
         check_number(self, "filter_tau", lo=0.0, unit="s")
         check_bool(self, "use_estimate")
 
@@ -72,12 +73,27 @@ def body_speed(model, body: str, estimate, measurement: Mapping[str, float], use
     return reading(measurement, ch)
 
 
+def force_per_speed(context) -> float:
+    """A brake gain's natural unit on a rig [N s/rad]: the first servo's force range per programmed
+    drive speed (rig3: 40 N / pi rad/s = 12.7 N s/rad)."""
+    m = context.model
+    a = m.actuator(m.servo_inputs[0]) if m.servo_inputs else None
+    w = abs(context.scheduled(0.0, m.drive_input)) if m.drive_kind != "torque" else 0.0
+    return a.n_max / w if a is not None and w > 0 else float("nan")
+
+
 class BrakeController(Controller):
     """Semi-active servo-pin brake (see module docstring)."""
 
     kind = "brake"
     options_class = BrakeOptions
     needs = ("servo", "servo_body_speed")
+    tunables = {
+        "gain_overspeed": Tunable(low=0.3, high=30.0, scale=force_per_speed,
+                                  doc="overspeed gain in multiples of the servo's range per programmed speed"),
+        "gain_relative": Tunable(low=0.0, high=10.0, log=False, scale=force_per_speed,
+                                 doc="relative-speed gain, same unit"),
+    }
 
     def __init__(self, options: BrakeOptions, context: ControlContext):
         super().__init__(options, context)
@@ -91,12 +107,16 @@ class BrakeController(Controller):
                               f"got {self.input!r}")
         self.body = m.contact_of_input(self.input).body
         self.drive_body = m.drive_body or None
+        self.n_max = options.n_max or m.actuator(self.input).n_max
         need = [m.speed_channel(self.body)] + ([m.speed_channel(self.drive_body)] if options.gain_relative > 0 else [])
         if None in need:
             raise ConfigError(f"{context.where}: the brake needs the speeds of {self.body!r}"
                               f"{' and ' + repr(self.drive_body) if options.gain_relative > 0 else ''}, "
                               f"which rig {m.name!r} does not measure")
         self.reset()
+
+    def actuated_inputs(self) -> tuple[str, ...]:
+        return (self.input,)
 
     def reset(self) -> None:
         self._w = None
@@ -121,4 +141,4 @@ class BrakeController(Controller):
         w_ref = self.context.scheduled(t, m.drive_input)
         n = (o.gain_overspeed * max(0.0, wb - w_ref - o.deadband)
              + o.gain_relative * max(0.0, wb - wd - o.deadband))
-        return Action({self.input: min(max(n, 0.0), o.n_max)})
+        return Action({self.input: min(max(n, 0.0), self.n_max)})

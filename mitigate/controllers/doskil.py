@@ -29,6 +29,7 @@ from typing import Mapping
 from mitigate.controllers._opts import check_number
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.controllers.tuning import drive_speed_channel, first_order, np_clip, tuning_for
+from mitigate.tunables import Tunable
 from models.errors import ConfigError
 
 __all__ = ["DOSKILOptions", "DOSKIL"]
@@ -68,6 +69,7 @@ class DOSKIL(Controller):
     kind = "doskil"
     options_class = DOSKILOptions
     needs = ("servo", "servo_body_speed", "drive_speed")
+    tunables = {"gain_factor": Tunable(low=0.25, high=16.0, doc="the gain in multiples of the matched Z / (r mu_k)")}
     derived = ("gain", "tau", "n_min", "n_max")
 
     def __init__(self, options: DOSKILOptions, context: ControlContext):
@@ -99,6 +101,9 @@ class DOSKIL(Controller):
         self.n_min = max(options.n_min, a.n_min)
         self.n_max = options.n_max or a.n_max
         self.reset()
+
+    def actuated_inputs(self) -> tuple[str, ...]:
+        return (self.input,)
 
     def reset(self) -> None:
         self._d = None

@@ -26,5 +26,8 @@ class PIOnly(Controller):
     kind = "pi"
     options_class = PIOptions
 
+    def actuated_inputs(self) -> tuple[str, ...]:
+        return ()
+
     def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
         return Action({})

@@ -53,6 +53,7 @@ from mitigate.controllers._opts import check_number
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.controllers.tuning import PipeTorque, VirtualDrive, absorber_frequency, drive_speed_channel, np_clip, \
     tuning_for
+from mitigate.tunables import Tunable
 from models.errors import ConfigError
 
 __all__ = ["SoftSpeedOptions", "SoftSpeed"]
@@ -95,6 +96,11 @@ class SoftSpeed(Controller):
     kind = "softspeed"
     options_class = SoftSpeedOptions
     needs = ("drive_speed", "drive_torque")
+    tunables = {
+        "kp_factor": Tunable(low=0.25, high=8.0, doc="Kp in multiples of the string impedance Z"),
+        "f_t": Tunable(low=0.25, high=4.0, scale=lambda c: tuning_for(c.model, c.params).f_ss, derived=1.0,
+                       doc="tuning frequency in multiples of the rig's lowest mode with the drive held"),
+    }
     derived = ("Z", "J_v", "Kp", "Ki", "f_t", "tau_torque")
 
     def __init__(self, options: SoftSpeedOptions, context: ControlContext):
@@ -118,6 +124,9 @@ class SoftSpeed(Controller):
         self.pipe = PipeTorque(context, tau=self.tau_torque, tau_acc=max(1.0 / (80.0 * self.f_t), 3.0 * context.period))
         self.drive = VirtualDrive(self.J_v, self.Kp, self.Ki, context.period)
         self.reset()
+
+    def actuated_inputs(self) -> tuple[str, ...]:
+        return (self.context.model.drive_input,)
 
     def reset(self) -> None:
         self.pipe.reset()

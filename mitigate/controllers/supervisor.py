@@ -29,6 +29,7 @@ import numpy as np
 
 from mitigate.controllers._opts import check_number
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
+from mitigate.tunables import Tunable
 from models.errors import ConfigError
 
 __all__ = ["SupervisorOptions", "SpeedSupervisor"]
@@ -86,6 +87,12 @@ class SpeedSupervisor(Controller):
     kind = "supervisor"
     options_class = SupervisorOptions
     needs = ("speed_drive", "objective_speed")
+    tunables = {
+        "raise_max": Tunable(low=0.1, high=1.5, scale=lambda c: abs(c.scheduled(0.0, c.model.drive_input)),
+                             doc="largest raise in multiples of the programmed speed"),
+        "rate_down": Tunable(low=0.01, high=1.0, scale=lambda c: abs(c.scheduled(0.0, c.model.drive_input)),
+                             doc="return rate in programmed speeds per second"),
+    }
 
     def __init__(self, options: SupervisorOptions, context: ControlContext):
         super().__init__(options, context)
@@ -101,6 +108,9 @@ class SpeedSupervisor(Controller):
                               f"{m.name!r} does not measure")
         self.dt = context.period
         self.reset()
+
+    def actuated_inputs(self) -> tuple[str, ...]:
+        return (self.context.model.drive_input,)
 
     def reset(self) -> None:
         self._buf: deque = deque()

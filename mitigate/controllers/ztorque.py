@@ -39,6 +39,7 @@ from typing import Mapping
 from mitigate.controllers._opts import check_number
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.controllers.tuning import PipeTorque, drive_speed_channel, first_order, np_clip, tuning_for
+from mitigate.tunables import Tunable
 
 __all__ = ["ZTorqueOptions", "ZTorque", "NOISE_TORQUE_FRACTION"]
 
@@ -83,6 +84,11 @@ class ZTorque(Controller):
     kind = "ztorque"
     options_class = ZTorqueOptions
     needs = ("drive_speed", "drive_torque")
+    tunables = {
+        "z": Tunable(low=0.05, high=2.0, doc="the torque-feedback factor"),
+        "tau_hp": Tunable(low=0.25, high=10.0, scale=lambda c: tuning_for(c.model, c.params).period, derived=2.0,
+                          doc="high-pass time constant in multiples of the rig's stick-slip period"),
+    }
     derived = ("Z", "gain", "tau_hp", "tau_lp", "Kp", "Ki")
 
     def __init__(self, options: ZTorqueOptions, context: ControlContext):
@@ -115,6 +121,9 @@ class ZTorque(Controller):
         T_nom = abs(float(u[m.inputs.index(m.drive_input)]))
         sd = channel_std(m, self.speed_ch, context.period, context.sensors)
         return NOISE_TORQUE_FRACTION * T_nom / sd if T_nom > 0 and sd > 1e-9 else math.inf
+
+    def actuated_inputs(self) -> tuple[str, ...]:
+        return (self.context.model.drive_input,)
 
     def reset(self) -> None:
         self.pipe.reset()

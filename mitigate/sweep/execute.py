@@ -12,7 +12,7 @@ import numpy as np
 from models.errors import ConfigError
 from models.plant import SimOptions, plant_integration
 from models.plugins import describe
-from models.status import Status
+from models.status import Outcome, Status
 from mitigate.sweep.chunks import METRICS, ChunkTask, run_chunk
 from mitigate.sweep.plan import Axis, SweepPlan
 from mitigate.sweep.store import SweepStore
@@ -87,7 +87,7 @@ def stability_indices(plan: SweepPlan) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class SweepResult:
+class SweepResult(Outcome):
     """All points of a sweep.
 
     Attributes
@@ -97,7 +97,8 @@ class SweepResult:
     stability : max real part [1/s] of the sliding linearisation per point (n_points,; NaN off the
         stability sub-grid :func:`stability_subgrid`), or None
     computed, reused : numbers of chunks computed now and found on disk
-    status : Status.OK, or Status.WARNING when some points failed (``message`` says how many)
+    status : :meth:`Status.worst` of the point runs and chunks: Status.FAILED when some point runs
+        failed or chunks were not written (``message`` says how many), else Status.OK
     """
 
     axes: tuple[Axis, ...]
@@ -111,10 +112,6 @@ class SweepResult:
     message: str = "ok"
     files: dict = field(default_factory=dict)
     stability_subgrid: tuple = ()
-
-    @property
-    def success(self) -> bool:
-        return self.status is Status.OK
 
 
 def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None, scheduler: str | None = None,
@@ -222,4 +219,6 @@ def assemble(plan: SweepPlan, store: SweepStore, tasks):
     bad = int(sum(np.sum(~(maps[s]["ok"] == 1)) for s in maps))
     store.write_results(cols)
     message = "ok" if bad == 0 else f"{bad} point run(s) failed (non-finite state or no steady sliding)"
-    return maps, stab, Status.OK if bad == 0 else Status.WARNING, message
+    # a point whose run did not succeed is a failed part of the sweep (as a failed run is of ``run()``)
+    points = (Status.OK if ok == 1 else Status.FAILED for s in maps for ok in maps[s]["ok"].ravel())
+    return maps, stab, Status.worst(points), message

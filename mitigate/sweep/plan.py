@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from models.checks import choice, integer, number, options_from_mapping, prefix
 from models.errors import ConfigError
 
 __all__ = ["Axis", "parse_axis", "SweepOptions", "options_from_scenario", "SweepPlan", "plan_sweep", "MAX_POINTS"]
@@ -91,26 +92,18 @@ class SweepOptions:
     backend: str = "compiled"
 
     def __post_init__(self):
-        if self.start not in ("rest", "sliding", "both"):
-            raise ConfigError(f"sweep.start must be rest, sliding or both, got {self.start!r}")
+        w = prefix("sweep")
+        choice(self.start, f"{w}.start", ("rest", "sliding", "both"))
         for n in ("duration", "dt"):
-            v = getattr(self, n)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"sweep.{n} must be a finite number > 0 s, got {v!r}")
+            number(getattr(self, n), f"{w}.{n}", lo=0.0, lo_open=True, unit="s")
         for n in ("nsub", "chunk", "block", "stability_points"):
-            v = getattr(self, n)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ConfigError(f"sweep.{n} must be an integer >= 1, got {v!r}")
-        if self.settle is not None and not (isinstance(self.settle, (int, float)) and 0 <= self.settle < self.duration):
-            raise ConfigError(f"sweep.settle must be in [0, duration={self.duration}) s, got {self.settle!r}")
+            integer(getattr(self, n), f"{w}.{n}", lo=1)
+        number(self.settle, f"{w}.settle", lo=0.0, hi=self.duration, hi_open=True, unit="s", none=True)
         for n in ("threshold", "stuck_threshold", "perturbation"):
-            v = getattr(self, n)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
-                raise ConfigError(f"sweep.{n} must be a finite number >= 0, got {v!r}")
-        if self.backend not in ("compiled", "vm"):
-            raise ConfigError(f"sweep backend must be 'compiled' or 'vm', got {self.backend!r}")
+            number(getattr(self, n), f"{w}.{n}", lo=0.0)
+        choice(self.backend, f"{w}.backend", ("compiled", "vm"))
         if int(round(self.duration / self.dt)) < 4:
-            raise ConfigError(f"sweep.duration must span at least 4 samples of dt={self.dt} s, got {self.duration}")
+            raise ConfigError(f"{w}.duration must span at least 4 samples of dt={self.dt} s, got {self.duration}")
 
     @property
     def n_steps(self) -> int:
@@ -143,10 +136,7 @@ def options_from_scenario(sc: Scenario, **overrides) -> SweepOptions:
     if overrides.get("duration") is not None and overrides.get("settle") is None:
         kw["settle"] = None   # a new duration without a new settle time: discard its first half
     kw.update({k: v for k, v in overrides.items() if v is not None})
-    try:
-        opts = SweepOptions(**kw)
-    except ConfigError as exc:
-        raise ConfigError(f"{sc.where}: {exc}") from None
+    opts = options_from_mapping(SweepOptions, kw, f"{sc.where}: sweep")
     model = sc.plant_model
     for n in ("speed", "amplitude_of"):
         if getattr(opts, n) not in model.states:

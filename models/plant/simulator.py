@@ -35,7 +35,7 @@ from models.plant.hybrid import hybrid_step_function
 from models.rig import get_model
 from models.rig.spec import SI_UNITS
 from models.sensors import SensorOptions, Sensors
-from models.status import Status
+from models.status import Outcome, Status
 
 __all__ = ["SimOptions", "Plant", "SimResult", "simulate", "step_function", "plant_integration", "MAX_SAMPLES"]
 
@@ -255,7 +255,7 @@ class Plant:
 
 
 @dataclass(frozen=True)
-class SimResult:
+class SimResult(Outcome):
     """Result of :func:`simulate`; time on the first axis.
 
     Attributes
@@ -280,10 +280,6 @@ class SimResult:
     status: Status = Status.OK
     message: str = "ok"
     units: dict = field(default_factory=dict, repr=False)
-
-    @property
-    def success(self) -> bool:
-        return self.status.success
 
     def state(self, name: str) -> np.ndarray:
         """A true state's trajectory by name (e.g. ``"twist_shaft1"``)."""

@@ -1,6 +1,7 @@
-"""Nonlinear MPC on any rig: options (:mod:`.options`), the OCP built from a rig model
-(:mod:`.ocp`), its stage-wise QP and the QP solvers (:mod:`.qp`), and the controller
-(:mod:`.controller`).
+"""Nonlinear MPC on any rig: options (:mod:`.options`), the OCP's structure (:mod:`.layout`) and
+stage functions built from a rig model (:mod:`.stage`), the warm-started OCP and its solvers
+(:mod:`.ocp`; Gauss-Newton RTI/SQP :mod:`.rti`, IPOPT :mod:`.ipopt`), the stage-wise QP and the
+QP solvers (:mod:`.qp`), and the controller (:mod:`.controller`).
 
 Example
 -------
@@ -10,8 +11,10 @@ Example
 """
 
 from mitigate.controllers.nmpc.controller import NMPC, resolve_inputs
-from mitigate.controllers.nmpc.ocp import OCPLayout, OCPResult, OCPSolver, OCPSpec, stage_functions
+from mitigate.controllers.nmpc.layout import OCPLayout, OCPSpec
+from mitigate.controllers.nmpc.ocp import OCPResult, OCPSolver, make_ocp_solver
+from mitigate.controllers.nmpc.stage import stage_functions
 from mitigate.controllers.nmpc.options import MAX_HORIZON, NMPCOptions, NMPCWeights
 
 __all__ = ["NMPC", "NMPCOptions", "NMPCWeights", "MAX_HORIZON", "resolve_inputs", "OCPSpec",
-           "OCPLayout", "OCPSolver", "OCPResult", "stage_functions"]
+           "OCPLayout", "OCPSolver", "OCPResult", "make_ocp_solver", "stage_functions"]

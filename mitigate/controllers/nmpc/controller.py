@@ -8,18 +8,28 @@ after a plan shifts the plan and linearises it (RTI preparation), so a planning 
 embeds the new state and solves one QP (feedback).  If the loop calls less often than ``dt`` it
 re-plans at every call and shifts the warm start by the elapsed intervals.
 
+**Disturbance model.**  With ``use_load_estimate``, an estimate state ``load:<contact>`` (the EKF's
+random-walk factor on a contact's friction) scales that contact body's friction in the
+prediction: the offset-free part of the design (without it, a wrong estimated twist at steady
+sliding left R1 15-19 % slow from rest).  The factor is taken while the contact body slides
+(``|w| > SLIDING_FRACTION`` of the nominal speed) and held while it sticks.
+
 **Inputs to the prediction.**  The rig's state is the first ``model.nx`` entries of
 ``estimate.x`` (whose ``names`` must start with ``model.states``).  A servo's force comes from a
 replica of the rig's servo model driven by the controller's own commands, started from the
-servo's load-cell reading.  Inputs the NMPC does not set are held over the horizon: a normal
-force at its load cell's reading (corrected for the cell's gain and offset; the programme's value
-while the reading is missing or not finite), the drive at the programme's value.  With ``use_load_estimate``, an estimate state ``load:<contact>`` (the EKF's
-random-walk factor on a contact's friction) scales that contact body's friction in the
-prediction.
+servo's load-cell reading.  Inputs the NMPC does not set are held over the horizon: the drive at
+the programme's value; a normal force at the programme's value plus the low-passed difference
+between its load cell's reading (corrected for the cell's gain and offset) and the programme
+(time constant ``force_filter``; a missing or non-finite reading leaves the difference as it
+was).  The raw reading would pass the cell's noise to the plan: on rig3 its 0.2 N moved the
+set-point by 0.056 rad/s (std) at steady sliding with the TRUE state, and the programme's own
+steps reach the prediction at once.
 
 **Failures.**  A failed or bound-violating solve: the previous plan shifted to now
 (``Status.FALLBACK``); no plan left: an empty action, i.e. the programme (``Status.FALLBACK``).
-Every failure is counted in ``counts.failures``.
+Every failure is counted in ``counts.failures``.  A failure is a :class:`SolverFailure` (the OCP
+solver's numerical errors are turned into one, :func:`.ocp.solver_failures`); any other exception
+is a bug and fails the run.
 """
 
 from __future__ import annotations
@@ -30,8 +40,12 @@ from typing import Mapping
 import numpy as np
 
 from mitigate.controllers.base import Action, ControlContext, Controller
-from mitigate.controllers.nmpc.ocp import OCPSolver, OCPSpec
-from mitigate.controllers.nmpc.options import MAX_SUBSTEPS, NMPCOptions
+from mitigate.controllers.nmpc.defaults import resolve as resolve_defaults
+from mitigate.controllers.nmpc.layout import OCPSpec
+from mitigate.controllers.nmpc.ocp import make_ocp_solver, solver_failures
+from mitigate.controllers.nmpc.options import MAX_SUBSTEPS, WEIGHT_NAMES, NMPCOptions
+from mitigate.controllers.nmpc.schedule import CalmSchedule
+from mitigate.tunables import Tunable
 from models.discretise import integration
 from models.actuators import Servo
 from models.errors import ConfigError, SolverFailure
@@ -41,6 +55,9 @@ __all__ = ["NMPC", "resolve_inputs"]
 
 #: clip of the load factor taken from an estimate (a diverging estimator must not wreck the plan)
 LOAD_FACTOR_RANGE = (0.2, 5.0)
+#: a contact body slides (its load factor is taken from the estimate) above this fraction of the
+#: objective body's nominal speed
+SLIDING_FRACTION = 0.5
 
 
 def resolve_inputs(inputs, model, where: str) -> tuple[str, ...]:
@@ -75,13 +92,25 @@ class NMPC(Controller):
     Attributes
     ----------
     inputs : the inputs it sets (the drive's first); body : the objective body
-    spec : the OCPSpec; ocp : the OCPSolver; nsub : RK4 substeps per interval
+    cfg : the unit-carrying settings (:class:`mitigate.controllers.nmpc.defaults.Resolved`: given
+        options, or the rig's defaults); period : the rig's stick-slip period [s]
+    spec : the OCPSpec; ocp : its solver (an OCPSolver); nsub : RK4 substeps per interval
     last_result : the last OCPResult; inject_failure : test hook, ``callable(t) -> bool`` (True
         makes the next solve fail)
     """
 
     kind = "nmpc"
     options_class = NMPCOptions
+    #: the cost weights (dimensionless), a decade or so around the defaults (``mitigate tune``)
+    tunables = {
+        "weights.speed": Tunable(low=0.1, high=10.0), "weights.rel": Tunable(low=0.03, high=3.0),
+        "weights.ref": Tunable(low=0.02, high=2.0, needs="drive"),
+        "weights.d_ref": Tunable(low=0.03, high=3.0, needs="drive"),
+        "weights.force": Tunable(low=0.02, high=2.0, needs="force"),
+        "weights.force_linear": Tunable(low=0.001, high=0.1, needs="force"),
+        "weights.d_force": Tunable(low=0.03, high=3.0, needs="force"),
+        "weights.terminal": Tunable(low=0.3, high=30.0),
+    }
 
     def __init__(self, options: NMPCOptions, context: ControlContext):
         if isinstance(options, Mapping):
@@ -94,8 +123,6 @@ class NMPC(Controller):
         self.model = m
         self.params = m.check_params(context.params, f"{where}: params")
         self.dt_daq = float(context.dt)
-        if o.dt < self.dt_daq - 1e-12:
-            raise ConfigError(f"{where}.dt must be >= the DAQ period {self.dt_daq} s, got {o.dt}")
         self.inputs = resolve_inputs(o.inputs, m, where)
         self.body = o.body or m.objective_body
         if self.body not in m.bodies:
@@ -116,34 +143,42 @@ class NMPC(Controller):
         acts = [m.actuator(n) for n in self.servos]
         self._acts = acts
         self._held = [j for j, n in enumerate(m.inputs) if n not in self.inputs]
+        self._n_min = np.array([a.n_min for a in acts], float)
         self._readers = {j: self._reader(n) for j, n in enumerate(m.inputs) if n != drive}
-        # structure of the OCP
+        # structure of the OCP; the unit-carrying settings from the options or the rig
         u0 = np.asarray(context.programme(0.0), float)
         nom0 = self._nominal(0.0, u0)
-        w_s = max(abs(nom0), 1.0)
+        self.cfg = cfg = resolve_defaults(o, m, self.params, self.dt_daq, nom0, float(u0[m.inputs.index(drive)]), where,
+                                          u=u0)
+        self._tau_force = cfg.force_filter
+        w_s = abs(nom0) if nom0 != 0 else 1.0
         taus = tuple(float(a.tau) if o.model_servo else 0.0 for a in acts)
         self.weights = weights = o.weights
         #: how the prediction integrates the rig over an interval (:func:`models.discretise.integration`)
         self.integration = self._integration(u0, nom0, taus)
         self.nsub = self.integration.nsub
         if self.nsub > MAX_SUBSTEPS:
-            raise ConfigError(f"{where}.substeps: rig {m.name!r} needs {self.nsub} RK4 substeps per {o.dt} s interval "
-                              f"to be stable (stiff friction or springs); the limit is {MAX_SUBSTEPS}: shorten dt, or "
-                              f"widen eps where the friction law uses it")
-        self.spec = OCPSpec(horizon=o.horizon, dt=o.dt, nsub=self.nsub, eps=o.eps, body=self.body,
+            raise ConfigError(f"{where}.substeps: rig {m.name!r} needs {self.nsub} RK4 substeps per {cfg.dt} s "
+                              f"interval to be stable (stiff friction or springs); the limit is {MAX_SUBSTEPS}: shorten "
+                              f"dt, or widen eps where the friction law uses it")
+        self.spec = OCPSpec(horizon=o.horizon, dt=cfg.dt, nsub=self.nsub, eps=cfg.eps, body=self.body,
                             quasi_static=self.integration.quasi_static,
                             inputs=self.inputs, taus=taus, speed_scale=w_s,
-                            setpoint_scale=(o.setpoint_band if self._torque_drive else w_s) or 1.0,
+                            setpoint_scale=(cfg.setpoint_band if self._torque_drive else w_s) or 1.0,
                             force_scales=tuple(float(a.n_max) for a in acts), weights=weights.as_tuple())
-        self.ocp = OCPSolver(m, self.spec, solver=o.solver, compile=o.compile, qp_solver=o.qp_solver,
+        self.ocp = make_ocp_solver(m, self.spec, solver=o.solver, compile=o.compile, qp_solver=o.qp_solver,
                              qp_tol=o.qp_tol, sqp_max_iter=o.sqp_max_iter)
         L = self.ocp.layout
         self.layout = L
         self._q = L.q_template(self.spec, self.params.vector())
-        self._rate = np.array(([o.setpoint_rate] if self.drives else []) + [a.rate_max for a in acts], float)
+        self._rate = np.array(([cfg.setpoint_rate] if self.drives else []) + [a.rate_max for a in acts], float)
         self._lo = np.array(([0.0] if self.drives else []) + [a.n_min for a in acts], float)
         self._hi = np.array(([0.0] if self.drives else []) + [a.n_max for a in acts], float)
         self._load_keys = {f"load:{c}": i for i, names in enumerate(m.contact_names) for c in names}
+        self.period = cfg.period
+        self.schedule = CalmSchedule(self.period, self.dt_daq, o.calm_band, cfg.hold_gain)
+        self._i_ref, self._i_force, self._i_dref = (L.q_w + WEIGHT_NAMES.index(k) for k in ("ref", "force", "d_ref"))
+        self._i_speed = m.speed_index(self.body)
         self._names_seen = None
         self.inject_failure = None
         self.reset()
@@ -163,24 +198,28 @@ class NMPC(Controller):
 
     def _integration(self, u0, nom0: float, taus):
         """The integration rule at the largest inputs the plan may use (``substeps`` fixes the count)."""
-        m, o = self.model, self.options
+        m, cfg = self.model, self.cfg
         umax = np.abs(u0).astype(float)
         for j, n in enumerate(m.inputs):
             a = m.actuator(n)
             if n == m.drive_input:
-                umax[j] = abs(u0[j]) + o.setpoint_band
+                umax[j] = abs(u0[j]) + cfg.setpoint_band
             elif a is not None:
                 umax[j] = a.n_max
             elif m.input_kinds[j] == "force":
                 umax[j] = 2.0 * abs(u0[j])  # a held normal force may double (load factor, ramps)
-        return integration(m, self.params, o.dt, u=umax, eps=o.eps, speed=max(abs(nom0) + o.setpoint_band, 1.0),
-                           nsub=o.substeps or None, rates=[1.0 / t for t in taus if t > 0], max_nsub=None)
+        speed = abs(nom0) + (0.0 if self._torque_drive else cfg.setpoint_band)
+        return integration(m, self.params, cfg.dt, u=umax, eps=cfg.eps, speed=speed if speed > 0 else 1.0,
+                           nsub=self.options.substeps or None, rates=[1.0 / t for t in taus if t > 0], max_nsub=None)
 
     def _nominal(self, t: float, u_prog) -> float:
         """Nominal speed of the objective body [rad/s]."""
         if self._speed0 is not None:
             return self._speed0
         return float(u_prog[self.model.inputs.index(self.model.drive_input)])
+
+    def actuated_inputs(self) -> tuple[str, ...]:
+        return tuple(self.inputs)
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
@@ -193,6 +232,9 @@ class NMPC(Controller):
         self._action = None       # action held between plans
         self._u_prev = None       # last commands (self.inputs order)
         self._prep_q = None       # parameters for the pending preparation phase
+        self._dev = {}            # low-passed (reading - programme) of each held measured input
+        self._fc = np.ones(len(self.model.contacts))   # friction factors of the plan
+        self.schedule.reset()
         self.last_result = None
 
     def _measured(self, j: int, measurement, fallback: float) -> float:
@@ -201,6 +243,20 @@ class NMPC(Controller):
         if v is None or not math.isfinite(v):
             return fallback
         return (float(v) - off) / gain
+
+    def _held_inputs(self, t: float, measurement, u_prog) -> np.ndarray:
+        """The programme with every held measured input moved by its low-passed deviation."""
+        hold = np.asarray(u_prog, float).copy()
+        dt = self.dt_daq if self._t_call is None else max(t - self._t_call, 0.0)
+        a = 1.0 - math.exp(-dt / self._tau_force) if self._tau_force > 0 else 1.0
+        for j in self._held:
+            if j in self._readers:
+                v = self._measured(j, measurement, math.nan)
+                if math.isfinite(v):
+                    d = self._dev.get(j)
+                    self._dev[j] = v - hold[j] if d is None else d + a * (v - hold[j] - d)
+                hold[j] += self._dev.get(j, 0.0)
+        return hold
 
     def _advance_servos(self, t: float, measurement, u_prog) -> np.ndarray:
         """Forces of the commanded servos now (replicas driven by the last commands)."""
@@ -221,7 +277,7 @@ class NMPC(Controller):
         lo, hi = self._lo.copy(), self._hi.copy()
         if self.drives:
             c = float(u_prog[self.layout.u_drive])
-            band = self.options.setpoint_band
+            band = self.cfg.setpoint_band
             lo[0], hi[0] = c - band, c + band
             if not self._torque_drive:   # a speed set-point does not reverse the rotation
                 if c >= 0:
@@ -247,9 +303,13 @@ class NMPC(Controller):
             raise SolverFailure("non-finite or short state estimate")
         fc = None
         if self.options.use_load_estimate and self._load_idx:
-            fc = np.ones(len(m.contacts))
+            # in stick the friction is a constraint force and its level unobservable: the filter's
+            # factor drifts there (rig3 from rest: 1.0 -> 2.1 in 0.5 s), so the plan keeps the
+            # factor last seen while the contact body slid (1 before it ever slid)
+            fc = self._fc
+            slide = SLIDING_FRACTION * abs(self._nominal(self._t_call, self.context.programme(self._t_call)))
             for k, i in self._load_idx:
-                if math.isfinite(xe[k]):
+                if math.isfinite(xe[k]) and abs(x[m.contacts[i]]) > slide:
                     fc[i] = min(max(float(xe[k]), LOAD_FACTOR_RANGE[0]), LOAD_FACTOR_RANGE[1])
         return x, fc
 
@@ -264,27 +324,29 @@ class NMPC(Controller):
             self._u_prev = np.array(first + [self._measured(m.inputs.index(n), measurement, u_prog[m.inputs.index(n)])
                                              for n in self.servos], float)
         forces = self._advance_servos(t, measurement, u_prog)
+        hold = self._held_inputs(t, measurement, u_prog)
         self._t_call = t
-        due = self._t_solve is None or t - self._t_solve >= o.dt - 0.5 * self.dt_daq
+        xe = getattr(estimate, "x", None)
+        if xe is not None and len(xe) > self._i_speed:
+            self.schedule.update(float(xe[self._i_speed]), self._nominal(t, u_prog))
+        dt = self.cfg.dt
+        due = self._t_solve is None or t - self._t_solve >= dt - 0.5 * self.dt_daq
         if not due and self._action is not None:
             if self._prep_q is not None:
                 q, self._prep_q = self._prep_q, None
                 try:
-                    self.ocp.prepare(q)
-                except Exception:  # noqa: BLE001 - the next plan starts afresh
+                    with solver_failures("preparation"):
+                        self.ocp.prepare(q)
+                except SolverFailure:   # the next plan starts afresh
                     self.ocp.reset()
             a = self._action
             return Action(a.u, Status.HOLD, f"hold: {a.status.value}: {a.message}" if a.message else "hold")
-        steps = 1 if self._t_solve is None else max(1, int(round((t - self._t_solve) / o.dt)))
+        steps = 1 if self._t_solve is None else max(1, int(round((t - self._t_solve) / dt)))
         self._t_solve = t
         try:
             if self.inject_failure is not None and self.inject_failure(t):
                 raise SolverFailure("injected failure")
             x, fc = self._state(estimate)
-            hold = np.asarray(u_prog, float).copy()
-            for j in self._held:
-                if j in self._readers:
-                    hold[j] = self._measured(j, measurement, hold[j])
             if not math.isfinite(hold.sum()):
                 raise SolverFailure("non-finite held input")
             xa0 = np.empty(L.nxa)
@@ -292,13 +354,18 @@ class NMPC(Controller):
             xa0[L.i_servo] = forces if o.model_servo else self._u_prev[L.j_cmd]
             if self.drives:
                 xa0[L.i_wprev] = self._u_prev[0]
-            q = L.set_q(self._q.copy(), hold, self._nominal(t, u_prog), fc)
+            at_min = [float(hold[j] <= lo + 1e-9 * max(abs(lo), 1.0)) for j, lo in zip(L.u_servo, self._n_min)]
+            q = L.set_q(self._q.copy(), hold, self._nominal(t, u_prog), fc, at_min)
+            f = self.schedule.current()
+            q[self._i_ref] *= f
+            q[self._i_dref] *= f
+            q[self._i_force] *= f * f if self.drives else f   # pin only: the servo is all it has
             if self.ocp.X is not None and not (self.ocp.prepared and steps == 1):
                 # prepare() already shifted by one interval
                 self.ocp.shift(steps - 1 if self.ocp.prepared else steps)
             lo, hi = self._bounds(u_prog)
             res = self.ocp.solve(xa0, q, lo, hi, self._rate)
-        except Exception as exc:  # noqa: BLE001 - every solver failure goes to the fallback chain
+        except SolverFailure as exc:   # the fallback chain; anything else is a bug and fails the run
             self.counts.failures += 1
             self.ocp.reset()   # never warm-start from a failed iterate
             return self._hold(self._shift_or_programme(t, u_prog, f"{type(exc).__name__}: {exc}"))
@@ -312,7 +379,7 @@ class NMPC(Controller):
 
     def _shift_or_programme(self, t: float, u_prog, why: str) -> Action:
         if self._plan_u is not None:
-            j = int(round((t - self._t_plan) / self.options.dt))
+            j = int(round((t - self._t_plan) / self.cfg.dt))
             if 0 <= j < len(self._plan_u):
                 lo, hi = self._bounds(u_prog)
                 u = np.clip(self._plan_u[j], lo, hi)

@@ -8,16 +8,18 @@ the rig (does it have that input, that body?) is checked when the controller is 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Mapping
 
 from models.checks import finite_number
 from models.errors import ConfigError
+from mitigate.controllers.nmpc.qp import QP_SOLVERS
 
 __all__ = ["NMPCOptions", "NMPCWeights", "MAX_HORIZON", "MAX_SUBSTEPS", "INPUT_MODES", "SOLVERS", "WEIGHT_NAMES"]
 
+#: OCP solvers (:func:`mitigate.controllers.nmpc.ocp.make_ocp_solver`)
 SOLVERS = ("rti", "sqp", "ipopt")
-QP_SOLVERS = ("hpipm", "qrqp", "osqp")
 #: ``inputs`` keywords: every command the rig offers, its servo inputs only, its drive only
 INPUT_MODES = ("both", "pin", "motor")
 # The OCP, its build and each QP grow with the horizon.  N = 500 plans 25 s ahead at dt = 0.05 s
@@ -97,10 +99,11 @@ class NMPCOptions:
     Parameters
     ----------
     horizon : OCP intervals N (2 .. :data:`MAX_HORIZON`)
-    dt : OCP interval [s] (>= the DAQ period); the NMPC re-plans every ``dt``
+    dt : OCP interval [s] (>= the DAQ period); the NMPC re-plans every ``dt`` (None: a 40th of
+        the rig's stick-slip period, :mod:`mitigate.controllers.nmpc.defaults`)
     substeps : RK4 substeps per interval (0: the fewest that keep RK4 stable, ``|h lambda| <= 2.5``;
         at most :data:`MAX_SUBSTEPS`)
-    eps : friction regularisation of the prediction model [rad/s]
+    eps : friction regularisation of the prediction model [rad/s] (None: 1.6 % of the nominal speed)
     inputs : what the NMPC sets: "both" (the drive's set-point and every servo input), "pin"
         (the servo inputs only; the set-point follows the programme), "motor" (the drive's
         set-point only; no servo force), or a list of input names from the rig's ``commands``.
@@ -111,8 +114,10 @@ class NMPCOptions:
         drive: the rig's ``operating_point.speed``)
     weights : :class:`NMPCWeights` (or a table of them)
     setpoint_band : the drive's set-point stays within the programme's +- this [rad/s, or N m
-        for a torque drive] (a speed set-point never changes sign)
-    setpoint_rate : rate limit of the set-point [rad/s^2, or N m/s]
+        for a torque drive] (a speed set-point never changes sign; None: the programme's own
+        set-point, so a speed set-point stays in [0, 2 w_prog])
+    setpoint_rate : rate limit of the set-point [rad/s^2, or N m/s] (None: 15 bands per
+        stick-slip period)
     solver : "rti" (one Gauss-Newton QP per plan), "sqp" (Gauss-Newton to convergence), "ipopt"
         (exact Hessian; the reference)
     compile : compile the stage function with gcc (cached on disk) for rti/sqp
@@ -127,18 +132,28 @@ class NMPCOptions:
         call after a plan (a held sample), so a planning call only embeds the state and solves the QP
     use_load_estimate : scale a contact's friction in the prediction by the estimate's
         ``load:<contact>`` state when it has one (the EKF's disturbance model)
+    force_filter : time constant [s] of the low-pass on (load-cell reading - programme) of a
+        held normal force (None: the horizon, ``horizon dt``; 0: the raw reading)
+    hold_gain : factor on the ``ref`` and ``d_ref`` weights (its square on ``force`` when the drive is
+        commanded too) once the objective body slides calmly
+        (:mod:`mitigate.controllers.nmpc.schedule`; 1: the same weights always).  None: from the
+        rig (:mod:`mitigate.controllers.nmpc.defaults`): 60 where steady sliding at the programme
+        is linearly stable (calm, the plan only has to stay out of the way), 15 where it is not
+        (calm, the plan must keep damping an unstable equilibrium)
+    calm_band : ``(s_lo, s_hi)``: the estimated severity over one stick-slip period below which
+        the NMPC holds (``hold_gain``) and above which it suppresses (factor 1); log-linear between
     """
 
     horizon: int = 20
-    dt: float = 0.05
+    dt: float | None = None
     substeps: int = 0
-    eps: float = 0.05
+    eps: float | None = None
     inputs: str | tuple[str, ...] = "both"
     body: str | None = None
     speed: float | None = None
     weights: NMPCWeights = NMPCWeights()
-    setpoint_band: float = 3.0
-    setpoint_rate: float = 20.0
+    setpoint_band: float | None = None
+    setpoint_rate: float | None = None
     solver: str = "rti"
     compile: bool = True
     qp_solver: str = "hpipm"
@@ -147,16 +162,21 @@ class NMPCOptions:
     model_servo: bool = True
     prepare_ahead: bool = True
     use_load_estimate: bool = True
+    force_filter: float | None = None
+    hold_gain: float | None = None
+    calm_band: tuple[float, float] = (0.01, 0.1)
     where: str = "nmpc"
 
     def __post_init__(self):
         w = self.where
         _int(self.horizon, f"{w}.horizon", 2, MAX_HORIZON)
-        finite_number(self.dt, f"{w}.dt", positive=True, unit="s")
+        if self.dt is not None:
+            finite_number(self.dt, f"{w}.dt", positive=True, unit="s")
         _int(self.substeps, f"{w}.substeps", 0, what=" (0 = automatic)")
         if self.substeps > MAX_SUBSTEPS:
             raise ConfigError(f"{w}.substeps must be <= {MAX_SUBSTEPS}, got {self.substeps}")
-        finite_number(self.eps, f"{w}.eps", positive=True, unit="rad/s")
+        if self.eps is not None:
+            finite_number(self.eps, f"{w}.eps", positive=True, unit="rad/s")
         inp = self.inputs
         if isinstance(inp, str):
             if inp not in INPUT_MODES:
@@ -177,14 +197,26 @@ class NMPCOptions:
             object.__setattr__(self, "weights", NMPCWeights.from_mapping(self.weights, f"{w}.weights"))
         if not isinstance(self.weights, NMPCWeights):
             raise ConfigError(f"{w}.weights must be a table of weights, got {type(self.weights).__name__}")
-        finite_number(self.setpoint_band, f"{w}.setpoint_band", nonneg=True)
-        finite_number(self.setpoint_rate, f"{w}.setpoint_rate", positive=True)
+        if self.setpoint_band is not None:
+            finite_number(self.setpoint_band, f"{w}.setpoint_band", nonneg=True)
+        if self.setpoint_rate is not None:
+            finite_number(self.setpoint_rate, f"{w}.setpoint_rate", positive=True)
         if self.solver not in SOLVERS:
             raise ConfigError(f"{w}.solver must be one of {', '.join(SOLVERS)}, got {self.solver!r}")
         if self.qp_solver not in QP_SOLVERS:
             raise ConfigError(f"{w}.qp_solver must be one of {', '.join(QP_SOLVERS)}, got {self.qp_solver!r}")
         finite_number(self.qp_tol, f"{w}.qp_tol", positive=True)
         _int(self.sqp_max_iter, f"{w}.sqp_max_iter", 1)
+        if self.hold_gain is not None:
+            finite_number(self.hold_gain, f"{w}.hold_gain", positive=True)
+        band = self.calm_band
+        if not (isinstance(band, (list, tuple)) and len(band) == 2
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in band)
+                and 0 < band[0] < band[1]):
+            raise ConfigError(f"{w}.calm_band must be two severities 0 < s_lo < s_hi, got {band!r}")
+        object.__setattr__(self, "calm_band", (float(band[0]), float(band[1])))
+        if self.force_filter is not None:
+            finite_number(self.force_filter, f"{w}.force_filter", nonneg=True, unit="s")
         for name in ("compile", "model_servo", "prepare_ahead", "use_load_estimate"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{w}.{name} must be true or false, got {getattr(self, name)!r}")

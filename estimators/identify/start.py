@@ -1,0 +1,227 @@
+"""Where a fit starts and what bounds it: parameter bounds, linear constraints, node states.
+
+- :func:`law_bounds`: the bounds the friction laws declare for the rig parameters feeding them;
+- :func:`free_bounds`: the free parameters' starting values and bounds (options', else the rig
+  file's within the laws');
+- :func:`constraints` / :func:`constraint_rows`: ``kinetic <= static`` per contact whose law
+  declares both levels (both free) plus the options', as ``G theta <= h``, and with the bounds on
+  the solver's scaled variables (:func:`scaled_constraints`);
+- :func:`initial_nodes`: the shooting nodes' states from the data (measured speeds and twists)
+  and a smooth simulation for the rest, and the encoder zeros' starting values.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from estimators.identify.options import LinearConstraint
+from models.errors import ConfigError
+from models.friction import get_law
+from models.signals import moving_average
+
+__all__ = ["law_bounds", "free_bounds", "constraints", "constraint_rows", "scaled_constraints", "feasible",
+           "initial_nodes"]
+
+
+def law_bounds(model) -> tuple[dict, dict]:
+    """Physical bounds the friction laws declare for their parameters (e.g. levels >= 0),
+    ``({name: lower}, {name: upper})`` for the rig parameters that feed them."""
+    lo, hi = {}, {}
+    for c in model.spec.contacts:
+        law = get_law(c.law)
+        refs = dict(c.params)
+        for prm in law.params:
+            ref = refs.get(prm.name)
+            if ref is None or ref.kind != "param":
+                continue
+            lo[ref.name] = max(lo.get(ref.name, -math.inf), prm.lower)
+            hi[ref.name] = min(hi.get(ref.name, math.inf), prm.upper)
+    return lo, hi
+
+
+def free_bounds(model, initial, options, *, guessed: bool):
+    """``(theta0, lo, hi)`` of the free parameters: ``options.bounds``, else the rig file's bounds
+    within the laws' (:func:`law_bounds`).  A guessed start outside them is clipped in.
+
+    Raises
+    ------
+    ConfigError : lower >= upper, or a given (not guessed) start outside its bounds
+    """
+    free = options.free
+    theta0 = initial.vector(free)
+    lo, hi = np.empty(len(free)), np.empty(len(free))
+    law_lo, law_hi = law_bounds(model)
+    for i, n in enumerate(free):
+        b = (options.bounds or {}).get(n)
+        if b is None:
+            b = initial.bounds(n)
+            b = (max(b[0], law_lo.get(n, -math.inf)), min(b[1], law_hi.get(n, math.inf)))
+        lo[i], hi[i] = float(b[0]), float(b[1])
+        if not lo[i] < hi[i]:
+            raise ConfigError(f"bounds.{n} must have lower < upper, got [{lo[i]:g}, {hi[i]:g}]")
+        if not lo[i] <= theta0[i] <= hi[i]:
+            if guessed:
+                theta0[i] = min(max(theta0[i], lo[i]), hi[i])
+            else:
+                raise ConfigError(f"initial {n} = {theta0[i]:g} lies outside its bounds [{lo[i]:g}, {hi[i]:g}]")
+    return theta0, lo, hi
+
+
+def constraints(model, options) -> tuple[LinearConstraint, ...]:
+    """Bounds excluded: ``kinetic <= static`` level per contact whose law declares both (e.g. Stribeck's
+    ``mu_k <= mu_s``) with both free, and the options'.
+
+    Raises
+    ------
+    ConfigError : an options' constraint names an unknown parameter or no free one
+    """
+    m, o = model, options
+    out = []
+    if o.order_friction:
+        seen = set()
+        for c in m.spec.contacts:
+            order = m.law(c.name).level_order
+            if order is None:
+                continue
+            pr = dict(c.params)
+            k, s = pr.get(order[0]), pr.get(order[1])
+            if s is not None and k is not None and s.kind == k.kind == "param" and s.name in o.free \
+                    and k.name in o.free and (k.name, s.name) not in seen:
+                seen.add((k.name, s.name))
+                out.append(LinearConstraint(((k.name, 1.0), (s.name, -1.0)), 0.0,
+                                            f"{k.name} <= {s.name} (contact {c.name})"))
+    for c in o.constraints:
+        fixed = [n for n in c.names if n not in o.free]
+        for n in fixed:
+            if n not in m.param_names:
+                raise ConfigError(f"options.constraints: {n!r} in {c.text!r} is not a parameter of rig {m.name!r}")
+        if len(fixed) == len(c.names):
+            raise ConfigError(f"options.constraints: {c.text!r} involves no free parameter "
+                              f"(free: {', '.join(o.free)})")
+        out.append(c)
+    return tuple(out)
+
+
+def constraint_rows(cons, free, initial):
+    """``G theta <= h`` for the non-bound constraints (fixed parameters moved to the right-hand side)."""
+    G, h = np.zeros((len(cons), len(free))), np.zeros(len(cons))
+    for i, c in enumerate(cons):
+        h[i] = c.upper
+        for n, coef in c.terms:
+            if n in free:
+                G[i, free.index(n)] += coef
+            else:
+                h[i] -= coef * initial[n]
+    return G, h
+
+
+def feasible(theta, lo, hi, Gp, hp):
+    """``theta`` moved onto the constraints ``Gp theta <= hp`` it violates by round-off (the
+    regularised KKT rows leave ~1e-7) and clipped into the bounds ``[lo, hi]``."""
+    theta = np.clip(np.asarray(theta, float), lo, hi)
+    for _ in range(5):
+        viol = Gp @ theta - hp if Gp.shape[0] else np.zeros(0)
+        if not np.any(viol > 0):
+            break
+        for i in np.flatnonzero(viol > 0):
+            theta = theta - Gp[i] * (viol[i] / float(Gp[i] @ Gp[i])) * (1 + 1e-12)
+        theta = np.clip(theta, lo, hi)
+    return theta
+
+
+def scaled_constraints(sh, free, lo, hi, cons, Gp, hp):
+    """All inequalities, bounds included, on the scaled border variables of the shooting problem
+    ``sh``: ``(G, h, labels)`` with ``G w[:nb] <= h``; ``Gp theta <= hp`` the constraints' rows."""
+    nf, nb = sh.nf, sh.nb
+    rows, rhs, labels = [], [], []
+    for i, n in enumerate(free):
+        if np.isfinite(lo[i]):
+            r = np.zeros(nb)
+            r[i] = -sh.th_scale[i]
+            rows.append(r)
+            rhs.append(-lo[i])
+            labels.append(("bound", n, "lower"))
+        if np.isfinite(hi[i]):
+            r = np.zeros(nb)
+            r[i] = sh.th_scale[i]
+            rows.append(r)
+            rhs.append(hi[i])
+            labels.append(("bound", n, "upper"))
+    for i, c in enumerate(cons):
+        r = np.zeros(nb)
+        r[:nf] = Gp[i] * sh.th_scale
+        rows.append(r)
+        rhs.append(hp[i])
+        labels.append(("constraint", c.text, ""))
+    G = np.array(rows) if rows else np.zeros((0, nb))
+    return G, np.array(rhs, float), labels
+
+
+def initial_nodes(model, channels, data, initial, theta0, options, dt, S_val):
+    """Node states from the data (measured speeds and twists) and a smooth simulation with the
+    initial parameters for the unmeasured states; the encoder zeros' starting values.
+
+    Returns
+    -------
+    nodes : one (nint + 1, nx) array per log; z0 : (n_zeros,) encoder zeros
+    """
+    m, o = model, options
+    M = o.shoot_every
+    p0 = initial.vector()
+    P0 = m.unpack(p0)
+    chan_names = [c.name for c in channels]
+    # which states the data measure: speeds (speed channels), twists (single-twist angle differences)
+    speed_of = {}
+    for b in m.bodies:
+        ch = m.speed_channel(b)
+        if ch in chan_names:
+            speed_of[m.speed_index(b)] = chan_names.index(ch)
+    twist_of = {}
+    for j, c in enumerate(channels):
+        if c.kind == "twist":
+            v = np.asarray(c.coefficients)
+            nz = np.flatnonzero(np.abs(v) > 1e-12)
+            if nz.size == 1 and abs(abs(v[nz[0]]) - 1) < 1e-12:
+                twist_of[int(nz[0])] = (j, float(v[nz[0]]))
+    nodes_all, z0 = [], []
+    for d in data:
+        n_used = d.nint * M + 1
+        Um = np.array(m.input_from_measured([d.U[:, j] for j in range(m.nu)], P0), float).T.reshape(d.n, m.nu)
+        try:
+            xs = np.asarray(m.sliding_guess(np.mean(Um[:n_used], axis=0), initial), float)
+            if not np.all(np.isfinite(xs)):
+                raise ValueError
+        except Exception:  # noqa: BLE001 - a failed solve only worsens the start
+            xs = np.zeros(m.nx)
+        # encoder zero guesses: the mean measured difference matches the steady-sliding twist
+        zlog = {}
+        for j, c in enumerate(channels):
+            if c.zero:
+                zlog[j] = float(np.dot(c.coefficients, xs) - np.mean(d.Y[:n_used, j]))
+                z0.append(zlog[j])
+        known = {}
+        for idx, j in speed_of.items():
+            known[idx] = moving_average(d.Y[:, j], 5)
+            s = m.sensor_of(chan_names[j])
+            if s is not None and s.kind == "speed":
+                known[idx] = (known[idx] - float(s.offset.value(P0))) / float(s.gain.value(P0))
+        for idx, (j, sgn) in twist_of.items():
+            known[idx] = sgn * (moving_average(d.Y[:, j], 3) + zlog.get(j, 0.0))
+        row0 = 1 if o.input_row == "end" else 0
+        x = xs.copy() if abs(Um[row0, m.drive_speed_index()] if m.drive_speed_index() is not None else 1.0) > 0 \
+            else np.zeros(m.nx)
+        nodes = np.empty((d.nint + 1, m.nx))
+        for k in range(d.nint + 1):
+            for idx, v in known.items():
+                x[idx] = v[k * M]
+            nodes[k] = x
+            if k < d.nint:
+                Ub = d.U[(k * M + 1 if o.input_row == "end" else k * M):][:M]
+                xn = x.copy()
+                for Uk in Ub:
+                    xn = np.array(S_val(xn, Uk, theta0, p0, dt, o.eps)[0]).ravel()
+                x = xn if np.all(np.isfinite(xn)) and np.max(np.abs(xn)) < 1e6 else nodes[k].copy()
+        nodes_all.append(nodes)
+    return nodes_all, np.array(z0)

@@ -1,0 +1,217 @@
+"""Running the benchmark's runs: resumable, in local worker processes or on a Dask cluster.
+
+Each finished run is one JSON record on disk (:class:`RunStore`, written by :meth:`RunStore.write`,
+the one place that writes): a benchmark killed at any moment (Ctrl-C, ``kill -9``) and started again
+with the same definition redoes only the runs that had not finished.  The runs go to the worker
+processes of :class:`mitigate.workers.WorkerPool` (through :func:`pool`, the one place that makes
+one: workers that die with the command, a run whose worker dies or stalls fails alone and is not
+stored, so a rerun retries it) or to a Dask scheduler
+(``scheduler="tcp://host:port"``, the same option as ``mitigate sweep``; the workers need this
+package, and the scheduler is trusted: Dask sends pickled tasks).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping
+
+from models.errors import ConfigError, DataError
+from models.files import atomic_write_text
+from mitigate.benchmark.plan import RunTask, task_scenario
+
+__all__ = ["run_task", "RunStore", "execute", "pool", "failed_record"]
+
+#: environment of every worker process: one BLAS/OpenMP thread (the matrices are tiny; threads only
+#: add contention), set before the workers import numpy
+WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def run_task(task: RunTask) -> dict[str, Any]:
+    """Run one task; a record ``{key, scenario, controller, phase, seed, switch_on, run_seed, applicable,
+    status, message, failed, class, metrics, elapsed}``.  A controller the rig cannot host is not
+    applicable; a controller that raises, or a run that diverges, is FAILED with the reason."""
+    from mitigate.closedloop import run_closed_loop
+    from mitigate.controllers.factory import context_for, make_controller
+    from mitigate.metrics import closed_loop_metrics
+    from mitigate.tunables import actuator_class
+
+    t0 = time.perf_counter()
+    rec: dict[str, Any] = {"key": task.key, "scenario": task.scenario.name, "controller": task.controller,
+                           "phase": task.phase, "seed": task.seed, "switch_on": task.switch_on,
+                           "run_seed": task.run_seed, "options": dict(task.options)}
+    sc = task_scenario(task)
+    try:
+        ctrl = make_controller(sc.controllers[0], context_for(sc, 0))
+    except ConfigError as exc:     # the rig lacks what the controller needs: not applicable here
+        return rec | {"applicable": False, "status": "not applicable", "message": str(exc), "failed": 0,
+                      "class": "", "metrics": {}, "elapsed": time.perf_counter() - t0}
+    except Exception as exc:  # noqa: BLE001 - a user's controller may fail in any way: its run fails
+        return rec | {"applicable": True, "status": "failed", "message": _one_line(exc), "failed": 1, "class": "",
+                      "metrics": {}, "elapsed": time.perf_counter() - t0}
+    klass = actuator_class(sc.model, ctrl.actuated_inputs())
+    try:
+        res = run_closed_loop(sc, ctrl)
+        met = closed_loop_metrics(res, sc, task.metrics)
+    except Exception as exc:  # noqa: BLE001 - a controller or estimator that raises fails its run
+        return rec | {"applicable": True, "status": "failed", "message": _one_line(exc), "failed": 1,
+                      "class": klass, "metrics": {}, "elapsed": time.perf_counter() - t0}
+    return rec | {"applicable": True, "status": res.status.value, "message": res.message,
+                  "failed": int(not res.success), "class": klass, "metrics": met,
+                  "elapsed": time.perf_counter() - t0}
+
+
+def failed_record(task: RunTask, why: str) -> dict[str, Any]:
+    """The record of a run that could not finish in its worker (the worker died or stalled): FAILED
+    with the reason, ``lost = True`` (not stored: a rerun retries it)."""
+    return {"key": task.key, "scenario": task.scenario.name, "controller": task.controller, "phase": task.phase,
+            "seed": task.seed, "switch_on": task.switch_on, "run_seed": task.run_seed, "options": dict(task.options),
+            "applicable": True, "status": "failed", "message": " ".join(str(why).split())[:300], "failed": 1,
+            "class": "", "metrics": {}, "elapsed": 0.0, "lost": True}
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
+
+
+def _jsonable(rec: Mapping) -> dict:
+    from mitigate.cliutil import to_jsonable
+    out = to_jsonable(dict(rec))
+    # inf and nan survive a round trip as strings (JSON has neither)
+    out["metrics"] = {k: (v if isinstance(v, (int, float)) and v == v and abs(v) != float("inf")
+                          else ("inf" if v == float("inf") else "-inf" if v == float("-inf") else "nan"))
+                      for k, v in rec.get("metrics", {}).items()}
+    return out
+
+
+def _from_json(rec: dict) -> dict:
+    rec["metrics"] = {k: float(v) if isinstance(v, str) else v for k, v in rec.get("metrics", {}).items()}
+    return rec
+
+
+class RunStore:
+    """The folder of finished runs: ``manifest.json`` (the definition and its hash) and
+    ``runs/<scenario>/<controller>/p<k>_s<j>.json``, each written atomically and durably.
+
+    Parameters
+    ----------
+    root : folder
+    definition : JSON-serialisable definition of the benchmark (suite file contents, phases,
+        seeds, options); a folder holding a different definition is refused unless ``force``
+    force : discard a different definition's runs
+    """
+
+    def __init__(self, root, definition: Mapping[str, Any], *, force: bool = False):
+        from mitigate.sweep.store import definition_hash
+        self.root = Path(root)
+        self.run_dir = self.root / "runs"
+        self.hash = definition_hash(definition)
+        man = self.root / "manifest.json"
+        if man.exists():
+            try:
+                old = json.loads(man.read_text())
+            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+                raise DataError(f"{man}: unreadable benchmark manifest ({exc}); use force to start over") from None
+            if old.get("hash") != self.hash:
+                if not force:
+                    raise ConfigError(f"{self.root} holds the runs of a different benchmark (hash {old.get('hash')}, "
+                                      f"this one {self.hash}); refusing to mix them (pass force=True)")
+                shutil.rmtree(self.run_dir, ignore_errors=True)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(man, json.dumps({"hash": self.hash, "definition": definition}, indent=2, default=str) + "\n",
+                          overwrite=True, durable=True)
+
+    def path(self, key: str) -> Path:
+        return self.run_dir / f"{key}.json"
+
+    def done(self) -> set[str]:
+        """Keys of the runs on disk."""
+        return {str(p.relative_to(self.run_dir).with_suffix("")) for p in self.run_dir.rglob("*.json")}
+
+    def write(self, record: Mapping[str, Any]) -> Path:
+        """Write one finished run (the only function that writes a run's result)."""
+        p = self.path(record["key"])
+        p.parent.mkdir(parents=True, exist_ok=True)
+        return atomic_write_text(p, json.dumps(_jsonable(record)) + "\n", overwrite=True, durable=True)
+
+    def read(self, key: str) -> dict:
+        p = self.path(key)
+        try:
+            return _from_json(json.loads(p.read_text()))
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise DataError(f"{p}: unreadable run record ({exc}); delete it to rerun that run") from None
+
+
+def pool(workers: int):
+    """The benchmark's local pool (runs, reference runs, tuning workers): a
+    :class:`mitigate.workers.WorkerPool` of ``workers`` processes with one BLAS thread each."""
+    from mitigate.runner import STALL_TIMEOUT
+    from mitigate.workers import WorkerPool
+    for k, v in WORKER_ENV.items():      # inherited by the spawned workers, before they import numpy
+        os.environ.setdefault(k, v)
+    return WorkerPool(workers, stall_timeout=STALL_TIMEOUT)
+
+
+def execute(tasks: Iterable[RunTask], *, store: RunStore | None = None, jobs: int = 1, scheduler: str | None = None,
+            client=None, progress: bool = False, desc: str = "benchmark",
+            on_record: Callable[[dict], None] | None = None) -> dict[str, dict]:
+    """Run ``tasks`` (skipping those ``store`` has) and return ``{key: record}`` for all of them.
+
+    Parameters
+    ----------
+    store : a :class:`RunStore` to resume from and write to (None: keep the records in memory)
+    jobs : local worker processes (1: in this process)
+    scheduler, client : a Dask scheduler address or an existing ``distributed.Client`` (overrides jobs)
+    progress : a tqdm bar (on stderr)
+    """
+    from tqdm import tqdm
+
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise ConfigError(f"jobs must be an integer >= 1, got {jobs!r}")
+    tasks = list(tasks)
+    keys = [t.key for t in tasks]
+    if len(set(keys)) != len(keys):
+        raise ConfigError("two benchmark runs share a key (controller or scenario names that differ only in "
+                          "punctuation or case)")
+    done = store.done() if store is not None else set()
+    out = {k: store.read(k) for k in keys if k in done} if store is not None else {}
+    pending = [t for t in tasks if t.key not in out]
+    bar = tqdm(total=len(tasks), initial=len(tasks) - len(pending), desc=desc, unit="run",
+               disable=not progress)
+
+    def finish(rec):
+        if store is not None and not rec.get("lost"):
+            store.write(rec)
+        out[rec["key"]] = rec
+        bar.update()
+        if on_record is not None:
+            on_record(rec)
+
+    try:
+        if not pending:
+            pass
+        elif client is not None or scheduler:
+            from mitigate.sweep import connect_scheduler
+            own = client is None
+            client = client or connect_scheduler(scheduler)
+            try:
+                from distributed import as_completed
+                futs = [client.submit(run_task, t, pure=False, key=f"bench-{t.run_seed}-{t.key}") for t in pending]
+                for fut in as_completed(futs):
+                    finish(fut.result())
+            finally:
+                if own:
+                    client.close()
+        elif jobs == 1 or len(pending) == 1:
+            for t in pending:
+                finish(run_task(t))
+        else:
+            with pool(min(jobs, len(pending))) as p:
+                for res in p.map(run_task, [(t,) for t in pending]):
+                    finish(res.value if res.ok else failed_record(pending[res.index], res.error))
+    finally:
+        bar.close()
+    return {k: out[k] for k in keys}

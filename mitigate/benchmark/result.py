@@ -1,0 +1,200 @@
+"""The benchmark run end to end: uncontrolled references, the runs, their statistics.
+
+From Python::
+
+    from mitigate.benchmark import load_suite, run_benchmark, write_benchmark
+    suite = load_suite("scenarios/benchmark/suite.toml", only=["established"])
+    res = run_benchmark(suite, phases=3, seeds=2, jobs=2)        # objects; nothing is written
+    res.entry("established", "NMPC").metrics["residual_severity"]   # {"median", "ci_low", "ci_high"}
+    res.tables["drive"]                                           # like for like: the drive's set-point only
+    write_benchmark(res, "out/benchmark")                         # ranking.md, results.*, PNGs
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from models.errors import ConfigError, DataError
+from models.status import Outcome, Status
+from mitigate.benchmark.execute import RunStore, execute
+from mitigate.benchmark.plan import Reference, make_tasks, reference_run
+from mitigate.benchmark.stats import Entry, class_tables, rank, summarise
+from mitigate.benchmark.suite import Suite
+
+__all__ = ["BenchmarkResult", "run_benchmark", "references", "definition"]
+
+
+@dataclass(frozen=True)
+class BenchmarkResult(Outcome):
+    """The benchmark's results.
+
+    Attributes
+    ----------
+    suite : the Suite
+    references : ``{scenario: Reference}`` (the uncontrolled runs: periods, stick-slip at switch-on)
+    records : every run's record (:func:`mitigate.benchmark.execute.run_task`)
+    entries : ``{(scenario, controller): Entry}`` (n_runs, medians and intervals, ranks)
+    tables : ``{"overall" | "drive" | "force" | "both": rows}`` (:func:`mitigate.benchmark.stats.class_tables`)
+    phases, seeds : per (scenario, controller)
+    tuned : ``{(scenario, controller): options}`` when the controllers were tuned (``mode == "tuned"``)
+    status : :meth:`Status.worst` of the runs (FAILED if a run failed -- the others' results stand --,
+        WARNING if a run warned), and WARNING when a suppression scenario has no stick-slip at its switch-on
+    """
+
+    suite: Suite = field(repr=False)
+    references: dict = field(repr=False)
+    records: list = field(repr=False)
+    entries: dict = field(repr=False)
+    tables: dict = field(repr=False)
+    phases: int = 1
+    seeds: int = 1
+    mode: str = "defaults"
+    tuned: dict = field(default_factory=dict, repr=False)
+    elapsed: float = 0.0
+    status: Status = Status.OK
+    message: str = "ok"
+    files: dict = field(default_factory=dict)
+    computed: int = 0
+
+    def entry(self, scenario: str, controller: str) -> Entry:
+        try:
+            return self.entries[(scenario, controller)]
+        except KeyError:
+            raise ConfigError(f"no entry for controller {controller!r} on scenario {scenario!r}") from None
+
+    def as_dict(self) -> dict[str, Any]:
+        from mitigate.cliutil import to_jsonable
+        return to_jsonable({
+            "suite": self.suite.name, "mode": self.mode, "phases": self.phases, "seeds": self.seeds,
+            "status": self.status.value, "message": self.message, "elapsed_s": self.elapsed,
+            "runs": len(self.records), "computed": self.computed,
+            "scenarios": [sc.name for sc in self.suite.scenarios], "controllers": [c.name for c in self.suite.controllers],
+            "references": {k: v.as_dict() for k, v in self.references.items()},
+            "entries": [e.as_dict() for e in self.entries.values()],
+            "tables": self.tables,
+            "tuned": [{"scenario": s, "controller": c, "options": o} for (s, c), o in self.tuned.items()],
+            "files": {k: str(v) for k, v in self.files.items()}})
+
+
+def references(suite: Suite, jobs: int = 1) -> dict[str, Reference]:
+    """The uncontrolled run of every scenario (:func:`mitigate.benchmark.plan.reference_run`), in
+    ``jobs`` worker processes."""
+    from mitigate.benchmark.execute import pool
+    if jobs <= 1 or len(suite.scenarios) == 1:
+        return {sc.name: reference_run(sc, suite.metrics) for sc in suite.scenarios}
+    refs = {}
+    with pool(min(jobs, len(suite.scenarios))) as p:
+        for out in p.map(reference_run, [(sc, suite.metrics) for sc in suite.scenarios]):
+            if not out.ok:
+                sc = suite.scenarios[out.index]
+                raise DataError(f"{sc.where}: the uncontrolled reference run failed: {out.error}")
+            refs[out.value.scenario] = out.value
+    return {sc.name: refs[sc.name] for sc in suite.scenarios}
+
+
+#: modules that only present results (a change to them does not change a run)
+_PRESENTATION = ("mitigate/benchmark/render.py", "mitigate/benchmark/figures.py", "mitigate/benchmark/write.py",
+                 "mitigate/benchmark/stats.py", "mitigate/benchmark/result.py", "mitigate/benchmark/__init__.py",
+                 "mitigate/report.py", "mitigate/plots.py", "mitigate/timeplots.py", "mitigate/cliutil.py",
+                 "mitigate/cli.py", "mitigate/tune.py", "mitigate/commands/")
+
+
+def code_hash() -> str:
+    """Hash of the workbench's source that computes a run (``models``, ``estimators``, ``mitigate``
+    but its presentation modules): runs made by other code are not reused."""
+    import hashlib
+
+    import estimators
+    import models
+    import mitigate
+    h = hashlib.sha256()
+    for pkg in (models, estimators, mitigate):
+        root = Path(pkg.__file__).parent
+        for p in sorted(root.rglob("*.py")):
+            rel = p.relative_to(root.parent).as_posix()
+            if rel.startswith(_PRESENTATION):
+                continue
+            h.update(rel.encode())
+            h.update(p.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def definition(suite: Suite, phases: int, seeds: int, tuned: Mapping | None = None) -> dict:
+    """What identifies a benchmark's runs on disk: the suite and scenario files, the controllers and
+    their options, phases, seeds, tuned values and the code (a change to any is a new benchmark)."""
+    from mitigate.sweep.store import definition_hash
+    files = [Path(suite.path)] + [Path(sc.path) for sc in suite.scenarios if sc.path]
+    text = {str(p.name): p.read_text() for p in files if p.is_file()}
+    return {"suite": suite.name, "files": definition_hash(text), "code": code_hash(), "phases": phases, "seeds": seeds,
+            "controllers": [[c.name, c.kind, dict(c.options)] for c in suite.controllers],
+            "scenarios": [sc.name for sc in suite.scenarios],
+            "tuned": sorted([[s, c, o] for (s, c), o in (tuned or {}).items()], key=str)}
+
+
+def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None = None, jobs: int = 2,
+                  store: str | Path | None = None, force: bool = False, scheduler: str | None = None, client=None,
+                  progress: bool = False, tuned: Mapping | None = None, refs: Mapping | None = None
+                  ) -> BenchmarkResult:
+    """Run every controller of ``suite`` on every scenario at ``phases`` switch-on instants and
+    ``seeds`` noise seeds, and rank them.
+
+    Parameters
+    ----------
+    phases, seeds : per (scenario, controller) (None: the suite's; ``--quick``: 1 and 1)
+    jobs : local worker processes (1: in this process); scheduler / client: a Dask cluster instead
+    store : a folder to keep every finished run in (resumable; :class:`RunStore`); None: memory only
+    force : discard a store holding a different benchmark
+    tuned : ``{(scenario, controller): options}`` replacing the suite's options (the tuned mode)
+    refs : precomputed ``{scenario: Reference}``
+
+    Returns
+    -------
+    BenchmarkResult
+    """
+    t0 = time.perf_counter()
+    phases = suite.phases if phases is None else phases
+    seeds = suite.seeds if seeds is None else seeds
+    refs = dict(refs) if refs is not None else references(suite, jobs if client is None and not scheduler else 1)
+    tasks = make_tasks(suite, refs, phases=phases, seeds=seeds, options=tuned)
+    st = RunStore(store, definition(suite, phases, seeds, tuned), force=force) if store is not None else None
+    computed: list = []
+    recs = execute(tasks, store=st, jobs=jobs, scheduler=scheduler, client=client, progress=progress,
+                   desc=f"benchmark {suite.name}", on_record=computed.append)
+    records = list(recs.values())
+    kinds = {c.name: c.kind for c in suite.controllers}
+    entries = summarise(records, kinds)
+    scen = [sc.name for sc in suite.scenarios]
+    names = [c.name for c in suite.controllers]
+    for s in scen:
+        for c, r in rank([entries[(s, c)] for c in names]).items():
+            entries[(s, c)].rank = r
+    tables = class_tables(entries, scen, names)
+    for klass, rows in tables.items():
+        if klass == "overall":
+            continue
+        for row in rows:
+            for s, r in row["ranks"].items():
+                if entries[(s, row["controller"])].klass == klass:
+                    entries[(s, row["controller"])].class_rank = r
+    failed = sum(int(r.get("failed", 0)) for r in records)
+    no_slip = [k for k, v in refs.items() if not v.prevention and not v.stick_slip]
+    notes = []
+    if failed:
+        notes.append(f"{failed} run(s) failed or diverged")
+    if no_slip:
+        notes.append(f"no stick-slip at the switch-on of {', '.join(no_slip)}")
+    known = {s.value for s in Status}
+    runs = [Status(r["status"]) if r.get("status") in known else Status.FAILED if r.get("failed") else Status.OK
+            for r in records if r.get("applicable", True)]
+    warned = sum(s is Status.WARNING for s in runs)
+    if warned:
+        notes.append(f"{warned} run(s) with warnings")
+    # the whole is as good as its worst run (Status.worst); a suppression scenario without stick-slip warns
+    status = Status.worst(runs + ([Status.WARNING] if no_slip else []))
+    return BenchmarkResult(suite, refs, records, entries, tables, phases, seeds, "tuned" if tuned else "defaults",
+                           dict(tuned or {}), time.perf_counter() - t0, status, "; ".join(notes) or "ok",
+                           computed=len(computed))
+

@@ -1,0 +1,195 @@
+"""Statistics of the benchmark: per (scenario, controller) medians with bootstrap intervals, ranks
+with ties, and the tables per actuator class.
+
+Each entry (a controller on a scenario, over its phases and seeds) gives ``n_runs`` and, per ranked
+metric, the median over the runs that finished and its 95 % bootstrap interval
+(:func:`scipy.stats.bootstrap`, percentile method, a fixed seed: the same runs give the same interval).
+
+**Ranks.**  Within a table (a scenario, over a set of controllers), A is *clearly better* than B when
+A did the job and B did not (most of B's runs failed or left the programme: the band of an actuated
+normal force, or of the objective body's speed once the transient is over), or, both alike, when A's interval of the residual severity lies entirely below B's,
+or, those intervals overlapping, when A's interval of the time to suppress lies entirely below B's.
+A controller's rank is one plus the number of controllers clearly better than it: controllers whose
+intervals overlap share a rank (a tie is declared, not broken by a decimal).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+
+from mitigate.tunables import ACTUATOR_CLASSES
+
+__all__ = ["RANKED", "EFFORT", "interval", "summarise", "rank", "class_tables", "Entry"]
+
+#: the ranked metrics (lower is better): what stays, how fast, how far above the programme
+RANKED = ("residual_severity", "time_to_suppress", "peak_overshoot")
+#: effort and side-effect metrics shown beside them (medians with intervals too)
+EFFORT = ("setpoint_variation", "drive_energy", "pin_work", "normal_force_ratio", "cutting_work_ratio",
+          "speed_ratio", "residual_speed_ratio", "plan_p95_ms")
+#: counts summed over the runs
+COUNTS = ("controller_fallbacks", "controller_failures", "controller_deadline_misses", "estimator_fallbacks")
+CONFIDENCE = 0.95
+
+
+def interval(values, *, seed: int = 0) -> tuple[float, float, float]:
+    """``(median, ci_low, ci_high)`` of ``values``: the median and its 95 % percentile bootstrap
+    interval (2000 resamples, seeded).  ``inf`` values (never suppressed) count as the largest; NaN
+    values are dropped; one value or equal values give a zero-width interval; none: NaNs."""
+    from scipy.stats import bootstrap
+
+    v = np.asarray([x for x in values if not (isinstance(x, float) and math.isnan(x))], float)
+    if v.size == 0:
+        return (math.nan,) * 3
+    med = float(np.median(v))
+    if v.size == 1 or np.all(v == v[0]):
+        return med, float(v[0]) if v.size == 1 else med, float(v[0]) if v.size == 1 else med
+    finite = v[np.isfinite(v)]
+    big = 1e6 * (float(np.max(np.abs(finite))) + 1.0) if finite.size else 1.0     # stands in for inf
+    fin = np.where(np.isinf(v), np.sign(v) * big, v)
+    res = bootstrap((fin,), np.median, confidence_level=CONFIDENCE, n_resamples=2000, method="percentile",
+                    random_state=np.random.default_rng(seed))
+    back = lambda x: float(math.copysign(math.inf, x)) if abs(x) >= big / 2 else float(x)   # noqa: E731
+    return med, back(res.confidence_interval.low), back(res.confidence_interval.high)
+
+
+@dataclass
+class Entry:
+    """One controller on one scenario, over its runs (see :func:`summarise`)."""
+
+    scenario: str
+    controller: str
+    kind: str
+    klass: str = ""
+    applicable: bool = True
+    n_runs: int = 0
+    n_failed: int = 0
+    n_violations: int = 0
+    n_force_violations: int = 0
+    n_speed_violations: int = 0
+    n_suppressed: int = 0
+    metrics: dict = field(default_factory=dict)        # key -> {"median", "ci_low", "ci_high"}
+    counts: dict = field(default_factory=dict)
+    messages: list = field(default_factory=list)
+    rank: int | None = None
+    class_rank: int | None = None
+    options: dict = field(default_factory=dict)
+
+    @property
+    def job_done(self) -> bool:
+        """Most runs finished inside the programme's bands: every actuated normal force's and the
+        objective body's speed's (:class:`mitigate.metrics.MetricOptions`)."""
+        return self.applicable and self.n_runs > 0 and (self.n_failed + self.n_violations) * 2 < self.n_runs
+
+    def value(self, key: str, what: str = "median") -> float:
+        return float(self.metrics.get(key, {}).get(what, math.nan))
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"scenario": self.scenario, "controller": self.controller, "kind": self.kind, "class": self.klass,
+                "applicable": self.applicable, "n_runs": self.n_runs, "n_failed": self.n_failed,
+                "n_violations": self.n_violations, "n_force_violations": self.n_force_violations,
+                "n_speed_violations": self.n_speed_violations, "n_suppressed": self.n_suppressed, "job_done": self.job_done, "rank": self.rank,
+                "class_rank": self.class_rank, "metrics": self.metrics, "counts": self.counts,
+                "messages": self.messages[:5], "options": self.options}
+
+
+def summarise(records: Iterable[Mapping], kinds: Mapping[str, str], *, seed: int = 0) -> dict[tuple, Entry]:
+    """``{(scenario, controller): Entry}`` from run records (:func:`mitigate.benchmark.execute.run_task`)."""
+    groups: dict[tuple, list] = {}
+    for r in records:
+        groups.setdefault((r["scenario"], r["controller"]), []).append(r)
+    out = {}
+    for (s, c), recs in groups.items():
+        e = Entry(s, c, kinds.get(c, ""), options=dict(recs[0].get("options", {})))
+        app = [r for r in recs if r.get("applicable", True)]
+        if not app:
+            e.applicable = False
+            e.messages = [recs[0].get("message", "")]
+            out[(s, c)] = e
+            continue
+        e.klass = next((r["class"] for r in app if r.get("class")), "")
+        e.n_runs = len(app)
+        ok = [r for r in app if not r.get("failed")]
+        e.n_failed = len(app) - len(ok)
+        e.n_violations = sum(int(r["metrics"].get("band_violation", 0)) for r in ok)
+        e.n_force_violations = sum(int(r["metrics"].get("force_violation", 0)) for r in ok)
+        e.n_speed_violations = sum(int(r["metrics"].get("speed_violation", 0)) for r in ok)
+        e.n_suppressed = sum(math.isfinite(float(r["metrics"].get("time_to_suppress", math.inf))) for r in ok)
+        e.messages = sorted({r.get("message", "") for r in app if r.get("failed") or r.get("message") not in ("ok", "")})
+        for key in RANKED + EFFORT:
+            med, lo, hi = interval([r["metrics"].get(key, math.nan) for r in ok], seed=seed)
+            e.metrics[key] = {"median": med, "ci_low": lo, "ci_high": hi}
+        e.counts = {k: int(sum(r["metrics"].get(k, 0) for r in ok)) for k in COUNTS}
+        out[(s, c)] = e
+    return out
+
+
+def _below(a: Entry, b: Entry, key: str) -> bool:
+    """A's interval of ``key`` lies entirely below B's."""
+    ah, bl = a.value(key, "ci_high"), b.value(key, "ci_low")
+    return not (math.isnan(ah) or math.isnan(bl)) and ah < bl
+
+
+def clearly_better(a: Entry, b: Entry) -> bool:
+    """The order of the module docstring."""
+    if a.job_done != b.job_done:
+        return a.job_done
+    if not a.job_done:
+        return False
+    if _below(a, b, "residual_severity"):
+        return True
+    if _below(b, a, "residual_severity"):
+        return False
+    return _below(a, b, "time_to_suppress")
+
+
+def rank(entries: Iterable[Entry]) -> dict[str, int]:
+    """``{controller: rank}``: one plus the number of entries clearly better (ties share a rank)."""
+    es = [e for e in entries if e.applicable]
+    return {e.controller: 1 + sum(clearly_better(o, e) for o in es if o is not e) for e in es}
+
+
+def class_tables(entries: Mapping[tuple, Entry], scenarios, controllers) -> dict[str, list[dict]]:
+    """Per actuator class (and ``"overall"``), one row per controller: its mean rank over the
+    scenarios where it ran, the number of scenarios it ranks first (ties included), how often it did
+    the job, and the medians over scenarios of its per-scenario medians (ranked and effort metrics).
+    A class's table ranks its controllers among themselves and the programme alone (class "none")."""
+    out = {}
+    for klass in ("overall",) + tuple(c for c in ACTUATOR_CLASSES if c != "none"):
+        members = [c for c in controllers
+                   if klass == "overall" or any(entries[(s, c)].klass in (klass, "none")
+                                                for s in scenarios if entries[(s, c)].applicable)]
+        ranks: dict[tuple, int] = {}
+        for s in scenarios:
+            es = [entries[(s, c)] for c in members if entries[(s, c)].applicable
+                  and (klass == "overall" or entries[(s, c)].klass in (klass, "none"))]
+            for c, r in rank(es).items():
+                ranks[(s, c)] = r
+        rows = []
+        for c in members:
+            mine = [s for s in scenarios if (s, c) in ranks]
+            if not mine:
+                continue
+            es = [entries[(s, c)] for s in mine]
+            row: dict[str, Any] = {"controller": c, "kind": es[0].kind, "class": es[0].klass, "scenarios": len(mine),
+                                   "mean_rank": float(np.mean([ranks[(s, c)] for s in mine])),
+                                   "first": int(sum(ranks[(s, c)] == 1 for s in mine)),
+                                   "job_done": int(sum(e.job_done for e in es)),
+                                   "n_runs": int(sum(e.n_runs for e in es)), "failed": int(sum(e.n_failed for e in es)),
+                                   "violations": int(sum(e.n_violations for e in es)),
+                                   "force_violations": int(sum(e.n_force_violations for e in es)),
+                                   "speed_violations": int(sum(e.n_speed_violations for e in es)),
+                                   "fallbacks": int(sum(e.counts.get("controller_fallbacks", 0) for e in es))}
+            for key in RANKED + EFFORT:
+                v = np.array([e.value(key) for e in es], float)
+                v = v[~np.isnan(v)]
+                row[key] = float(np.median(v)) if v.size else math.nan
+            row["ranks"] = {s: ranks[(s, c)] for s in mine}
+            rows.append(row)
+        rows.sort(key=lambda r: (r["mean_rank"], r["controller"]))
+        if any(r["class"] == klass for r in rows) or klass == "overall":
+            out[klass] = rows
+    return out

@@ -1,0 +1,152 @@
+"""The NMPC's stage functions on any rig: the prediction model, the discrete augmented
+dynamics, the least-squares cost and their Gauss-Newton blocks (named CasADi Functions).
+
+The OCP is a multiple-shooting problem over ``N`` intervals of ``dt`` [s], each integrated by
+the rig's integration rule (:func:`models.discretise.integration`: RK4 with ``nsub`` substeps,
+a fast motor's current quasi-static) on the rig's regularised model (state and decisions:
+:mod:`mitigate.controllers.nmpc.layout`).
+
+The cost is a least-squares sum plus a linear servo-force term where the programme holds a
+servo at its lower limit (friction work at a pin is linear in its normal force; a linear cost
+leaves the force at exactly 0 when it does not pay)::
+
+    sum_k 0.5 |r(xa_k, v_k)|^2 + c_f sum_j l_j c_j / f_j   +   0.5 |r_N(xa_N)|^2
+
+    r = [w_speed (w_b - w_nom) / w_s,                     objective body b
+         w_rel (w_a - w_a') / w_s  for every spring connection (a, a'),
+         w_ref (u_drive - u_drive_programme) / sp_s,      if the drive is commanded
+         w_force (c_j - N_j) / f_j,                       N_j the programme's force (the driller's
+                                                          weight on bit: tracked, never pulled to 0)
+         w_d_ref d w / sp_s,  w_d_force (c_j - s_j) / f_j]
+    r_N = w_terminal [speed and spring residuals]
+
+with ``w_s`` = max(|w_nom|, 1 rad/s), ``sp_s`` = ``w_s`` (speed set-point) or the band (torque
+drive), ``f_j`` the servo's ``n_max`` and ``l_j`` = 1 where ``N_j`` is the servo's ``n_min`` (else
+0), so every weight is dimensionless.  Gauss-Newton gives a positive semi-definite Hessian at
+no extra cost.
+
+Per-stage parameters ``q`` (:meth:`OCPLayout.q_template`, :meth:`OCPLayout.set_q`): the held
+inputs (``model.inputs`` order; the drive entry is the programme's set-point, a commanded
+servo's its programmed force), the nominal speed, the scales, the linear-cost flags ``l_j``,
+the weights, one friction factor per contact body (the disturbance model: 1 = as the rig file
+says) and the rig's parameter vector.  Only the structure (N, dt, nsub, eps, inputs, lags,
+body) enters the compiled code, so one library serves every tuning.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+
+from models import friction as fr
+from models.discretise import Integration
+from mitigate.controllers.nmpc.layout import OCPLayout, OCPSpec
+from mitigate.controllers.nmpc.options import WEIGHT_NAMES
+
+__all__ = ["stage_functions", "prediction_rhs"]
+
+
+def prediction_rhs(model, eps: float) -> ca.Function:
+    """``xdot = f(x, u, p, fc)``: the rig's regularised model with the friction torque of contact
+    body ``i`` multiplied by ``fc[i]`` (the disturbance model; ``fc = 1`` is ``model.ode(eps)``)."""
+    x, u, p = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu), ca.SX.sym("p", model.n_p)
+    fc = ca.SX.sym("fc", len(model.contacts))
+    P = model.unpack(p)
+    Tc = [fc[i] * model.contact_friction(i, x[idx], u, P, eps) for i, idx in enumerate(model.contacts)]
+    s = [fr.smooth_sign(x[idx], eps) for idx in model.contacts]
+    xdot = ca.vertcat(*model.dynamics(x, u, P, Tc, s))
+    return ca.Function(f"{model.cname}_nmpc_rhs", [x, u, p, fc], [xdot], ["x", "u", "p", "fc"], ["xdot"])
+
+
+def _spring_speeds(model, x, u):
+    """Relative speed across every spring connection, ``w(between[0]) - w(between[1])``."""
+    drive = model.drive_input
+
+    def node(n):
+        if n == "ground":
+            return 0
+        if n == "drive":
+            return u[model.inputs.index(drive)]
+        return x[model.speed_index(n)]
+    return [node(c.a) - node(c.b) for c in model.spec.connections if c.stiffness is not None]
+
+
+def stage_functions(model, spec: OCPSpec):
+    """Named SX Functions of one stage.
+
+    Returns
+    -------
+    F : (xa, v, q) -> xa_next, the discrete augmented dynamics
+    cost : (xa, v, q) -> (r, l): stage residual and linear cost
+    stage : (xa, v, q) -> (xn, A, B, Q, S, R, gx, gv, c): dynamics, Jacobians, the Gauss-Newton
+        Hessian blocks (Q = Jx'Jx, S = Jv'Jx, R = Jv'Jv), the gradient and the stage cost
+    term : (xa, q) -> (Q, g, c, r): terminal Gauss-Newton Hessian, gradient, cost and residual
+    """
+    L = OCPLayout(model, spec)
+    nx, nu = model.nx, model.nu
+    rhs = prediction_rhs(model, spec.eps)
+    xa, v, q = ca.SX.sym("xa", L.nxa), ca.SX.sym("v", L.nv), ca.SX.sym("q", L.nq)
+    hold = q[L.q_hold:L.q_hold + nu]
+    nom, ws, sps = q[L.q_nom], q[L.q_ws], q[L.q_sps]
+    fs = q[L.q_f:L.q_f + L.ns]
+    flin = q[L.q_lin:L.q_lin + L.ns]
+    w_speed, w_rel, w_ref, w_force, c_force, w_dref, w_dforce, w_term = (q[L.q_w + k] for k in range(len(WEIGHT_NAMES)))
+    fc = q[L.q_fc:L.q_fc + L.n_fc]
+    p = q[L.q_p:]
+    taus = spec.taus
+
+    def inputs(xa_, v_):
+        u = [hold[j] for j in range(nu)]
+        if L.drive:
+            u[L.u_drive] = xa_[L.i_wprev] + v_[0]
+        for k, j in enumerate(L.u_servo):
+            u[j] = xa_[L.i_servo[k]] if taus[k] > 0 else v_[L.j_cmd[k]]
+        return ca.vertcat(*u)
+
+    def faug(xa_, v_, _q):
+        xdot = rhs(xa_[:nx], inputs(xa_, v_), p, fc)
+        sdot = [(v_[L.j_cmd[k]] - xa_[L.i_servo[k]]) / taus[k] if taus[k] > 0 else 0 for k in range(L.ns)]
+        return ca.vertcat(xdot, *sdot, *([0] if L.drive else []))
+
+    xe = Integration(spec.dt, spec.nsub, model.current_index if spec.quasi_static else None).advance(
+        faug, xa, v, q, lambda xa_, v_, _q: model.quasi_static_current(xa_[:nx], inputs(xa_, v_), model.unpack(p)))
+    xn = [xe[j] for j in range(nx)]
+    for k in range(L.ns):
+        xn.append(xe[L.i_servo[k]] if taus[k] > 0 else v[L.j_cmd[k]])
+    if L.drive:
+        xn.append(xa[L.i_wprev] + v[0])
+    xn = ca.vertcat(*xn)
+    name = f"{model.cname}_nmpc"
+    F = ca.Function(f"{name}_F", [xa, v, q], [xn], ["xa", "v", "q"], ["xa_next"])
+
+    u = inputs(xa, v)
+    wb = xa[model.speed_index(spec.body)]
+    r = [w_speed * (wb - nom) / ws] + [w_rel * dd / ws for dd in _spring_speeds(model, xa, u)]
+    if L.drive:
+        r += [w_ref * (u[L.u_drive] - hold[L.u_drive]) / sps]
+    cmd = [v[L.j_cmd[k]] for k in range(L.ns)]
+    r += [w_force * (cmd[k] - hold[L.u_servo[k]]) / fs[k] for k in range(L.ns)]
+    if L.drive:
+        r += [w_dref * v[0] / sps]
+    r += [w_dforce * (cmd[k] - xa[L.i_servo[k]]) / fs[k] for k in range(L.ns)]
+    r = ca.vertcat(*r)
+    lin = c_force * sum((flin[k] * cmd[k] / fs[k] for k in range(L.ns)), ca.SX(0))
+    cost = ca.Function(f"{name}_cost", [xa, v, q], [r, lin], ["xa", "v", "q"], ["r", "l"])
+    Jx, Jv = ca.jacobian(r, xa), ca.jacobian(r, v)
+    d = ca.densify
+    stage = ca.Function(f"{name}_stage", [xa, v, q],
+                        [xn, d(ca.jacobian(xn, xa)), d(ca.jacobian(xn, v)), d(Jx.T @ Jx), d(Jv.T @ Jx), d(Jv.T @ Jv),
+                         d(Jx.T @ r + ca.jacobian(lin, xa).T), d(Jv.T @ r + ca.jacobian(lin, v).T),
+                         0.5 * ca.sumsqr(r) + lin],
+                        ["xa", "v", "q"], ["xn", "A", "B", "Q", "S", "R", "gx", "gv", "c"])
+    # the terminal stage sees the last applied drive input (no decision there)
+    uN = [hold[j] for j in range(nu)]
+    if L.drive:
+        uN[L.u_drive] = xa[L.i_wprev]
+    for k, j in enumerate(L.u_servo):
+        uN[j] = xa[L.i_servo[k]]
+    rN = w_term * ca.vertcat(w_speed * (wb - nom) / ws,
+                             *[w_rel * dd / ws for dd in _spring_speeds(model, xa, ca.vertcat(*uN))])
+    JN = ca.jacobian(rN, xa)
+    term = ca.Function(f"{name}_term", [xa, q], [d(JN.T @ JN), d(JN.T @ rN), 0.5 * ca.sumsqr(rN), rN],
+                       ["xa", "q"], ["Q", "g", "c", "r"])
+    return F, cost, stage, term

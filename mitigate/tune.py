@@ -1,0 +1,361 @@
+"""Tuning any controller's declared tunables on a scenario, with a fixed budget (Optuna).
+
+From Python::
+
+    from mitigate import tune
+    r = tune("scenarios/benchmark/established.toml", "softspeed", budget=30, out="out/tune")
+    r.best_options            # the controller's options table with the tuned values
+    r.held_out                # residual severity of the defaults and of the tuned values on other seeds
+
+A trial runs the controller with one set of values at ``phases`` switch-on phases (spread over the
+scenario's measured stick-slip period) and ``seeds`` TUNING noise seeds, and scores the mean residual
+severity (a failed run scores 10, a run outside the programme's normal-force band adds 1: the
+severity of a body that stopped).  The first trial is the shipped options.  Optuna's TPE sampler
+(seeded) proposes the rest; a median pruner stops a trial whose running mean is worse than the
+median of earlier trials at the same run.  The study lives in a journal file under ``out``
+(:class:`optuna.storages.JournalStorage`): an interrupted tuning continues where it stopped, and
+``n_jobs`` processes share it (each with its own sampler seed; with one process the study is
+reproducible, with several the order of the trials depends on timing).  The result is then reported on HELD-OUT seeds that neither the
+tuning nor the benchmark (seeds 0 .. S-1) uses.
+
+Each tunable is a multiple of its natural unit on the rig (:mod:`mitigate.tunables`); the tuned
+options are stored in SI, the multiples beside them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from models.errors import ConfigError
+from models.status import Outcome, Status
+from mitigate.benchmark.plan import Reference, RunTask, reference_run, run_seed, slug
+from mitigate.metrics import MetricOptions
+from mitigate.tunables import set_option
+
+__all__ = ["TuneResult", "tune", "tune_suite", "TUNING_SEED_OFFSET", "HELD_OUT_SEED_OFFSET", "FAILED_SCORE"]
+
+#: seed indices of the tuning runs and of the held-out report (the benchmark uses 0 .. S-1)
+TUNING_SEED_OFFSET = 100
+HELD_OUT_SEED_OFFSET = 200
+#: the score of a failed run (ten times a stopped body's)
+FAILED_SCORE = 10.0
+
+
+@dataclass(frozen=True)
+class TuneResult(Outcome):
+    """A tuning's outcome.
+
+    Attributes
+    ----------
+    scenario, controller, kind : what was tuned where
+    budget : trials asked for; n_trials / n_complete / n_pruned : what the study holds
+    tunables : ``{name: {"low", "high", "log", "unit"}}`` (range in multiples of ``unit`` on this rig)
+    best_params : ``{name: multiple}``; best_options : the options table with the tuned values (SI)
+    best_value, default_value : mean score on the tuning runs, tuned and shipped
+    held_out : ``{"defaults" | "tuned": {"median", "ci_low", "ci_high", "n_runs"}}`` of the residual
+        severity on held-out seeds
+    study : the journal file ("" in memory)
+    """
+
+    scenario: str
+    controller: str
+    kind: str
+    budget: int
+    tunables: dict
+    best_params: dict
+    best_options: dict
+    best_value: float
+    default_value: float
+    held_out: dict = field(default_factory=dict)
+    n_trials: int = 0
+    n_complete: int = 0
+    n_pruned: int = 0
+    study: str = ""
+    elapsed: float = 0.0
+    status: Status = Status.OK
+    message: str = "ok"
+
+    def as_dict(self) -> dict[str, Any]:
+        from mitigate.cliutil import to_jsonable
+        return to_jsonable(dataclasses.asdict(self))
+
+
+def _optuna():
+    """Optuna, or a one-line ConfigError saying how to install it (it is an optional dependency)."""
+    try:
+        import optuna
+    except ImportError:
+        raise ConfigError("tuning needs Optuna (pip install 'stickslip-workbench[tune]')") from None
+    return optuna
+
+
+def _score(rec: Mapping) -> float:
+    if rec.get("failed") or not rec.get("applicable", True):
+        return FAILED_SCORE
+    m = rec["metrics"]
+    return float(m["residual_severity"]) + float(m.get("band_violation", 0))
+
+
+class _Objective:
+    """A picklable Optuna objective: run the tasks with the trial's values, report as it goes."""
+
+    def __init__(self, tasks: list[RunTask], base: Mapping, space: Mapping[str, tuple]):
+        self.tasks, self.base, self.space = tasks, dict(base), dict(space)
+
+    def options(self, params: Mapping[str, float]) -> dict:
+        opts = dict(self.base)
+        for name, (lo, hi, log, integer, unit) in self.space.items():
+            v = params[name] * unit
+            opts = set_option(opts, name, int(round(v)) if integer else float(v))
+        return opts
+
+    def __call__(self, trial) -> float:
+        import optuna
+
+        from mitigate.benchmark.execute import run_task
+        params = {n: trial.suggest_float(n, lo, hi, log=log) for n, (lo, hi, log, _i, _u) in self.space.items()}
+        opts = self.options(params)
+        total = 0.0
+        for i, t in enumerate(self.tasks):
+            total += _score(run_task(dataclasses.replace(t, options=opts)))
+            trial.report(total / (i + 1), i)
+            if trial.should_prune():
+                raise optuna.TrialPruned()
+        return total / len(self.tasks)
+
+
+def _study(storage_path: str | None, name: str, seed: int, definition_hash: str, force: bool):
+    optuna = _optuna()
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    storage = JournalStorage(JournalFileBackend(storage_path)) if storage_path else None
+    sampler = optuna.samplers.TPESampler(seed=seed)
+    pruner = optuna.pruners.MedianPruner(n_startup_trials=5, n_warmup_steps=0)
+    study = optuna.create_study(storage=storage, study_name=name, sampler=sampler, pruner=pruner,
+                                direction="minimize", load_if_exists=True)
+    old = study.user_attrs.get("definition")
+    if old is not None and old != definition_hash:
+        if not force:
+            raise ConfigError(f"{storage_path}: the study {name!r} was made for other options or another scenario "
+                              f"(pass force=True to start it again)")
+        optuna.delete_study(study_name=name, storage=storage)
+        study = optuna.create_study(storage=storage, study_name=name, sampler=sampler, pruner=pruner,
+                                    direction="minimize")
+    study.set_user_attr("definition", definition_hash)
+    return study
+
+
+def _finished(study) -> int:
+    from optuna.trial import TrialState
+    return sum(t.state in (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL) for t in study.trials)
+
+
+def _optimize(args) -> int:
+    """A worker: load the study and run ``n`` trials (the pool's job)."""
+    storage_path, name, seed, h, objective, n = args
+    from mitigate.workers import report
+    study = _study(storage_path, name, seed, h, False)
+    done = [0]
+
+    def tick(_s, _t):            # a heartbeat per trial (the pool's stall watchdog) and the progress
+        done[0] += 1
+        report(done[0])
+
+    study.optimize(objective, n_trials=n, callbacks=[tick])
+    return n
+
+
+def _resolve(scenario, controller):
+    from mitigate.scenario import ControllerSpec, Scenario, load_scenario
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    if isinstance(controller, ControllerSpec):
+        spec = controller
+    elif isinstance(controller, Mapping):
+        from mitigate.benchmark.suite import controller_spec
+        spec = controller_spec(controller, "controller")
+    elif isinstance(controller, str) and any(c.name == controller for c in sc.controllers):
+        spec = next(c for c in sc.controllers if c.name == controller)
+    elif isinstance(controller, str) and controller:
+        spec = ControllerSpec(controller, controller, {})
+    else:
+        raise ConfigError(f"controller must be a controller name of the scenario, a kind or a table, got {controller!r}")
+    return sc.replace(controllers=(spec,)), spec
+
+
+def _tasks(sc, spec, ref: Reference, mo: MetricOptions, phases: int, seeds: int, offset: int) -> list[RunTask]:
+    out = []
+    for k in range(phases):
+        t_on = sc.control_start + (0.0 if ref.prevention else k * ref.period / phases)
+        for j in range(seeds):
+            s = run_seed(sc.seed, k, offset + j)
+            out.append(RunTask(sc, spec.name, k, offset + j, round(t_on, 9), s, dict(spec.options), mo, "tune"))
+    return out
+
+
+def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, held_out_seeds: int = 2,
+         metrics: MetricOptions | None = None, out=None, n_jobs: int = 1, seed: int = 0, force: bool = False,
+         progress: bool = False, reference: Reference | None = None) -> TuneResult:
+    """Tune a controller's declared tunables on a scenario (module docstring).
+
+    Parameters
+    ----------
+    scenario : a Scenario or a scenario file
+    controller : a controller name of the scenario, a kind (``"softspeed"``), a ControllerSpec or a
+        ``{name, kind, options...}`` table; its options are the starting point (the first trial)
+    budget : trials (each ``phases x seeds`` runs, fewer when pruned)
+    phases, seeds : tuning runs per trial; held_out_seeds : seeds per phase of the held-out report
+    metrics : MetricOptions (its period is set from the scenario's uncontrolled run)
+    out : folder of the study's journal file (None: in memory)
+    n_jobs : processes sharing the study
+    seed : the sampler's seed
+
+    Raises
+    ------
+    ConfigError : a bad argument, a controller the scenario's rig cannot host, a controller with no
+        tunables, or a study in ``out`` made for something else (without ``force``).
+    """
+    from mitigate.benchmark.execute import pool, run_task
+    from mitigate.benchmark.stats import interval
+    from mitigate.controllers.factory import context_for, make_controller
+    from mitigate.sweep.store import definition_hash
+    from mitigate.tunables import tunables_of
+
+    for name, v, lo in (("budget", budget, 1), ("phases", phases, 1), ("seeds", seeds, 1),
+                        ("held_out_seeds", held_out_seeds, 0), ("n_jobs", n_jobs, 1)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+            raise ConfigError(f"{name} must be an integer >= {lo}, got {v!r}")
+    t0 = time.perf_counter()
+    sc, spec = _resolve(scenario, controller)
+    ctrl = make_controller(spec, context_for(sc, 0))
+    tun = tunables_of(ctrl)
+    if not tun:
+        raise ConfigError(f"controller {spec.name!r} ({spec.kind}) declares no tunables")
+    mo = metrics or MetricOptions()
+    ref = reference or reference_run(sc, mo)
+    mo = dataclasses.replace(mo, period=ref.period)
+    space = {n: (t.low, t.high, t.log, t.integer, t.unit_value(ctrl.context)) for n, t in tun.items()}
+    objective = _Objective(_tasks(sc, spec, ref, mo, phases, seeds, TUNING_SEED_OFFSET), spec.options, space)
+    h = definition_hash({"scenario": sc.name, "path": sc.path, "controller": [spec.kind, dict(spec.options)],
+                         "space": space, "phases": phases, "seeds": seeds, "period": ref.period})
+    name = f"{slug(sc.name)}__{slug(spec.name)}"
+    path = None
+    if out is not None:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        path = str(Path(out) / f"{name}.journal")
+    elif n_jobs > 1:
+        import tempfile
+        path = str(Path(tempfile.mkdtemp(prefix="stickslip_tune_")) / f"{name}.journal")
+    study = _study(path, name, seed, h, force)
+    if not study.trials:
+        start = _start_params(ctrl, spec, space)
+        if start:
+            study.enqueue_trial(start, skip_if_exists=True)
+    remaining = max(0, budget - _finished(study))
+    from tqdm import tqdm
+    bar = tqdm(total=budget, initial=budget - remaining, desc=f"tune {spec.name} on {sc.name}", unit="trial",
+               disable=not progress)
+    try:
+        if remaining and n_jobs == 1:
+            study.optimize(objective, n_trials=remaining, callbacks=[lambda s, t: bar.update()])
+        elif remaining:
+            shares = [remaining // n_jobs + (i < remaining % n_jobs) for i in range(n_jobs)]
+            jobs = [((path, name, seed + i, h, objective, n),) for i, n in enumerate(shares) if n]
+            counts = [0] * len(jobs)
+
+            def progress_of(i, k):
+                counts[i] = k
+                bar.n = min(budget, budget - remaining + sum(counts))
+                bar.refresh()
+
+            with pool(len(jobs)) as p:
+                for out in p.map(_optimize, jobs, on_progress=progress_of):
+                    if not out.ok:
+                        raise ConfigError(f"tuning {spec.name!r} on {sc.name!r}: a tuning worker failed: {out.error}")
+            study = _study(path, name, seed, h, False)
+    finally:
+        bar.close()
+    from optuna.trial import TrialState
+    complete = [t for t in study.trials if t.state is TrialState.COMPLETE]
+    if not complete:
+        raise ConfigError(f"tuning {spec.name!r} on {sc.name!r}: no trial completed out of {len(study.trials)}")
+    best = min(complete, key=lambda t: t.value)
+    first = next((t for t in complete if t.number == 0), None)
+    best_options = objective.options(best.params)
+    held = {}
+    if held_out_seeds:
+        ho = _tasks(sc, spec, ref, mo, phases, held_out_seeds, HELD_OUT_SEED_OFFSET)
+        for label, opts in (("defaults", dict(spec.options)), ("tuned", best_options)):
+            recs = [run_task(dataclasses.replace(t, options=opts)) for t in ho]
+            vals = [r["metrics"]["residual_severity"] for r in recs if not r.get("failed") and r.get("applicable")]
+            med, lo, hi = interval(vals)
+            held[label] = {"median": med, "ci_low": lo, "ci_high": hi, "n_runs": len(recs),
+                           "failed": sum(int(r.get("failed", 0)) for r in recs),
+                           "violations": sum(int(r["metrics"].get("band_violation", 0)) for r in recs if r["metrics"])}
+    n_pruned = sum(t.state is TrialState.PRUNED for t in study.trials)
+    return TuneResult(sc.name, spec.name, spec.kind, budget,
+                      {n: {"low": lo, "high": hi, "log": log, "unit": u} for n, (lo, hi, log, _i, u) in space.items()},
+                      dict(best.params), best_options, float(best.value),
+                      float(first.value) if first is not None else math.nan, held, len(study.trials), len(complete),
+                      n_pruned, path or "", time.perf_counter() - t0)
+
+
+def _start_params(ctrl, spec, space) -> dict:
+    """The shipped options as multiples (the first trial), clipped into the ranges; options left at 0
+    ("derive from the rig") start from the derived value where the Tunable says it (``derived``)."""
+    from mitigate.controllers.factory import parse_options
+    oc = getattr(type(ctrl), "options_class", None)
+    try:
+        opts = parse_options(oc, dict(spec.options), "controller") if oc is not None else dict(spec.options)
+    except ConfigError:
+        return {}
+    out = {}
+    for name, (lo, hi, log, _i, unit) in space.items():
+        v: Any = opts
+        for part in name.split("."):
+            v = v.get(part) if isinstance(v, Mapping) else getattr(v, part, None)
+        tunable = type(ctrl).tunables[name]
+        if isinstance(v, (int, float)) and v:
+            x = float(v) / unit
+        elif tunable.derived is not None:
+            x = tunable.derived
+        else:
+            continue
+        out[name] = min(max(x, lo), hi)
+    return out
+
+
+def tune_suite(suite, *, budget: int, out, refs: Mapping | None = None, jobs: int = 1, progress: bool = False,
+               phases: int = 2, seeds: int = 1) -> dict[tuple, dict]:
+    """Tune every controller of a suite on every scenario with the same ``budget`` (controllers with
+    no tunables, or that a rig cannot host, keep their options); ``{(scenario, controller): options}``.
+    Each study is kept under ``out``; ``out/tuning.json`` lists the results."""
+    import json
+
+    from mitigate.controllers.factory import context_for, make_controller
+    from mitigate.tunables import tunables_of
+    from models.files import atomic_write_text
+
+    tuned, results = {}, []
+    for sc in suite.scenarios:
+        ref = (refs or {}).get(sc.name) or reference_run(sc, suite.metrics)
+        for i, spec in enumerate(sc.controllers):
+            try:
+                has = bool(tunables_of(make_controller(spec, context_for(sc, i))))
+            except ConfigError:
+                has = False
+            if not has:
+                continue
+            # no held-out report here: the benchmark that follows scores the tuned values on its own seeds
+            r = tune(sc, spec, budget=budget, phases=phases, seeds=seeds, held_out_seeds=0, metrics=suite.metrics,
+                     out=out, n_jobs=jobs, progress=progress, reference=ref)
+            tuned[(sc.name, spec.name)] = r.best_options
+            results.append(r.as_dict())
+    atomic_write_text(Path(out) / "tuning.json", json.dumps(results, indent=2) + "\n", overwrite=True)
+    return tuned

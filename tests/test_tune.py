@@ -1,0 +1,129 @@
+"""Tuning (mitigate.tune, mitigate.tunables): declared tunables with scale-free ranges, an Optuna study
+that starts from the shipped options, persists in a journal file and resumes, shared by processes,
+reported on held-out seeds; the ``mitigate tune`` command."""
+
+import json
+
+import pytest
+
+from mitigate.controllers.factory import context_for, make_controller
+from mitigate.scenario import ControllerSpec, make_scenario
+from mitigate.tune import tune
+from mitigate.tunables import Tunable, actuator_class, set_option, tunables_of
+from models.errors import ConfigError
+
+DRILL = """
+[scenario]
+name = "drill"
+model = "drillstring_motor"
+duration = 1.6
+dt = 0.002
+seed = 8
+[plant]
+nsub = 2
+[inputs]
+omega_ref = "3 rad/s"
+wob = 200.0
+[control]
+start = 0.8
+[estimator]
+kind = "fd"
+"""
+
+
+@pytest.fixture(scope="module")
+def drill(tmp_path_factory):
+    p = tmp_path_factory.mktemp("tune") / "drill.toml"
+    p.write_text(DRILL)
+    return p
+
+
+def test_tunables_are_declared_scale_free_and_follow_what_the_controller_sets():
+    sc = make_scenario(name="t", duration=1.0, inputs={"omega_ref": "30 rpm", "n1": 20.0}, estimator="fd")
+    ss = make_controller(ControllerSpec("s", "softspeed", {}), context_for(sc, 0))
+    t = tunables_of(ss)
+    assert set(t) == {"kp_factor", "f_t"} and actuator_class(sc.model, ss.actuated_inputs()) == "drive"
+    # f_t in multiples of rig3's lowest mode with the drive held (0.4285 Hz, thesis rig); Kp in multiples of Z
+    assert t["f_t"].unit_value(ss.context) == pytest.approx(0.4285, rel=2e-3)
+    assert t["kp_factor"].unit_value(ss.context) == 1.0
+    brake = make_controller(ControllerSpec("b", "brake", {}), context_for(sc, 0))
+    # the brake's gain in the servo's force range per programmed speed: 40 N / pi rad/s
+    assert tunables_of(brake)["gain_overspeed"].unit_value(brake.context) == pytest.approx(40 / 3.14159265, rel=1e-6)
+    assert actuator_class(sc.model, brake.actuated_inputs()) == "force"
+    motor = make_controller(ControllerSpec("m", "nmpc", {"inputs": "motor"}), context_for(sc, 0))
+    pin = make_controller(ControllerSpec("p", "nmpc", {"inputs": "pin"}), context_for(sc, 0))
+    assert "weights.force" not in tunables_of(motor) and "weights.ref" in tunables_of(motor)
+    assert "weights.force" in tunables_of(pin) and "weights.d_ref" not in tunables_of(pin)
+    assert actuator_class(sc.model, pin.actuated_inputs()) == "force"
+    assert actuator_class(sc.model, make_controller(ControllerSpec("p", "pi", {}), context_for(sc, 0)).actuated_inputs()) == "none"
+    assert set_option({"inputs": "motor"}, "weights.speed", 2.0) == {"inputs": "motor", "weights": {"speed": 2.0}}
+    with pytest.raises(ConfigError, match=r"low < high"):
+        Tunable(low=2.0, high=1.0)
+    with pytest.raises(ConfigError, match=r"log-scale tunable needs low > 0"):
+        Tunable(low=0.0, high=1.0)
+
+
+def test_tune_starts_from_the_shipped_options_persists_and_resumes(drill, tmp_path):
+    out = tmp_path / "study"
+    r = tune(drill, {"name": "SS", "kind": "softspeed", "kp_factor": 2.0}, budget=6, phases=2, seeds=1,
+             held_out_seeds=1, out=out)
+    assert (r.scenario, r.controller, r.kind, r.n_trials) == ("drill", "SS", "softspeed", 6)
+    assert set(r.best_params) == {"kp_factor", "f_t"} and (out / "drill__ss.journal").exists()
+    # the first trial is the shipped options (kp 2 Z; f_t derived: 1 x the rig's mode): never worse
+    assert r.best_value <= r.default_value
+    assert r.best_options["kp_factor"] == pytest.approx(r.best_params["kp_factor"])
+    assert r.best_options["f_t"] == pytest.approx(r.best_params["f_t"] * r.tunables["f_t"]["unit"])
+    assert set(r.held_out) == {"defaults", "tuned"} and r.held_out["tuned"]["n_runs"] == 2
+    # continued, not redone: the same budget runs nothing more; a larger one adds the difference
+    again = tune(drill, {"name": "SS", "kind": "softspeed", "kp_factor": 2.0}, budget=6, phases=2, seeds=1,
+                 held_out_seeds=0, out=out)
+    assert again.n_trials == 6 and again.best_params == r.best_params
+    more = tune(drill, {"name": "SS", "kind": "softspeed", "kp_factor": 2.0}, budget=8, phases=2, seeds=1,
+                held_out_seeds=0, out=out)
+    assert more.n_trials == 8 and more.best_value <= r.best_value
+    # another starting point in the same study is refused, not mixed
+    with pytest.raises(ConfigError, match="was made for other options"):
+        tune(drill, {"name": "SS", "kind": "softspeed", "kp_factor": 3.0}, budget=8, out=out)
+
+
+def test_tune_shares_a_study_between_processes(drill, tmp_path):
+    r = tune(drill, "doskil", budget=4, phases=1, seeds=1, held_out_seeds=0, out=tmp_path, n_jobs=2)
+    assert r.n_trials == 4 and r.n_complete + r.n_pruned == 4
+
+
+def test_tune_refuses_what_it_cannot_tune(drill):
+    with pytest.raises(ConfigError, match=r"controller 'pi' \(pi\) declares no tunables"):
+        tune(drill, "pi", budget=2)
+    with pytest.raises(ConfigError, match=r"^budget must be an integer >= 1, got 0$"):
+        tune(drill, "softspeed", budget=0)
+
+
+def test_the_tune_command(drill, tmp_path, capsys):
+    from mitigate.cli import main
+    code = main(["tune", str(drill), "--controller", "Z=ztorque,z=0.5", "--budget", "3", "--phases", "1",
+                 "--held-out-seeds", "0", "--json", "--out", str(tmp_path)])
+    doc = json.loads(capsys.readouterr().out)
+    assert code == 0 and doc["controller"] == "Z" and set(doc["best_params"]) == {"z", "tau_hp"}
+    assert json.loads((tmp_path / "tune_drill__z.json").read_text())["n_trials"] == 3
+    assert main(["tune", str(drill), "--controller", "softspeed", "--budget", "0"]) == 2
+    assert "--budget must be an integer >= 1, got 0" in capsys.readouterr().err
+    assert main(["tune", str(drill), "--controller", "lqr", "--budget", "2"]) == 2
+
+
+def test_the_tuned_benchmark_mode_tunes_every_controller_with_the_same_budget(drill, tmp_path):
+    from mitigate.benchmark import load_suite, render_ranking, run_benchmark
+    from mitigate.tune import tune_suite
+    (tmp_path / "drill.toml").write_text(drill.read_text())
+    (tmp_path / "suite.toml").write_text('[suite]\nname = "t"\nscenarios = ["drill.toml"]\n'
+                                         '[[controllers]]\nname = "PI"\nkind = "pi"\n'
+                                         '[[controllers]]\nname = "SS"\nkind = "softspeed"\n'
+                                         '[[controllers]]\nname = "DK"\nkind = "doskil"\n')
+    suite = load_suite(tmp_path / "suite.toml")
+    tuned = tune_suite(suite, budget=3, out=tmp_path / "tuning", phases=1)
+    assert set(tuned) == {("drill", "SS"), ("drill", "DK")}          # PI has nothing to tune
+    studies = json.loads((tmp_path / "tuning" / "tuning.json").read_text())
+    assert [s["n_trials"] for s in studies] == [3, 3] and all(s["budget"] == 3 for s in studies)
+    res = run_benchmark(suite, phases=1, seeds=1, jobs=1, tuned=tuned)
+    assert res.mode == "tuned" and res.tuned == tuned
+    assert {r["controller"]: r["options"] for r in res.records}["SS"] == tuned[("drill", "SS")]
+    assert "## Tuned values" in render_ranking(res) and "f_t = " in render_ranking(res)
