@@ -177,6 +177,20 @@ def test_a_target_speed_on_a_speed_setting_drive_is_refused():
                       control={"speed": "2 rad/s"})
 
 
+def test_a_verdict_does_not_call_kept_stick_slip_a_job_done():
+    """item 6: PI on the held-out rig read 'never suppressed; ...; job done' (inside the bands)."""
+    from mitigate.benchmark.render import verdict
+    from mitigate.benchmark.stats import Entry
+    e = Entry("s", "PI", "pi", n_runs=1, n_suppressed=0,
+              metrics={k: {"median": v} for k, v in (("residual_severity", 1.12), ("time_to_suppress", math.inf),
+                                                   ("setpoint_variation", 0.0))})
+    assert e.job_done
+    text = verdict(e)
+    assert "never suppressed" in text and text.endswith("the stick-slip stays: job NOT done.")
+    done = verdict(Entry("s", "N", "nmpc", n_runs=1, n_suppressed=1, metrics=e.metrics))
+    assert done.endswith("; job done.")
+
+
 def test_the_student_rig_runs_every_law_ok_nmpc_below_pi():
     """The issue's target on our own student-style rig (the held-out one is not committed)."""
     from mitigate.runner import run

@@ -89,7 +89,10 @@ def verdict(e: Entry, ref=None, programme_force: bool = False) -> str:
     fb = e.counts.get("controller_fallbacks", 0)
     if fb:
         parts.append(f"{fb} fallback(s)")
-    parts.append("job done" if e.job_done else "job NOT done")
+    if e.job_done and e.n_suppressed == 0:
+        parts.append("within the programme's bands, but the stick-slip stays: job NOT done")
+    else:
+        parts.append("job done" if e.job_done else "job NOT done")
     return "; ".join(parts) + "."
 
 
