@@ -123,13 +123,13 @@ def validate(problem, fit, nsub: int = 10) -> Validation:
     chans = problem.channels
     sims = {c.name: [] for c in chans}
     row0 = k0 + 1 if problem.options.input_row == "end" else k0
-    prev = {k: float(v) for k, v in h(x=x, u=Um[min(row0, n - 1)], p=p, theta_ref=th).items()}
+    prev = {k: float(v) for k, v in zip(h.name_out(), h(x, Um[min(row0, n - 1)], p, th))}
     for k in range(k0, n - 1):
         uk = Um[k + 1] if problem.options.input_row == "end" else Um[k]
         xn, thn = F(x, th, uk, p)
         x = np.array(xn).ravel()
         th = float(thn)
-        out = {kk: float(v) for kk, v in h(x=x, u=uk, p=p, theta_ref=th).items()}
+        out = {kk: float(v) for kk, v in zip(h.name_out(), h(x, uk, p, th))}
         for c in chans:
             if c.kind == "speed":
                 a = angle_of[c.name]
