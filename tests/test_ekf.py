@@ -494,3 +494,20 @@ def test_pi_integral_stays_where_the_anti_windup_keeps_it():
     assert np.max(np.abs(z_hat)) < 1.0, np.max(np.abs(z_hat))          # plant: |z| < 0.1 rad
     assert abs(z_hat[-1] - z_true[-1]) < 0.5
     assert 0.1 < load[-1] < 3.0, load[-1]
+
+
+def test_projection_clips_pi_integral_and_load_factors():
+    """The EKF's projection: a PI integral beyond the voltage limit goes back to it, a negative
+    load factor to 0, a reachable state stays as it is."""
+    em = build_estimation_model(M, P3, EKFOptions(augment=("load:pin1",)), 0.01)
+    iz, il = em.names.index("pi_integral"), em.names.index("load:pin1")
+    uh = np.tile(U, em.delay + 1)
+    x = em.x0.copy()
+    ok = np.asarray(em.project(x, uh, em.p)).ravel()
+    assert np.allclose(ok, x)
+    x[iz], x[il] = 1e4, -0.4
+    out = np.asarray(em.project(x, uh, em.p)).ravel()
+    assert out[il] == 0.0
+    assert 0.0 < out[iz] < 1e3                   # at the limit, G ki z = the voltage limit
+    x[iz] = -1e4
+    assert -1e3 < float(np.asarray(em.project(x, uh, em.p)).ravel()[iz]) < 0.0
