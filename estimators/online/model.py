@@ -138,6 +138,8 @@ class EstimationModel:
         than this is "in stick" (the observability analysis treats its friction as unknown)
     r : (n_meas,) measurement-noise variances
     x0, P0 : prior; lb, ub : state bounds (MHE)
+    project : Function ``(x, uh, p) -> x`` the EKF applies to its corrected mean: a DC motor's PI
+        integral into what its anti-windup can reach, the load factors into ``[lb, ub]``
     p : (n_p,) parameter vector (the rig's order)
     """
 
