@@ -139,7 +139,7 @@ def test_no_generic_nmpc_centred_why_list(tmp_path):
     rep = render_report(sc, res, output_paths(sc, tmp_path), slugs([r.name for r in runs]))
     assert "Why a model-based controller" not in rep and "regularised (tanh)" not in rep
     assert not re.search(r"\(\d\) ", rep)
-    assert "- NMPC: 4 / 12 / 30 ms (the p95 EXCEEDS the DAQ period)" in rep
+    assert "- NMPC: 4 / 12 / 30 ms (the p95 EXCEEDS the control period)" in rep
     assert "- PI only: 0 / 0 / 0 ms\n" in rep
     row = next(ln for ln in rep.splitlines() if ln.startswith("| NMPC |"))
     assert "| 0.5 | never |" in row and row.endswith("| no |")
