@@ -48,8 +48,8 @@ from models.status import Status
 
 __all__ = ["severity", "windowed_severity", "moving_severity", "time_to_suppress", "stuck_fraction", "amplitude",
            "dominant_frequency", "rms", "contact_work", "solve_time_stats", "closed_loop_metrics", "METRIC_UNITS",
-           "MetricOptions", "metric_unit", "programmed_speed", "measured_stuck_speed", "rig_period", "force_roles", "total_variation",
-           "windows"]
+           "MetricOptions", "metric_unit", "programmed_speed", "measured_stuck_speed", "rig_period", "force_roles",
+           "total_variation", "windows"]
 
 
 def severity(omega: np.ndarray, reference: float | None = None, stuck: float | None = None) -> float:
@@ -213,7 +213,8 @@ def metric_unit(key: str) -> str:
 
 @dataclass(frozen=True, kw_only=True)
 class MetricOptions:
-    """Settings of :func:`closed_loop_metrics`; None means "from the scenario".
+    """Settings of :func:`closed_loop_metrics`; None means "from the scenario" (every default with a
+    unit comes from it: windows from the rig's stick-slip period, thresholds from the programmed speed).
 
     Parameters
     ----------
@@ -232,9 +233,6 @@ class MetricOptions:
         1e-3 of the run's mean |speed|; it is exactly 0 in stick in the hybrid plant)
     stuck_speed_measured : the same for the measured speed [rad/s] (None: half an encoder tick per
         DAQ period on an encoder channel, else 5 % of that speed scale: :func:`measured_stuck_speed`)
-
-    Every default that carries a unit comes from the scenario (the windows from the rig's stick-slip
-    period, the thresholds from the programmed speed and the encoder); the others are ratios.
     force_band : ``(low, high)`` band of the mean applied normal force over its programme [-] outside
         which a run violates the programme (the driller's weight on bit; (0.8, 1.25))
     speed_band : ``(low, high)`` band of the objective body's mean speed over the residual window over

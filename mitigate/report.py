@@ -57,7 +57,8 @@ def summary_rows(sc, runs) -> tuple[list[str], list[list[str]]]:
     rows = []
     for r in runs:
         fb = "/".join(_fmt(r.metrics.get(k, math.nan)) for k in ("controller_fallbacks", "estimator_fallbacks"))
-        rows.append([r.name, r.kind, r.status.value] + [_fmt(r.metrics.get(k, math.nan), k) for k, _h in SUMMARY_COLUMNS]
+        rows.append([r.name, r.kind, r.status.value]
+                    + [_fmt(r.metrics.get(k, math.nan), k) for k, _h in SUMMARY_COLUMNS]
                     + [fb, "yes" if r.success and job_done(entries[r.name]) else "no"])
     return hdr, rows
 

@@ -103,7 +103,8 @@ class RunResult(Outcome):
             "observability": obs, "messages": list(self.scenario.messages),
             "controllers": [{"name": r.name, "kind": r.kind, "status": r.status.value, "message": r.message,
                              "elapsed_s": r.elapsed, "tuning": r.tuning,
-                             "tuning_units": {k: r.tuning_units.get(k, "") for k in r.tuning}, "metrics": r.metrics} for r in self.runs]})
+                             "tuning_units": {k: r.tuning_units.get(k, "") for k in r.tuning},
+                             "metrics": r.metrics} for r in self.runs]})
 
 
 def slugs(names) -> list[str]:
@@ -190,19 +191,23 @@ def run_one(scenario: Scenario, index: int) -> ControllerRun:
     if res.status is Status.FAILED:    # what it did until it failed is no result: only the counts stay
         met = {k: (v if k.startswith(COUNT_PREFIXES) else float("nan")) for k, v in met.items()}
     return ControllerRun(spec.name, spec.kind, res, met, time.perf_counter() - t0, res.status, res.message,
-                         tuning_of(ctrl), dict(getattr(ctrl, "derived_units", {})))
+                         *tuning_of(ctrl))
 
 
-def tuning_of(ctrl) -> dict[str, float]:
-    """The controller's tuning values (:meth:`Controller.tuning_values`), {} for a plug-in that has none
-    or whose method fails (a report line is not worth a FAILED run)."""
+def tuning_of(ctrl) -> tuple[dict[str, float], dict[str, str]]:
+    """The controller's tuning values (:meth:`Controller.tuning_values`) and their units (its
+    ``derived_units``); ({}, {}) for a plug-in that has none or whose method fails (a report line is
+    not worth a FAILED run)."""
     from models import plugins
+    timeout = getattr(getattr(ctrl, "context", None), "timeout", None)
     try:
-        tv = dict(plugins.call(ctrl.tuning_values, timeout=getattr(getattr(ctrl, "context", None), "timeout", None), what="tuning_values")) \
+        tv = dict(plugins.call(ctrl.tuning_values, timeout=timeout, what="tuning_values")) \
             if hasattr(ctrl, "tuning_values") else {}
-        return {str(k): float(v) for k, v in tv.items()}
+        values = {str(k): float(v) for k, v in tv.items()}
+        units = dict(getattr(ctrl, "derived_units", None) or {})
+        return values, {k: str(units[k]) for k in values if k in units}
     except (PluginError, SolverFailure, TypeError, ValueError):
-        return {}
+        return {}, {}
 
 
 #: a worker that reports nothing for this long [s] (it reports every 100 samples; a controller stuck in C
