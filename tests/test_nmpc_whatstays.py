@@ -19,7 +19,7 @@ from scipy.optimize import brentq
 from estimators.base import Estimate
 from mitigate.controllers.base import ControlContext
 from mitigate.controllers.factory import context_for, make_controller
-from mitigate.controllers.nmpc.ocp import make_ocp_solver
+from mitigate.controllers.nmpc.solvers import make_ocp_solver
 from mitigate.controllers.nmpc.defaults import sliding_is_stable
 from mitigate.controllers.nmpc.schedule import CalmSchedule
 from mitigate.controllers.nmpc.stage import stage_functions

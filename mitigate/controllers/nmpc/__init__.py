@@ -12,7 +12,8 @@ Example
 
 from mitigate.controllers.nmpc.controller import NMPC, resolve_inputs
 from mitigate.controllers.nmpc.layout import OCPLayout, OCPSpec
-from mitigate.controllers.nmpc.ocp import OCPResult, OCPSolver, make_ocp_solver
+from mitigate.controllers.nmpc.ocp import OCPResult, OCPSolver
+from mitigate.controllers.nmpc.solvers import make_ocp_solver
 from mitigate.controllers.nmpc.stage import stage_functions
 from mitigate.controllers.nmpc.options import MAX_HORIZON, NMPCOptions, NMPCWeights
 

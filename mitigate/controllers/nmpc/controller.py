@@ -42,7 +42,8 @@ import numpy as np
 from mitigate.controllers.base import Action, ControlContext, Controller
 from mitigate.controllers.nmpc.defaults import resolve as resolve_defaults
 from mitigate.controllers.nmpc.layout import OCPSpec
-from mitigate.controllers.nmpc.ocp import make_ocp_solver, solver_failures
+from mitigate.controllers.nmpc.ocp import solver_failures
+from mitigate.controllers.nmpc.solvers import make_ocp_solver
 from mitigate.controllers.nmpc.options import MAX_SUBSTEPS, WEIGHT_NAMES, NMPCOptions
 from mitigate.controllers.nmpc.schedule import CalmSchedule
 from mitigate.tunables import Tunable

@@ -1,4 +1,4 @@
-"""The NMPC's OCP with a warm-started plan, and the one-call factory of its solvers.
+"""The NMPC's OCP with a warm-started plan: what every solver of it shares.
 
 :class:`OCPSolver` holds what every solver shares: the plan (shift, warm start), the bounds
 from the rate limits and the programme's band, the check of a returned plan, and the
@@ -11,7 +11,7 @@ template :meth:`OCPSolver.solve` whose subclasses implement ``_solve_impl``:
 - ``"ipopt"``: IPOPT with the exact Hessian on the same NLP, as the reference
   (:class:`mitigate.controllers.nmpc.ipopt.IpoptSolver`).
 
-:func:`make_ocp_solver` builds the one a name asks for.
+:func:`mitigate.controllers.nmpc.solvers.make_ocp_solver` builds the one a name asks for.
 """
 
 from __future__ import annotations
@@ -23,13 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.errors import ConfigError, SolverFailure
+from models.errors import SolverFailure
 from models.status import Status
 from mitigate.controllers.nmpc.layout import OCPLayout, OCPSpec
-from mitigate.controllers.nmpc.options import SOLVERS
 from mitigate.controllers.nmpc.stage import stage_functions
 
-__all__ = ["OCPSolver", "OCPResult", "make_ocp_solver", "solver_failures"]
+__all__ = ["OCPSolver", "OCPResult", "solver_failures"]
 
 #: the numerical errors of an OCP solve (CasADi raises RuntimeError; numpy's linear algebra)
 NUMERICAL_ERRORS = (RuntimeError, FloatingPointError, ArithmeticError, np.linalg.LinAlgError)
@@ -263,31 +262,3 @@ class OCPSolver:
         """Solve from ``xa0`` with parameters ``q`` and bounds ``bnd`` (:meth:`bounds`), starting at
         the plan ``X, V``; return ``(X, V, cost, iterations, qp_iterations, status, message)``."""
         raise NotImplementedError
-
-
-def make_ocp_solver(model, spec: OCPSpec, *, solver: str = "rti", compile: bool = True, qp_solver: str = "hpipm",
-                    qp_tol: float = 1e-7, sqp_max_iter: int = 20, sqp_tol: float = 1e-6) -> OCPSolver:
-    """The OCP solver a name asks for.
-
-    Parameters
-    ----------
-    model, spec : the rig and the OCPSpec
-    solver : "rti" | "sqp" (:class:`mitigate.controllers.nmpc.rti.GaussNewtonSolver`) or "ipopt"
-        (:class:`mitigate.controllers.nmpc.ipopt.IpoptSolver`)
-    compile : compile the stage functions (gcc, cached) for "rti"/"sqp"
-    qp_solver : "hpipm" (direct), "qrqp" or "osqp" (CasADi ``conic``)
-    qp_tol : QP tolerance; "sqp" uses min(qp_tol, sqp_tol / 10) so that its step test can pass
-    sqp_max_iter, sqp_tol : Gauss-Newton iterations and step tolerance of "sqp"
-
-    Raises
-    ------
-    ConfigError : an unknown solver.
-    """
-    if solver == "ipopt":
-        from mitigate.controllers.nmpc.ipopt import IpoptSolver
-        return IpoptSolver(model, spec)
-    if solver in ("rti", "sqp"):
-        from mitigate.controllers.nmpc.rti import GaussNewtonSolver
-        return GaussNewtonSolver(model, spec, iterate=solver == "sqp", compile=compile, qp_solver=qp_solver,
-                                 qp_tol=qp_tol, sqp_max_iter=sqp_max_iter, sqp_tol=sqp_tol)
-    raise ConfigError(f"solver must be one of {', '.join(SOLVERS)}, got {solver!r}")

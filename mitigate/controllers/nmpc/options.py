@@ -18,7 +18,7 @@ from mitigate.controllers.nmpc.qp import QP_SOLVERS
 
 __all__ = ["NMPCOptions", "NMPCWeights", "MAX_HORIZON", "MAX_SUBSTEPS", "INPUT_MODES", "SOLVERS", "WEIGHT_NAMES"]
 
-#: OCP solvers (:func:`mitigate.controllers.nmpc.ocp.make_ocp_solver`)
+#: OCP solvers (:func:`mitigate.controllers.nmpc.solvers.make_ocp_solver`)
 SOLVERS = ("rti", "sqp", "ipopt")
 #: ``inputs`` keywords: every command the rig offers, its servo inputs only, its drive only
 INPUT_MODES = ("both", "pin", "motor")

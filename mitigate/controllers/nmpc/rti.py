@@ -62,7 +62,7 @@ class StageEvaluator:
 class GaussNewtonSolver(OCPSolver):
     """Gauss-Newton RTI (``iterate=False``: one QP per :meth:`solve`, :meth:`prepare` linearises
     ahead) or SQP to convergence (``iterate=True``); arguments as
-    :func:`mitigate.controllers.nmpc.ocp.make_ocp_solver`."""
+    :func:`mitigate.controllers.nmpc.solvers.make_ocp_solver`."""
 
     def __init__(self, model, spec: OCPSpec, *, iterate: bool = False, compile: bool = True,
                  qp_solver: str = "hpipm", qp_tol: float = 1e-7, sqp_max_iter: int = 20, sqp_tol: float = 1e-6):
