@@ -49,11 +49,11 @@ import math
 from dataclasses import dataclass
 from typing import Mapping
 
-from mitigate.controllers._opts import check_number
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.controllers.tuning import PipeTorque, VirtualDrive, absorber_frequency, drive_speed_channel, np_clip, \
     tuning_for
 from mitigate.tunables import Tunable
+from models.checks import check_options, option
 from models.errors import ConfigError
 
 __all__ = ["SoftSpeedOptions", "SoftSpeed"]
@@ -75,19 +75,16 @@ class SoftSpeedOptions:
     tau_torque : low-pass of the pipe-torque estimate [s] (0: 1/100 of the period ``1/f_t``)
     """
 
-    kp_factor: float = 2.0
-    Z: float = 0.0
-    f_t: float = 0.0
-    J_v: float = 0.0
-    J_comp: float = 0.0
-    band: float = 0.0
-    tau_torque: float = 0.0
+    kp_factor: float = option(2.0, lo=0.0, lo_open=True)
+    Z: float = option(0.0, lo=0.0, unit="N m s/rad")
+    f_t: float = option(0.0, lo=0.0, unit="Hz")
+    J_v: float = option(0.0, lo=0.0, unit="kg m^2")
+    J_comp: float = option(0.0, lo=0.0, unit="kg m^2")
+    band: float = option(0.0, lo=0.0, unit="rad/s")
+    tau_torque: float = option(0.0, lo=0.0, unit="s")
 
     def __post_init__(self):
-        check_number(self, "kp_factor", lo=0.0, lo_open=True)
-        for n, u in (("Z", "N m s/rad"), ("f_t", "Hz"), ("J_v", "kg m^2"), ("J_comp", "kg m^2"),
-                     ("band", "rad/s"), ("tau_torque", "s")):
-            check_number(self, n, lo=0.0, unit=u)
+        check_options(self)
 
 
 class SoftSpeed(Controller):

@@ -36,7 +36,7 @@ import math
 from dataclasses import dataclass
 from typing import Mapping
 
-from mitigate.controllers._opts import check_number
+from models.checks import check_options, option
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.controllers.tuning import PipeTorque, drive_speed_channel, first_order, np_clip, tuning_for
 from mitigate.tunables import Tunable
@@ -63,19 +63,16 @@ class ZTorqueOptions:
     kp_factor, ki : a torque drive's stiff loop ``Kp = kp_factor Z`` [-], ``Ki`` [N m/rad] (0: ``5 J_drive``, NORCE)
     """
 
-    z: float = 0.35
-    Z: float = 0.0
-    tau_hp: float = 0.0
-    tau_lp: float = 0.0
-    band: float = 0.0
-    kp_factor: float = 50.0
-    ki: float = 0.0
+    z: float = option(0.35, lo=0.0)
+    Z: float = option(0.0, lo=0.0, unit="N m s/rad")
+    tau_hp: float = option(0.0, lo=0.0, unit="s")
+    tau_lp: float = option(0.0, lo=0.0, unit="s")
+    band: float = option(0.0, lo=0.0, unit="rad/s")
+    kp_factor: float = option(50.0, lo=0.0, lo_open=True)
+    ki: float = option(0.0, lo=0.0, unit="N m/rad")
 
     def __post_init__(self):
-        check_number(self, "z", lo=0.0)
-        for n, u in (("Z", "N m s/rad"), ("tau_hp", "s"), ("tau_lp", "s"), ("band", "rad/s"), ("ki", "N m/rad")):
-            check_number(self, n, lo=0.0, unit=u)
-        check_number(self, "kp_factor", lo=0.0, lo_open=True)
+        check_options(self)
 
 
 class ZTorque(Controller):
