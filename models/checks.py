@@ -153,21 +153,21 @@ def names(v: Any, where: str, *, what: str = "names", nonempty: bool = False, un
 
 
 def option(default: Any, *, lo: float | None = None, hi: float | None = None, lo_open: bool = False,
-           hi_open: bool = False, unit: str = "", choices=None):
+           hi_open: bool = False, unit: str = "", choices=None, none: bool = False):
     """A dataclass field with its default and the check :func:`check_options` runs on it.
 
     A bool default is checked with :func:`flag`, an int default with :func:`integer`, ``choices``
     with :func:`choice`, anything else with :func:`number` (range ``lo``/``hi``, ``unit`` for
-    messages; a number is stored back as a float).
+    messages; a number is stored back as a float); ``none``: None is allowed (unset).
     """
     if choices is not None:
-        check = ("choice", {"options": tuple(choices)})
+        check = ("choice", {"options": tuple(choices), "none": none})
     elif isinstance(default, bool):
-        check = ("flag", {})
+        check = ("flag", {"none": none})
     elif isinstance(default, int):
-        check = ("integer", {"lo": lo, "hi": hi, "unit": unit})
+        check = ("integer", {"lo": lo, "hi": hi, "unit": unit, "none": none})
     else:
-        check = ("number", {"lo": lo, "hi": hi, "lo_open": lo_open, "hi_open": hi_open, "unit": unit})
+        check = ("number", {"lo": lo, "hi": hi, "lo_open": lo_open, "hi_open": hi_open, "unit": unit, "none": none})
     return field(default=default, metadata={"check": check})
 
 
@@ -192,9 +192,9 @@ def check_options(obj, where: str | None = None) -> None:
         elif kind == "integer":
             v = integer(v, name, **kw)
         elif kind == "flag":
-            v = flag(v, name)
+            v = flag(v, name, **kw)
         else:
-            v = choice(v, name, kw["options"])
+            v = choice(v, name, **kw)
         object.__setattr__(obj, f.name, v)
 
 

@@ -126,7 +126,7 @@ def test_factory_and_options():
     assert isinstance(est, MHE) and est.N == 4 and est.names == est.ekf.names
     with pytest.raises(ConfigError, match=r"estimator.window must be an integer >= 2, got 1"):
         make_estimator({"kind": "mhe", "window": 1}, CTX)
-    with pytest.raises(ConfigError, match=r"unknown key 'horizon' for kind 'mhe'"):
+    with pytest.raises(ConfigError, match=r"horizon: unknown key for kind 'mhe'"):
         make_estimator({"kind": "mhe", "horizon": 10}, CTX)
     with pytest.raises(ConfigError, match=r"qpsol must be one of ldl, osqp, got 'cholesky'"):
         make_estimator({"kind": "mhe", "qpsol": "cholesky"}, CTX)
