@@ -17,6 +17,8 @@ from models.errors import ConfigError
 from models.plant import SimOptions, simulate
 from models.status import Status
 
+from daq_run import powered_on
+
 M = get_model("rig3")
 P3 = M.published()
 U = np.array([math.pi, 20.0, 0.0])          # 30 rpm, N1 = 20 N: established stick-slip (thesis Ch. 3)
@@ -38,11 +40,7 @@ def ekf(**kw):
 @pytest.fixture(scope="module")
 def run3():
     """15 s of stick-slip of our exact plant; DAQ powered on at 3 s (encoders zeroed there)."""
-    sim = simulate(M, P3, U, 15.0, SimOptions(seed=3))
-    y = {c: v[K0:].copy() for c, v in sim.y.items()}
-    for c in ("theta1", "theta2", "theta3"):
-        y[c] -= y[c][0]
-    return sim.t[K0:], sim.x[K0:], y
+    return powered_on(simulate(M, P3, U, 15.0, SimOptions(seed=3)), K0)
 
 
 def drive(est, t, y):
@@ -454,11 +452,7 @@ def test_delayed_channels_use_lagged_states_exactly():
         worst = max(worst, abs(float(em.h(x, uh, em.p)[j]) - sim.y["motor_torque"][k]))
     assert worst < 1e-9
     # on the exact plant with its one-sample delay
-    full = simulate(md, md.published(), U, 15.0, SimOptions(seed=3))
-    y = {c: v[K0:].copy() for c, v in full.y.items()}
-    for c in ("theta1", "theta2", "theta3"):
-        y[c] -= y[c][0]
-    t, X = full.t[K0:], full.x[K0:]
+    t, X, y = powered_on(simulate(md, md.published(), U, 15.0, SimOptions(seed=3)), K0)
     late = t > t[0] + 3.0
     speeds = slice(2, 5)
 
