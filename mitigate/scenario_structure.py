@@ -72,10 +72,7 @@ def apply_structure(model: RigModel, params: ParameterSet, st: Mapping, where: s
             kind = "dimensionless" if kind_of == "gain" else {"torque": "torque", "load_cell": "force",
                                                                "speed": "speed"}[s.kind]
             vals[ref.name] = si_value(v, kind, f"{w}.{what}.{ch}")
-    try:
-        pparams = base.__class__(base.model, base.specs, vals)
-    except ConfigError as exc:
-        raise ConfigError(f"{where}: structure: {exc}") from None
+    pparams = ParameterSet(base.model, base.specs, vals, where=f"{where}: structure")
     drift = {}
     dr = st.get("drift", {})
     if not isinstance(dr, Mapping):
