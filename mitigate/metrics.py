@@ -39,8 +39,9 @@ from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
+from mitigate.severity import (amplitude, moving_severity, rms, severity, stuck_fraction, time_to_suppress,
+                               total_variation, windowed_severity)
 from models.checks import finite_number
 from models.errors import ConfigError
 from models.signals import dominant_frequency
@@ -48,88 +49,8 @@ from models.status import Status
 
 __all__ = ["severity", "windowed_severity", "moving_severity", "time_to_suppress", "stuck_fraction", "amplitude",
            "dominant_frequency", "rms", "contact_work", "solve_time_stats", "closed_loop_metrics", "METRIC_UNITS",
-           "MetricOptions", "metric_unit", "programmed_speed", "rig_period", "force_roles", "total_variation",
-           "windows"]
-
-
-def severity(omega: np.ndarray, reference: float | None = None, stuck: float | None = None) -> float:
-    """Stick-slip severity ``(max - min) / (2 |reference|)`` [-]; ``reference`` defaults to the mean
-    speed (the literature's SSS), and ``inf`` is returned when it is 0.  ``stuck`` [rad/s]: a record
-    whose ``|speed|`` stays at or below it throughout (a stopped body, not a quiet one) has severity 1,
-    the severity of a full stick-slip cycle (speed between 0 and twice its mean)."""
-    w = np.asarray(omega, dtype=float)
-    if stuck is not None and float(np.max(np.abs(w))) <= stuck:
-        return 1.0
-    m = abs(float(np.mean(w))) if reference is None else abs(float(reference))
-    span = float(np.max(w) - np.min(w))
-    return span / (2 * m) if m > 0 else float("inf")
-
-
-def windowed_severity(omega: np.ndarray, dt: float, window: float, stuck: float | None = None) -> np.ndarray:
-    """Severity over consecutive non-overlapping windows of ``window`` seconds (``stuck``: :func:`severity`)."""
-    n = max(1, int(round(window / dt)))
-    w = np.asarray(omega, dtype=float)
-    k = len(w) // n
-    if k == 0:
-        return np.array([severity(w, stuck=stuck)])
-    return np.array([severity(w[i * n:(i + 1) * n], stuck=stuck) for i in range(k)])
-
-
-def moving_severity(omega: np.ndarray, dt: float, window: float, reference: float | None = None,
-                    stuck: float | None = None) -> np.ndarray:
-    """Severity over a window of ``window`` seconds that moves by one sample (the drilling
-    convention); element ``j`` covers samples ``j .. j + n - 1``.  ``reference`` and ``stuck`` as in
-    :func:`severity` (default: each window's mean; no stuck rule)."""
-    w = np.asarray(omega, dtype=float)
-    n = max(1, min(len(w), int(round(window / dt))))
-    v = sliding_window_view(w, n)
-    mean = np.abs(v.mean(axis=1)) if reference is None else np.full(v.shape[0], abs(float(reference)))
-    span = v.max(axis=1) - v.min(axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(mean > 0, span / (2 * mean), np.inf)
-    if stuck is not None:
-        s = np.where(np.abs(v).max(axis=1) <= stuck, 1.0, s)
-    return s
-
-
-def time_to_suppress(omega: np.ndarray, dt: float, window: float, threshold: float,
-                     reference: float | None = None, stuck: float | None = None) -> float:
-    """Seconds from the first sample to the START of the first moving window from which the moving
-    severity stays below ``threshold`` to the end of the record: 0 if it never exceeds it, ``inf``
-    if the last window is still above it.  No window length is added: a record that is quiet from
-    its first sample gives 0.  ``reference``, ``stuck``: as in :func:`severity`."""
-    s = moving_severity(omega, dt, window, reference, stuck)
-    above = np.flatnonzero(~(s < threshold))
-    if above.size == 0:
-        return 0.0
-    j = int(above[-1]) + 1
-    if j >= s.size:
-        return float("inf")
-    return j * dt
-
-
-def stuck_fraction(omega: np.ndarray, threshold: float = 0.05) -> float:
-    """Fraction of samples with ``|omega| <= threshold`` [rad/s]."""
-    w = np.asarray(omega, dtype=float)
-    return float(np.mean(np.abs(w) <= threshold))
-
-
-def amplitude(omega: np.ndarray) -> float:
-    """Half the peak-to-peak speed [rad/s]."""
-    w = np.asarray(omega, dtype=float)
-    return 0.5 * float(np.max(w) - np.min(w))
-
-
-def rms(x: np.ndarray) -> float:
-    """Root mean square ``sqrt(mean(x^2))`` (same unit as ``x``)."""
-    x = np.asarray(x, dtype=float)
-    return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
-
-
-def total_variation(x: np.ndarray) -> float:
-    """``sum |x[k+1] - x[k]|`` (same unit as ``x``)."""
-    x = np.asarray(x, dtype=float)
-    return float(np.sum(np.abs(np.diff(x)))) if x.size > 1 else 0.0
+           "MetricOptions", "metric_unit", "programmed_speed", "measured_stuck_speed", "rig_period", "force_roles",
+           "total_variation", "windows"]
 
 
 def contact_work(model, params, x: np.ndarray, u: np.ndarray, contact: str, dt: float, *,
@@ -212,7 +133,8 @@ def metric_unit(key: str) -> str:
 
 @dataclass(frozen=True, kw_only=True)
 class MetricOptions:
-    """Settings of :func:`closed_loop_metrics`; None means "from the scenario".
+    """Settings of :func:`closed_loop_metrics`; None means "from the scenario" (every default with a
+    unit comes from it: windows from the rig's stick-slip period, thresholds from the programmed speed).
 
     Parameters
     ----------
@@ -227,9 +149,10 @@ class MetricOptions:
     moving_periods : the drilling convention's moving window in periods (1.5)
     suppress_threshold : moving severity below which stick-slip counts as suppressed [-] (0.1)
     stuck_speed : |speed| at or below which the TRUE body is stuck [rad/s] (None: 1e-3 of the
-        programmed speed; it is exactly 0 in stick in the hybrid plant)
+        programmed speed, :func:`programmed_speed`; with none -- a torque drive without a target --
+        1e-3 of the run's mean |speed|; it is exactly 0 in stick in the hybrid plant)
     stuck_speed_measured : the same for the measured speed [rad/s] (None: half an encoder tick per
-        DAQ period on an encoder channel, else 5 % of the programmed speed)
+        DAQ period on an encoder channel, else 5 % of that speed scale: :func:`measured_stuck_speed`)
     force_band : ``(low, high)`` band of the mean applied normal force over its programme [-] outside
         which a run violates the programme (the driller's weight on bit; (0.8, 1.25))
     speed_band : ``(low, high)`` band of the objective body's mean speed over the residual window over
@@ -292,10 +215,13 @@ def rig_period(model, params) -> float:
 
 def programmed_speed(scenario, t: np.ndarray) -> np.ndarray:
     """The objective body's programmed speed at the times ``t`` [rad/s]: the drive's set-point (or
-    prescribed speed), or for a torque drive the rig file's ``operating_point.speed`` (NaN if it has none)."""
+    prescribed speed), or for a torque drive the scenario's ``[control] speed`` (the target its laws aim
+    at), else the rig file's ``operating_point.speed`` (NaN if it has none)."""
     m = scenario.model
     t = np.asarray(t, float)
     if m.drive_kind == "torque":
+        if getattr(scenario, "control_speed", None) is not None:
+            return np.array([scenario.control_speed(tk) for tk in t], float)
         v = m.spec.extra.get("operating_point", {}).get("speed")      # SI, resolved by the rig parser
         return np.full(t.shape, float(v) if v is not None else np.nan)
     prof = scenario.inputs[m.drive_input]
@@ -325,16 +251,19 @@ def windows(o: MetricOptions, period: float, span: float, dt: float) -> tuple[fl
     return res, max(dt, o.window_periods * period), max(dt, min(o.moving_periods * period, span))
 
 
-def _stuck_measured(scenario, o: MetricOptions, w_prog: float) -> tuple[str | None, float]:
+def measured_stuck_speed(scenario, w_scale: float, given: float | None = None) -> tuple[str | None, float]:
+    """(the objective body's speed channel, the |measured speed| at or below which it counts as stuck
+    [rad/s]): ``given``, else half an encoder tick per DAQ period on an encoder channel, else 5 % of
+    ``w_scale`` (the programmed speed) [rad/s]."""
     from models.sensors import encoder_step
     m = scenario.model
     ch = m.speed_channel(m.objective_body)
-    if o.stuck_speed_measured is not None:
-        return ch, o.stuck_speed_measured
+    if given is not None:
+        return ch, given
     s = m.sensor_of(ch) if ch else None
     if s is not None and s.kind == "encoder":
         return ch, 0.5 * encoder_step(s) / scenario.dt
-    return ch, 0.05 * abs(w_prog)
+    return ch, 0.05 * abs(w_scale)
 
 
 def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) -> dict[str, float]:
@@ -376,7 +305,9 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
     wp = programmed_speed(scenario, tm)
     w_ref = float(np.mean(wp))
     ref = w_ref if math.isfinite(w_ref) and w_ref != 0 else None
-    stuck_thr = o.stuck_speed if o.stuck_speed is not None else 1e-3 * abs(w_ref if ref else 1.0)
+    # the speed scale of a run without a programmed speed (a torque drive, no target): its own mean |speed|
+    w_scale = abs(w_ref) if ref else float(np.mean(np.abs(w))) if len(w) else 0.0
+    stuck_thr = o.stuck_speed if o.stuck_speed is not None else 1e-3 * w_scale
     ws = windowed_severity(w, dt, win, stuck_thr)
     mov = moving_severity(w, dt, mov_win, stuck=stuck_thr)
     prog = np.array([scenario.programme(tk) for tk in tm]).reshape(len(tm), -1)
@@ -420,12 +351,14 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
     tv = 0.0
     for name, cmd in result.commands.items():
         j = scenario.model.inputs.index(name)
+        c = np.asarray(cmd, float)[m]
+        own = float(np.max(np.abs(c))) if c.size else 0.0       # last resort: the command's own range
         if name in scenario.model.servo_inputs:
             a = scenario.model.actuator(name)
-            scale = float(a.n_max) if a is not None and a.n_max > 0 else max(float(np.max(np.abs(prog[:, j]))), 1.0)
+            scale = float(a.n_max) if a is not None and a.n_max > 0 else max(float(np.max(np.abs(prog[:, j]))), own)
         else:
-            scale = max(float(np.mean(np.abs(prog[:, j]))), abs(w_ref) if ref else 0.0) or 1.0
-        tv += total_variation(np.asarray(cmd, float)[m]) / scale
+            scale = max(float(np.mean(np.abs(prog[:, j]))), abs(w_ref) if ref else 0.0) or own
+        tv += total_variation(c) / scale if scale > 0 else 0.0
     if pm.drive_kind == "dc_motor":
         drive_energy = float(np.sum(np.abs(result_voltage(pm, pp, X, U) * X[:, pm.nx - 2])) * dt)
     elif pm.drive_kind == "torque":
@@ -437,7 +370,7 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
     plans = result.plan_calls if result.plan_calls is not None else np.ones(len(result.solve_times), bool)
     sp = solve_time_stats(np.asarray(result.solve_times)[plans] if len(result.solve_times) else result.solve_times)
     cc, ec = result.controller_counts, result.estimator_counts
-    meas_ch, stuck_meas = _stuck_measured(scenario, o, w_ref if ref else 1.0)
+    meas_ch, stuck_meas = measured_stuck_speed(scenario, w_scale, o.stuck_speed_measured)
     tail = w[-n_res:]
     res_speed = float(np.mean(tail)) / w_ref if ref else float("nan")
     out["residual_speed_ratio"] = res_speed

@@ -47,7 +47,7 @@ def plot_comparison(sc, results: Mapping[str, object], title: str, path: str | o
     tw = objective_twist(m)
     cmds = list(m.commands)
     rows = 1 + (tw is not None) + len(cmds)
-    fig, axes = plt.subplots(rows, 1, sharex=True, figsize=(11, 2.4 * rows + 0.8), squeeze=False)
+    fig, axes = plt.subplots(rows, 1, sharex=True, figsize=(12.5, 2.4 * rows + 0.8), squeeze=False)
     axes = axes[:, 0]
     for name, r in results.items():
         k = 0
@@ -69,7 +69,8 @@ def plot_comparison(sc, results: Mapping[str, object], title: str, path: str | o
         for s in starts:
             ax.axvline(s, color="k", ls=":", lw=1.0)
     if results:                  # (every run may have failed before its first sample)
-        axes[0].legend(loc="upper right", fontsize=8, ncol=min(4, len(results)))
+        # outside the axes, right of the top panel: over the data it hid the peaks (issue 18 item 7)
+        axes[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8)
     axes[0].set_title("true plant states; dotted line: control switched on")
     axes[-1].set_xlabel("time [s]")
     return finish_figure(fig, path, title, dpi=dpi)

@@ -41,22 +41,13 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from models.errors import ConfigError, PluginError
+from models.errors import ConfigError, PluginError, SolverFailure
 from models.files import check_output_dir, output_set
 from models.status import Outcome, Status
 from mitigate.metrics import METRIC_UNITS, closed_loop_metrics
 from mitigate.scenario import Scenario, load_scenario
 
-__all__ = ["ControllerRun", "RunResult", "run", "run_scenario", "validate_scenario", "output_paths", "slugs",
-           "TABLE_COLUMNS"]
-
-#: (metric key, column header) of the terminal table
-TABLE_COLUMNS = (
-    ("sss", "SSS"), ("sss_final", "SSS last"), ("time_to_suppress", "t supp [s]"), ("stuck_fraction", "stuck"),
-    ("mean_speed", "mean w"), ("speed_error_rms", "w err rms"), ("pin_work", "pin W [J]"),
-    ("plan_median_ms", "plan med [ms]"), ("plan_p95_ms", "plan p95 [ms]"), ("controller_fallbacks", "fallbacks"),
-    ("estimator_fallbacks", "est fb"),
-)
+__all__ = ["ControllerRun", "RunResult", "run", "run_scenario", "validate_scenario", "output_paths", "slugs"]
 
 
 @dataclass(frozen=True)
@@ -71,6 +62,11 @@ class ControllerRun(Outcome):
     elapsed: float = 0.0
     status: Status = Status.OK
     message: str = "ok"
+    #: the tuning values the controller runs with, by name (:meth:`Controller.tuning_values`: SoftSpeed's
+    #: Z, J_v, Kp, Ki, f_t; Z-Torque's gain, tau_hp; D-OSKIL's gain; the brake's gains), empty if none
+    tuning: dict = field(default_factory=dict)
+    #: the unit of each tuning value, by name (the controller's ``derived_units``)
+    tuning_units: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -106,7 +102,9 @@ class RunResult(Outcome):
             "elapsed_s": self.elapsed, "files": {k: str(v) for k, v in self.files.items()},
             "observability": obs, "messages": list(self.scenario.messages),
             "controllers": [{"name": r.name, "kind": r.kind, "status": r.status.value, "message": r.message,
-                             "elapsed_s": r.elapsed, "metrics": r.metrics} for r in self.runs]})
+                             "elapsed_s": r.elapsed, "tuning": r.tuning,
+                             "tuning_units": {k: r.tuning_units.get(k, "") for k in r.tuning},
+                             "metrics": r.metrics} for r in self.runs]})
 
 
 def slugs(names) -> list[str]:
@@ -192,7 +190,24 @@ def run_one(scenario: Scenario, index: int) -> ControllerRun:
     met = closed_loop_metrics(res, scenario)
     if res.status is Status.FAILED:    # what it did until it failed is no result: only the counts stay
         met = {k: (v if k.startswith(COUNT_PREFIXES) else float("nan")) for k, v in met.items()}
-    return ControllerRun(spec.name, spec.kind, res, met, time.perf_counter() - t0, res.status, res.message)
+    return ControllerRun(spec.name, spec.kind, res, met, time.perf_counter() - t0, res.status, res.message,
+                         *tuning_of(ctrl))
+
+
+def tuning_of(ctrl) -> tuple[dict[str, float], dict[str, str]]:
+    """The controller's tuning values (:meth:`Controller.tuning_values`) and their units (its
+    ``derived_units``); ({}, {}) for a plug-in that has none or whose method fails (a report line is
+    not worth a FAILED run)."""
+    from models import plugins
+    timeout = getattr(getattr(ctrl, "context", None), "timeout", None)
+    try:
+        tv = dict(plugins.call(ctrl.tuning_values, timeout=timeout, what="tuning_values")) \
+            if hasattr(ctrl, "tuning_values") else {}
+        values = {str(k): float(v) for k, v in tv.items()}
+        units = dict(getattr(ctrl, "derived_units", None) or {})
+        return values, {k: str(units[k]) for k in values if k in units}
+    except (PluginError, SolverFailure, TypeError, ValueError):
+        return {}, {}
 
 
 #: a worker that reports nothing for this long [s] (it reports every 100 samples; a controller stuck in C

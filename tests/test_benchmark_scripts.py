@@ -32,8 +32,6 @@ def test_there_are_benchmark_scripts():
 def test_help_only_prints_and_offers_quick(script, tmp_path):
     before = _results_state()
     r = _run(script, "--help", cwd=tmp_path, timeout=120)
-    if script.stem == "bench_nmpc" and (r.returncode != 0 or "--quick" not in r.stdout):
-        pytest.xfail("bench_nmpc (an import of main's metrics, --quick) is fixed on branch nmpc")
     assert r.returncode == 0, r.stderr[-1500:]
     assert r.stdout.lstrip().startswith("usage:"), r.stdout[:300]
     assert "--quick" in r.stdout
@@ -44,8 +42,6 @@ def test_help_only_prints_and_offers_quick(script, tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.stem)
 def test_quick_runs_and_writes_no_result(script, tmp_path):
-    if script.stem == "bench_nmpc" and "--quick" not in _run(script, "--help", cwd=tmp_path, timeout=120).stdout:
-        pytest.xfail("bench_nmpc (an import of main's metrics, --quick) is fixed on branch nmpc")
     before = _results_state()
     r = _run(script, "--quick", cwd=tmp_path, timeout=600)
     assert r.returncode == 0, (r.stdout[-800:], r.stderr[-1500:])

@@ -95,6 +95,12 @@ def test_defaults_come_from_the_rig_at_both_scales():
     assert set(c.cfg.derived) == {"dt", "eps", "setpoint_band", "setpoint_rate", "force_filter", "hold_gain"}
     given = make_controller({"kind": "nmpc", "compile": False, "dt": 0.2, "setpoint_band": 3000.0}, _ctx(field, [1.0e4, 97347.0]))
     assert given.cfg.dt == 0.2 and given.cfg.setpoint_band == 3000.0 and "dt" not in given.cfg.derived
+    # the report's tuning line: the settings it runs with, in the units of its drive
+    tv = c.tuning_values()
+    assert tv["setpoint_band"] == pytest.approx(1.0e4) and tv["dt"] == c.cfg.dt and tv["hold_gain"] == c.cfg.hold_gain
+    assert c.derived_units["setpoint_band"] == "N m" and set(c.derived_units) == set(tv)
+    r3 = make_controller({"kind": "nmpc", "compile": False}, _ctx(rig3, [math.pi, 20.0, 0.0]))
+    assert r3.derived_units["setpoint_band"] == "rad/s" and r3.tuning_values()["setpoint_band"] == pytest.approx(math.pi)
 
 
 def test_hold_gain_follows_the_stability_of_sliding_at_the_programme():

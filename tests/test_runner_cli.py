@@ -53,7 +53,7 @@ def test_run_writes_all_outputs(main, tiny, tmp_path, capsys):
     for f in EXPECTED:
         assert (out / f).stat().st_size > 0, f
     text = capsys.readouterr().out
-    assert "PI only" in text and "SSS" in text and "report.md" in text
+    assert "PI only" in text and "what stays" in text and "job done" in text and "report.md" in text
     log = read_csv(out / "log_r2_brake.csv", required=("true_twist_shaft1", "true_twist_shaft2", "omega1", "n2", "omega_ref"))
     assert log.t[-1] == pytest.approx(2.0) and len(log.t) == 201
     rep = (out / "report.md").read_text()

@@ -72,6 +72,8 @@ def ekf_step_function(em: EstimationModel) -> ca.Function:
         k = mi[j] * Ph / s
         xc = xc + k * innov
         P = P - ca.mtimes(k, Ph.T)
+    if em.project is not None:
+        xc = em.project(xc, uh, p)
     P = 0.5 * (P + P.T)
     return ca.Function(f"{em.model.cname}_ekf_step", [x, Pv, uh, y, m, p, q, r], [xc, ca.reshape(P, nx * nx, 1)],
                        ["x", "P", "uh", "y", "m", "p", "q", "r"], ["x_next", "P_next"])

@@ -36,7 +36,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from mitigate.runner import TABLE_COLUMNS, run_scenario
+    from mitigate.report import summary_rows
+    from mitigate.runner import run_scenario
 
     if isinstance(args.jobs, int) and args.jobs < 1:
         raise ConfigError(f"--jobs must be an integer >= 1, got {args.jobs}")
@@ -49,7 +50,6 @@ def run(args) -> int:
         obs = next((r.result.observability for r in res.runs if getattr(r.result, "observability", None)), None)
         if obs is not None:
             print(f"observability: {getattr(obs, 'message', obs)}")
-        rows = [[r.name, r.kind] + [r.metrics[k] for k, _ in TABLE_COLUMNS] + [r.status.value] for r in res.runs]
-        print(format_table(["controller", "kind"] + [h for _, h in TABLE_COLUMNS] + ["status"], rows))
+        print(format_table(*summary_rows(res.scenario, res.runs)))
         print(f"\n{res.message}; {res.elapsed:.1f} s; outputs in {args.out} (report: {res.files['report']})")
     return 0 if res.success else 1

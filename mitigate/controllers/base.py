@@ -234,6 +234,8 @@ class Controller(ABC):
     tunables: ClassVar[Mapping[str, Any]] = {}
     #: names of attributes holding values the controller derived (reported with a set-point chatter warning)
     derived: ClassVar[tuple[str, ...]] = ()
+    #: the unit of each of those values, by name (the report prints it beside the value)
+    derived_units: ClassVar[dict[str, str]] = {}
     #: what it needs of a rig (names of :data:`NEEDS`): checked for every controller of a
     #: scenario before anything runs, all missing items listed at once
     needs: ClassVar[tuple[str, ...]] = ()
@@ -311,10 +313,11 @@ class Controller(ABC):
 
     def tuning_values(self) -> dict[str, float]:
         """The values the controller derived for itself (gains, filter times), by name, for
-        reports and warnings: the attributes named in ``derived`` (a class attribute)."""
+        reports and warnings: the attributes named in ``derived`` (a class attribute), or, where
+        the controller has no such attribute, the option of that name (a gain given in the file)."""
         out = {}
         for n in getattr(self, "derived", ()):
-            v = getattr(self, n, None)
+            v = getattr(self, n, getattr(getattr(self, "options", None), n, None))
             if isinstance(v, (int, float)) and not isinstance(v, bool):
                 out[n] = float(v)
         return out

@@ -83,6 +83,8 @@ class BrakeController(Controller):
     kind = "brake"
     options_class = BrakeOptions
     needs = ("servo", "servo_body_speed")
+    derived = ("gain_overspeed", "gain_relative", "filter_tau", "n_max")     # reported (runner.tuning_of)
+    derived_units = {"gain_overspeed": "N s/rad", "gain_relative": "N s/rad", "filter_tau": "s", "n_max": "N"}
     tunables = {
         "gain_overspeed": Tunable(low=0.3, high=30.0, scale=force_per_speed,
                                   doc="overspeed gain in multiples of the servo's range per programmed speed"),

@@ -69,6 +69,7 @@ class DOSKIL(Controller):
     needs = ("servo", "servo_body_speed", "drive_speed")
     tunables = {"gain_factor": Tunable(low=0.25, high=16.0, doc="the gain in multiples of the matched Z / (r mu_k)")}
     derived = ("gain", "tau", "n_min", "n_max")
+    derived_units = {"gain": "N s/rad", "tau": "s", "n_min": "N", "n_max": "N"}
 
     def __init__(self, options: DOSKILOptions, context: ControlContext):
         super().__init__(options, context)

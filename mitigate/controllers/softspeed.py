@@ -98,6 +98,8 @@ class SoftSpeed(DriveSetpointLaw):
                        doc="tuning frequency in multiples of the rig's lowest mode with the drive held"),
     }
     derived = ("Z", "J_v", "Kp", "Ki", "f_t", "tau_torque")
+    derived_units = {"Z": "N m s/rad", "J_v": "kg m^2", "Kp": "N m s/rad", "Ki": "N m/rad", "f_t": "Hz",
+                     "tau_torque": "s"}
 
     def __init__(self, options: SoftSpeedOptions, context: ControlContext):
         super().__init__(options, context)

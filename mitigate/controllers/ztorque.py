@@ -87,6 +87,8 @@ class ZTorque(DriveSetpointLaw):
                           doc="high-pass time constant in multiples of the rig's stick-slip period"),
     }
     derived = ("Z", "gain", "tau_hp", "tau_lp", "Kp", "Ki")
+    derived_units = {"Z": "N m s/rad", "gain": "rad/(N m s)", "tau_hp": "s", "tau_lp": "s", "Kp": "N m s/rad",
+                     "Ki": "N m/rad"}
 
     def __init__(self, options: ZTorqueOptions, context: ControlContext):
         super().__init__(options, context)

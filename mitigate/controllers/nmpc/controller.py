@@ -212,6 +212,22 @@ class NMPC(Controller):
         return integration(m, self.params, cfg.dt, u=umax, eps=cfg.eps, speed=speed if speed > 0 else 1.0,
                            nsub=self.options.substeps or None, rates=[1.0 / t for t in taus if t > 0], max_nsub=None)
 
+    def tuning_values(self) -> dict[str, float]:
+        """The settings the NMPC runs with (given, or derived from the rig: :mod:`.defaults`), for
+        the report: dt [s], horizon [-], eps [rad/s], setpoint_band and setpoint_rate [rad/s, rad/s^2
+        or N m, N m/s], force_filter [s], hold_gain [-]."""
+        c = self.cfg
+        return {"dt": c.dt, "horizon": float(self.spec.horizon), "eps": c.eps,
+                "setpoint_band": c.setpoint_band, "setpoint_rate": c.setpoint_rate,
+                "force_filter": c.force_filter, "hold_gain": c.hold_gain}
+
+    @property
+    def derived_units(self) -> dict[str, str]:
+        """The unit of each :meth:`tuning_values` entry (a torque drive's set-point is a torque)."""
+        sp, rate = ("N m", "N m/s") if self._torque_drive else ("rad/s", "rad/s^2")
+        return {"dt": "s", "horizon": "-", "eps": "rad/s", "setpoint_band": sp, "setpoint_rate": rate,
+                "force_filter": "s", "hold_gain": "-"}
+
     def _nominal(self, t: float, u_prog) -> float:
         """Nominal speed of the objective body [rad/s]."""
         if self._speed0 is not None:
