@@ -55,12 +55,14 @@ import numpy as np
 from estimators.identify import BootstrapOptions, IdentifyOptions, bootstrap, identify
 from estimators.identify.continuation import GN_METHOD
 from models import get_model, published
-from models.logs import Log, read_csv
-from models.plant import Plant, SimOptions, simulate
+from models.logs import read_csv
+from models.plant import SimOptions, simulate
 from models.rig import RigModel
 from models.sensors import SensorOptions
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+from rig2_pi import W_REF, rig2_pi_log  # noqa: E402 - the logs the identification tests use
 RESULTS = Path(__file__).parent / "results" / "identify.md"
 
 
@@ -85,23 +87,9 @@ def disc_log(true, seed, noise_scale, duration=None):
                     sensors=SensorOptions(noise_scale=noise_scale)).to_log()
 
 
-def rig2_log(true, seed, noise_scale, duration=None, w_ref=55 * 2 * np.pi / 60 / 8):
+def rig2_log(true, seed, noise_scale, duration=None, w_ref=W_REF):
     """rig2 under a PI speed loop on the motor (disc-side speed reference), torque logged."""
-    duration = duration or S.dur
-    plant = Plant("rig2", true, SimOptions(seed=seed), sensors=SensorOptions(noise_scale=noise_scale))
-    kp, ki, z = 0.5, 2.0, 0.0
-    y = plant.measure()
-    chans = ("omega1", "omega3", "theta1", "theta3", "motor_torque")
-    rows = {c: [y[c]] for c in chans}
-    t = [0.0]
-    for _ in range(int(round(duration / 0.01))):
-        e = w_ref - y["omega3"]
-        z += e * 0.01
-        y = plant.step([kp * e + ki * z])
-        t.append(plant.t)
-        for c in chans:
-            rows[c].append(y[c])
-    return Log(np.array(t), {c: np.array(v) for c, v in rows.items()}, "rig2-pi")
+    return rig2_pi_log(true, seed, duration or S.dur, noise_scale=noise_scale, w_ref=w_ref)
 
 
 def rig3_log(true, seed, duration=None, model="rig3"):

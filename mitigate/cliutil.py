@@ -15,8 +15,15 @@ import numpy as np
 
 from models.errors import ConfigError
 
-__all__ = ["add_common", "check_outputs", "emit_json", "format_table", "to_jsonable", "savefig_atomic",
+__all__ = ["add_command", "add_common", "check_outputs", "emit_json", "format_table", "to_jsonable", "savefig_atomic",
            "finish_figure"]
+
+
+def add_command(subparsers, name: str, *, help: str, description: str, epilog: str) -> argparse.ArgumentParser:
+    """A ``mitigate <name>`` sub-command whose ``--help`` shows ``description`` and the ``epilog``
+    (its examples) as written."""
+    return subparsers.add_parser(name, help=help, description=description, epilog=epilog,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
 
 
 def add_common(p: argparse.ArgumentParser, *, out: bool = True, default_out: str = "out") -> None:

@@ -47,8 +47,8 @@ import numpy as np
 from models import plugins
 from models.errors import ConfigError, PluginError
 from models.logs import TRUTH_PREFIX, Log
-from models.plant import Plant
-from models.status import Outcome, Status
+from models.plant import Plant, Trajectory
+from models.status import Status
 from mitigate.controllers.base import Action
 
 __all__ = ["ClosedLoopResult", "run_closed_loop", "model_twists", "setpoint_chatter", "FALLBACK_WARN_FRACTION"]
@@ -62,7 +62,7 @@ CHATTER_STEP_FRACTION = 0.1
 
 
 @dataclass(frozen=True)
-class ClosedLoopResult(Outcome):
+class ClosedLoopResult(Trajectory):
     """One closed-loop run; time on axis 0 (``n + 1`` samples unless the run ended early).
 
     Attributes
@@ -111,17 +111,6 @@ class ClosedLoopResult(Outcome):
     status: Status = Status.OK
     message: str = "ok"
     units: dict = field(default_factory=dict, repr=False)
-
-    def state(self, name: str) -> np.ndarray:
-        """True plant state trajectory by name (e.g. ``"omega_R1"``)."""
-        try:
-            return self.x[:, self.states.index(name)]
-        except ValueError:
-            raise ConfigError(f"no plant state {name!r}; states: {', '.join(self.states)}") from None
-
-    def input(self, name: str) -> np.ndarray:
-        """Applied input trajectory by name."""
-        return self.u[:, self.inputs.index(name)]
 
     def estimate(self, name: str) -> np.ndarray:
         """Estimated state trajectory by name."""

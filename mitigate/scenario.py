@@ -65,8 +65,6 @@ at about :data:`BYTES_PER_SAMPLE` per sample and controller.
 from __future__ import annotations
 
 import dataclasses
-import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -76,51 +74,22 @@ import numpy as np
 from models.checks import finite_number as _num, read_toml
 from models.errors import ConfigError, quote
 from models.params import ParameterSet
-from models.rig import load_params
 from models.plant import SimOptions, plant_integration
-from models.rig import RigModel, get_model
-from models.rig import variants
-from models.units import parse_quantity
+from models.rig import RigModel, get_model, load_params
 from models.sensors import SensorOptions
-from models.units import factor as unit_factor
 from mitigate.profiles import Profile, parse_profile
+# limits and field converters live in mitigate.scenario_fields; their public names are also read from here
+from mitigate.scenario_fields import (BYTES_PER_SAMPLE, DEFAULT_TIMEOUT, MAX_CALL_TIME, MAX_SAMPLES,
+                                      MAX_SPEED_FACTOR, TIMEOUT_PERIODS, check_keys, check_size, control_timing,
+                                      default_max_speed, memory_bytes, si_value, table)
+from mitigate.scenario_structure import apply_structure
 
-__all__ = ["Scenario", "ControllerSpec", "load_scenario", "parse_scenario", "make_scenario", "MAX_SAMPLES",
-           "BYTES_PER_SAMPLE"]
-
-# A run keeps every sample in memory (states, measurements, estimates, actions: about 0.7 kB
-# per sample and controller while it runs, measured on rig3 with the EKF), then hands it back
-# for the logs and plots.  Both limits are checked before anything is allocated or run.
-MAX_SAMPLES = 10_000_000
-BYTES_PER_SAMPLE = 2048     # per sample and controller run, with room for the logs and plots
-#: default per-call timeout of controllers and estimators [s]: at least this, and at least
-#: TIMEOUT_PERIODS control periods (``[control] timeout``)
-DEFAULT_TIMEOUT = 2.0
-TIMEOUT_PERIODS = 100
-#: the longest deadline, timeout or latency a scenario may give [s] (a day; longer is "off")
-MAX_CALL_TIME = 86400.0
+__all__ = ["Scenario", "ControllerSpec", "load_scenario", "parse_scenario", "make_scenario", "controller_where",
+           "MAX_SAMPLES", "BYTES_PER_SAMPLE", "DEFAULT_TIMEOUT", "TIMEOUT_PERIODS", "MAX_CALL_TIME",
+           "MAX_SPEED_FACTOR", "memory_bytes", "default_max_speed"]
 
 _SECTIONS = {"scenario", "plant", "mismatch", "structure", "sensors", "actuators", "inputs", "control", "estimator",
              "controllers", "sweep"}
-
-
-#: a body faster than this many times the largest programmed drive speed ends a run as diverged
-#: (``[plant] max_speed``'s default: 100 rad/s on rig3's 30 rpm)
-MAX_SPEED_FACTOR = 100.0 / math.pi
-
-
-def default_max_speed(model, inputs, control_speed, duration: float) -> float:
-    """``[plant] max_speed``'s default [rad/s]: MAX_SPEED_FACTOR times the largest drive speed the
-    scenario programmes (a torque drive: its ``[control] speed``, else the rig's nominal speed)."""
-    ts = np.linspace(0.0, duration, 201)
-    if model.drive_kind != "torque":
-        w = max(abs(float(inputs[model.drive_input](t))) for t in ts)
-    elif control_speed is not None:
-        w = max(abs(float(control_speed(t))) for t in ts)
-    else:
-        w = 0.0
-    w = max(w, abs(model.nominal_speed()))
-    return MAX_SPEED_FACTOR * w if w > 0 else 100.0
 
 
 def controller_where(where: str, index: int, name=None) -> str:
@@ -207,98 +176,6 @@ class Scenario:
         return dataclasses.replace(self, **changes)
 
 
-# ----------------------------------------------------------------------------- helpers
-def _table(data: Mapping, key: str, where: str) -> Mapping:
-    v = data.get(key, {})
-    if not isinstance(v, Mapping):
-        raise ConfigError(f"{where}: {key} must be a table, got {type(v).__name__}")
-    return v
-
-
-def _check_keys(tab: Mapping, allowed, where: str):
-    for k in tab:
-        if k not in allowed:
-            raise ConfigError(f"{where}.{k}: unknown key; expected one of {', '.join(sorted(allowed))}")
-
-
-def memory_bytes() -> int | None:
-    """This machine's physical memory, or its cgroup's limit if lower (None: unknown)."""
-    total = None
-    try:
-        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, ValueError, OSError):
-        pass
-    for f in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
-        try:
-            limit = int(Path(f).read_text().split()[0])
-        except (OSError, ValueError, IndexError):   # absent, or "max" (no limit)
-            continue
-        if limit > 0:
-            total = limit if total is None else min(total, limit)
-    return total if total and total > 0 else None
-
-
-def _check_size(duration: float, dt: float, runs: int, where: str) -> None:
-    """One-line ConfigError if ``duration / dt`` samples cannot be run (count, then memory)."""
-    samples = duration / dt
-    shown = f"{samples:,.0f}" if samples < 1e15 else f"{samples:.3g}"
-    head = f"{where}: scenario.duration / scenario.dt = {duration:g} s / {dt:g} s = {shown} samples"
-    if samples > MAX_SAMPLES:
-        raise ConfigError(f"{head}; the limit is {MAX_SAMPLES:,} samples (shorten the duration or raise dt)")
-    need, have = samples * runs * BYTES_PER_SAMPLE, memory_bytes()
-    if have is not None and need > have:
-        fit = int(have // (runs * BYTES_PER_SAMPLE))
-        raise ConfigError(f"{head}; the limit is {fit:,} samples here: {runs} controller run(s) need about "
-                          f"{need / 2**30:.1f} GiB ({BYTES_PER_SAMPLE} bytes per sample each), this machine has "
-                          f"{have / 2**30:.1f} GiB of memory")
-
-
-def _si(v: Any, kind: str, where: str) -> float:
-    """A number (SI) or a quantity string converted to SI."""
-    if isinstance(v, str):
-        q = parse_quantity(v)
-        if q is None:
-            raise ConfigError(f"{where} must be a number or a quantity such as \"1.5 N m\", got {v!r}")
-        return q[0] * unit_factor(q[1] or "-", kind, where)
-    return _num(v, where)
-
-
-def _time(v: Any, where: str) -> float:
-    """A positive time [s] of at most a day: a number or a quantity such as ``"5 ms"``."""
-    t = _si(v, "time", where)
-    if not 0 < t <= MAX_CALL_TIME:
-        raise ConfigError(f"{where} must be > 0 s and at most {MAX_CALL_TIME:g} s (or \"off\"), got {quote(v)}")
-    return t
-
-
-def _control_timing(ctl: Mapping, period: float, where: str) -> tuple[float | None, float | None, float | str]:
-    """``(deadline, timeout, latency)`` of the ``[control]`` table (module docstring): deadline None
-    unless given; timeout default ``max(DEFAULT_TIMEOUT, TIMEOUT_PERIODS x period)``, "off" for none;
-    latency 0, a fixed time [s], or "measured"."""
-    d = ctl.get("deadline", "off")
-    deadline = None if d == "off" else period if d == "period" else _time(d, f"{where}.deadline")
-    tv = ctl.get("timeout")
-    if tv == "off":
-        timeout = None
-    elif tv is None:
-        timeout = max(DEFAULT_TIMEOUT, TIMEOUT_PERIODS * period)
-    else:
-        timeout = _time(tv, f"{where}.timeout")
-    if deadline is not None and timeout is not None and timeout < deadline:
-        raise ConfigError(f"{where}.timeout must be >= control.deadline = {deadline:g} s, got {timeout:g} s")
-    lv = ctl.get("latency", 0.0)
-    if lv == "measured":
-        return deadline, timeout, "measured"
-    bad = f"{where}.latency must be \"measured\" or a time >= 0 such as \"3 ms\", got {quote(lv)}"
-    try:
-        latency = _si(lv, "time", f"{where}.latency")
-    except ConfigError:
-        raise ConfigError(bad) from None
-    if not 0 <= latency <= MAX_CALL_TIME:
-        raise ConfigError(bad)
-    return deadline, timeout, latency
-
-
 def _resolve_model(name: Any, path: str, where: str) -> RigModel:
     if not isinstance(name, str):
         raise ConfigError(f"{where}: scenario.model must be a rig name or a rig file path, got {name!r}")
@@ -310,76 +187,6 @@ def _resolve_model(name: Any, path: str, where: str) -> RigModel:
         return get_model(name)
     except ConfigError as exc:
         raise ConfigError(f"{where}: scenario.model: {exc}") from None
-
-
-def _apply_structure(model: RigModel, params: ParameterSet, st: Mapping, where: str
-                     ) -> tuple[RigModel, ParameterSet, dict, list[str]]:
-    """The plant's rig and parameters under ``[structure]``, its drift, and notes."""
-    allowed = {"torque_definition", "sensor_offsets", "sensor_gains", "pi_error", "delay", "backlash",
-               "shaft_elements", "friction", "drift"}
-    _check_keys(st, allowed, f"{where}: structure")
-    spec = model.spec
-    w = f"{where}: structure"
-    try:
-        if "torque_definition" in st:
-            spec = variants.with_torque_definition(spec, st["torque_definition"])
-        if "pi_error" in st:
-            spec = variants.with_pi_error(spec, st["pi_error"])
-        if "delay" in st:
-            spec = variants.with_delay(spec, st["delay"])
-        if "shaft_elements" in st:
-            s = st["shaft_elements"]
-            if not isinstance(s, Mapping) or "count" not in s or "inertia" not in s:
-                raise ConfigError(f"{w}.shaft_elements must be a table {{count, inertia}}, got {s!r}")
-            _check_keys(s, {"count", "inertia"}, f"{w}.shaft_elements")
-            spec = variants.with_shaft_elements(spec, s["count"], _si(s["inertia"], "inertia", f"{w}.shaft_elements.inertia"))
-        if "backlash" in st:
-            b = st["backlash"]
-            if not isinstance(b, Mapping):
-                raise ConfigError(f"{w}.backlash must be a table {{gap, stiffness, inertia, damping}}, got {b!r}")
-            _check_keys(b, {"gap", "stiffness", "inertia", "damping"}, f"{w}.backlash")
-            spec = variants.with_backlash(
-                spec, _si(b.get("gap", "0.5 deg"), "angle", f"{w}.backlash.gap"),
-                _si(b.get("stiffness", "200 N m/rad"), "stiffness", f"{w}.backlash.stiffness"),
-                _si(b.get("inertia", "1e-3 kg m^2"), "inertia", f"{w}.backlash.inertia"),
-                _si(b.get("damping", "0.02 N m s/rad"), "damping", f"{w}.backlash.damping"))
-        if "friction" in st:
-            fr = st["friction"]
-            if not isinstance(fr, Mapping) or "law" not in fr:
-                raise ConfigError(f"{w}.friction must be a table with a law, got {fr!r}")
-            spec = variants.with_friction_law(spec, fr["law"], {k: v for k, v in fr.items() if k != "law"})
-    except ConfigError as exc:
-        msg = str(exc)
-        raise ConfigError(msg if msg.startswith(where) else f"{where}: {msg}") from None
-    plant = RigModel(spec, model.key) if spec is not model.spec else model
-    base = plant.published()
-    vals = {n: (params[n] if n in params else base[n]) for n in plant.param_names}
-    for what, kind_of in (("sensor_offsets", "offset"), ("sensor_gains", "gain")):
-        tab = st.get(what, {})
-        if not isinstance(tab, Mapping):
-            raise ConfigError(f"{w}.{what} must be a table {{channel = value}}, got {tab!r}")
-        for ch, v in tab.items():
-            s = next((s for s in plant.sensors if ch in s.channels and s.kind in ("torque", "load_cell", "speed")), None)
-            ref = getattr(s, kind_of, None) if s is not None else None
-            if ref is None or ref.kind != "param":
-                raise ConfigError(f"{w}.{what}.{ch}: no torque sensor, load cell or speed sensor with a calibration "
-                                  f"parameter writes channel {ch!r} on rig {model.name!r}")
-            kind = "dimensionless" if kind_of == "gain" else {"torque": "torque", "load_cell": "force",
-                                                               "speed": "speed"}[s.kind]
-            vals[ref.name] = _si(v, kind, f"{w}.{what}.{ch}")
-    try:
-        pparams = base.__class__(base.model, base.specs, vals)
-    except ConfigError as exc:
-        raise ConfigError(f"{where}: structure: {exc}") from None
-    drift = {}
-    dr = st.get("drift", {})
-    if not isinstance(dr, Mapping):
-        raise ConfigError(f"{w}.drift must be a table {{parameter = relative rate per second}}, got {dr!r}")
-    for k, v in dr.items():
-        if k not in plant.param_names:
-            raise ConfigError(f"{w}.drift.{k}: not a parameter of rig {model.name!r}")
-        drift[k] = _num(v, f"{w}.drift.{k} [1/s]")
-    return plant, pparams, drift, []
 
 
 # ----------------------------------------------------------------------------- parsing
@@ -395,8 +202,8 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
     for k in data:
         if k not in _SECTIONS:
             raise ConfigError(f"{where}: {k}: unknown section; expected one of {', '.join(sorted(_SECTIONS))}")
-    sc = _table(data, "scenario", where)
-    _check_keys(sc, {"name", "description", "model", "duration", "dt", "seed"}, f"{where}: scenario")
+    sc = table(data, "scenario", where)
+    check_keys(sc, {"name", "description", "model", "duration", "dt", "seed"}, f"{where}: scenario")
     for req in ("name", "duration"):
         if req not in sc:
             raise ConfigError(f"{where}: scenario.{req}: missing field")
@@ -407,13 +214,13 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
     duration = _num(sc["duration"], f"{where}: scenario.duration", positive=True, unit="s")
     dt = _num(sc.get("dt", 0.01), f"{where}: scenario.dt", positive=True, unit="s")
     ctrls_raw = data.get("controllers", [])
-    _check_size(duration, dt, max(1, len(ctrls_raw) if isinstance(ctrls_raw, list) else 1), where)
+    check_size(duration, dt, max(1, len(ctrls_raw) if isinstance(ctrls_raw, list) else 1), where)
     seed = sc.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise ConfigError(f"{where}: scenario.seed must be an integer, got {seed!r}")
 
-    plant = _table(data, "plant", where)
-    _check_keys(plant, {"params", "method", "nsub", "start", "max_speed"}, f"{where}: plant")
+    plant = table(data, "plant", where)
+    check_keys(plant, {"params", "method", "nsub", "start", "max_speed"}, f"{where}: plant")
     ptxt = plant.get("params", "published")
     if not isinstance(ptxt, str):
         raise ConfigError(f"{where}: plant.params must be \"published\" or a file path, got {ptxt!r}")
@@ -424,7 +231,7 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
         if not ppath.is_absolute() and path:
             ppath = Path(path).parent / ppath
         nominal = load_params(ppath, model)
-    mism = _table(data, "mismatch", where)
+    mism = table(data, "mismatch", where)
     factors = {}
     for k, v in mism.items():
         if k not in nominal.names():
@@ -434,8 +241,8 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
         true = nominal.replace(**{k: nominal[k] * f for k, f in factors.items()})
     except ConfigError as exc:
         raise ConfigError(f"{where}: mismatch: {exc}") from None
-    structure = dict(_table(data, "structure", where))
-    plant_model, plant_params, drift, notes = _apply_structure(model, true, structure, where)
+    structure = dict(table(data, "structure", where))
+    plant_model, plant_params, drift, notes = apply_structure(model, true, structure, where)
     sim_kw = {k: v for k, v in plant.items() if k not in ("params", "max_speed")}
     try:
         sim = SimOptions(**{"dt": dt, "seed": seed, **sim_kw})
@@ -443,15 +250,15 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
         raise ConfigError(f"{where}: plant: {exc}") from None
     max_speed = (_num(plant["max_speed"], f"{where}: plant.max_speed", positive=True, unit="rad/s")
                  if "max_speed" in plant else None)
-    sensors_tab = _table(data, "sensors", where)
-    _check_keys(sensors_tab, {"noise_scale", "quantise"}, f"{where}: sensors")
+    sensors_tab = table(data, "sensors", where)
+    check_keys(sensors_tab, {"noise_scale", "quantise"}, f"{where}: sensors")
     try:
         sensors = SensorOptions(**sensors_tab)
     except ConfigError as exc:
         raise ConfigError(f"{where}: {exc}") from None
 
     # servo overrides apply to the model and the plant alike (the controller knows its servo)
-    acts = _table(data, "actuators", where)
+    acts = table(data, "actuators", where)
     for aname, tab in acts.items():
         if not isinstance(tab, Mapping):
             raise ConfigError(f"{where}: actuators.{aname} must be a table, got {tab!r}")
@@ -459,9 +266,9 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
         if spec_a is None:
             raise ConfigError(f"{where}: actuators.{aname}: rig {model.name!r} has no such actuator "
                               f"({', '.join(a.name for a in model.spec.actuators) or 'none'})")
-        _check_keys(tab, {"n_min", "n_max", "rate_max", "tau"}, f"{where}: actuators.{aname}")
+        check_keys(tab, {"n_min", "n_max", "rate_max", "tau"}, f"{where}: actuators.{aname}")
         kinds = {"n_min": "force", "n_max": "force", "rate_max": "force_rate", "tau": "time"}
-        ch = {k: _si(v, kinds[k], f"{where}: actuators.{aname}.{k}") for k, v in tab.items()}
+        ch = {k: si_value(v, kinds[k], f"{where}: actuators.{aname}.{k}") for k, v in tab.items()}
         new_a = dataclasses.replace(spec_a, **ch)
         if new_a.n_min < 0 or not new_a.n_max > new_a.n_min or not new_a.rate_max > 0 or new_a.tau < 0:
             raise ConfigError(f"{where}: actuators.{aname}: need 0 <= n_min < n_max, rate_max > 0 and tau >= 0, "
@@ -473,8 +280,8 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
                                                                 for a in m.spec.actuators)), m.key)
         model, plant_model = _swap(model), _swap(plant_model)
 
-    inp = _table(data, "inputs", where)
-    _check_keys(inp, set(model.inputs), f"{where}: inputs")
+    inp = table(data, "inputs", where)
+    check_keys(inp, set(model.inputs), f"{where}: inputs")
     inputs = {}
     base = Path(path).parent if path else None
     for n, kind in zip(model.inputs, model.input_kinds):
@@ -486,8 +293,8 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
         inputs[n] = parse_profile(inp[n], f"{where}: inputs.{n}", duration, quantity=kind,
                                   nonnegative=(kind == "force"), base=base)
 
-    ctl = _table(data, "control", where)
-    _check_keys(ctl, {"start", "every", "deadline", "timeout", "latency", "speed"}, f"{where}: control")
+    ctl = table(data, "control", where)
+    check_keys(ctl, {"start", "every", "deadline", "timeout", "latency", "speed"}, f"{where}: control")
     control_speed = None
     if "speed" in ctl:
         if model.drive_kind != "torque":
@@ -501,9 +308,9 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
     every = ctl.get("every", 1)
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
         raise ConfigError(f"{where}: control.every must be an integer >= 1, got {quote(every)}")
-    deadline, timeout, latency = _control_timing(ctl, dt * every, f"{where}: control")
+    deadline, timeout, latency = control_timing(ctl, dt * every, f"{where}: control")
 
-    est = dict(_table(data, "estimator", where)) or {"kind": "ekf"}
+    est = dict(table(data, "estimator", where)) or {"kind": "ekf"}
     if not isinstance(est.get("kind", "ekf"), str):
         raise ConfigError(f"{where}: estimator.kind must be a string, got {est.get('kind')!r}")
     est.setdefault("kind", "ekf")
@@ -523,7 +330,7 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
             raise ConfigError(f"{cw}.name: duplicate controller name {c['name']!r}")
         seen.add(c["name"])
         ctrls.append(ControllerSpec(c["name"], c["kind"], {k: v for k, v in c.items() if k not in ("name", "kind")}))
-    sweep = dict(_table(data, "sweep", where))
+    sweep = dict(table(data, "sweep", where))
     u0 = np.array([inputs[n](0.0) for n in model.inputs])
     if max_speed is None:
         max_speed = default_max_speed(model, inputs, control_speed, duration)

@@ -7,6 +7,9 @@ always reads ``"<where> must be ..., got <value>"``:
   :func:`flag` (true or false), :func:`choice` (one of a few words), :func:`names` (a list of
   names), each taking ``where`` -- the field's full name as the user wrote it
   (``"scenario.toml: sweep.duration"``);
+- :func:`option` declares a field's check beside its default (``gain: float = option(0.0, lo=0.0,
+  unit="N s/rad")``) and :func:`check_options` runs every declared check of an option dataclass
+  in its ``__post_init__``;
 - :func:`options_from_mapping` builds a frozen option dataclass from a TOML table: an unknown
   key is refused naming it, and the dataclass's own checks name their fields under the
   table's ``where`` (:func:`prefix` inside ``__post_init__``), so no caller re-prefixes
@@ -21,14 +24,15 @@ import contextvars
 import math
 import os
 import tomllib
-from dataclasses import fields, is_dataclass
+from dataclasses import field, fields, is_dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
 from models.errors import ConfigError, quote
+from models.plugins import describe
 
-__all__ = ["number", "integer", "flag", "choice", "names", "options_from_mapping", "prefix", "finite_number",
-           "read_toml"]
+__all__ = ["number", "integer", "flag", "choice", "names", "option", "check_options", "options_from_mapping",
+           "prefix", "field_where", "finite_number", "read_toml"]
 
 #: the ``where`` of the table :func:`options_from_mapping` is reading (None: not reading one)
 _READING: contextvars.ContextVar[str | None] = contextvars.ContextVar("stickslip_options_where", default=None)
@@ -148,10 +152,63 @@ def names(v: Any, where: str, *, what: str = "names", nonempty: bool = False, un
     return out
 
 
+def option(default: Any, *, lo: float | None = None, hi: float | None = None, lo_open: bool = False,
+           hi_open: bool = False, unit: str = "", choices=None, none: bool = False):
+    """A dataclass field with its default and the check :func:`check_options` runs on it.
+
+    A bool default is checked with :func:`flag`, an int default with :func:`integer`, ``choices``
+    with :func:`choice`, anything else with :func:`number` (range ``lo``/``hi``, ``unit`` for
+    messages; a number is stored back as a float); ``none``: None is allowed (unset).
+    """
+    if choices is not None:
+        check = ("choice", {"options": tuple(choices), "none": none})
+    elif isinstance(default, bool):
+        check = ("flag", {"none": none})
+    elif isinstance(default, int):
+        check = ("integer", {"lo": lo, "hi": hi, "unit": unit, "none": none})
+    else:
+        check = ("number", {"lo": lo, "hi": hi, "lo_open": lo_open, "hi_open": hi_open, "unit": unit, "none": none})
+    return field(default=default, metadata={"check": check})
+
+
+def check_options(obj, where: str | None = None) -> None:
+    """Run the check of every field of the option dataclass ``obj`` declared with :func:`option`,
+    in field order, naming ``<where>.<field>`` (``where`` default: the table being read,
+    :func:`prefix`; outside one, the bare field name); numbers are stored back as floats.
+
+    Raises
+    ------
+    ConfigError : the first failing field's message, e.g. ``"sc.toml: controller 1 'B'.n_max must be
+        >= 0 N, got -1.0"``
+    """
+    for f in fields(obj):
+        kind, kw = f.metadata.get("check", (None, None))
+        if kind is None:
+            continue
+        v, name = getattr(obj, f.name), field_where(f.name, where)
+        if kind == "number":
+            # a whole number from TOML is quoted as the float it becomes (``got -1.0``)
+            v = number(float(v) if _is_real(v) else v, name, **kw)
+        elif kind == "integer":
+            v = integer(v, name, **kw)
+        elif kind == "flag":
+            v = flag(v, name, **kw)
+        else:
+            v = choice(v, name, **kw)
+        object.__setattr__(obj, f.name, v)
+
+
 def prefix(default: str) -> str:
     """The ``where`` of the table being read by :func:`options_from_mapping`, else ``default``:
     what an option dataclass's ``__post_init__`` names its fields under."""
     return _READING.get() or default
+
+
+def field_where(name: str, where: str | None = None) -> str:
+    """How a message names the option field ``name``: ``<where>.<name>``, ``where`` by default the
+    table being read (:func:`prefix`); the bare name outside one."""
+    where = prefix("") if where is None else where
+    return f"{where}.{name}" if where else name
 
 
 def options_from_mapping(cls, table: Mapping[str, Any], where: str, *, kind: str | None = None):
@@ -167,9 +224,9 @@ def options_from_mapping(cls, table: Mapping[str, Any], where: str, *, kind: str
     Raises
     ------
     ConfigError : ``"<where>.<key>: unknown key; expected one of ..."``, or the dataclass's own
-        message naming ``<where>.<field>`` (a class that does not use :func:`prefix`:
-        ``"<where>: <its message>"``); anything else a (plug-in's) class raises, as
-        ``"<where>: <type>: <message>"``
+        message naming ``<where>.<field>`` (a class that does not use :func:`prefix`: its message
+        under ``"<where>."`` when it opens with one of its fields, else ``"<where>: <its message>"``); anything else a (plug-in's) class raises, as
+        ``"<where>: <type>: <first line of its message>"``
     """
     if not is_dataclass(cls):
         raise ConfigError(f"{where}: options class {getattr(cls, '__name__', cls)!r} is not a dataclass")
@@ -184,12 +241,15 @@ def options_from_mapping(cls, table: Mapping[str, Any], where: str, *, kind: str
     try:
         return cls(**dict(table))
     except ConfigError as exc:
-        if str(exc).startswith(where):
+        msg = str(exc)
+        if msg.startswith((f"{where}.", f"{where}:", f"{where} ")):    # named under the table already
             raise
-        # a class that does not name its fields under prefix(): say at least which table
-        raise ConfigError(f"{where}: {exc}") from None
+        # a class that does not name its fields under prefix() (a plug-in's): a message opening
+        # with one of its fields names it under the table, any other says at least which table
+        head = msg.split(" ", 1)[0].split(":", 1)[0]
+        raise ConfigError(f"{where}.{msg}" if head in allowed else f"{where}: {msg}") from None
     except Exception as exc:  # noqa: BLE001 - a plug-in's options class may check with anything: still bad input
-        raise ConfigError(f"{where}: {type(exc).__name__}: {exc}") from None
+        raise ConfigError(f"{where}: {describe(exc)}") from None
     finally:
         _READING.reset(token)
 

@@ -60,6 +60,8 @@ class ParameterSet:
     values : ``{name: value}`` for every name of ``specs``
     fit_bounds : ``((name, lower, upper), ...)``: fitting bounds that replace the physical ones
     stderr : ``((name, standard error), ...)``
+    where : the file or table the values came from, opening every message (``"f.toml: params.k1
+        ..."``; default: none)
 
     Raises
     ------
@@ -71,30 +73,34 @@ class ParameterSet:
     __slots__ = ("model", "_specs", "_values", "fit_bounds", "stderr")
 
     def __init__(self, model: str, specs: Mapping[str, Spec], values: Mapping[str, float], *,
-                 fit_bounds: Iterable[tuple[str, float, float]] = (), stderr: Iterable[tuple[str, float]] = ()):
+                 fit_bounds: Iterable[tuple[str, float, float]] = (), stderr: Iterable[tuple[str, float]] = (),
+                 where: str = ""):
+        head = f"{where}: " if where else ""
         object.__setattr__(self, "model", model)
         object.__setattr__(self, "_specs", dict(specs))
         vals = {}
         for name, spec in self._specs.items():
             if name not in values:
-                raise ConfigError(f"params.{model}: missing value of {name!r}")
-            vals[name] = self._check(name, spec, values[name])
+                raise ConfigError(f"{head}params.{model}: missing value of {name!r}")
+            vals[name] = self._check(name, spec, values[name], f"{head}params.{name}")
         for name in values:
             if name not in self._specs:
-                raise ConfigError(f"params.{model}.{name}: unknown parameter; expected one of {', '.join(self._specs)}")
+                raise ConfigError(f"{head}params.{model}.{name}: unknown parameter; expected one of {', '.join(self._specs)}")
         object.__setattr__(self, "_values", vals)
         fb = tuple((str(n), float(lo), float(hi)) for n, lo, hi in fit_bounds)
         for name, lo, hi in fb:
-            self.spec(name)
+            if name not in self._specs:
+                raise ConfigError(f"{head}bounds.{name}: unknown parameter of {model}; expected one of "
+                                  f"{', '.join(self._specs)}")
             if not (math.isfinite(lo) and math.isfinite(hi)):
-                raise ConfigError(f"bounds.{name} must be finite, got [{lo}, {hi}]")
+                raise ConfigError(f"{head}bounds.{name} must be finite, got [{lo}, {hi}]")
             if not lo < hi:
-                raise ConfigError(f"bounds.{name} must be [lower, upper] with lower < upper, got [{lo:g}, {hi:g}]")
+                raise ConfigError(f"{head}bounds.{name} must be [lower, upper] with lower < upper, got [{lo:g}, {hi:g}]")
         object.__setattr__(self, "fit_bounds", fb)
         object.__setattr__(self, "stderr", tuple((str(n), float(s)) for n, s in stderr))
 
-    def _check(self, name: str, spec: Spec, value: Any) -> float:
-        where = f"params.{name}"
+    @staticmethod
+    def _check(name: str, spec: Spec, value: Any, where: str) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
             raise ConfigError(f"{where} must be a number [{spec.unit}], got {value!r} ({type(value).__name__})")
         value = float(value)
@@ -200,7 +206,7 @@ class ParameterSet:
         return [(n, self[n], s.unit, s.source) for n, s in self._specs.items()]
 
     # ------------------------------------------------------------------ TOML
-    def from_mapping(self, data: Mapping[str, Any], where: str = "params") -> "ParameterSet":
+    def from_mapping(self, data: Mapping[str, Any], where: str = "parameter table") -> "ParameterSet":
         """A set of the same rig built from a TOML-like mapping (module docstring); missing
         values come from this set when ``base = "published"``."""
         from models.units import factor
@@ -210,52 +216,48 @@ class ParameterSet:
         allowed = {"model", "base", "params", "bounds", "stderr", "provenance"}
         for key in data:
             if key not in allowed:
-                raise ConfigError(f"{where}.{key}: unknown key; expected one of {', '.join(sorted(allowed))}")
+                raise ConfigError(f"{where}: {key}: unknown key; expected one of {', '.join(sorted(allowed))}")
         values = data.get("params", {})
         if not isinstance(values, Mapping):
-            raise ConfigError(f"{where}.params must be a table, got {type(values).__name__}")
+            raise ConfigError(f"{where}: params must be a table, got {type(values).__name__}")
         base = data.get("base")
         if base not in (None, "published"):
-            raise ConfigError(f"{where}.base must be \"published\" or absent, got {base!r}")
+            raise ConfigError(f"{where}: base must be \"published\" or absent, got {base!r}")
         out: dict[str, Any] = {}
         for key, v in values.items():
             if key not in self._specs:
-                raise ConfigError(f"{where}.params.{key}: unknown parameter for model {self.model!r}; "
+                raise ConfigError(f"{where}: params.{key}: unknown parameter for model {self.model!r}; "
                                   f"expected one of {', '.join(self._specs)}")
             if isinstance(v, str):
                 q = parse_quantity(v)
                 if q is None or not self._specs[key].kind:
-                    raise ConfigError(f"{where}.params.{key} must be a number [{self._specs[key].unit}] or a quantity "
+                    raise ConfigError(f"{where}: params.{key} must be a number [{self._specs[key].unit}] or a quantity "
                                       f"string such as \"1.5 {self._specs[key].unit}\", got {v!r}")
-                v = q[0] * factor(q[1] or "-", self._specs[key].kind, f"{where}.params.{key}")
+                v = q[0] * factor(q[1] or "-", self._specs[key].kind, f"{where}: params.{key}")
             out[key] = v
         if base is None:
             missing = [n for n in self._specs if n not in out]
             if missing:
-                raise ConfigError(f"{where}.params: missing field(s) {', '.join(missing)} for model {self.model!r} "
+                raise ConfigError(f"{where}: params: missing field(s) {', '.join(missing)} for model {self.model!r} "
                                   f"(give them, or set base = \"published\")")
         vals = dict(self._values)
         vals.update(out)
         bounds = []
         for key, b in dict(data.get("bounds", {})).items():
             if key not in self._specs:
-                raise ConfigError(f"{where}.bounds.{key}: unknown parameter for model {self.model!r}")
+                raise ConfigError(f"{where}: bounds.{key}: unknown parameter for model {self.model!r}")
             if not (isinstance(b, list) and len(b) == 2 and all(
                     isinstance(v, (int, float)) and not isinstance(v, bool) for v in b)):
-                raise ConfigError(f"{where}.bounds.{key} must be [lower, upper] numbers, got {b!r}")
+                raise ConfigError(f"{where}: bounds.{key} must be [lower, upper] numbers, got {b!r}")
             bounds.append((key, float(b[0]), float(b[1])))
         stderr = []
         for key, s in dict(data.get("stderr", {})).items():
             if key not in self._specs:
-                raise ConfigError(f"{where}.stderr.{key}: unknown parameter for model {self.model!r}")
+                raise ConfigError(f"{where}: stderr.{key}: unknown parameter for model {self.model!r}")
             if not isinstance(s, (int, float)) or isinstance(s, bool) or not math.isfinite(s) or s < 0:
-                raise ConfigError(f"{where}.stderr.{key} must be a finite number >= 0, got {s!r}")
+                raise ConfigError(f"{where}: stderr.{key} must be a finite number >= 0, got {s!r}")
             stderr.append((key, float(s)))
-        try:
-            return ParameterSet(self.model, self._specs, vals, fit_bounds=bounds, stderr=stderr)
-        except ConfigError as exc:
-            msg = str(exc)
-            raise ConfigError(msg if msg.startswith(where) else f"{where}: {msg}") from None
+        return ParameterSet(self.model, self._specs, vals, fit_bounds=bounds, stderr=stderr, where=where)
 
     def to_toml_string(self, note: str = "") -> str:
         lines = [f'model = "{self.model}"', ""]

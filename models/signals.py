@@ -15,7 +15,7 @@ import numpy as np
 
 from models.errors import ConfigError
 
-__all__ = ["dominant_frequency", "period", "moving_average", "lowpass", "autocorrelation_time", "white_part",
+__all__ = ["stuck_runs", "dominant_frequency", "period", "moving_average", "lowpass", "autocorrelation_time", "white_part",
            "StickSlipCycles", "stick_slip_cycles"]
 
 
@@ -138,6 +138,20 @@ class StickSlipCycles:
     onsets: np.ndarray
 
 
+def stuck_runs(stuck, min_length: int = 1) -> list[tuple[int, int]]:
+    """``(onset, release)`` sample indices of the runs of ``stuck`` (a boolean record) that start
+    and end within it and last at least ``min_length`` samples (``stuck[onset:release]`` is True)."""
+    d = np.diff(np.asarray(stuck).astype(int))
+    on = np.flatnonzero(d == 1) + 1
+    off = np.flatnonzero(d == -1) + 1
+    runs = []
+    for a in on:
+        b = off[off > a]
+        if b.size and b[0] - a >= min_length:
+            runs.append((int(a), int(b[0])))
+    return runs
+
+
 def stick_slip_cycles(omega, dt: float, threshold: float, *, skip: float = 0.0) -> StickSlipCycles | None:
     """The stick-slip cycles of a (forward-turning) speed record, or None if it does not stick-slip.
 
@@ -155,14 +169,7 @@ def stick_slip_cycles(omega, dt: float, threshold: float, *, skip: float = 0.0) 
     frac = float(stuck.mean())
     if not 0.02 <= frac <= 0.9:
         return None
-    d = np.diff(stuck.astype(int))
-    on = np.flatnonzero(d == 1) + 1
-    off = np.flatnonzero(d == -1) + 1
-    runs = []
-    for a in on:
-        b = off[off > a]
-        if b.size and b[0] - a >= 2:
-            runs.append((int(a), int(b[0])))
+    runs = stuck_runs(stuck, min_length=2)
     if len(runs) < 3:
         return None
     onsets = np.array([a for a, _ in runs])

@@ -293,7 +293,7 @@ def test_write_benchmark(result, tmp_path):
     (('name = "SoftSpeed"', 'name = "brake"'), r"suite\.toml: controllers\[2\]\.name: duplicate controller name"),
     (('kind = "softspeed"', 'kind = "lqr"'), r"suite\.toml: controllers\[2\]\.kind must be one of"),
     (("gain_overspeed = 80.0", "gain_overspeed = -80.0"), r"suite\.toml: controllers\[1\]\.gain_overspeed must be >= 0"),
-    (("gain_overspeed = 80.0", "gain_overspeed = 80.0\ngian = 1"), r"suite\.toml: controllers\[1\]\.gian: unknown option"),
+    (("gain_overspeed = 80.0", "gain_overspeed = 80.0\ngian = 1"), r"suite\.toml: controllers\[1\]\.gian: unknown key"),
 ])
 def test_bad_suite_files_are_one_line_errors(suite_dir, tmp_path, edit, match):
     for f in suite_dir.iterdir():

@@ -62,7 +62,7 @@ def test_options_from_mapping_names_the_table_and_its_fields():
         _Opts(steps=0)
 
 
-def test_a_foreign_options_class_still_names_the_table():
+def test_a_foreign_options_class_still_names_the_table_and_its_field():
     @dataclass(frozen=True)
     class Foreign:
         x: int = 0
@@ -70,10 +70,15 @@ def test_a_foreign_options_class_still_names_the_table():
         def __post_init__(self):
             if self.x < 0:
                 raise ConfigError("x must be >= 0")
+            if self.x == 3:
+                raise ConfigError("three is unlucky")
             if self.x > 5:
                 raise ValueError("too big")
 
-    with pytest.raises(ConfigError, match=r"^t: x must be >= 0$"):
+    # a message opening with one of its fields names that field under the table; any other names the table
+    with pytest.raises(ConfigError, match=r"^t\.x must be >= 0$"):
         options_from_mapping(Foreign, {"x": -1}, "t")
+    with pytest.raises(ConfigError, match=r"^t: three is unlucky$"):
+        options_from_mapping(Foreign, {"x": 3}, "t")
     with pytest.raises(ConfigError, match=r"^t: ValueError: too big$"):
         options_from_mapping(Foreign, {"x": 9}, "t")

@@ -12,9 +12,10 @@ from mitigate.controllers.base import Action, Controller
 from mitigate.controllers.factory import context_for, make_controller
 from mitigate.metrics import closed_loop_metrics
 from mitigate.scenario import make_scenario
-from models.plant import Plant, simulate
+from models import get_model
+from models.plant import Plant, SimOptions, simulate
 from models.sensors import encoder_step
-from models.errors import PluginError, SolverFailure
+from models.errors import ConfigError, PluginError, SolverFailure
 from models.status import Status
 
 
@@ -308,3 +309,14 @@ def test_the_drive_limits_keep_an_absurd_set_point_bounded():
     over = w3 > 1.01 * w0
     assert np.all(i[over] < 0)
     assert np.max(np.abs(r.x[:, [r.states.index(f"omega_{b}") for b in sc.plant_model.bodies]])) < sc.max_speed
+
+
+def test_results_give_trajectories_by_name_and_refuse_an_unknown_one_in_one_line():
+    """SimResult and ClosedLoopResult share models.plant.Trajectory: state(name), input(name)."""
+    m = get_model("rig3")
+    r = simulate(m, m.published(), [math.pi, 20.0, 0.0], 0.2, SimOptions())
+    assert np.array_equal(r.input("n1"), r.u[:, m.inputs.index("n1")])
+    assert np.array_equal(r.state("omega_R1"), r.x[:, r.states.index("omega_R1")])
+    for f, bad in ((r.input, "n9"), (r.state, "omega_R9")):
+        with pytest.raises(ConfigError, match=rf"^no (input|state) '{bad}'; (inputs|states): "):
+            f(bad)

@@ -125,12 +125,12 @@ def test_factory_builds_each_kind():
 
 @pytest.mark.parametrize("spec, match", [
     ({"name": "b", "kind": "brake", "gain_overspeed": -1.0}, r"controller 1 '[^']*'\.gain_overspeed must be >= 0"),
-    ({"name": "b", "kind": "brake", "gain": 1.0}, r"controller 1 '[^']*'\.gain: unknown option"),
+    ({"name": "b", "kind": "brake", "gain": 1.0}, r"controller 1 '[^']*'\.gain: unknown key"),
     ({"name": "b", "kind": "brake", "use_estimate": "yes"}, r"controller 1 '[^']*'\.use_estimate must be true or false"),
     ({"name": "b", "kind": "brake", "input": "n1"}, r"controller 1 '[^']*'.*n1"),
     ({"name": "s", "kind": "supervisor", "on": 0.1, "off": 0.2}, r"controller 1 '[^']*'\.off must be < on"),
     ({"name": "s", "kind": "supervisor", "detect": "x"}, r"controller 1 '[^']*'\.detect must be"),
-    ({"name": "p", "kind": "pi", "gain": 1}, r"controller 1 '[^']*'\.gain: unknown option"),
+    ({"name": "p", "kind": "pi", "gain": 1}, r"controller 1 '[^']*'\.gain: unknown key"),
     ({"name": "p", "kind": "lqr"}, r"controller 1 '[^']*'\.kind must be one of"),
 ])
 def test_factory_one_line_errors(spec, match):

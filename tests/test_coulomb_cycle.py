@@ -15,6 +15,7 @@ import pytest
 
 from models import get_model
 from models.plant import SimOptions, simulate
+from models.signals import stuck_runs
 
 N, OMEGA = 20.0, math.pi
 
@@ -38,23 +39,11 @@ def coulomb_run():
     return p, opts, r
 
 
-def _stick_runs(t, stuck):
-    d = np.diff(stuck.astype(int))
-    on = np.flatnonzero(d == 1) + 1
-    off = np.flatnonzero(d == -1) + 1
-    runs = []
-    for a in on:
-        b = off[off > a]
-        if b.size:
-            runs.append((a, b[0]))
-    return runs
-
-
 def test_period_and_peak_speed_within_1_percent(coulomb_run):
     p, opts, r = coulomb_run
     t_stick, t_slip, wmax = _analytic(p)
     w = r.x[:, 1]
-    runs = _stick_runs(r.t, w == 0.0)
+    runs = stuck_runs(w == 0.0)
     assert len(runs) >= 8
     onsets = r.t[[a for a, _ in runs]]
     period = np.mean(np.diff(onsets)[1:])         # skip the start-up cycle
@@ -68,7 +57,7 @@ def test_period_and_peak_speed_within_1_percent(coulomb_run):
 def test_stick_is_exact_no_creep(coulomb_run):
     p, opts, r = coulomb_run
     w, phi = r.x[:, 1], r.x[:, 0]
-    for a, b in _stick_runs(r.t, w == 0.0)[1:]:
+    for a, b in stuck_runs(w == 0.0)[1:]:
         # during stick the speed is exactly zero and the twist falls exactly at -Omega
         assert np.all(w[a:b] == 0.0)
         np.testing.assert_allclose(np.diff(phi[a:b]), -OMEGA * opts.dt, rtol=1e-9)

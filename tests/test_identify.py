@@ -24,6 +24,8 @@ from models.rig import RigModel
 from models.sensors import SensorOptions
 from models.status import Status
 
+from rig2_pi import rig2_pi_log
+
 # true disc set, off the published one (k -10 %, d +40 %, mu_k -8 %, mu_s -10 %)
 TRUE_DISC = published("disc").replace(k=1.0, d=0.03, mu_k=0.28, mu_s=0.45)
 
@@ -292,30 +294,11 @@ def test_guess_rig3_from_the_reaction_torque():
     assert any("passed through R2" in n for n in g.notes)
 
 
-def _rig2_log(true, seed, duration):
-    """rig2 under a PI speed loop on the motor (the seed-001 setting), the motor torque logged."""
-    from models.plant import Plant
-
-    plant = Plant("rig2", true, SimOptions(seed=seed))
-    w_ref, kp, ki, z = 55 * 2 * np.pi / 60 / 8, 0.5, 2.0, 0.0
-    y = plant.measure()
-    rows = {c: [y[c]] for c in ("omega1", "omega3", "theta1", "theta3", "motor_torque")}
-    t = [0.0]
-    for _ in range(int(round(duration / 0.01))):
-        e = w_ref - y["omega3"]
-        z += e * 0.01
-        y = plant.step([kp * e + ki * z])
-        t.append(plant.t)
-        for c in rows:
-            rows[c].append(y[c])
-    return Log(np.array(t), {c: np.array(v) for c, v in rows.items()}, "rig2-pi")
-
-
 def test_rig2_truth_recovery():
     """rig2 (torque drive: the logged motor torque is the input) with a Stribeck drop so that it
     sticks and slips: k within 3 %, Tc and Ts within 5 % (Tc <= Ts is the constraint here)."""
     true = published("rig2").replace(Ts=0.30, v_s=1.0)
-    log = _rig2_log(true, 2, 20.0)
+    log = rig2_pi_log(true, 2, 20.0)
     fit = quiet(identify, log, "rig2", published("rig2").replace(Ts=0.27),
                 IdentifyOptions(free=("k", "Tc", "Ts"), encoder_zero="untwisted"))
     assert fit.success, fit.message

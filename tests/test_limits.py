@@ -10,6 +10,7 @@ import pytest
 
 import mitigate.cli as cli
 import mitigate.scenario as scenario_mod
+import mitigate.scenario_fields as scenario_fields
 from mitigate.scenario import BYTES_PER_SAMPLE, MAX_SAMPLES
 from models.errors import ConfigError
 
@@ -69,7 +70,8 @@ def test_a_tiny_dt_counts_like_a_long_duration(tmp_path, capsys):
 
 def test_more_samples_than_memory_holds_is_refused(tmp_path, capsys, monkeypatch):
     """Under the sample limit, but the controller runs would need more memory than the machine has."""
-    monkeypatch.setattr(scenario_mod, "memory_bytes", lambda: 2**30)      # a 1 GiB machine
+    # the size check reads the machine's memory where it lives (mitigate.scenario_fields)
+    monkeypatch.setattr(scenario_fields, "memory_bytes", lambda: 2**30)      # a 1 GiB machine
     err = _refused(tmp_path, capsys, _copy(tmp_path, ("duration = 60.0", "duration = 20000.0")))
     n = _n_controllers()
     fit = 2**30 // (n * BYTES_PER_SAMPLE)

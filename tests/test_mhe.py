@@ -15,6 +15,8 @@ from models.errors import ConfigError
 from models.plant import SimOptions, simulate
 from models.status import Status
 
+from daq_run import powered_on
+
 M = get_model("rig3")
 P3 = M.published()
 U = np.array([math.pi, 20.0, 0.0])
@@ -25,11 +27,7 @@ K0 = 300
 @pytest.fixture(scope="module")
 def run3():
     """12 s of our exact plant's stick-slip; DAQ powered on at 3 s on a twisted shaft."""
-    sim = simulate(M, P3, U, 12.0, SimOptions(seed=5))
-    y = {c: v[K0:].copy() for c, v in sim.y.items()}
-    for c in ("theta1", "theta2", "theta3"):
-        y[c] -= y[c][0]
-    return sim.t[K0:], sim.x[K0:], y
+    return powered_on(simulate(M, P3, U, 12.0, SimOptions(seed=5)), K0)
 
 
 def meas(y, k, channels):
@@ -126,7 +124,7 @@ def test_factory_and_options():
     assert isinstance(est, MHE) and est.N == 4 and est.names == est.ekf.names
     with pytest.raises(ConfigError, match=r"estimator.window must be an integer >= 2, got 1"):
         make_estimator({"kind": "mhe", "window": 1}, CTX)
-    with pytest.raises(ConfigError, match=r"unknown key 'horizon' for kind 'mhe'"):
+    with pytest.raises(ConfigError, match=r"horizon: unknown key for kind 'mhe'"):
         make_estimator({"kind": "mhe", "horizon": 10}, CTX)
     with pytest.raises(ConfigError, match=r"qpsol must be one of ldl, osqp, got 'cholesky'"):
         make_estimator({"kind": "mhe", "qpsol": "cholesky"}, CTX)

@@ -65,8 +65,11 @@ def _write(tmp_path, text):
     ('model = "rig3"\n[params\n', r"not valid TOML"),
 ])
 def test_bad_parameter_files_name_the_field(tmp_path, text, match):
-    with pytest.raises(ConfigError, match=match):
-        load_params(_write(tmp_path, text))
+    path = _write(tmp_path, text)
+    with pytest.raises(ConfigError, match=match) as exc:
+        load_params(path)
+    # one line, opening with the file (the where is passed down, not re-prefixed afterwards)
+    assert str(exc.value).startswith(f"{path}: ") and "\n" not in str(exc.value)
 
 
 def test_model_mismatch_and_missing_file(tmp_path):

@@ -12,6 +12,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+from pathlib import Path
+
 import pytest
 
 from models import get_model
@@ -20,8 +22,8 @@ from models.errors import ConfigError
 
 
 def _text():
-    from tests.test_stiff_drive import _rig_text
-    return _rig_text(1e-3)
+    """The user's DC-motor rig (its armature inductance is 1 mH)."""
+    return (Path(__file__).resolve().parent / "data" / "small_motor.toml").read_text()
 
 
 def _write(tmp_path, text):

@@ -202,3 +202,16 @@ def test_python_entry_point_resumes_and_sweeps_a_structured_plant(tmp_path):
     assert not np.allclose(r2.maps["rest"]["amplitude"], nominal.maps["rest"]["amplitude"], rtol=1e-6)
     with pytest.raises(ConfigError, match="axes must be"):
         sweep(RIG3, [3], out=tmp_path / "d", **kw)
+
+
+@pytest.mark.parametrize("text", ["{not json", "[1, 2]"])
+def test_an_unreadable_manifest_is_one_data_error_for_the_sweep_and_the_benchmark(tmp_path, text):
+    from mitigate.benchmark.execute import RunStore
+    from models.errors import DataError
+    for cls, what, force in ((SweepStore, "sweep", "--force"), (RunStore, "benchmark", "force")):
+        root = tmp_path / what
+        root.mkdir()
+        (root / "manifest.json").write_text(text)
+        with pytest.raises(DataError, match=rf"manifest\.json: unreadable {what} manifest \(.*\); use {force} to "
+                                            r"start over$"):
+            cls(root, {"a": 1})

@@ -22,7 +22,7 @@ from dataclasses import is_dataclass
 from typing import Any, Mapping
 
 from estimators.base import EstimatorContext, StateEstimator
-from estimators.online.options import options_from_mapping
+from models.checks import options_from_mapping
 from models import plugins
 from models.errors import ConfigError
 
@@ -66,6 +66,6 @@ def make_estimator(spec: Mapping[str, Any], context: EstimatorContext) -> StateE
     cls = estimator_class(kind, context.where)
     table = {k: v for k, v in spec.items() if k != "kind"}
     oc = getattr(cls, "options_class", None)
-    options = options_from_mapping(oc, table, context.where, kind) if oc is not None and is_dataclass(oc) else table
+    options = options_from_mapping(oc, table, context.where, kind=kind) if oc is not None and is_dataclass(oc) else table
     return plugins.construct(cls, options, context, context.where,
                              timeout=plugins.construction_timeout(kind, ESTIMATOR_KINDS, context.timeout))

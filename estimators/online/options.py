@@ -1,8 +1,9 @@
 """Options of the online estimators: frozen keyword-only dataclasses that check themselves.
 
 A scenario's ``[estimator]`` table (``kind = "ekf" | "mhe" | "fd"`` and the fields below) is
-turned into one of these by :func:`options_from_mapping`; every bad value is one
-:class:`models.errors.ConfigError` line ``"<where>.<field> must be ..., got <value>"``.
+turned into one of these by :func:`models.checks.options_from_mapping`; every bad value is one
+:class:`models.errors.ConfigError` line ``"<where>.<field> must be ..., got <value>"`` (built
+directly, ``<where>`` is ``estimator``).
 Checks that need the rig (is ``omega4`` one of its channels? is ``pin3`` a contact?) are
 made when the estimation model is built (:mod:`estimators.online.model`).
 
@@ -13,53 +14,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any, Mapping
 
-from models.errors import ConfigError, quote
+from models.checks import check_options, field_where, names, option, prefix
+from models.errors import ConfigError
 
-__all__ = ["EKFOptions", "MHEOptions", "FDOptions", "options_from_mapping", "ANGLES", "QP_SOLVERS", "RigScales",
+__all__ = ["EKFOptions", "MHEOptions", "FDOptions", "ANGLES", "QP_SOLVERS", "RigScales",
            "rig_scales", "for_rig", "REFERENCE", "SCALED"]
 
 ANGLES = ("zeroed", "absolute")
 QP_SOLVERS = ("ldl", "osqp")
-_W = "estimator"     # prefix of the messages; options_from_mapping swaps in the caller's ``where``
-
-
-def _number(o, name: str, *, positive: bool = False) -> None:
-    v = getattr(o, name)
-    rel = "> 0" if positive else ">= 0"
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 \
-            or (positive and v == 0):
-        raise ConfigError(f"{_W}.{name} must be a finite number {rel}, got {quote(v)}")
-
-
-def _names(o, name: str, what: str, *, allow_none: bool = True, allow_empty: bool = True) -> None:
-    """A list of distinct strings (stored as a tuple), or None."""
-    v = getattr(o, name)
-    if v is None and allow_none:
-        return
-    if isinstance(v, list):
-        v = tuple(v)
-        object.__setattr__(o, name, v)
-    if not isinstance(v, tuple) or not all(isinstance(s, str) and s for s in v):
-        raise ConfigError(f"{_W}.{name} must be a list of {what}, got {quote(v)}")
-    if not v and not allow_empty:
-        raise ConfigError(f"{_W}.{name} must be a non-empty list of {what}, got []")
-    dup = [s for i, s in enumerate(v) if s in v[:i]]
-    if dup:
-        raise ConfigError(f"{_W}.{name} lists {dup[0]!r} twice, got {list(v)!r}")
-
-
-def _int(o, name: str, lo: int) -> None:
-    v = getattr(o, name)
-    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-        raise ConfigError(f"{_W}.{name} must be an integer >= {lo}, got {quote(v)}")
-
-
-def _bool(o, name: str) -> None:
-    v = getattr(o, name)
-    if not isinstance(v, bool):
-        raise ConfigError(f"{_W}.{name} must be true or false, got {quote(v)}")
+#: how messages name the table when the options are built directly (not from a scenario's table)
+WHERE = "estimator"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -109,49 +74,41 @@ class EKFOptions:
 
 
     channels: tuple | None = None
-    angles: str = "zeroed"
+    angles: str = option("zeroed", choices=ANGLES)
     augment: tuple | None = None
-    eps: float | None = None
-    nsub: int = 4
-    q_torque: float | None = None
-    q_current: float | None = None
-    q_twist: float | None = None
-    q_load: float = 0.02
-    q_offset: float | None = None
-    q_gain: float = 0.002
-    q_stick: float = 2.0
-    p0_twist: float | None = None
-    p0_speed: float | None = None
-    p0_current: float | None = None
-    p0_pi: float | None = None
-    p0_load: float = 0.3
-    p0_offset: float | None = None
-    p0_gain: float = 0.05
-    compile: bool = True
-    check_observability: bool = True
-    observability_window: float | None = None
+    eps: float | None = option(None, lo=0.0, lo_open=True, none=True)
+    nsub: int = option(4, lo=1)
+    q_torque: float | None = option(None, lo=0.0, none=True)
+    q_current: float | None = option(None, lo=0.0, none=True)
+    q_twist: float | None = option(None, lo=0.0, none=True)
+    q_load: float = option(0.02, lo=0.0)
+    q_offset: float | None = option(None, lo=0.0, none=True)
+    q_gain: float = option(0.002, lo=0.0)
+    q_stick: float = option(2.0, lo=0.0)
+    p0_twist: float | None = option(None, lo=0.0, none=True)
+    p0_speed: float | None = option(None, lo=0.0, none=True)
+    p0_current: float | None = option(None, lo=0.0, none=True)
+    p0_pi: float | None = option(None, lo=0.0, none=True)
+    p0_load: float = option(0.3, lo=0.0)
+    p0_offset: float | None = option(None, lo=0.0, none=True)
+    p0_gain: float = option(0.05, lo=0.0)
+    compile: bool = option(True)
+    check_observability: bool = option(True)
+    observability_window: float | None = option(None, lo=0.0, lo_open=True, none=True)
 
     def __post_init__(self):
-        _names(self, "channels", "log channels of the rig", allow_empty=False)
-        if self.angles not in ANGLES:
-            raise ConfigError(f"{_W}.angles must be 'zeroed' or 'absolute', got {self.angles!r}")
-        _names(self, "augment", "'load:<contact>', 'offset:<channel>' or 'gain:<channel>'")
+        where = prefix(WHERE)
+        for name, what, nonempty in (("channels", "log channels of the rig", True),
+                                     ("augment", "'load:<contact>', 'offset:<channel>' or 'gain:<channel>'", False)):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, names(getattr(self, name), field_where(name, where), what=what,
+                                                     nonempty=nonempty, unique=True))
         for a in self.augment or ():
             kind, _, target = a.partition(":")
             if kind not in ("load", "offset", "gain") or not target:
-                raise ConfigError(f"{_W}.augment entries must be 'load:<contact>', 'offset:<channel>' or "
-                                  f"'gain:<channel>', got {a!r}")
-        if self.eps is not None:
-            _number(self, "eps", positive=True)
-        _int(self, "nsub", 1)
-        for name in ("q_torque", "q_current", "q_twist", "q_load", "q_offset", "q_gain", "q_stick", "p0_twist", "p0_speed",
-                     "p0_current", "p0_pi", "p0_load", "p0_offset", "p0_gain"):
-            if getattr(self, name) is not None:
-                _number(self, name)
-        _bool(self, "compile")
-        _bool(self, "check_observability")
-        if self.observability_window is not None:
-            _number(self, "observability_window", positive=True)
+                raise ConfigError(f"{field_where('augment', where)} entries must be 'load:<contact>', "
+                                  f"'offset:<channel>' or 'gain:<channel>', got {a!r}")
+        check_options(self, where)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -169,16 +126,9 @@ class MHEOptions(EKFOptions):
     """
 
 
-    window: int = 20
-    max_iter: int = 1
-    qpsol: str = "ldl"
-
-    def __post_init__(self):
-        super().__post_init__()
-        _int(self, "window", 2)
-        _int(self, "max_iter", 1)
-        if self.qpsol not in QP_SOLVERS:
-            raise ConfigError(f"{_W}.qpsol must be one of {', '.join(QP_SOLVERS)}, got {self.qpsol!r}")
+    window: int = option(20, lo=2)
+    max_iter: int = option(1, lo=1)
+    qpsol: str = option("ldl", choices=QP_SOLVERS)
 
     def ekf_options(self) -> EKFOptions:
         """The options of the EKF that runs alongside (its fallback and arrival cost)."""
@@ -196,33 +146,10 @@ class FDOptions:
     """
 
 
-    angles: str = "zeroed"
+    angles: str = option("zeroed", choices=ANGLES)
 
     def __post_init__(self):
-        if self.angles not in ANGLES:
-            raise ConfigError(f"{_W}.angles must be 'zeroed' or 'absolute', got {self.angles!r}")
-
-
-def options_from_mapping(cls, table: Mapping[str, Any], where: str = "estimator", kind: str = "?"):
-    """Options of class ``cls`` (of the estimator kind ``kind``) from a TOML table (without ``kind``).
-
-    Raises
-    ------
-    ConfigError : ``"<where>: unknown key 'q_nosie' for kind 'ekf'; expected ..."`` or the
-        options' own one-line message with ``estimator.`` replaced by ``<where>.``.
-    """
-    allowed = [f.name for f in fields(cls)]
-    unknown = [k for k in table if k not in allowed]
-    if unknown:
-        raise ConfigError(f"{where}: unknown key {unknown[0]!r} for kind {kind!r}; "
-                          f"expected some of {', '.join(sorted(allowed))}")
-    try:
-        return cls(**dict(table))
-    except ConfigError as exc:
-        msg = str(exc)
-        raise ConfigError(where + msg[len(_W):] if msg.startswith(_W) else f"{where}: {msg}") from None
-    except Exception as exc:  # noqa: BLE001 - a plug-in's options class may check with anything: still bad input
-        raise ConfigError(f"{where}: {type(exc).__name__}: {exc}") from None
+        check_options(self, prefix(WHERE))
 
 
 @dataclass(frozen=True)

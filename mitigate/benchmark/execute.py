@@ -105,21 +105,17 @@ class RunStore:
     """
 
     def __init__(self, root, definition: Mapping[str, Any], *, force: bool = False):
-        from mitigate.sweep.store import definition_hash
+        from mitigate.sweep.store import definition_hash, manifest_hash
         self.root = Path(root)
         self.run_dir = self.root / "runs"
         self.hash = definition_hash(definition)
         man = self.root / "manifest.json"
-        if man.exists():
-            try:
-                old = json.loads(man.read_text())
-            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-                raise DataError(f"{man}: unreadable benchmark manifest ({exc}); use force to start over") from None
-            if old.get("hash") != self.hash:
-                if not force:
-                    raise ConfigError(f"{self.root} holds the runs of a different benchmark (hash {old.get('hash')}, "
-                                      f"this one {self.hash}); refusing to mix them (pass force=True)")
-                shutil.rmtree(self.run_dir, ignore_errors=True)
+        old = manifest_hash(self.root, "benchmark", "force")
+        if old is not None and old != self.hash:
+            if not force:
+                raise ConfigError(f"{self.root} holds the runs of a different benchmark (hash {old}, "
+                                  f"this one {self.hash}); refusing to mix them (pass force=True)")
+            shutil.rmtree(self.run_dir, ignore_errors=True)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         atomic_write_text(man, json.dumps({"hash": self.hash, "definition": definition}, indent=2, default=str) + "\n",
                           overwrite=True, durable=True)

@@ -3,11 +3,10 @@ noise seeds, ranked like for like with intervals."""
 
 from __future__ import annotations
 
-import argparse
 import shlex
 import sys
 
-from mitigate.cliutil import add_common, emit_json, format_table
+from mitigate.cliutil import add_command, add_common, emit_json, format_table
 from models.errors import ConfigError
 
 EPILOG = """\
@@ -41,8 +40,8 @@ examples:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("benchmark", help="rank every controller on the open benchmark suite",
-                       description=__doc__, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(sub, "benchmark", help="rank every controller on the open benchmark suite",
+                    description=__doc__, epilog=EPILOG)
     p.add_argument("suite", metavar="SUITE.toml", help="benchmark suite (scenarios/benchmark/suite.toml)")
     p.add_argument("--controller", action="append", default=[], metavar="NAME=KIND[,opt=val]",
                    help="add a controller to the suite's (repeatable)")

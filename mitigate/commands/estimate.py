@@ -22,7 +22,6 @@ the first second.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +29,7 @@ import numpy as np
 from estimators.online.factory import ESTIMATOR_KINDS
 from estimators.online.channels import default_channels
 from estimators.online.replay import EstimationResult, estimate_log, log_channels, true_twists
-from mitigate.cliutil import check_outputs, emit_json, format_table
+from mitigate.cliutil import add_command, check_outputs, emit_json, format_table
 from models.errors import ConfigError, DataError
 from models.files import atomic_write_text
 from models.logs import read_csv
@@ -49,12 +48,12 @@ them (at stick-slip they separate, at steady sliding they do not).
 """
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "estimate", help="estimate the twists (and speeds, drive states, friction load) from a log",
+    p = add_command(
+        subparsers, "estimate", help="estimate the twists (and speeds, drive states, friction load) from a log",
         description="Run an online estimator (EKF, MHE or finite differences) over a CSV log of a rig; write the "
                     "estimated states with standard deviations as CSV and print the observability verdict, timing "
                     "and failure counts.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG)
     p.add_argument("log", help="CSV log with the rig's inputs and some of its sensor channels")
     p.add_argument("--model", default="rig3", metavar="RIG",
                    help="shipped rig name or rig-file path (default: rig3)")

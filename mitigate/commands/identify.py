@@ -17,14 +17,13 @@ structure misses: ...`` and exit 0.
 
 from __future__ import annotations
 
-import argparse
 import math
 import re
 import sys
 import warnings
 from pathlib import Path
 
-from mitigate.cliutil import check_outputs, emit_json, format_table
+from mitigate.cliutil import add_command, check_outputs, emit_json, format_table
 from models.errors import ConfigError, DataError
 from models.files import atomic_path
 from models.logs import read_csv
@@ -67,12 +66,12 @@ def _translate(msg: str) -> str:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "identify", help="fit a rig's parameters to logs (multiple shooting, constrained Gauss-Newton)",
+    p = add_command(
+        subparsers, "identify", help="fit a rig's parameters to logs (multiple shooting, constrained Gauss-Newton)",
         description="Fit the --free parameters of the rig --model (a shipped name or a rig file) to one or several "
                     "logs (shared parameters, separate state nodes and encoder zeros); print the estimates with "
                     "standard errors, the conditioning and how the fit ended; write a parameter TOML and a PNG.",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG)
     p.add_argument("logs", nargs="+", metavar="LOG", help="CSV log(s) in the workbench format, or TDMS files")
     p.add_argument("--model", required=True, metavar="RIG",
                    help=f"rig to fit: a shipped rig ({', '.join(shipped_rigs())}) or the path of a rig file")

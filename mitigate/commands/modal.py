@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import math
 from pathlib import Path
 
 import numpy as np
 
-from mitigate.cliutil import add_common, emit_json, format_table, savefig_atomic
+from mitigate.cliutil import add_command, add_common, emit_json, format_table, savefig_atomic
 from models.files import check_output_dir, output_set
 from models.errors import ConfigError
 from models.modal import VARIANTS, compare_measured, modes, stability_map
@@ -32,11 +31,11 @@ normal force = --load [N] (defaults: the rig file's operating point; rig3: 30 rp
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "modal", help="torsional modes (free / clamped / closed loop) vs the measured 0, 0.396, 1.781 Hz",
+    p = add_command(
+        subparsers, "modal", help="torsional modes (free / clamped / closed loop) vs the measured 0, 0.396, 1.781 Hz",
         description="Linearised modal analysis of a rig: mode table (model vs measured, error %), PNG of the "
                     "mode shapes and of the stability of steady sliding over (normal force, speed).",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG)
     p.add_argument("--params", metavar="FILE", help="parameter TOML (published or fitted); default: published")
     p.add_argument("--model", default="rig3", metavar="RIG",
                    help=f"a shipped rig ({', '.join(shipped_rigs())}) or a rig file path (default: rig3)")

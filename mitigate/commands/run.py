@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
 
-from mitigate.cliutil import add_common, emit_json, format_table
+from mitigate.cliutil import add_command, add_common, emit_json, format_table
 from models.errors import ConfigError
 
 EPILOG = """\
@@ -28,8 +27,8 @@ Example:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("run", help="compare controllers on a scenario in closed loop",
-                       description=__doc__, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(sub, "run", help="compare controllers on a scenario in closed loop",
+                    description=__doc__, epilog=EPILOG)
     p.add_argument("scenario", metavar="SCENARIO.toml", help="scenario file (see scenarios/)")
     p.add_argument("--jobs", type=int, default=2, metavar="N", help="worker processes (default: 2)")
     add_common(p)

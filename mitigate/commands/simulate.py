@@ -9,13 +9,12 @@ summary: stuck fraction of R1 from the *true* speed, stick-slip severity, mean s
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 import numpy as np
 
 from mitigate import metrics
-from mitigate.cliutil import add_common, emit_json, format_table
+from mitigate.cliutil import add_command, add_common, emit_json, format_table
 from mitigate.scenario import load_scenario
 from models.errors import SolverFailure
 from models.files import check_output_dir, file_stem, output_set
@@ -29,12 +28,12 @@ EPILOG = """examples:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "simulate", help="simulate a scenario's input programme open loop (CSV log + PNG)",
+    p = add_command(
+        subparsers, "simulate", help="simulate a scenario's input programme open loop (CSV log + PNG)",
         description="Simulate a scenario open loop (its [[controllers]] are ignored): write <name>.csv in the "
                     "log format and <name>.png, print the stuck fraction, severity and mean speed of the rig's "
                     "objective body (rig3: R1).",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        epilog=EPILOG)
     p.add_argument("scenario", help="scenario TOML file")
     add_common(p)
     p.add_argument("--ideal", action="store_true",

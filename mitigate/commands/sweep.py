@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
 from models.errors import ConfigError
 from models.files import check_output_dir, file_stem, output_set
-from mitigate.cliutil import add_common, emit_json, format_table
+from mitigate.cliutil import add_command, add_common, emit_json, format_table
 
 EPILOG = """\
 axes: --vary name=start:stop:count (count linearly spaced values, both ends included); name is
@@ -31,8 +30,8 @@ examples:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("sweep", help="stick-slip maps over a grid of inputs/parameters (resumable, parallel)",
-                       description=__doc__, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(sub, "sweep", help="stick-slip maps over a grid of inputs/parameters (resumable, parallel)",
+                    description=__doc__, epilog=EPILOG)
     p.add_argument("scenario", help="scenario TOML (its [sweep] table sets defaults)")
     p.add_argument("--vary", action="append", default=None, metavar="NAME=START:STOP:COUNT",
                    help="a sweep axis (repeatable; the first is the horizontal axis of the maps)")

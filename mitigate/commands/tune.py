@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import argparse
 
-from mitigate.cliutil import add_common, emit_json, format_table
+from mitigate.cliutil import add_command, add_common, emit_json, format_table
 from models.errors import ConfigError
 
 EPILOG = """\
@@ -28,8 +27,8 @@ examples:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("tune", help="tune a controller's declared tunables on a scenario (Optuna)",
-                       description=__doc__, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = add_command(sub, "tune", help="tune a controller's declared tunables on a scenario (Optuna)",
+                    description=__doc__, epilog=EPILOG)
     p.add_argument("scenario", metavar="SCENARIO.toml", help="scenario file")
     p.add_argument("--controller", required=True, metavar="NAME",
                    help="a [[controllers]] name of the scenario, a kind (softspeed), or NAME=KIND[,opt=val,...]")

@@ -22,9 +22,9 @@ import math
 from dataclasses import dataclass
 from typing import Mapping
 
-from mitigate.controllers._opts import check_bool, check_number
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.tunables import Tunable
+from models.checks import check_options, field_where, option
 from models.errors import ConfigError
 
 __all__ = ["BrakeOptions", "BrakeController", "body_speed"]
@@ -46,22 +46,17 @@ class BrakeOptions:
     """
 
     input: str = ""
-    gain_overspeed: float = 20.0
-    gain_relative: float = 0.0
-    deadband: float = 0.0
-    n_max: float = 0.0
-    filter_tau: float = 0.03
-    use_estimate: bool = True
+    gain_overspeed: float = option(20.0, lo=0.0, unit="N s/rad")
+    gain_relative: float = option(0.0, lo=0.0, unit="N s/rad")
+    deadband: float = option(0.0, lo=0.0, unit="rad/s")
+    n_max: float = option(0.0, lo=0.0, unit="N")
+    filter_tau: float = option(0.03, lo=0.0, unit="s")
+    use_estimate: bool = option(True)
 
     def __post_init__(self):
         if not isinstance(self.input, str):
-            raise ConfigError(f"input must be a servo input name, got {self.input!r}")
-        check_number(self, "gain_overspeed", lo=0.0, unit="N s/rad")
-        check_number(self, "gain_relative", lo=0.0, unit="N s/rad")
-        check_number(self, "deadband", lo=0.0, unit="rad/s")
-        check_number(self, "n_max", lo=0.0, unit="N")
-        check_number(self, "filter_tau", lo=0.0, unit="s")
-        check_bool(self, "use_estimate")
+            raise ConfigError(f"{field_where('input')} must be a servo input name, got {self.input!r}")
+        check_options(self)
 
 
 def body_speed(model, body: str, estimate, measurement: Mapping[str, float], use_estimate: bool) -> float:

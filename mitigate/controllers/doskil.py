@@ -26,10 +26,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Mapping
 
-from mitigate.controllers._opts import check_number
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.controllers.tuning import drive_speed_channel, first_order, np_clip, tuning_for
 from mitigate.tunables import Tunable
+from models.checks import check_options, field_where, option
 from models.errors import ConfigError
 
 __all__ = ["DOSKILOptions", "DOSKIL"]
@@ -49,18 +49,16 @@ class DOSKILOptions:
     """
 
     input: str = ""
-    gain: float = 0.0
-    gain_factor: float = 2.0
-    n_min: float = 0.0
-    n_max: float = 0.0
-    tau: float = 0.0
+    gain: float = option(0.0, lo=0.0, unit="N s/rad")
+    gain_factor: float = option(2.0, lo=0.0, lo_open=True)
+    n_min: float = option(0.0, lo=0.0, unit="N")
+    n_max: float = option(0.0, lo=0.0, unit="N")
+    tau: float = option(0.0, lo=0.0, unit="s")
 
     def __post_init__(self):
         if not isinstance(self.input, str):
-            raise ConfigError(f"input must be a servo input name, got {self.input!r}")
-        for n, u in (("gain", "N s/rad"), ("n_min", "N"), ("n_max", "N"), ("tau", "s")):
-            check_number(self, n, lo=0.0, unit=u)
-        check_number(self, "gain_factor", lo=0.0, lo_open=True)
+            raise ConfigError(f"{field_where('input')} must be a servo input name, got {self.input!r}")
+        check_options(self)
 
 
 class DOSKIL(Controller):

@@ -18,11 +18,12 @@ it has one, else passed as a dict.  Every error of the entry is one line naming
 
 from __future__ import annotations
 
-from dataclasses import fields, is_dataclass
+from dataclasses import is_dataclass
 from typing import Any, Mapping
 
 from mitigate.controllers.base import ControlContext, Controller
 from models import plugins
+from models.checks import options_from_mapping
 from models.errors import ConfigError
 
 __all__ = ["make_controller", "controller_class", "CONTROLLER_KINDS", "ENTRY_POINT_GROUP", "parse_options",
@@ -47,25 +48,16 @@ def controller_class(kind: str, where: str = "controller") -> type:
 
 
 def parse_options(cls, options: Mapping[str, Any], where: str):
-    """``cls(**options)`` with one-line errors naming ``where.<field>``."""
+    """``cls(**options)`` with one-line errors naming ``where.<field>``: the class's own
+    ``from_mapping(options, where)`` if it has one, else :func:`models.checks.options_from_mapping`."""
     if hasattr(cls, "from_mapping"):
         try:
             return cls.from_mapping(options, where)
         except ConfigError:
             raise
-        except Exception as exc:  # noqa: BLE001 - as below
+        except Exception as exc:  # noqa: BLE001 - a plug-in's from_mapping may raise anything: still bad input
             raise ConfigError(f"{where}: {plugins.describe(exc)}") from None
-    names = [f.name for f in fields(cls)]
-    for k in options:
-        if k not in names:
-            raise ConfigError(f"{where}.{k}: unknown option; expected one of {', '.join(names) or '(none)'}")
-    try:
-        return cls(**options)
-    except ConfigError as exc:
-        msg = str(exc)
-        raise ConfigError(msg if msg.startswith(where) else f"{where}.{msg}") from None
-    except Exception as exc:  # noqa: BLE001 - a plug-in's options class may check with anything: still bad input
-        raise ConfigError(f"{where}: {plugins.describe(exc)}") from None
+    return options_from_mapping(cls, options, where)
 
 
 def options_of(cls, options: Mapping[str, Any], where: str):

@@ -49,11 +49,11 @@ import math
 from dataclasses import dataclass
 from typing import Mapping
 
-from mitigate.controllers._opts import check_number
-from mitigate.controllers.base import Action, Controller, ControlContext, reading
-from mitigate.controllers.tuning import PipeTorque, VirtualDrive, absorber_frequency, drive_speed_channel, np_clip, \
-    tuning_for
+from mitigate.controllers.base import Action, ControlContext, reading
+from mitigate.controllers.setpoint import DriveSetpointLaw
+from mitigate.controllers.tuning import PipeTorque, VirtualDrive, absorber_frequency, np_clip, tuning_for
 from mitigate.tunables import Tunable
+from models.checks import check_options, option
 from models.errors import ConfigError
 
 __all__ = ["SoftSpeedOptions", "SoftSpeed"]
@@ -75,27 +75,23 @@ class SoftSpeedOptions:
     tau_torque : low-pass of the pipe-torque estimate [s] (0: 1/100 of the period ``1/f_t``)
     """
 
-    kp_factor: float = 2.0
-    Z: float = 0.0
-    f_t: float = 0.0
-    J_v: float = 0.0
-    J_comp: float = 0.0
-    band: float = 0.0
-    tau_torque: float = 0.0
+    kp_factor: float = option(2.0, lo=0.0, lo_open=True)
+    Z: float = option(0.0, lo=0.0, unit="N m s/rad")
+    f_t: float = option(0.0, lo=0.0, unit="Hz")
+    J_v: float = option(0.0, lo=0.0, unit="kg m^2")
+    J_comp: float = option(0.0, lo=0.0, unit="kg m^2")
+    band: float = option(0.0, lo=0.0, unit="rad/s")
+    tau_torque: float = option(0.0, lo=0.0, unit="s")
 
     def __post_init__(self):
-        check_number(self, "kp_factor", lo=0.0, lo_open=True)
-        for n, u in (("Z", "N m s/rad"), ("f_t", "Hz"), ("J_v", "kg m^2"), ("J_comp", "kg m^2"),
-                     ("band", "rad/s"), ("tau_torque", "s")):
-            check_number(self, n, lo=0.0, unit=u)
+        check_options(self)
 
 
-class SoftSpeed(Controller):
+class SoftSpeed(DriveSetpointLaw):
     """SoftSpeed as an outer loop on the drive's set-point (module docstring)."""
 
     kind = "softspeed"
     options_class = SoftSpeedOptions
-    needs = ("drive_speed", "drive_torque")
     tunables = {
         "kp_factor": Tunable(low=0.25, high=8.0, doc="Kp in multiples of the string impedance Z"),
         "f_t": Tunable(low=0.25, high=4.0, scale=lambda c: tuning_for(c.model, c.params).f_ss, derived=1.0,
@@ -107,16 +103,11 @@ class SoftSpeed(Controller):
 
     def __init__(self, options: SoftSpeedOptions, context: ControlContext):
         super().__init__(options, context)
-        m = context.model
-        context.require_input(m.drive_input, "the drive's input")
-        self.speed_ch = drive_speed_channel(context)
-        t = tuning_for(m, context.params)
-        self.tuning = t
+        m, t = context.model, self.tuning
         self.Z = options.Z or t.Z
         self.J_v = options.J_v or t.J_drive
         if not self.J_v > 0:
             raise ConfigError(f"{context.where}.J_v: the drive has no inertia to derive it from; give J_v > 0 kg m^2")
-        self.torque_drive = m.drive_kind == "torque"
         self.Kp = options.kp_factor * self.Z
         if self.torque_drive:
             self.Kp = min(self.Kp, self.J_v / context.period)
@@ -127,9 +118,6 @@ class SoftSpeed(Controller):
         self.drive = VirtualDrive(self.J_v, self.Kp, self.Ki, context.period)
         self.reset()
 
-    def actuated_inputs(self) -> tuple[str, ...]:
-        return (self.context.model.drive_input,)
-
     def reset(self) -> None:
         self.pipe.reset()
         self._w = None
@@ -137,20 +125,12 @@ class SoftSpeed(Controller):
 
     def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
         ctx = self.context
-        m, dt = ctx.model, ctx.period
+        m = ctx.model
         w_nom = ctx.target_speed(t)
         T_pipe = self.pipe.update(measurement)
         w_meas = reading(measurement, self.speed_ch)
         if self.torque_drive:
-            if self._I is None:
-                self._I = T_pipe
-            e = w_nom - w_meas
-            lim = ctx.torque_max
-            I = self._I + self.Ki * e * dt
-            T = self.Kp * e + I
-            if abs(T) <= lim:          # the integral stops while the command is at the limit
-                self._I = I
-            return Action({m.drive_input: np_clip(self.Kp * e + self._I, -lim, lim)})
+            return self.stiff_loop(w_nom - w_meas, T_pipe)
         if self._w is None:            # bumpless start: the virtual drive where the real one is, loaded
             self._w, self._I = w_meas, T_pipe
         band = self.options.band or abs(w_nom)

@@ -27,9 +27,9 @@ from typing import Mapping
 
 import numpy as np
 
-from mitigate.controllers._opts import check_number
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.tunables import Tunable
+from models.checks import check_options, field_where, option
 from models.errors import ConfigError
 
 __all__ = ["SupervisorOptions", "SpeedSupervisor"]
@@ -50,31 +50,22 @@ class SupervisorOptions:
     min_window : samples needed before detection starts [s]
     """
 
-    detect: str = "stuck"
-    window: float = 3.0
-    stuck_speed: float = 0.31
-    on: float = 0.02
-    off: float = 0.0
-    raise_max: float = 2.1
-    rate_up: float = 0.4
-    rate_down: float = 0.15
-    min_window: float = 1.0
+    detect: str = option("stuck", choices=("stuck", "severity"))
+    window: float = option(3.0, lo=0.0, lo_open=True, unit="s")
+    stuck_speed: float = option(0.31, lo=0.0, unit="rad/s")
+    on: float = option(0.02, lo=0.0)
+    off: float = option(0.0, lo=0.0)
+    raise_max: float = option(2.1, lo=0.0, lo_open=True, unit="rad/s")
+    rate_up: float = option(0.4, lo=0.0, lo_open=True, unit="rad/s^2")
+    rate_down: float = option(0.15, lo=0.0, lo_open=True, unit="rad/s^2")
+    min_window: float = option(1.0, lo=0.0, unit="s")
 
     def __post_init__(self):
-        if self.detect not in ("stuck", "severity"):
-            raise ConfigError(f"detect must be 'stuck' or 'severity', got {self.detect!r}")
-        check_number(self, "window", lo=0.0, lo_open=True, unit="s")
-        check_number(self, "stuck_speed", lo=0.0, unit="rad/s")
-        check_number(self, "on", lo=0.0)
-        check_number(self, "off", lo=0.0)
+        check_options(self)
         if not self.off < self.on:
-            raise ConfigError(f"off must be < on = {self.on} (a band), got {self.off}")
-        check_number(self, "raise_max", lo=0.0, lo_open=True, unit="rad/s")
-        check_number(self, "rate_up", lo=0.0, lo_open=True, unit="rad/s^2")
-        check_number(self, "rate_down", lo=0.0, lo_open=True, unit="rad/s^2")
-        check_number(self, "min_window", lo=0.0, unit="s")
+            raise ConfigError(f"{field_where('off')} must be < on = {self.on} (a band), got {self.off}")
         if self.min_window > self.window:
-            raise ConfigError(f"min_window must be <= window = {self.window} s, got {self.min_window}")
+            raise ConfigError(f"{field_where('min_window')} must be <= window = {self.window} s, got {self.min_window}")
 
 
 class SpeedSupervisor(Controller):

@@ -36,9 +36,10 @@ import math
 from dataclasses import dataclass
 from typing import Mapping
 
-from mitigate.controllers._opts import check_number
-from mitigate.controllers.base import Action, Controller, ControlContext, reading
-from mitigate.controllers.tuning import PipeTorque, drive_speed_channel, first_order, np_clip, tuning_for
+from models.checks import check_options, option
+from mitigate.controllers.base import Action, ControlContext, reading
+from mitigate.controllers.setpoint import DriveSetpointLaw
+from mitigate.controllers.tuning import PipeTorque, first_order, np_clip, tuning_for
 from mitigate.tunables import Tunable
 
 __all__ = ["ZTorqueOptions", "ZTorque", "NOISE_TORQUE_FRACTION"]
@@ -63,27 +64,23 @@ class ZTorqueOptions:
     kp_factor, ki : a torque drive's stiff loop ``Kp = kp_factor Z`` [-], ``Ki`` [N m/rad] (0: ``5 J_drive``, NORCE)
     """
 
-    z: float = 0.35
-    Z: float = 0.0
-    tau_hp: float = 0.0
-    tau_lp: float = 0.0
-    band: float = 0.0
-    kp_factor: float = 50.0
-    ki: float = 0.0
+    z: float = option(0.35, lo=0.0)
+    Z: float = option(0.0, lo=0.0, unit="N m s/rad")
+    tau_hp: float = option(0.0, lo=0.0, unit="s")
+    tau_lp: float = option(0.0, lo=0.0, unit="s")
+    band: float = option(0.0, lo=0.0, unit="rad/s")
+    kp_factor: float = option(50.0, lo=0.0, lo_open=True)
+    ki: float = option(0.0, lo=0.0, unit="N m/rad")
 
     def __post_init__(self):
-        check_number(self, "z", lo=0.0)
-        for n, u in (("Z", "N m s/rad"), ("tau_hp", "s"), ("tau_lp", "s"), ("band", "rad/s"), ("ki", "N m/rad")):
-            check_number(self, n, lo=0.0, unit=u)
-        check_number(self, "kp_factor", lo=0.0, lo_open=True)
+        check_options(self)
 
 
-class ZTorque(Controller):
+class ZTorque(DriveSetpointLaw):
     """Z-Torque as an outer loop on the drive's set-point (module docstring)."""
 
     kind = "ztorque"
     options_class = ZTorqueOptions
-    needs = ("drive_speed", "drive_torque")
     tunables = {
         "z": Tunable(low=0.05, high=2.0, doc="the torque-feedback factor"),
         "tau_hp": Tunable(low=0.25, high=10.0, scale=lambda c: tuning_for(c.model, c.params).period, derived=2.0,
@@ -95,17 +92,12 @@ class ZTorque(Controller):
 
     def __init__(self, options: ZTorqueOptions, context: ControlContext):
         super().__init__(options, context)
-        m = context.model
-        context.require_input(m.drive_input, "the drive's input")
-        self.speed_ch = drive_speed_channel(context)
-        t = tuning_for(m, context.params)
-        self.tuning = t
+        t = self.tuning
         self.tau_lp = options.tau_lp or t.period / 100.0
         self.pipe = PipeTorque(context, tau=self.tau_lp, tau_acc=max(t.period / 80.0, 3.0 * context.period))
         self.Z = options.Z or t.Z
         self.tau_hp = options.tau_hp or 2.0 * t.period
         self.gain = options.z / self.Z                 # [rad/s per N m]
-        self.torque_drive = m.drive_kind == "torque"
         self.Kp = options.kp_factor * self.Z
         if self.torque_drive:
             self.Kp = min(self.Kp, t.J_drive / context.period, self._kp_noise_bound(context))
@@ -124,9 +116,6 @@ class ZTorque(Controller):
         sd = channel_std(m, self.speed_ch, context.period, context.sensors)
         return NOISE_TORQUE_FRACTION * T_nom / sd if T_nom > 0 and sd > 1e-9 else math.inf
 
-    def actuated_inputs(self) -> tuple[str, ...]:
-        return (self.context.model.drive_input,)
-
     def reset(self) -> None:
         self.pipe.reset()
         self._lp = None          # the slow part of the pipe torque (its high-pass is T - slow)
@@ -139,14 +128,7 @@ class ZTorque(Controller):
         hp = T - self._lp
         w_nom = self.context.target_speed(t)
         if self.torque_drive:
-            e = w_nom - reading(measurement, self.speed_ch) - self.gain * hp
-            lim = self.context.torque_max
-            if self._I is None:          # the integral starts at the pipe torque
-                self._I = T
-            I = self._I + self.Ki * e * dt
-            if abs(self.Kp * e + I) <= lim:
-                self._I = I
-            return Action({m.drive_input: np_clip(self.Kp * e + self._I, -lim, lim)})
+            return self.stiff_loop(w_nom - reading(measurement, self.speed_ch) - self.gain * hp, T)
         band = self.options.band or abs(w_nom)
         w = np_clip(w_nom - self.gain * hp, max(0.0, w_nom - band), w_nom + band)
         return Action({m.drive_input: w})

@@ -195,7 +195,7 @@ class SweepPlan:
 def _check_size(sc: Scenario, axes, options: SweepOptions) -> None:
     """One-line ConfigError before anything is allocated: too many points (all axes multiplied),
     too many time steps per point, or a plan that does not fit in this machine's memory."""
-    from mitigate.scenario import MAX_SAMPLES, memory_bytes
+    from mitigate.scenario_fields import MAX_SAMPLES, memory_bytes
 
     points = math.prod(int(a.count) for a in axes)           # exact, however large
     counts = " x ".join(f"{a.count:,}" for a in axes)

@@ -28,13 +28,30 @@ import numpy as np
 from models.errors import ConfigError, DataError
 from models.files import atomic_write_text
 
-__all__ = ["SweepStore", "definition_hash"]
+__all__ = ["SweepStore", "definition_hash", "manifest_hash"]
 
 
 def definition_hash(definition: Mapping[str, Any]) -> str:
     """SHA-256 (first 16 hex digits) of the canonical JSON of a sweep definition."""
     text = json.dumps(definition, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def manifest_hash(root: Path, what: str, force: str) -> str | None:
+    """The definition hash in ``root/manifest.json`` of a resumable store (a sweep's, a benchmark's),
+    None when there is none yet.
+
+    Raises
+    ------
+    DataError : ``"<root>/manifest.json: unreadable <what> manifest (...); use <force> to start over"``
+    """
+    man = Path(root) / "manifest.json"
+    if not man.exists():
+        return None
+    try:
+        return json.loads(man.read_text()).get("hash")
+    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError) as exc:
+        raise DataError(f"{man}: unreadable {what} manifest ({exc}); use {force} to start over") from None
 
 
 class SweepStore:
@@ -54,15 +71,12 @@ class SweepStore:
         self.hash = definition_hash(self.definition)
         self.resumed = False
         man = self.root / "manifest.json"
-        if man.exists():
-            try:
-                old = json.loads(man.read_text())
-            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-                raise DataError(f"{man}: unreadable sweep manifest ({exc}); use --force to start over") from None
-            if old.get("hash") == self.hash:
+        old = manifest_hash(self.root, "sweep", "--force")
+        if old is not None:
+            if old == self.hash:
                 self.resumed = True
             elif not force:
-                raise ConfigError(f"{self.root} holds a different sweep (hash {old.get('hash')}, this one {self.hash}); "
+                raise ConfigError(f"{self.root} holds a different sweep (hash {old}, this one {self.hash}); "
                                   f"refusing to mix results (use --force to discard it, or another --out)")
             else:
                 shutil.rmtree(self.chunk_dir, ignore_errors=True)

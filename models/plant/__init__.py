@@ -2,6 +2,7 @@
 its sensors and actuators (:mod:`models.plant.simulator`)."""
 
 from models.plant.hybrid import hybrid_step_function
-from models.plant.simulator import MAX_SAMPLES, Plant, SimOptions, SimResult, plant_integration, simulate, step_function
+from models.plant.simulator import (MAX_SAMPLES, Plant, SimOptions, SimResult, Trajectory, plant_integration, simulate,
+                                    step_function)
 
-__all__ = ["hybrid_step_function", "Plant", "SimOptions", "SimResult", "simulate", "step_function", "plant_integration", "MAX_SAMPLES"]
+__all__ = ["hybrid_step_function", "Plant", "SimOptions", "SimResult", "Trajectory", "simulate", "step_function", "plant_integration", "MAX_SAMPLES"]

@@ -37,7 +37,7 @@ from models.rig.spec import SI_UNITS
 from models.sensors import SensorOptions, Sensors
 from models.status import Outcome, Status
 
-__all__ = ["SimOptions", "Plant", "SimResult", "simulate", "step_function", "plant_integration", "MAX_SAMPLES"]
+__all__ = ["SimOptions", "Plant", "Trajectory", "SimResult", "simulate", "step_function", "plant_integration", "MAX_SAMPLES"]
 
 _METHODS = ("hybrid", "smooth", "cvodes")
 #: the largest run (DAQ samples) the simulator accepts; a state history of 10 states takes 0.8 GB at this size
@@ -254,8 +254,29 @@ class Plant:
         return self.measure()
 
 
+class Trajectory(Outcome):
+    """Base of a run's result with true states ``x`` (names in ``states``) and applied inputs ``u``
+    (names in ``inputs``), time on axis 0: their trajectories by name."""
+
+    __slots__ = ()
+
+    def state(self, name: str) -> np.ndarray:
+        """A true state's trajectory by name (e.g. ``"twist_shaft1"``, ``"omega_R1"``)."""
+        try:
+            return self.x[:, self.states.index(name)]
+        except ValueError:
+            raise ConfigError(f"no state {name!r}; states: {', '.join(self.states)}") from None
+
+    def input(self, name: str) -> np.ndarray:
+        """An applied input's trajectory by name."""
+        try:
+            return self.u[:, self.inputs.index(name)]
+        except ValueError:
+            raise ConfigError(f"no input {name!r}; inputs: {', '.join(self.inputs)}") from None
+
+
 @dataclass(frozen=True)
-class SimResult(Outcome):
+class SimResult(Trajectory):
     """Result of :func:`simulate`; time on the first axis.
 
     Attributes
@@ -280,13 +301,6 @@ class SimResult(Outcome):
     status: Status = Status.OK
     message: str = "ok"
     units: dict = field(default_factory=dict, repr=False)
-
-    def state(self, name: str) -> np.ndarray:
-        """A true state's trajectory by name (e.g. ``"twist_shaft1"``)."""
-        try:
-            return self.x[:, self.states.index(name)]
-        except ValueError:
-            raise ConfigError(f"no state {name!r}; states: {', '.join(self.states)}") from None
 
     def to_log(self, *, measured: bool = True, include_truth: bool = False) -> Log:
         """The run as a :class:`models.logs.Log`: the measured channels (or their noise-free

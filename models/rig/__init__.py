@@ -107,8 +107,4 @@ def load_params(path: str | os.PathLike, model=None) -> ParameterSet:
             raise ConfigError(f"{path}: model: {exc}") from None
     if want is not None and rig_key(m) != rig_key(want):
         raise ConfigError(f"{path}: model must be {want.name!r} here, got {m.name!r}")
-    try:
-        return m.published().from_mapping(data, where=str(path))
-    except ConfigError as exc:
-        msg = str(exc)
-        raise ConfigError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
+    return m.published().from_mapping(data, where=str(path))    # every message opens with the path
