@@ -255,15 +255,10 @@ def measured_stuck_speed(scenario, w_scale: float, given: float | None = None) -
     """(the objective body's speed channel, the |measured speed| at or below which it counts as stuck
     [rad/s]): ``given``, else half an encoder tick per DAQ period on an encoder channel, else 5 % of
     ``w_scale`` (the programmed speed) [rad/s]."""
-    from models.sensors import encoder_step
+    from models.sensors import stuck_speed
     m = scenario.model
     ch = m.speed_channel(m.objective_body)
-    if given is not None:
-        return ch, given
-    s = m.sensor_of(ch) if ch else None
-    if s is not None and s.kind == "encoder":
-        return ch, 0.5 * encoder_step(s) / scenario.dt
-    return ch, 0.05 * abs(w_scale)
+    return ch, (given if given is not None else stuck_speed(m, ch, scenario.dt, w_scale))
 
 
 def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) -> dict[str, float]:

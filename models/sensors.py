@@ -70,6 +70,16 @@ def encoder_step(s) -> float:
 _encoder_step = encoder_step
 
 
+def stuck_speed(model, channel: str | None, dt: float, w_scale: float) -> float:
+    """The |measured speed| at or below which a body counts as stuck [rad/s]: half an encoder tick
+    per DAQ period ``dt`` [s] when ``channel`` is an encoder's speed (a stuck body reads exactly 0,
+    a turning one at least one tick), else 5 % of ``w_scale`` (the programmed speed) [rad/s]."""
+    s = model.sensor_of(channel) if channel else None
+    if s is not None and s.kind == "encoder":
+        return 0.5 * encoder_step(s) / dt
+    return 0.05 * abs(w_scale)
+
+
 def channel_variance(model, channel: str, dt: float, options: SensorOptions = SensorOptions()) -> float:
     """Noise variance of a log channel of ``model`` [SI unit squared].
 

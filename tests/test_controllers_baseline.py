@@ -112,6 +112,26 @@ def test_supervisor_severity_detection():
     assert c.indicator() == pytest.approx(4.0 / (2 * 3.0))
 
 
+def test_supervisor_defaults_come_from_the_rig():
+    """Unset, the supervisor's unit-carrying options follow the rig: on rig3 at 30 rpm they are the
+    values it was tuned with (window 3 s, raise 2.1 rad/s, rates 0.4 / 0.15 rad/s^2, stuck below half
+    an encoder tick per DAQ period); at 60 rpm the raise and its rates double, and a given value wins."""
+    from mitigate.controllers.tuning import stick_slip_frequency
+    from models.sensors import encoder_step
+    sc = _scenario([{"name": "s", "kind": "supervisor"}], omega_rpm=30.0)
+    o = make_controller(sc.controllers[0], context_for(sc, 0)).options
+    assert o.window == pytest.approx(3.0, rel=1e-3) and o.min_window == pytest.approx(1.0, rel=1e-3)
+    assert o.raise_max == pytest.approx(2.1, rel=1e-3)
+    assert o.rate_up == pytest.approx(0.4, rel=1e-3) and o.rate_down == pytest.approx(0.15, rel=1e-3)
+    m = sc.model
+    assert o.stuck_speed == pytest.approx(0.5 * encoder_step(m.sensor_of("omega1")) / sc.dt)
+    assert o.window == pytest.approx(1.2856 * (1 / stick_slip_frequency(m, sc.model_params)), rel=1e-3)
+    fast = _scenario([{"name": "s", "kind": "supervisor", "window": 2.0}], omega_rpm=60.0)
+    f = make_controller(fast.controllers[0], context_for(fast, 0)).options
+    assert f.raise_max == pytest.approx(4.2, rel=1e-3) and f.rate_up == pytest.approx(0.8, rel=1e-3)
+    assert f.window == 2.0 and f.min_window == pytest.approx(2.0 / 3.0)
+
+
 def test_factory_builds_each_kind():
     sc = _scenario([{"name": "a", "kind": "pi"}, {"name": "b", "kind": "brake", "gain_overspeed": 5.0},
                     {"name": "c", "kind": "supervisor", "raise_max": 1.0}])

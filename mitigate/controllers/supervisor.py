@@ -7,12 +7,18 @@ N1 = 20 N the stick-slip limit cycle coexists with a linearly stable steady slid
 followed by a slow return lands the rig on the stable sliding branch at the nominal
 speed.
 
-Detection uses the MEASURED R1 speed only (no model) over a sliding window of
+Detection uses the MEASURED speed of the objective body only (no model) over a sliding window of
 ``window`` seconds:
 
-- ``detect = "stuck"``: the fraction of samples with ``|omega1| <= stuck_speed``
-  (default half an encoder tick per DAQ period: 0.31 rad/s, so a stuck disc reads 0);
+- ``detect = "stuck"``: the fraction of samples with ``|omega| <= stuck_speed``
+  (default half an encoder tick per DAQ period, so a stuck disc reads 0: 0.31 rad/s on rig3;
+  without an encoder on that body, 5 % of the programmed speed);
 - ``detect = "severity"``: (max - min) / (2 mean) of the windowed speed.
+
+Every unit-carrying default comes from the rig (:func:`resolve`): the window from its stick-slip
+period T (:func:`mitigate.controllers.tuning.stick_slip_frequency`), the raise and its rates from
+the programmed speed w and T.  The ratios are the values tuned on rig3 (T = 2.33 s, w = pi rad/s:
+window 3 s, min_window 1 s, raise_max 2.1 rad/s, rate_up 0.4 and rate_down 0.15 rad/s^2).
 
 Above ``on`` the supervisor raises the speed offset towards ``raise_max`` at
 ``rate_up``; at or below ``off`` (a band: ``off < on``) it lowers the offset towards 0
@@ -22,6 +28,7 @@ at ``rate_down``; in between it holds.
 from __future__ import annotations
 
 from collections import deque
+import dataclasses
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -32,7 +39,7 @@ from mitigate.tunables import Tunable
 from models.checks import check_options, field_where, option
 from models.errors import ConfigError
 
-__all__ = ["SupervisorOptions", "SpeedSupervisor"]
+__all__ = ["SupervisorOptions", "SpeedSupervisor", "resolve"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -42,30 +49,56 @@ class SupervisorOptions:
     Parameters
     ----------
     detect : "stuck" (fraction of time stuck) or "severity" (windowed SSS)
-    window : detection window [s]
-    stuck_speed : |omega1| at or below which a sample counts as stuck [rad/s]
+    window : detection window [s] (default: 1.29 stick-slip periods)
+    stuck_speed : |omega| at or below which a sample counts as stuck [rad/s] (default: half an encoder
+        tick per DAQ period, else 5 % of the programmed speed)
     on, off : raise above ``on``; lower at or below ``off`` (``off < on``) [-]
-    raise_max : largest speed offset above the programme [rad/s]
-    rate_up, rate_down : rate limits of the offset [rad/s^2]
-    min_window : samples needed before detection starts [s]
+    raise_max : largest speed offset above the programme [rad/s] (default: 0.668 x the programmed speed)
+    rate_up, rate_down : rate limits of the offset [rad/s^2] (default: raise_max over 2.25 and 6.0
+        stick-slip periods)
+    min_window : samples needed before detection starts [s] (default: window / 3)
+    Unset (None) fields are derived from the rig when the controller is built (:func:`resolve`).
     """
 
     detect: str = option("stuck", choices=("stuck", "severity"))
-    window: float = option(3.0, lo=0.0, lo_open=True, unit="s")
-    stuck_speed: float = option(0.31, lo=0.0, unit="rad/s")
+    window: float | None = option(None, lo=0.0, lo_open=True, unit="s", none=True)
+    stuck_speed: float | None = option(None, lo=0.0, unit="rad/s", none=True)
     on: float = option(0.02, lo=0.0)
     off: float = option(0.0, lo=0.0)
-    raise_max: float = option(2.1, lo=0.0, lo_open=True, unit="rad/s")
-    rate_up: float = option(0.4, lo=0.0, lo_open=True, unit="rad/s^2")
-    rate_down: float = option(0.15, lo=0.0, lo_open=True, unit="rad/s^2")
-    min_window: float = option(1.0, lo=0.0, unit="s")
+    raise_max: float | None = option(None, lo=0.0, lo_open=True, unit="rad/s", none=True)
+    rate_up: float | None = option(None, lo=0.0, lo_open=True, unit="rad/s^2", none=True)
+    rate_down: float | None = option(None, lo=0.0, lo_open=True, unit="rad/s^2", none=True)
+    min_window: float | None = option(None, lo=0.0, unit="s", none=True)
 
     def __post_init__(self):
         check_options(self)
         if not self.off < self.on:
             raise ConfigError(f"{field_where('off')} must be < on = {self.on} (a band), got {self.off}")
-        if self.min_window > self.window:
+        if self.min_window is not None and self.window is not None and self.min_window > self.window:
             raise ConfigError(f"{field_where('min_window')} must be <= window = {self.window} s, got {self.min_window}")
+
+
+#: the defaults as ratios to the rig's stick-slip period T and programmed speed w (rig3's tuned values)
+WINDOW_PERIODS = 3.0 / 2.3335          # window = 1.29 T
+MIN_WINDOW_FRACTION = 1.0 / 3.0        # min_window = window / 3
+RAISE_SPEEDS = 2.1 / 3.1416            # raise_max = 0.668 w
+RAISE_UP_PERIODS = 2.1 / 0.4 / 2.3335  # rate_up = raise_max / (2.25 T)
+RAISE_DOWN_PERIODS = 2.1 / 0.15 / 2.3335   # rate_down = raise_max / (6.0 T)
+
+
+def resolve(options: SupervisorOptions, period: float, speed: float, stuck: float) -> SupervisorOptions:
+    """``options`` with every unset (None) unit-carrying field derived from the rig: its stick-slip
+    period ``period`` [s], the programmed speed ``speed`` [rad/s] and the stuck threshold of its
+    speed channel ``stuck`` [rad/s] (:func:`models.sensors.stuck_speed`)."""
+    o = options
+    window = o.window if o.window is not None else WINDOW_PERIODS * period
+    raise_max = o.raise_max if o.raise_max is not None else RAISE_SPEEDS * abs(speed)
+    return dataclasses.replace(
+        o, window=window, raise_max=raise_max,
+        min_window=o.min_window if o.min_window is not None else min(MIN_WINDOW_FRACTION * window, window),
+        stuck_speed=o.stuck_speed if o.stuck_speed is not None else stuck,
+        rate_up=o.rate_up if o.rate_up is not None else raise_max / (RAISE_UP_PERIODS * period),
+        rate_down=o.rate_down if o.rate_down is not None else raise_max / (RAISE_DOWN_PERIODS * period))
 
 
 class SpeedSupervisor(Controller):
@@ -98,7 +131,22 @@ class SpeedSupervisor(Controller):
             raise ConfigError(f"{context.where}: the supervisor needs the speed of {m.objective_body!r}, which rig "
                               f"{m.name!r} does not measure")
         self.dt = context.period
+        from mitigate.controllers.tuning import stick_slip_frequency
+        from models.sensors import stuck_speed
+        w = self.context.scheduled(0.0, m.drive_input)
+        if not (np.isfinite(w) and w != 0):
+            w = m.nominal_speed()
+        if self.options.raise_max is None and not w:
+            raise ConfigError(f"{context.where}.raise_max: the programme's drive speed is 0 at the start, so the "
+                              f"raise cannot be derived from it; give raise_max [rad/s]")
+        #: the options it runs with: the given ones, the rest derived from the rig (:func:`resolve`)
+        self.options = resolve(self.options, 1.0 / stick_slip_frequency(m, context.params), w,
+                               stuck_speed(m, self.channel, context.dt, w))
         self.reset()
+
+    derived = ("window", "min_window", "stuck_speed", "raise_max", "rate_up", "rate_down")
+    derived_units = {"window": "s", "min_window": "s", "stuck_speed": "rad/s", "raise_max": "rad/s",
+                     "rate_up": "rad/s^2", "rate_down": "rad/s^2"}
 
     def actuated_inputs(self) -> tuple[str, ...]:
         return (self.context.model.drive_input,)
