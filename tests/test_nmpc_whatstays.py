@@ -103,6 +103,19 @@ def test_defaults_come_from_the_rig_at_both_scales():
     assert r3.derived_units["setpoint_band"] == "rad/s" and r3.tuning_values()["setpoint_band"] == pytest.approx(math.pi)
 
 
+def test_a_torque_drive_limit_bounds_the_nmpc_set_point(tmp_path):
+    """[drive] torque_max: the NMPC's torque set-point stays within it (the band alone would allow
+    the programme's 10 kN m plus a 10 kN m band)."""
+    text = FIELD.read_text().replace('input = "table_torque"', 'input = "table_torque"\ntorque_max = "12 kN m"', 1)
+    (tmp_path / "field_limited.toml").write_text(text)
+    m = get_model(str(tmp_path / "field_limited.toml"))
+    c = make_controller({"kind": "nmpc", "compile": False}, _ctx(m, [1.0e4, 97347.0]))
+    lo, hi = c._bounds(np.array([1.0e4, 97347.0]))
+    assert hi[0] == pytest.approx(12000.0) and lo[0] >= -12000.0
+    free = make_controller({"kind": "nmpc", "compile": False}, _ctx(get_model(str(FIELD)), [1.0e4, 97347.0]))
+    assert free._bounds(np.array([1.0e4, 97347.0]))[1][0] == pytest.approx(2.0e4)
+
+
 def test_hold_gain_follows_the_stability_of_sliding_at_the_programme():
     """Calm, the NMPC holds harder (60) where steady sliding at the programme is linearly stable
     and keeps feedback (15) where it is not: rig3 at 30 rpm / 20 N is stable, at 30 rpm / 50 N

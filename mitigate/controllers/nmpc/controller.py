@@ -301,6 +301,9 @@ class NMPC(Controller):
                     lo[0] = max(lo[0], 0.0)
                 else:
                     hi[0] = min(hi[0], 0.0)
+            else:                        # a torque drive's limit ([drive] torque_max; inf: none)
+                tmax = self.context.torque_max
+                lo[0], hi[0] = max(lo[0], -tmax), min(hi[0], tmax)
         return lo, hi
 
     def _state(self, estimate):
