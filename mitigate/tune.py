@@ -311,10 +311,13 @@ def _start_params(ctrl, spec, space) -> dict:
     ("derive from the rig") start from the derived value where the Tunable says it (``derived``)."""
     from mitigate.controllers.factory import parse_options
     oc = getattr(type(ctrl), "options_class", None)
-    try:
-        opts = parse_options(oc, dict(spec.options), "controller") if oc is not None else dict(spec.options)
-    except ConfigError:
-        return {}
+    if oc is not None and isinstance(getattr(ctrl, "options", None), oc):
+        opts = ctrl.options          # as the controller runs them (unset values derived from the rig)
+    else:
+        try:
+            opts = parse_options(oc, dict(spec.options), "controller") if oc is not None else dict(spec.options)
+        except ConfigError:
+            return {}
     out = {}
     for name, (lo, hi, log, _i, unit) in space.items():
         v: Any = opts

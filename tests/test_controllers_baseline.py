@@ -132,6 +132,17 @@ def test_supervisor_defaults_come_from_the_rig():
     assert f.window == 2.0 and f.min_window == pytest.approx(2.0 / 3.0)
 
 
+def test_brake_defaults_come_from_the_rig():
+    """Unset, the brake's overspeed gain is pi/2 x the servo's range per programmed speed (rig3 at
+    30 rpm: 40 N / pi rad/s x pi/2 = 20 N s/rad, its tuned value) and its filter 3 DAQ periods."""
+    sc = _scenario([{"name": "b", "kind": "brake"}], omega_rpm=30.0)
+    o = make_controller(sc.controllers[0], context_for(sc, 0)).options
+    assert o.gain_overspeed == pytest.approx(20.0) and o.filter_tau == pytest.approx(3 * sc.dt)
+    fast = _scenario([{"name": "b", "kind": "brake", "filter_tau": 0.0}], omega_rpm=60.0)
+    f = make_controller(fast.controllers[0], context_for(fast, 0)).options
+    assert f.gain_overspeed == pytest.approx(10.0) and f.filter_tau == 0.0
+
+
 def test_factory_builds_each_kind():
     sc = _scenario([{"name": "a", "kind": "pi"}, {"name": "b", "kind": "brake", "gain_overspeed": 5.0},
                     {"name": "c", "kind": "supervisor", "raise_max": 1.0}])

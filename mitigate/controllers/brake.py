@@ -18,6 +18,7 @@ scenario (``benchmarks/brake_tuning.py``).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Mapping
@@ -29,6 +30,11 @@ from models.errors import ConfigError
 
 __all__ = ["BrakeOptions", "BrakeController", "body_speed"]
 
+#: the overspeed gain in the servo's range per programmed speed (rig3's tuned 20 N s/rad)
+GAIN_FACTOR = math.pi / 2
+#: the speed filter's time constant in DAQ periods (rig3's 0.03 s: 3 x 10 ms)
+FILTER_PERIODS = 3.0
+
 
 @dataclass(frozen=True, kw_only=True)
 class BrakeOptions:
@@ -37,20 +43,21 @@ class BrakeOptions:
     Parameters
     ----------
     input : the servo input it commands (default: the rig's first servo, rig3 ``n2``)
-    gain_overspeed : pin force per rad/s of overspeed above the programmed speed [N s/rad]
+    gain_overspeed : pin force per rad/s of overspeed above the programmed speed [N s/rad] (default:
+        pi/2 x the servo's range per programmed speed, :func:`force_per_speed`: 20 on rig3, as tuned there)
     gain_relative : pin force per rad/s of running faster than the drive body [N s/rad]
     deadband : speed error ignored [rad/s]
     n_max : largest commanded pin force [N] (0: the servo's range)
-    filter_tau : first-order low-pass time constant on the speeds [s] (0: none)
+    filter_tau : first-order low-pass time constant on the speeds [s] (0: none; default: 3 DAQ periods)
     use_estimate : take speeds from the state estimate when one is available
     """
 
     input: str = ""
-    gain_overspeed: float = option(20.0, lo=0.0, unit="N s/rad")
+    gain_overspeed: float | None = option(None, lo=0.0, unit="N s/rad", none=True)
     gain_relative: float = option(0.0, lo=0.0, unit="N s/rad")
     deadband: float = option(0.0, lo=0.0, unit="rad/s")
     n_max: float = option(0.0, lo=0.0, unit="N")
-    filter_tau: float = option(0.03, lo=0.0, unit="s")
+    filter_tau: float | None = option(None, lo=0.0, unit="s", none=True)
     use_estimate: bool = option(True)
 
     def __post_init__(self):
@@ -73,7 +80,7 @@ def force_per_speed(context) -> float:
     drive speed (rig3: 40 N / pi rad/s = 12.7 N s/rad)."""
     m = context.model
     a = m.actuator(m.servo_inputs[0]) if m.servo_inputs else None
-    w = abs(context.scheduled(0.0, m.drive_input)) if m.drive_kind != "torque" else 0.0
+    w = abs(context.target_speed(0.0))
     return a.n_max / w if a is not None and w > 0 else float("nan")
 
 
@@ -105,6 +112,16 @@ class BrakeController(Controller):
         self.body = m.contact_of_input(self.input).body
         self.drive_body = m.drive_body or None
         self.n_max = options.n_max or m.actuator(self.input).n_max
+        if options.gain_overspeed is None or options.filter_tau is None:
+            g = options.gain_overspeed
+            if g is None:
+                g = GAIN_FACTOR * force_per_speed(context)
+                if not math.isfinite(g):
+                    raise ConfigError(f"{context.where}.gain_overspeed: no programmed speed at the start to derive it "
+                                      f"from; give gain_overspeed [N s/rad]")
+            tau = options.filter_tau if options.filter_tau is not None else FILTER_PERIODS * context.dt
+            #: the options it runs with: the given ones, the rest derived from the rig
+            self.options = options = dataclasses.replace(options, gain_overspeed=g, filter_tau=tau)
         need = [m.speed_channel(self.body)] + ([m.speed_channel(self.drive_body)] if options.gain_relative > 0 else [])
         if None in need:
             raise ConfigError(f"{context.where}: the brake needs the speeds of {self.body!r}"
@@ -135,7 +152,7 @@ class BrakeController(Controller):
         wb = body_speed(m, self.body, estimate, measurement, o.use_estimate)
         wd = body_speed(m, self.drive_body, estimate, measurement, o.use_estimate) if o.gain_relative > 0 else 0.0
         wb, wd = self._filtered(t, (wb, wd))
-        w_ref = self.context.scheduled(t, m.drive_input)
+        w_ref = self.context.target_speed(t)        # a torque drive's target speed, not its torque
         n = (o.gain_overspeed * max(0.0, wb - w_ref - o.deadband)
              + o.gain_relative * max(0.0, wb - wd - o.deadband))
         return Action({self.input: min(max(n, 0.0), self.n_max)})
