@@ -162,7 +162,8 @@ def identification(m):
         for n, v, se in zip(fit.names, fit.estimate, fit.error):
             true = getattr(p, n)
             assert abs(v - true) <= max(4 * se, 0.06 * abs(true)), (n, v, se, true)
-    return f"{fit.status.value}: " + ", ".join(f"{n} {v:.4g}" for n, v in zip(fit.names, fit.estimate))
+    return f"{fit.status.value}: " + ", ".join(f"{n} {v:.4g} +- {se:.2g} (true {getattr(p, n):.4g})"
+                                             for n, v, se in zip(fit.names, fit.estimate, fit.error))
 
 
 #: CI's corners of the zoo, one rig each (derandomised): a lab rig on a DC motor with the fastest
@@ -177,7 +178,10 @@ CORNERS = {
 
 #: corners where the zoo found the identification confidently wrong (status OK, the truth many
 #: standard errors away): reported to the identification's owner, xfail until fixed
-IDENT_FINDINGS = {"field_torque_drive": "k0 931 +- 11 N m/rad against 780 (3 bodies, torque drive, J ~ 160 kg m^2)"}
+#: (field_torque_drive, k0 931 +- 11 against 780, was one: the shooting nodes of its unmeasured states
+#: came from a simulation out of phase with the log; they come from the EKF now, 736 +- 13, status
+#: WARNING -- estimators.identify.start.filtered_states)
+IDENT_FINDINGS: dict[str, str] = {}
 
 
 def check(tmp_path_factory, z, corner=None):
