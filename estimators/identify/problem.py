@@ -57,7 +57,7 @@ from estimators.identify.result import (FitResult, IdentifiabilityWarning, conve
                                         identifiability_warnings)
 from estimators.identify.shooting import ShootingProblem
 from estimators.identify.start import (constraint_rows, constraints, feasible, free_bounds, initial_nodes,
-                                      scaled_constraints)
+                                      scaled_constraints, state_scales)
 from estimators.identify.systematic import systematic_error
 from estimators.identify.validation import validate
 
@@ -236,9 +236,7 @@ class IdentificationProblem:
         if self._alternative is not None:
             self._choose_start(Sv_run, U, Y, sig, np.concatenate(starts), np.concatenate(zmap), nz)
         init_nodes, z0 = self._initial_nodes(Sv_run)
-        x_abs = np.max(np.abs(np.concatenate(init_nodes)), axis=0)
-        x_scale = np.where(x_abs > 1e-6, x_abs, 1.0)
-        self.x_scale = np.maximum(x_scale, 1e-3 * np.max(x_scale))
+        self.x_scale = state_scales(m, self.channels, init_nodes)
         th0 = self.theta0
         ths = np.where(np.abs(th0) > 0, np.abs(th0), np.maximum(self.hi - self.lo, 1e-6) * 0.1)
         self.th_scale = np.where(np.isfinite(ths), ths, 1.0)
