@@ -21,13 +21,18 @@ from models.status import Status
 FIELD = Path(__file__).parent / "data" / "field_torque_string.toml"
 
 
-@pytest.fixture(scope="module")
-def field():
-    m = get_model(str(FIELD))
+def from_rest(path, duration: float = 4.0, seed: int = 3):
+    """``(model, params, u, sim)``: the rig of ``path`` run from rest at its operating point (the rig
+    zoo's identification log)."""
+    m = get_model(str(path))
     p = m.published()
     u, _ = operating_point(m, p)
-    sim = simulate(m, p, u, 4.0, SimOptions(seed=3))
-    return m, p, u, sim
+    return m, p, u, simulate(m, p, u, duration, SimOptions(seed=seed))
+
+
+@pytest.fixture(scope="module")
+def field():
+    return from_rest(FIELD)
 
 
 def test_torque_drive_without_steady_sliding_says_so(field):

@@ -12,21 +12,16 @@ import numpy as np
 import pytest
 
 from estimators.identify import IdentifyOptions, identify
-from models import get_model
-from models.modal import operating_point
-from models.plant import SimOptions, simulate
 from models.status import Status
+from test_identify_scales import from_rest
 
 RIG = Path(__file__).parent / "data" / "lab_one_body.toml"
 
 
 @pytest.fixture(scope="module")
 def case():
-    m = get_model(str(RIG))
-    p = m.published()
-    u, _ = operating_point(m, p)
-    log = simulate(m, p, u, 4.0, SimOptions(seed=3)).to_log()
-    return m, p, log, p.replace(k0=1.2 * p.k0, mu_k=1.2 * p.mu_k)
+    m, p, _, sim = from_rest(RIG)
+    return m, p, sim.to_log(), p.replace(k0=1.2 * p.k0, mu_k=1.2 * p.mu_k)
 
 
 def _fit(case, **kw):
