@@ -129,15 +129,17 @@ def test_shipped_disc_rig_on_the_speed_channels(log, tmp_path, capsys):
 def test_continuation_rescues_a_fit_the_direct_solver_leaves_in_a_degenerate_corner(log):
     """Freeing the Stribeck speed as well: the direct fit runs into v_s = 0 with mu_s = mu_k (where
     neither has an effect: a stationary point of the regularised problem) at 30 times the cost; the
-    continuation in eps (0.05 -> 0.016 -> 0.005) converges lower, and the result says how."""
+    continuation in eps (10 eps -> 3.2 eps -> eps, eps the rig's default: 0.0064 rad/s at its 4 rad/s)
+    converges lower, and the result says how."""
     free = FREE + ("v_s",)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", IdentifiabilityWarning)
         off = identify(log, RIG, None, IdentifyOptions(free=free, globalise="off"), holdout=0.2)
         auto = identify(log, RIG, None, IdentifyOptions(free=free), holdout=0.2)
     assert auto.success and auto.cost < 0.1 * off.cost, (auto.cost, off.cost)
+    assert auto.eps == pytest.approx(0.005 * 4.0 / np.pi) and auto.eps_source.startswith("default")
     assert auto.method.startswith("Gauss-Newton (Levenberg-Marquardt damping, trust region, l1 merit line search) "
-                                  "along a continuation in eps 0.05 -> 0.0158 -> 0.005 rad/s")
+                                  "along a continuation in eps 0.0637 -> 0.0201 -> 0.00637 rad/s")
     assert "kept the continuation" in auto.method and len(auto.attempts) == 2
     assert auto.attempts[0].cost == pytest.approx(off.cost, rel=1e-6)
     assert auto.estimate[free.index("v_s")] > 0.5 and max(auto.validation.nrmse.values()) <= 0.25

@@ -41,6 +41,19 @@ def test_an_unmodelled_oscillation_is_a_miss_and_says_where():
     assert d.summary().startswith("structure misses: the omega residual below 4 Hz is 2.1 times")
 
 
+@pytest.mark.parametrize("level, miss", [(0.06, False), (0.3, False), (0.8, True)])
+def test_a_correlated_residual_far_below_the_noise_is_not_a_miss(level, miss):
+    """A residual at the cycle's frequency whose RMS is a small fraction of the sensors' noise (the
+    regularised friction's creep on a log of the model's own plant: 0.057 noise levels) is below
+    what the sensors resolve; at 0.8 noise levels it is a miss."""
+    r = np.sin(2 * np.pi * 0.8 * T) + 0.05 * np.random.default_rng(2).normal(size=T.size)
+    r = level * r / np.sqrt(np.mean(r ** 2))
+    d = diagnose([{"torque": r}], [{"torque": _signal()}], DT, sigma2=level ** 2)
+    assert d.lag1 > LAG1_CORRELATED and d.dominant
+    assert d.slow_rms["torque"] < SLOW_ABOVE_NOISE
+    assert d.structure_ok is (not miss)
+
+
 def test_blue_quantisation_noise_is_not_a_miss():
     """Speeds from differences of quantised angles: negatively correlated, mostly fast."""
     q = np.floor(np.cumsum(np.full(T.size, 0.37)))                # a counted angle

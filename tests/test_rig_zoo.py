@@ -149,16 +149,15 @@ def identification(m):
     log = simulate(m, p, u, 4.0, SimOptions(seed=3)).to_log()
     start = p.replace(**{n: 1.2 * getattr(p, n) for n in free})
     try:
-        # the log starts from rest, untwisted: with the encoders' zero free the friction level and the
-        # power-on twist trade off on a 1-body string, and the fit was confidently wrong (mu_k 0.136
-        # +- 0.015 against 0.3: a finding, reported)
+        # the log starts from rest, untwisted (with the encoders' zero free the friction level and the
+        # power-on twist trade off on a 1-body string: tests/test_identify_zero.py)
         fit = identify(log, m, start, IdentifyOptions(free=free, encoder_zero="untwisted"))
     except ConfigError as exc:
         return f"refused: {one_line(exc)}"
     if fit.status is Status.OK:            # (a WARNING says which parameter the log does not pin down)
-        # within 4 of its reported errors, or 6 %: the fitted model's regularised friction (eps) biases
-        # the level against the exact plant (0.7 % on a Coulomb rig, 5.2 % on a micro Stribeck rig with
-        # v_s = 0.3 rad/s, 4.3 standard errors), which no standard error covers
+        # within 4 of its reported errors, or 6 %.  fit.error holds the regularisation's first-order
+        # bias and the encoders' unknown phase within a tick at power-on (a micro Stribeck rig's twist
+        # of a few ticks: mu_k 0.278, SE 0.002, total error 0.026, true 0.3)
         for n, v, se in zip(fit.names, fit.estimate, fit.error):
             true = getattr(p, n)
             assert abs(v - true) <= max(4 * se, 0.06 * abs(true)), (n, v, se, true)
@@ -177,10 +176,10 @@ CORNERS = {
 
 
 #: corners where the zoo found the identification confidently wrong (status OK, the truth many
-#: standard errors away): reported to the identification's owner, xfail until fixed
-#: (field_torque_drive, k0 931 +- 11 against 780, was one: the shooting nodes of its unmeasured states
-#: came from a simulation out of phase with the log; they come from the EKF now, 736 +- 13, status
-#: WARNING -- estimators.identify.start.filtered_states)
+#: standard errors away): reported to the identification's owner, xfail until fixed.  Fixed:
+#: field_torque_drive (k0 931 +- 11 N m/rad against 780: an unmeasured body's start-up simulation ran
+#: off and the states' scales with it, tests/test_identify_scales.py; its unmeasured node states now
+#: start from the EKF where a torque is known, estimators.identify.start.filtered_states)
 IDENT_FINDINGS: dict[str, str] = {}
 
 

@@ -30,7 +30,10 @@ The tests, on every compared channel (all logs), in units of the channel's noise
 - **gaps**: the largest scaled continuity gap left at a node, where (log, time, state).
 
 A structure "misses" when a channel's slow residual is at least :data:`SLOW_ABOVE_NOISE` noise
-levels, or when its residual is correlated with a dominant spectral peak, or when gaps remain above
+levels, or when its residual is correlated with a dominant spectral peak and at least
+:data:`RESOLVED` noise levels in RMS (a correlated residual far below the sensors' noise is the
+regularised friction's creep, which the sensors do not resolve: 0.057 noise levels on a log of the
+student rig's own plant read at the motor only), or when gaps remain above
 :data:`~estimators.identify.gauss_newton.GAP_OK`.  The tests are in the noise levels the fit used
 (the rig file's sensors or ``options.noise``): a rig file that declares its sensors far coarser
 than they are hides a miss, and says so in ``rms`` (far below 1).
@@ -47,7 +50,7 @@ from models.signals import dominant_frequency, lowpass
 from estimators.identify.gauss_newton import GAP_OK
 
 __all__ = ["StructureDiagnostics", "diagnose", "gap_locator", "residual_peak", "lag1", "ljung_box", "SHARE_DOMINANT",
-           "LAG1_CORRELATED", "SLOW_ABOVE_NOISE"]
+           "LAG1_CORRELATED", "SLOW_ABOVE_NOISE", "RESOLVED"]
 
 #: share of the residual energy within +-5 % of its spectral peak that makes the peak dominant
 SHARE_DOMINANT = 0.25
@@ -56,6 +59,8 @@ LAG1_CORRELATED = 0.5
 #: RMS of the slow residual (below 5x the signal's dominant frequency), in noise levels, that
 #: the sensors resolve: a miss of the structure
 SLOW_ABOVE_NOISE = 1.0
+#: RMS of a correlated residual with a dominant peak, in noise levels, below which it is not a miss
+RESOLVED = 0.5
 
 
 @dataclass(frozen=True)
@@ -275,7 +280,7 @@ def diagnose(residuals, measured, dt: float, *, sigma2: float, gaps=None, gap_lo
         where = (" (the measured signal's dominant frequency)" if abs(ratio - 1) < 0.1 else
                  f" ({ratio:.2g} x the measured signal's dominant frequency {fs:.3g} Hz)")
     slow_miss = slow[ch] >= SLOW_ABOVE_NOISE
-    peak_miss = l1 >= LAG1_CORRELATED and share >= SHARE_DOMINANT
+    peak_miss = l1 >= LAG1_CORRELATED and share >= SHARE_DOMINANT and rms[ch] >= RESOLVED
     if slow_miss or peak_miss:
         text = (f"the {ch} residual below {cut[ch]:.3g} Hz is {slow[ch]:.2g} times the sensors' noise" if slow_miss
                 else f"the {ch} residual is correlated (lag-1 autocorrelation {l1:.2f})")

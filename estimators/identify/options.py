@@ -16,7 +16,8 @@ from models.checks import choice, flag, integer, names, number, prefix
 from models.errors import ConfigError
 from models.sensors import SensorOptions
 
-__all__ = ["IdentifyOptions", "LinearConstraint", "SOLVERS", "ENCODER_ZERO", "GLOBALISE", "INPUT_ROWS"]
+__all__ = ["IdentifyOptions", "LinearConstraint", "SOLVERS", "ENCODER_ZERO", "GLOBALISE", "INPUT_ROWS", "EPS_RIG3",
+           "default_eps"]
 
 SOLVERS = ("gn", "ipopt")
 GLOBALISE = ("auto", "always", "off")
@@ -25,6 +26,20 @@ GLOBALISE = ("auto", "always", "off")
 ENCODER_ZERO = ("free", "untwisted")
 #: "end": row k+1 holds the input held over [t_k, t_k+1) (the plant's logs); "start": row k holds it
 INPUT_ROWS = ("end", "start")
+
+#: the identification's friction regularisation on rig3 [rad/s] (0.16 % of its 30 rpm); another rig's
+#: default is this carried by its nominal speed (:func:`default_eps`)
+EPS_RIG3 = 0.005
+
+
+def default_eps(model) -> float:
+    """The default friction regularisation [rad/s] of a fit of ``model``: rig3's :data:`EPS_RIG3` times
+    the rig's nominal speed over rig3's (:func:`estimators.online.options.by_speed`, the rule the EKF's
+    eps and the NMPC's follow: a field string turning at 0.5 rad/s gets 0.0008 rad/s, not rig3's
+    number, whose creep would be a quarter of its stick-slip's low speeds)."""
+    from estimators.online.options import by_speed
+    return by_speed(EPS_RIG3, model)
+
 
 _TERM = re.compile(r"\s*([+-]?)\s*((?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)?\s*\*?\s*([A-Za-z_][A-Za-z0-9_]*)\s*")
 _NUM = re.compile(r"^\s*[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?\s*$")
@@ -124,9 +139,11 @@ class IdentifyOptions:
     noise : ``{channel: standard deviation}`` [SI]; default from the rig's sensors
         (:func:`models.sensors.channel_std` with ``sensors``)
     sensors : the noise scale and quantisation the default noise levels assume
-    eps : friction regularisation of the fitted model [rad/s].  The regularised model creeps
-        where the plant sticks; the bias this puts on friction and damping shrinks with eps,
-        at the price of more substeps
+    eps : friction regularisation of the fitted model [rad/s]; None: from the rig,
+        :func:`default_eps` (rig3's 0.005 rad/s at its 30 rpm, i.e. 0.16 % of the rig's nominal
+        speed); the fit states the value used (``fit.eps``).  The regularised model creeps where
+        the plant sticks; the bias this puts on friction and damping shrinks with eps, at the
+        price of more substeps
     nsub : RK4 substeps per sample; None: from the integration rule
         (:func:`models.discretise.integration`: ``h |lambda|max <= 2.5`` over the contacts at rest
         and sliding, a fast motor's current quasi-static)
@@ -179,7 +196,7 @@ class IdentifyOptions:
     exclude: tuple[str, ...] = ()
     noise: Mapping[str, float] | None = None
     sensors: SensorOptions = field(default_factory=SensorOptions)
-    eps: float = 0.005
+    eps: float | None = None
     nsub: int | None = None
     shoot_every: int = 10
     speed_average: bool = True
@@ -235,7 +252,7 @@ class IdentifyOptions:
             flag(getattr(self, name), f"{w}.{name}")
         if not isinstance(self.sensors, SensorOptions):
             raise ConfigError(f"{w}.sensors must be SensorOptions, got {type(self.sensors).__name__}")
-        number(self.eps, f"{w}.eps", lo=0.0, lo_open=True, unit="rad/s")
+        number(self.eps, f"{w}.eps", lo=0.0, lo_open=True, unit="rad/s", none=True)
         integer(self.nsub, f"{w}.nsub", lo=1, none=True)
         for name in ("shoot_every", "max_iter", "systematic_iter"):
             integer(getattr(self, name), f"{w}.{name}", lo=1)

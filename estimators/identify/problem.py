@@ -51,13 +51,13 @@ from estimators.identify.gauss_newton import solve_gn
 from estimators.identify.guess import initial_guess
 from estimators.identify.ipopt import solve_ipopt
 from estimators.identify.noise import detect_input_noise, input_noise_hints, output_noise
-from estimators.identify.options import IdentifyOptions
+from estimators.identify.options import EPS_RIG3, IdentifyOptions, default_eps
 from estimators.identify.outputs import input_delays, plan_channels
 from estimators.identify.result import (FitResult, IdentifiabilityWarning, convergence_message, fit_status,
                                         identifiability_warnings)
 from estimators.identify.shooting import ShootingProblem
 from estimators.identify.start import (constraint_rows, constraints, feasible, free_bounds, initial_nodes,
-                                      scaled_constraints)
+                                      scaled_constraints, state_scales)
 from estimators.identify.systematic import systematic_error
 from estimators.identify.validation import validate
 
@@ -87,7 +87,9 @@ class IdentificationProblem:
     logs : a :class:`models.logs.Log` or a sequence of them (one sample period)
     initial : the starting values and the fixed parameters; None: the rig's published set with
         the free parameters guessed from the data (:func:`~estimators.identify.guess.initial_guess`)
-    options : :class:`~estimators.identify.options.IdentifyOptions`
+    options : :class:`~estimators.identify.options.IdentifyOptions`; the problem keeps them with the
+        rig's defaults filled in (``problem.options.eps``: :func:`~estimators.identify.options.default_eps`
+        when None; ``problem.eps_source`` says which)
     holdout : fraction in [0, 0.9) of the end of each log kept out of the fit; the first log's
         is predicted afterwards with the exact plant (:class:`~estimators.identify.validation.Validation`)
 
@@ -104,6 +106,12 @@ class IdentificationProblem:
             raise ConfigError(f"options must be IdentifyOptions (at least the free parameters), "
                               f"got {type(options).__name__}")
         m = get_model(model)
+        #: where the friction regularisation came from ("given", or the rig's default and why)
+        self.eps_source = "given"
+        if options.eps is None:
+            options = options.replace(eps=default_eps(m))
+            self.eps_source = (f"default: rig3's {EPS_RIG3:g} rad/s at its 30 rpm carried to the nominal speed "
+                               f"{m.nominal_speed():g} rad/s")
         self.model, self.options = m, options
         if isinstance(holdout, bool) or not (isinstance(holdout, (int, float)) and 0 <= holdout < 0.9):
             raise ConfigError(f"holdout must be a fraction in [0, 0.9), got {holdout!r}")
@@ -184,10 +192,13 @@ class IdentificationProblem:
     def derive(self, *, logs=None, initial=_KEEP, holdout: float | None = None, **changes) -> "IdentificationProblem":
         """The same problem with other logs, another initial set (None: guess from the data), another
         hold-out or other options (``changes`` are :class:`IdentifyOptions` fields)."""
-        return IdentificationProblem(self.model, self.logs if logs is None else logs,
+        prob = IdentificationProblem(self.model, self.logs if logs is None else logs,
                                      self.given_initial if initial is _KEEP else initial,
                                      self.options.replace(**changes) if changes else self.options,
                                      holdout=self.holdout if holdout is None else holdout)
+        if "eps" not in changes:
+            prob.eps_source = self.eps_source
+        return prob
 
     def refit(self, warm: FitResult | None = None, *, logs=None, initial=_KEEP, holdout: float | None = None,
               **changes) -> FitResult:
@@ -236,9 +247,7 @@ class IdentificationProblem:
         if self._alternative is not None:
             self._choose_start(Sv_run, U, Y, sig, np.concatenate(starts), np.concatenate(zmap), nz)
         init_nodes, z0 = self._initial_nodes(Sv_run)
-        x_abs = np.max(np.abs(np.concatenate(init_nodes)), axis=0)
-        x_scale = np.where(x_abs > 1e-6, x_abs, 1.0)
-        self.x_scale = np.maximum(x_scale, 1e-3 * np.max(x_scale))
+        self.x_scale = state_scales(m, self.channels, init_nodes)
         th0 = self.theta0
         ths = np.where(np.abs(th0) > 0, np.abs(th0), np.maximum(self.hi - self.lo, 1e-6) * 0.1)
         self.th_scale = np.where(np.isfinite(ths), ths, 1.0)
@@ -444,7 +453,8 @@ class IdentificationProblem:
         r, g, Jr, A, Ypred = sh.evaluate(w)
         theta, z, nodes = sh.split(w)
         theta = feasible(theta, self.lo, self.hi, *self._constraint_rows())
-        unc = uncertainty(sh, w, r, Jr, A, self.free, rse_warn=o.rse_warn)
+        offs = [(j, self.noise[c.name]) for j, c in enumerate(self.channels) if c.kind == "twist" and not c.zero]
+        unc = uncertainty(sh, w, r, Jr, A, self.free, rse_warn=o.rse_warn, offsets=offs)
         se, corr = unc.stderr, unc.corr
         tol_b = 1e-6 * sh.th_scale
         at_bound = tuple(n for i, n in enumerate(self.free)
@@ -454,7 +464,12 @@ class IdentificationProblem:
                        if lab[0] == "constraint" and s <= 1e-8 * max(1.0, abs(float(hi))))
         # ---- warnings
         nf = len(self.free)
-        warns = list(self.hints) + identifiability_warnings(self.free, theta, se, corr, unc, at_bound, active, o)
+        zero_names = [""] * sh.nz
+        for li, zi in enumerate(self.zero_index):
+            for ch, j in zi.items():
+                zero_names[j] = ch + (f" (log {li + 1})" if len(self.zero_index) > 1 else "")
+        warns = list(self.hints) + identifiability_warnings(self.free, theta, se, corr, unc, at_bound, active, o,
+                                                            zero_names)
         for msg in warns:
             warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
         message = convergence_message(res.reason, res.success, iterations=res.iterations, max_iter=o.max_iter,
@@ -488,4 +503,5 @@ class IdentificationProblem:
             iterations=res.iterations, wall_time=time.perf_counter() - t_start, warnings=tuple(warns),
             at_bound=at_bound, active_constraints=active, condition=unc.condition, weak_directions=unc.weak,
             input_noise=dict(self.input_noise), delay=o.extra_delay, guess_notes=self.guess_notes, method=method,
-            attempts=attempts, structure=structure)
+            attempts=attempts, structure=structure, eps=o.eps, eps_source=self.eps_source, eps_bias=unc.eps_bias,
+            offset_error=unc.offset_error if offs else None, zero_corr=unc.zero_corr)

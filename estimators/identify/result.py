@@ -87,10 +87,11 @@ def convergence_message(reason: str, success: bool, *, iterations: int, max_iter
     return why + ". Try: " + "; ".join(dict.fromkeys(hints)) + "."
 
 
-def identifiability_warnings(free, theta, se, corr, unc, at_bound, active, options) -> list[str]:
+def identifiability_warnings(free, theta, se, corr, unc, at_bound, active, options, zero_names=()) -> list[str]:
     """What the data do not determine: a missing or large relative standard error, a strong
-    correlation, a weak direction of the information matrix, an estimate at its bound, an active
-    constraint (thresholds ``options.rse_warn`` and ``options.corr_warn``)."""
+    correlation (also with an encoder zero, the twist at power-on: ``zero_names`` name them in
+    ``unc.zero_corr``'s column order), a weak direction of the information matrix, an estimate at
+    its bound, an active constraint (thresholds ``options.rse_warn`` and ``options.corr_warn``)."""
     o = options
     warns = []
     for i, n in enumerate(free):
@@ -105,6 +106,15 @@ def identifiability_warnings(free, theta, se, corr, unc, at_bound, active, optio
             if np.isfinite(corr[i, j]) and abs(corr[i, j]) > o.corr_warn:
                 warns.append(f"{free[i]} and {free[j]} are correlated (corr = {corr[i, j]:+.3f}): "
                              f"poorly identifiable separately")
+    zc = getattr(unc, "zero_corr", np.zeros((nf, 0)))
+    for i in range(nf):
+        for j, zname in enumerate(zero_names):
+            c = zc[i, j] if j < zc.shape[1] else np.nan
+            if zname and np.isfinite(c) and abs(c) > o.corr_warn:
+                warns.append(f"{free[i]} and the encoder zero of {zname} (the twist at power-on) are correlated "
+                             f"(corr = {c:+.3f}): poorly identifiable separately; a torque sensor, a varying normal "
+                             f"force or reversals tell a friction level from that twist, and encoder_zero "
+                             f"'untwisted' (CLI --encoder-zero untwisted) fixes it if the rig was untwisted at power-on")
     warned = {n for n, s, v in zip(free, se, theta) if not np.isfinite(s) or abs(v) > 0 and s / abs(v) > o.rse_warn}
     for d in unc.weak:
         if d.rel_stderr > o.rse_warn and (len(d.coefficients) > 1 or not set(d.coefficients) <= warned):
@@ -188,6 +198,15 @@ class FitResult(Outcome):
     structure : what the structure misses
         (:class:`~estimators.identify.diagnostics.StructureDiagnostics`: the residual's slow part,
         spectrum and whiteness, the continuity gaps) or None
+    eps : the friction regularisation of the fitted model [rad/s]; eps_source : "given", or how the
+        rig's default was derived (:func:`~estimators.identify.options.default_eps`)
+    eps_bias : (n_free,) the regularisation's first-order bias ``eps d theta / d eps`` (signed, SI;
+        the regularised model creeps where the plant sticks) or None; part of :attr:`error`
+    offset_error : (n_free,) what the encoders' unknown phase within a tick at power-on can move the
+        estimates by (``encoder_zero = "untwisted"``; :mod:`~estimators.identify.covariance`) or None;
+        part of :attr:`error`
+    zero_corr : (n_free, n_zeros) correlations of the parameters with the encoder zeros (order of
+        ``encoder_zero``'s entries)
     """
 
     problem: Any = field(repr=False)
@@ -232,13 +251,22 @@ class FitResult(Outcome):
     method: str = ""
     attempts: tuple = ()
     structure: Any = None
+    eps: float = float("nan")
+    eps_source: str = ""
+    eps_bias: np.ndarray | None = None
+    offset_error: np.ndarray | None = None
+    zero_corr: np.ndarray | None = None
 
     @property
     def error(self) -> np.ndarray:
-        """Total error ``sqrt(stderr^2 + syserr^2)`` (``stderr`` when no systematic error was estimated)."""
-        if self.syserr is None:
-            return self.stderr
-        return np.sqrt(self.stderr ** 2 + self.syserr ** 2)
+        """Total error ``sqrt(stderr^2 + sys^2 + offset_error^2)``: ``sys`` the refit's ``syserr`` when
+        estimated (``systematic``), else the first-order regularisation bias ``eps_bias``; the parts
+        not known count 0 (``stderr`` when none is)."""
+        tot = self.stderr ** 2
+        for part in (self.syserr if self.syserr is not None else self.eps_bias, self.offset_error):
+            if part is not None:
+                tot = tot + np.where(np.isfinite(part), part, 0.0) ** 2
+        return np.sqrt(tot)
 
     def as_dict(self) -> dict:
         """A JSON-friendly summary."""
@@ -247,6 +275,10 @@ class FitResult(Outcome):
         if self.syserr is not None:
             for n, y, t in zip(self.names, self.syserr, self.error):
                 params[n].update({"syserr": float(y), "error": float(t)})
+        for key, part in (("eps_bias", self.eps_bias), ("offset_error", self.offset_error)):
+            if part is not None:
+                for n, b, t in zip(self.names, part, self.error):
+                    params[n].update({key: float(b), "error": float(t)})
         v = self.validation
         return {
             "model": self.model,
@@ -276,6 +308,8 @@ class FitResult(Outcome):
             "delay_costs": {str(k): v for k, v in self.delay_costs.items()},
             "guess_notes": list(self.guess_notes),
             "method": self.method,
+            "eps": self.eps,
+            "eps_source": self.eps_source,
             "attempts": [a.as_dict() for a in self.attempts],
             "structure": None if self.structure is None else self.structure.as_dict(),
             "validation": None if v is None else {

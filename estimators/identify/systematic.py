@@ -32,7 +32,7 @@ def _smoothing_params(model) -> list[str]:
 
 
 def systematic_error(problem, fit: FitResult) -> FitResult:
-    """``fit`` with ``syserr`` and the total standard errors (a warm refit with the regularisation
+    """``fit`` with ``syserr`` and the total errors (:attr:`FitResult.error`; a warm refit with the regularisation
     halved; a law with its own smoothing rate: that rate doubled).
 
     A refit that fails leaves ``syserr`` NaN and says so in ``warnings``; a free smoothing rate
@@ -62,7 +62,7 @@ def systematic_error(problem, fit: FitResult) -> FitResult:
         syserr = np.abs(fit2.estimate - fit.estimate)
         if not fit2.success:
             msg = f"systematic error from an unconverged refit ({fit2.message.split('.')[0]})"
-    total = np.sqrt(fit.stderr ** 2 + syserr ** 2)
+    total = replace(fit, syserr=syserr).error          # with the encoders' power-on phase, if any
     params = fit.params.with_meta(stderr=tuple((n, float(s)) for n, s in zip(free, total) if np.isfinite(s)))
     w = fit.warnings + ((msg,) if msg else ())
     if msg:

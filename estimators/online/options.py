@@ -19,7 +19,7 @@ from models.checks import check_options, field_where, names, option, prefix
 from models.errors import ConfigError
 
 __all__ = ["EKFOptions", "MHEOptions", "FDOptions", "ANGLES", "QP_SOLVERS", "RigScales",
-           "rig_scales", "for_rig", "REFERENCE", "SCALED"]
+           "rig_scales", "for_rig", "REFERENCE", "SCALED", "speed_scale", "by_speed"]
 
 ANGLES = ("zeroed", "absolute")
 QP_SOLVERS = ("ldl", "osqp")
@@ -181,6 +181,19 @@ SCALED = {
 }
 
 
+def speed_scale(model) -> float:
+    """The rig's speed scale [rad/s]: its nominal speed (:meth:`models.rig.RigModel.nominal_speed`),
+    rig3's when that is 0."""
+    return abs(float(model.nominal_speed())) or REFERENCE.speed
+
+
+def by_speed(value_at_rig3: float, model) -> float:
+    """A speed-like default measured on rig3 (``value_at_rig3``, at its 30 rpm) carried to ``model``
+    by the ratio of the speed scales, as :func:`for_rig` carries the estimators' ``eps`` (the
+    identification's ``eps`` uses it too)."""
+    return float(value_at_rig3) * speed_scale(model) / REFERENCE.speed
+
+
 def rig_scales(model, params) -> RigScales:
     """The :class:`RigScales` of a rig at its nominal operating point (steady sliding)."""
     from models.modal import operating_point, modes
@@ -191,7 +204,7 @@ def rig_scales(model, params) -> RigScales:
     springs = [c for c in model.spec.connections if c.stiffness is not None]
     torque = max((abs(float(x[j]) * c.stiffness.value(P)) for j, c in enumerate(springs)), default=0.0)
     twist = max((abs(float(x[j])) for j in range(len(springs))), default=0.0)
-    speed = abs(model.nominal_speed())
+    speed = speed_scale(model)
     cur = model.spec.drive.param("i_max") if model.drive_kind == "dc_motor" else None
     current = float(cur.value(P)) if cur is not None else math.nan
     try:

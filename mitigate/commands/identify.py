@@ -91,7 +91,9 @@ def register(subparsers) -> None:
     p.add_argument("--holdout", type=float, default=0.0, metavar="FRACTION",
                    help="fraction of the end of the logs kept out of the fit; the first log's is predicted with the "
                         "exact stick/slip plant (default 0)")
-    p.add_argument("--eps", type=float, default=0.005, help="friction regularisation [rad/s] (default 0.005)")
+    p.add_argument("--eps", type=float, default=None,
+                   help="friction regularisation [rad/s] (default: from the rig, 0.16 %% of its nominal speed: "
+                        "rig3's 0.005 rad/s at 30 rpm)")
     p.add_argument("--nsub", type=int, default=None, help="RK4 substeps per sample (default: from the stiff rate)")
     p.add_argument("--shoot-every", type=int, default=10, metavar="M",
                    help="samples per shooting interval (default 10)")
@@ -267,7 +269,8 @@ def _run(args) -> int:
         fit = problem.solve()
     notes = notes or fit.guess_notes
     note = (f"fitted by mitigate identify ({fit.status.value}: {fit.message.split('. Try')[0]}) from "
-            f"{', '.join(args.logs)}; free: {', '.join(free)}; eps = {args.eps} rad/s; encoder zero {args.encoder_zero}")
+            f"{', '.join(args.logs)}; free: {', '.join(free)}; eps = {fit.eps:.3g} rad/s"
+            f"{'' if fit.eps_source == 'given' else ' (from the rig)'}; encoder zero {args.encoder_zero}")
     params = fit.params
     bres = None
     if boot is not None:
@@ -279,8 +282,9 @@ def _run(args) -> int:
             note += (f"; [stderr] is the parametric-bootstrap RMS error sqrt(bias^2 + sd^2) over "
                      f"{bres.replicates.shape[0]} replicates")
     if args.systematic:
-        note += ("; [stderr] is the TOTAL error sqrt(SE^2 + syserr^2), syserr = |theta(eps) - theta(eps/2)| "
-                 "(regularisation sensitivity), SE statistical")
+        note += ("; [stderr] is the TOTAL error sqrt(SE^2 + syserr^2 + phase^2), syserr = |theta(eps) - "
+                 "theta(eps/2)| (regularisation sensitivity), phase the encoders' unknown phase within a tick at "
+                 "power-on (untwisted), SE statistical")
     params.save(out, overwrite=args.force, note=note)
     if plot:
         _plot(fit, plot, args.force)
@@ -299,8 +303,12 @@ def _run(args) -> int:
         head = ["parameter", "estimate", "std. error", "boot. bias", "boot. sd", "RMS error", "initial", "published",
                 "unit"]
     elif fit.syserr is None:
-        rows = [[n, e, s, i, pub[n], unit[n]] for n, e, s, i in zip(fit.names, fit.estimate, fit.stderr, fit.initial)]
-        head = ["parameter", "estimate", "std. error", "initial", "published", "unit"]
+        off = fit.offset_error if fit.offset_error is not None else [math.nan] * len(fit.names)
+        bias = fit.eps_bias if fit.eps_bias is not None else [math.nan] * len(fit.names)
+        rows = [[n, e, s, b, o, t, i, pub[n], unit[n]] for n, e, s, b, o, t, i in
+                zip(fit.names, fit.estimate, fit.stderr, bias, off, fit.error, fit.initial)]
+        head = ["parameter", "estimate", "std. error", "eps bias", "enc. phase", "total error", "initial", "published",
+                "unit"]
     else:
         rows = [[n, e, s, y, t, i, pub[n], unit[n]] for n, e, s, y, t, i in
                 zip(fit.names, fit.estimate, fit.stderr, fit.syserr, fit.error, fit.initial)]
@@ -308,6 +316,7 @@ def _run(args) -> int:
     print(format_table(head, rows))
     print(f"status: {fit.status.value}: {fit.message} ({fit.iterations} iterations, {fit.wall_time:.1f} s)")
     print(f"method: {fit.method}")
+    print(f"friction regularisation: eps = {fit.eps:.3g} rad/s ({fit.eps_source})")
     print("NRMSE: " + ", ".join(f"{k} {100 * v:.1f} %" for k, v in fit.nrmse.items()))
     if fit.structure is not None:
         st = fit.structure
@@ -338,9 +347,9 @@ def _run(args) -> int:
         print(f"bootstrap: {bres.status.value}: {bres.message} ({bres.wall_time:.1f} s)"
               + ("" if bres.success else "; [stderr] keeps the Gauss-Newton standard errors"))
     elif fit.syserr is None:
-        print("note: the standard errors are statistical only (quantised encoders, noisy logged inputs and the "
-              "regularised friction bias the estimates by more); --bootstrap 6 gives error bars that include "
-              "that bias")
+        print("note: the total error adds to the statistical one the regularisation's first-order bias (eps bias) "
+              "and, with --encoder-zero untwisted, what the encoders' unknown phase within a tick at power-on does "
+              "(enc. phase); --bootstrap 6 gives error bars from replicates of the exact plant")
     for w in fit.warnings:
         print(f"warning: {w}")
     print(f"wrote {out}" + (f" and {plot}" if plot else ""))

@@ -13,10 +13,14 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from models.errors import ConfigError
+from models.errors import ConfigError, SolverFailure
 
 __all__ = ["nominal_operating_point", "nominal_speed", "drive_speed_index", "sliding_guess", "operating_point",
            "steady_sliding"]
+
+#: a torque drive's steady-sliding solve has converged when its largest acceleration residual fell
+#: below this fraction of the one it started from (the solve ends at round-off, ~1e-12 of it)
+_STEADY_TOL = 1e-6
 
 
 def nominal_speed(model) -> float:
@@ -123,14 +127,28 @@ def _steady_solve(model, u, params, speed: float | None, eps: float | None = Non
         loose = pv.copy()
         loose[limits] = 1e9
         pvs = [loose, pv]
+    r_start = None
     for pcur in pvs:
         for _ in range(iters):
             rv, Jv = (np.array(a, float) for a in F(zv, pcur, u, speed))
             rv = rv.ravel()
+            if r_start is None:
+                r_start = float(np.max(np.abs(rv), initial=0.0))
             step = np.linalg.lstsq(Jv[:, free], -rv, rcond=None)[0]
             zv[free] += step
             if np.max(np.abs(step)) < 1e-12:
                 break
+    if solve_speed:
+        # the common speed is the one unknown that can run off: where no speed balances the
+        # drive's torque (a friction level above it at every speed, or below it with nothing
+        # to stop the acceleration) Gauss-Newton walks to ever larger speeds (3.4e5 rad/s on a
+        # field string whose torque was 15 % below its kinetic friction) -- say so, never return that
+        rv = np.array(F(zv, pvs[-1], u, speed)[0], float).ravel()
+        r_end = float(np.max(np.abs(rv), initial=0.0))
+        if not (np.all(np.isfinite(zv)) and r_end <= _STEADY_TOL * max(r_start or 0.0, 1e-300)):
+            raise SolverFailure(f"rig {model.name!r}: no steady sliding under the drive torque "
+                                f"{float(u[ju]):.4g} N m (the force balance left {r_end:.3g} rad/s^2 at "
+                                f"{float(zv[-1]):.3g} rad/s)")
     xs = np.empty(model.nx)
     for k, j in enumerate(other):
         xs[j] = zv[k]
