@@ -8,9 +8,15 @@ frequency within 2 %.
 
 CI runs four fixed corners (a lab rig on a DC motor with L/R = 0.05 ms, a field-scale string on
 a torque drive, a lab speed drive, a DC motor with L/R = 5 ms) and a derandomised handful of rigs
-(``ZOO_EXAMPLES``, default 3): about 30 s with a warm compiled-code cache.
-``HYPOTHESIS_PROFILE=zoo`` runs 40 random rigs of up to 6 bodies, with shrinking.  NOT checked yet:
-the NMPC's severity against PI's (the runs here are a few seconds long).
+(``ZOO_EXAMPLES``, default 3): about 50 s with a warm compiled-code cache on the shared 2 cores.
+``HYPOTHESIS_PROFILE=zoo`` runs 40 random rigs of up to 6 bodies, with shrinking.
+
+The NMPC against PI (:func:`nmpc_vs_pi`), on every rig the zoo draws (the corners and the
+examples alike): a slow programme (the largest of 0.5 / 0.3 / 0.2 of the nominal speed at which
+steady sliding is linearly unstable), the controllers switched on after 4 of the rig's stick-slip
+periods T, then 8 T; the NMPC's residual severity (last 3 T, against the programmed speed) is not
+above PI's unless both are below 1e-3.  ``pytest -s`` prints, per rig, what PI left (stick-slip,
+a stuck string, an oscillation without sticking, quiet) and the NMPC/PI ratio.
 """
 
 import math
@@ -29,7 +35,8 @@ from mitigate.runner import run
 from mitigate.scenario import make_scenario
 from models import get_model
 from models.errors import ConfigError
-from models.modal import linearise, modes, operating_point
+from mitigate.metrics import rig_period
+from models.modal import linearise, modes, operating_point, sliding_stability
 from models.plant import SimOptions, simulate
 from models.status import Status
 
@@ -138,6 +145,84 @@ def pipeline(m, z, path):
                        for r in res.runs})
 
 
+#: fractions of the rig's nominal speed tried for the NMPC-vs-PI programme, largest first: the first
+#: at which steady sliding is linearly unstable (negative friction slope beyond the string's damping)
+SLOW_FRACTIONS = (0.5, 0.3, 0.2)
+#: a residual severity below which a run counts as quiet (so two quiet runs are equal) [-]
+QUIET = 1e-3
+#: controlled periods after the switch-on, and periods of PI before it
+CONTROLLED_PERIODS, SWITCH_ON_PERIODS = 8, 4
+#: per rig, the NMPC-vs-PI record (printed at the end of the module: ``pytest -s``)
+NMPC_RECORDS: list[dict] = []
+#: rigs on which the NMPC's residual severity was found above PI's: xfail with the numbers until fixed
+NMPC_FINDINGS: dict[str, str] = {}
+
+
+def slow_programme(m):
+    """The programme of the NMPC-vs-PI check: ``(inputs, [control] table, fraction)`` at the largest
+    of :data:`SLOW_FRACTIONS` of the nominal speed at which steady sliding is unstable (the smallest
+    if none is). A torque drive gets the torque of steady sliding at that speed, after a breakaway kick
+    of twice the kinetic torque for the first period (from rest, a torque below the static level never
+    starts the string), and that speed as its ``[control] speed``."""
+    p = m.published()
+    w0 = m.nominal_speed()
+    for f in SLOW_FRACTIONS:
+        u, x = operating_point(m, p, omega=f * w0)
+        if not sliding_stability(m, p, u, x_op=x)[0]:
+            break
+    ins = {n: float(v) for n, v in zip(m.inputs, u)}
+    control = {}
+    if m.drive_kind == "torque":
+        control["speed"] = f * w0
+    return ins, control, f
+
+
+def nmpc_vs_pi(m, z, path, name=""):
+    """PI and the NMPC (compile=False, with the EKF; the FD estimator where the EKF refuses the
+    channels) on the slow programme (:func:`slow_programme`): switched on after
+    ``SWITCH_ON_PERIODS`` of the rig's stick-slip period T (its lowest mode with the drive held,
+    :func:`mitigate.metrics.rig_period`), then ``CONTROLLED_PERIODS``; DAQ period T / 100 (the
+    NMPC's interval is T / 50). The NMPC's ``residual_severity`` (last 3 T, against the programmed
+    speed) must not be above PI's unless both are below :data:`QUIET`."""
+    p = m.published()
+    T = rig_period(m, p)
+    ins, control, frac = slow_programme(m)
+    kick = dict(ins)
+    if m.drive_kind == "torque":
+        kick[m.drive_input] = {"kind": "steps", "times": [0.0, T], "values": [2.0 * z.torque, ins[m.drive_input]]}
+    start = SWITCH_ON_PERIODS * T
+    ctrls = ["pi", {"name": "nmpc", "kind": "nmpc", "compile": False}]
+    est = {"kind": "ekf", "compile": False}
+    common = dict(name="zoo_nmpc", model=str(path), duration=start + CONTROLLED_PERIODS * T, dt=T / 100, seed=4,
+                  inputs=kick, controllers=ctrls, control={"start": start, **control})
+    try:
+        res = run(make_scenario(estimator=est, **common), jobs=1)
+    except ConfigError as exc:                       # the EKF's channels: refused in one line (pipeline)
+        one_line(exc)
+        est = "fd"
+        res = run(make_scenario(estimator=est, **common), jobs=1)
+    bad = [f"{r.name}: {r.message}" for r in res.runs if r.status is Status.FAILED]
+    assert not bad, bad
+    pi, nmpc = res.run("pi").metrics, res.run("nmpc").metrics
+    s_pi, s_nmpc = pi["residual_severity"], nmpc["residual_severity"]
+    stuck = pi["residual_stuck_fraction"]
+    kind = ("stuck" if stuck >= 1 else "stick-slip" if stuck > 0 and s_pi > 0.1
+            else "oscillation" if s_pi > QUIET else "quiet")
+    rec = dict(rig=f"{name}: {z.describe()}" if name else z.describe(), law=z.law, drive=z.drive, fraction=frac, estimator=est if isinstance(est, str)
+               else "ekf", pi_under=kind, pi=s_pi, nmpc=s_nmpc, ratio=s_nmpc / s_pi if s_pi > 0 else float("inf"),
+               nmpc_speed_ratio=nmpc["residual_speed_ratio"], fallbacks=res.run("nmpc").result.controller_counts.get("fallbacks", 0))
+    if all(r["rig"] != rec["rig"] for r in NMPC_RECORDS):     # (hypothesis replays a failing example)
+        NMPC_RECORDS.append(rec)
+    note = (f"NMPC vs PI at {frac:g} w0 ({est if isinstance(est, str) else 'ekf'}): PI {kind}, residual PI {s_pi:.4f} "
+            f"NMPC {s_nmpc:.4f} (ratio {rec['ratio']:.3g}, NMPC speed {rec['nmpc_speed_ratio']:.3g} x programme, "
+            f"{rec['fallbacks']} fallbacks)")
+    if not s_nmpc <= max(s_pi, QUIET):
+        if name in NMPC_FINDINGS:
+            pytest.xfail(f"NMPC above PI on {name}: {NMPC_FINDINGS[name]} ({note})")
+        raise AssertionError(f"the NMPC's residual severity is above PI's: {note}")
+    return note
+
+
 def identification(m):
     """Two parameters (the first spring's stiffness, the contact's kinetic level) from 4 s of a
     simulated log from rest (the start-up excites the string), started 20 % off: a fit whose truth
@@ -183,7 +268,7 @@ IDENT_FINDINGS = {"field_torque_drive": "k0 931 +- 11 N m/rad against 780 (3 bod
 def check(tmp_path_factory, z, corner=None):
     path = _write(tmp_path_factory, z)
     m = get_model(str(path))
-    notes = [z.describe(), modal_vs_simulation(m), str(pipeline(m, z, path))]
+    notes = [z.describe(), modal_vs_simulation(m), str(pipeline(m, z, path)), nmpc_vs_pi(m, z, path, corner or "")]
     try:
         notes.append(identification(m))
     except AssertionError as exc:
@@ -212,3 +297,14 @@ def test_rig_zoo_corners(tmp_path_factory, corner):
 @given(z=zoo_rigs(max_bodies=6 if ZOO else 3))
 def test_rig_zoo(tmp_path_factory, z):
     check(tmp_path_factory, z)
+
+
+def teardown_module():
+    """The NMPC-vs-PI records of this session, one line each (``pytest -s`` shows them)."""
+    if NMPC_RECORDS:
+        under = [r["pi_under"] for r in NMPC_RECORDS]
+        print(f"\nNMPC vs PI on {len(NMPC_RECORDS)} zoo rigs: PI {under.count('stick-slip')} stick-slip, "
+              f"{under.count('stuck')} stuck, {under.count('oscillation')} oscillating, {under.count('quiet')} quiet")
+        for r in NMPC_RECORDS:
+            print(f"  {r['law']:12s} {r['drive']:8s} {r['pi_under']:11s} PI {r['pi']:.4f} NMPC {r['nmpc']:.4f} "
+                  f"ratio {r['ratio']:.3g} speed {r['nmpc_speed_ratio']:.3g} fallbacks {r['fallbacks']} | {r['rig']}")
