@@ -51,9 +51,9 @@ def _q(v: float) -> str:
 
 @st.composite
 def zoo_rigs(draw, max_bodies: int = 6, drives=("speed", "torque", "dc_motor"), log_scale=(-3.0, 3.0),
-             log_tau_e=(math.log10(5e-5), math.log10(5e-3))) -> ZooRig:
-    """A rig (module docstring); ``drives``, ``log_scale`` (log10 of the inertia scale) and
-    ``log_tau_e`` (log10 of a DC motor's L/R [s]) narrow the draw."""
+             log_tau_e=(math.log10(5e-5), math.log10(5e-3)), laws=LAWS) -> ZooRig:
+    """A rig (module docstring); ``drives``, ``log_scale`` (log10 of the inertia scale),
+    ``log_tau_e`` (log10 of a DC motor's L/R [s]) and ``laws`` narrow the draw."""
     # (the draws are arranged so that hypothesis' simplest example is a rich rig: the most bodies,
     # every sensor, a servo, a Stribeck contact)
     n = max_bodies - draw(st.integers(0, max_bodies - 1), label="bodies fewer than the most")
@@ -65,7 +65,7 @@ def zoo_rigs(draw, max_bodies: int = 6, drives=("speed", "torque", "dc_motor"), 
     speed = draw(st.floats(1.0, 6.0), label="sliding speed [rad/s]")
     twist = draw(st.floats(0.05, 0.5), label="twist under the friction torque [rad]")
     drive = draw(st.sampled_from(tuple(drives)), label="drive")
-    law = draw(st.sampled_from(LAWS), label="law")
+    law = draw(st.sampled_from(tuple(laws)), label="law")
     din = draw(st.sampled_from(DRIVE_INPUT_NAMES), label="drive input")
     nin = draw(st.sampled_from([x for x in NORMAL_INPUT_NAMES if x != din]), label="normal input")
     contact = leaves[draw(st.integers(0, len(leaves) - 1), label="contact leaf")]
