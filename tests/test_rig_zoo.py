@@ -12,9 +12,8 @@ a torque drive, a lab speed drive, a DC motor with L/R = 5 ms) and a derandomise
 ``HYPOTHESIS_PROFILE=zoo`` runs 40 random rigs of up to 6 bodies, with shrinking.
 
 The NMPC against PI (:func:`nmpc_vs_pi`), on every rig the zoo draws (the corners and the
-examples alike): a slow programme (the largest of 0.5 / 0.3 / 0.2 of the nominal speed at which
-steady sliding is linearly unstable), the controllers switched on after 4 of the rig's stick-slip
-periods T, then 8 T; the NMPC's residual severity (last 3 T, against the programmed speed) is not
+examples alike): a slow programme (0.1 of the nominal speed, below the laws' weakening range), the
+controllers switched on after 4 of the rig's stick-slip periods T, then 8 T; the NMPC's residual severity (last 3 T, against the programmed speed) is not
 above PI's unless both are below 1e-3.  ``pytest -s`` prints, per rig, what PI left (stick-slip,
 a stuck string, an oscillation without sticking, quiet) and the NMPC/PI ratio.  On a torque drive a
 constant torque below the static level leaves a string that stuck once stuck for good: PI's
@@ -43,7 +42,7 @@ from mitigate.scenario import make_scenario
 from models import get_model
 from models.errors import ConfigError
 from mitigate.metrics import rig_period
-from models.modal import linearise, modes, operating_point, sliding_stability
+from models.modal import linearise, modes, operating_point
 from models.plant import SimOptions, simulate
 from models.status import Status
 
@@ -152,9 +151,12 @@ def pipeline(m, z, path):
                        for r in res.runs})
 
 
-#: fractions of the rig's nominal speed tried for the NMPC-vs-PI programme, largest first: the first
-#: at which steady sliding is linearly unstable (negative friction slope beyond the string's damping)
-SLOW_FRACTIONS = (0.5, 0.3, 0.2)
+#: the NMPC-vs-PI programme as a fraction of the rig's nominal speed: below the generated laws'
+#: weakening range (0.3 of the nominal speed), where a start from rest sticks and slips under PI.
+#: (Chosen by the linear stability of sliding instead, the DC-motor corners got 0.2 or 0.5, where PI
+#: left an oscillation without sticking, severity 0.57 / 0.22; at 0.1 sliding is linearly stable on
+#: them and the stick-slip cycle from rest stays all the same, severity 1.04)
+SLOW_FRACTION = 0.1
 #: a residual severity below which a run counts as quiet (so two quiet runs are equal) [-]
 QUIET = 1e-3
 #: controlled periods after the switch-on, and periods of PI before it
@@ -166,22 +168,15 @@ NMPC_FINDINGS: dict[str, str] = {}
 
 
 def slow_programme(m):
-    """The programme of the NMPC-vs-PI check: ``(inputs, [control] table, fraction)`` at the largest
-    of :data:`SLOW_FRACTIONS` of the nominal speed at which steady sliding is unstable (the smallest
-    if none is). A torque drive gets the torque of steady sliding at that speed, after a breakaway kick
-    of twice the kinetic torque for the first period (from rest, a torque below the static level never
-    starts the string), and that speed as its ``[control] speed``."""
-    p = m.published()
-    w0 = m.nominal_speed()
-    for f in SLOW_FRACTIONS:
-        u, x = operating_point(m, p, omega=f * w0)
-        if not sliding_stability(m, p, u, x_op=x)[0]:
-            break
-    ins = {n: float(v) for n, v in zip(m.inputs, u)}
-    control = {}
-    if m.drive_kind == "torque":
-        control["speed"] = f * w0
-    return ins, control, f
+    """The programme of the NMPC-vs-PI check: ``(inputs, [control] table, fraction)`` at
+    :data:`SLOW_FRACTION` of the nominal speed.  A torque drive gets the torque of steady sliding at
+    that speed (after a breakaway kick of twice the kinetic torque for the first period, added by
+    :func:`nmpc_vs_pi`: from rest, a torque below the static level never starts the string), and that
+    speed as its ``[control] speed``."""
+    f = SLOW_FRACTION
+    w = f * m.nominal_speed()
+    u, _ = operating_point(m, m.published(), omega=w)
+    return {n: float(v) for n, v in zip(m.inputs, u)}, ({"speed": w} if m.drive_kind == "torque" else {}), f
 
 
 def nmpc_vs_pi(m, z, path, name=""):
@@ -339,3 +334,21 @@ def teardown_module():
         for r in NMPC_RECORDS:
             print(f"  {r['law']:12s} {r['drive']:8s} {r['pi_under']:11s} PI {r['pi']:.4f} NMPC {r['nmpc']:.4f} "
                   f"ratio {r['ratio']:.3g} speed {r['nmpc_speed_ratio']:.3g} fallbacks {r['fallbacks']} | {r['rig']}")
+
+
+def test_stiff_rates_where_no_sliding_is_sustained(tmp_path_factory):
+    """A lead screw on a torque drive under 2.5 x its axial load (a servo's n_max): no torque up to
+    twice the programme's turns it, the steady-sliding guess runs off to ~1e8 rad/s, and the rate the
+    integration rule took there (the dampers against the screw's speed-dependent inertia) was 1e8-1e9
+    1/s: the NMPC and the identification refused the rig.  Taken at the sliding speed: the string's own."""
+    from models.discretise import stiff_rates
+    z = find(zoo_rigs(max_bodies=1, drives=("torque",), laws=("leadscrew",)), lambda z: True,
+             settings=settings(database=None, derandomize=True, suppress_health_check=list(HealthCheck)))
+    m = get_model(str(_write(tmp_path_factory, z)))
+    p = m.published()
+    u, x = operating_point(m, p)
+    low = stiff_rates(m, p, u, eps=0.016 * z.speed, speed=z.speed)
+    u_max = u * np.array([2.0 if n == m.drive_input else 2.5 for n in m.inputs])
+    assert abs(m.sliding_guess(u_max, p)[m.contacts[0]]) > 1e3 * z.speed       # no steady sliding there
+    for speed in (z.speed, None):
+        assert stiff_rates(m, p, u_max, eps=0.016 * z.speed, speed=speed) < 10 * low
