@@ -328,6 +328,10 @@ def test_rig_zoo(tmp_path_factory, z):
     check(tmp_path_factory, z)
 
 
+#: a fixed rig with a property: the simplest (shrunk) derandomised draw that has it
+FIND = settings(database=None, derandomize=True, suppress_health_check=list(HealthCheck))
+
+
 @pytest.mark.slow
 @pytest.mark.xfail(raises=AssertionError, strict=True,
                    reason="identification confidently wrong with the lead-screw law: "
@@ -336,7 +340,7 @@ def test_leadscrew_identification_finding(tmp_path_factory):
     """The lead-screw finding of :data:`IDENT_LAW_FINDINGS` on the simplest zoo rig that shows it: one
     body on a speed drive, read by one encoder on the screw (strict: passes once it is fixed)."""
     z = find(zoo_rigs(max_bodies=1, drives=("speed",), laws=("leadscrew",)), lambda z: z.sensors == ("enc_c",),
-             settings=settings(database=None, derandomize=True, suppress_health_check=list(HealthCheck)))
+             settings=FIND)
     identification(get_model(str(_write(tmp_path_factory, z))))
 
 
@@ -362,7 +366,7 @@ def test_stiff_rates_where_no_sliding_is_sustained(tmp_path_factory):
     1/s: the NMPC and the identification refused the rig.  Taken at the sliding speed: the string's own."""
     from models.discretise import stiff_rates
     z = find(zoo_rigs(max_bodies=1, drives=("torque",), laws=("leadscrew",)), lambda z: True,
-             settings=settings(database=None, derandomize=True, suppress_health_check=list(HealthCheck)))
+             settings=FIND)
     m = get_model(str(_write(tmp_path_factory, z)))
     p = m.published()
     u, x = operating_point(m, p)
