@@ -36,7 +36,6 @@ from hypothesis import HealthCheck, Phase, find, given, seed, settings
 
 from rig_zoo import zoo_rigs
 from estimators.identify import IdentifyOptions, identify
-from estimators.online.channels import angle_node, default_channels
 from mitigate.controllers.base import NEEDS  # noqa: F401 - the vocabulary the refusals use
 from mitigate.controllers.factory import CONTROLLER_KINDS, context_for, controller_class
 from mitigate.runner import run
@@ -185,8 +184,7 @@ def slow_programme(m):
 
 
 def nmpc_vs_pi(m, z, path, name=""):
-    """PI and the NMPC (compile=False, with the EKF; on the channels other than the encoder angle
-    where the EKF refuses one encoder angle alone) on the slow programme (:func:`slow_programme`):
+    """PI and the NMPC (compile=False, with the EKF) on the slow programme (:func:`slow_programme`):
     switched on after ``SWITCH_ON_PERIODS`` of the rig's stick-slip period T (its lowest mode with the drive held,
     :func:`mitigate.metrics.rig_period`), then ``CONTROLLED_PERIODS``; DAQ period T / 100 (the
     NMPC's interval is T / 50). The NMPC's ``residual_severity`` (last 3 T, against the programmed
@@ -199,27 +197,19 @@ def nmpc_vs_pi(m, z, path, name=""):
     est = {"kind": "ekf", "compile": False}
     common = dict(name="zoo_nmpc", model=str(path), duration=start + CONTROLLED_PERIODS * T, dt=T / 100, seed=4,
                   inputs=ins, controllers=ctrls, control={"start": start, **control})
-    res = None
-    for _ in range(2):
-        try:
-            res = run(make_scenario(estimator=est, **common), jobs=1)
-            break
-        except ConfigError as exc:
-            msg = one_line(exc)
-            if "alone carries no twist" in msg and "channels" not in est:
-                # one encoder angle alone: the EKF refuses it in one line ("give at least two encoder angles
-                # or none"), so it runs on the rig's other channels (the encoder's speed among them).  Not
-                # the FD baseline: it holds the twists it does not read at 0, and the NMPC fed that lost to
-                # PI on 4 of 5 such rigs (PI 1.03 / NMPC 1.69 on a 2-body lead-screw rig, 0.056 / 0.178 on a
-                # 1-body Vahid-Araghi rig, 1.53 / 2.55 on a 6-body DC-motor rig)
-                est = {**est, "channels": [c for c in default_channels(m) if angle_node(m, c) is None]}
-                continue
-            # the NMPC refusing the rig in one line (its substeps at the slow programme's eps): recorded
-            assert "'nmpc'" in msg, msg
-            NMPC_RECORDS.append(dict(rig=f"{name}: {z.describe()}" if name else z.describe(), law=z.law, drive=z.drive,
-                                     fraction=frac, estimator="-", pi_under="-", pi=float("nan"), nmpc=float("nan"),
-                                     ratio=float("nan"), nmpc_speed_ratio=float("nan"), fallbacks=0, refused=msg))
-            return f"NMPC refused at {frac:g} w0: {msg}"
+    try:
+        # (a lone encoder: the EKF reads its speed, not its angle.  Not the FD baseline: it holds the
+        # twists it does not read at 0, and the NMPC fed that lost to PI on 4 of 5 such rigs: PI 1.03 /
+        # NMPC 1.69 on a 2-body lead-screw rig, 0.056 / 0.178 on a 1-body Vahid-Araghi rig, 1.53 / 2.55
+        # on a 6-body DC-motor rig)
+        res = run(make_scenario(estimator=est, **common), jobs=1)
+    except ConfigError as exc:
+        # the NMPC refusing the rig in one line (its substeps at the slow programme's eps): recorded
+        msg = one_line(exc)
+        assert "'nmpc'" in msg, msg
+        NMPC_RECORDS.append(dict(rig=f"{name}: {z.describe()}" if name else z.describe(), law=z.law, drive=z.drive,
+                                 fraction=frac, refused=msg))
+        return f"NMPC refused at {frac:g} w0: {msg}"
     bad = [f"{r.name}: {r.message}" for r in res.runs if r.status is Status.FAILED]
     assert not bad, bad
     pi, nmpc = res.run("pi").metrics, res.run("nmpc").metrics
@@ -228,14 +218,13 @@ def nmpc_vs_pi(m, z, path, name=""):
     kind = ("stuck" if stuck >= 1 else "stick-slip" if stuck > 0 and s_pi > 0.1
             else "oscillation" if s_pi > QUIET else "quiet")
     rec = dict(rig=f"{name}: {z.describe()}" if name else z.describe(), law=z.law, drive=z.drive, fraction=frac,
-               estimator="ekf" if "channels" not in est else "ekf without angles", pi_under=kind, pi=s_pi,
-               nmpc=s_nmpc, ratio=s_nmpc / s_pi if s_pi > 0 else float("inf"),
-               nmpc_speed_ratio=nmpc["residual_speed_ratio"],
+               pi_under=kind, pi=s_pi, nmpc=s_nmpc, ratio=s_nmpc / s_pi if s_pi > 0 else float("inf"),
+               nmpc_speed_ratio=nmpc["residual_speed_ratio"], nmpc_stuck=nmpc["residual_stuck_fraction"],
                fallbacks=res.run("nmpc").result.controller_counts.get("fallbacks", 0))
     if all(r["rig"] != rec["rig"] for r in NMPC_RECORDS):     # (hypothesis replays a failing example)
         NMPC_RECORDS.append(rec)
-    note = (f"NMPC vs PI at {frac:g} w0 ({rec['estimator']}): PI {kind}, residual PI {s_pi:.4f} "
-            f"NMPC {s_nmpc:.4f} (ratio {rec['ratio']:.3g}, NMPC speed {rec['nmpc_speed_ratio']:.3g} x programme, "
+    note = (f"NMPC vs PI at {frac:g} w0: PI {kind}, residual PI {s_pi:.4f} NMPC {s_nmpc:.4f} (ratio "
+            f"{rec['ratio']:.3g}, NMPC speed {rec['nmpc_speed_ratio']:.3g} x programme, stuck {rec['nmpc_stuck']:.2f}, "
             f"{rec['fallbacks']} fallbacks)")
     if not s_nmpc <= max(s_pi, QUIET):
         if name in NMPC_FINDINGS:
@@ -268,7 +257,8 @@ def identification(m):
         for n, v, se in zip(fit.names, fit.estimate, fit.error):
             true = getattr(p, n)
             assert abs(v - true) <= max(4 * se, 0.06 * abs(true)), (n, v, se, true)
-    return f"{fit.status.value}: " + ", ".join(f"{n} {v:.4g}" for n, v in zip(fit.names, fit.estimate))
+    return f"{fit.status.value}: " + ", ".join(f"{n} {v:.4g} +- {se:.2g} (true {getattr(p, n):.4g})"
+                                             for n, v, se in zip(fit.names, fit.estimate, fit.error))
 
 
 #: CI's corners of the zoo, one rig each (derandomised): a lab rig on a DC motor with the fastest
@@ -283,7 +273,10 @@ CORNERS = {
 
 #: corners where the zoo found the identification confidently wrong (status OK, the truth many
 #: standard errors away): reported to the identification's owner, xfail until fixed
-IDENT_FINDINGS = {"field_torque_drive": "k0 931 +- 11 N m/rad against 780 (3 bodies, torque drive, J ~ 160 kg m^2)"}
+#: (field_torque_drive, k0 931 +- 11 against 780, was one: the shooting nodes of its unmeasured states
+#: came from a simulation out of phase with the log; they come from the EKF now, 736 +- 13, status
+#: WARNING -- estimators.identify.start.filtered_states)
+IDENT_FINDINGS: dict[str, str] = {}
 #: laws with which the zoo found the identification confidently wrong: reported to the identification's
 #: owner; a zoo rig with such a law records the failure and goes on (a hypothesis test ends at its first
 #: xfail, hiding the rigs after it), and :func:`test_leadscrew_identification_finding` is the strict xfail
@@ -347,7 +340,7 @@ def test_leadscrew_identification_finding(tmp_path_factory):
 def teardown_module():
     """The NMPC-vs-PI records of this session, one line each (``pytest -s`` shows them)."""
     if NMPC_RECORDS:
-        under = [r["pi_under"] for r in NMPC_RECORDS]
+        under = [r.get("pi_under", "-") for r in NMPC_RECORDS]
         print(f"\nNMPC vs PI on {len(NMPC_RECORDS)} zoo rigs: PI {under.count('stick-slip')} stick-slip, "
               f"{under.count('stuck')} stuck, {under.count('oscillation')} oscillating, {under.count('quiet')} quiet, "
               f"{under.count('-')} refused by the NMPC")
@@ -356,7 +349,8 @@ def teardown_module():
                 print(f"  {r['law']:12s} {r['drive']:8s} NMPC refused: {r['refused']} | {r['rig']}")
                 continue
             print(f"  {r['law']:12s} {r['drive']:8s} {r['pi_under']:11s} PI {r['pi']:.4f} NMPC {r['nmpc']:.4f} "
-                  f"ratio {r['ratio']:.3g} speed {r['nmpc_speed_ratio']:.3g} fallbacks {r['fallbacks']} | {r['rig']}")
+                  f"ratio {r['ratio']:.3g} speed {r['nmpc_speed_ratio']:.3g} stuck {r['nmpc_stuck']:.2f} "
+                  f"fallbacks {r['fallbacks']} | {r['rig']}")
 
 
 def test_stiff_rates_where_no_sliding_is_sustained(tmp_path_factory):

@@ -215,3 +215,25 @@ def test_an_unreadable_manifest_is_one_data_error_for_the_sweep_and_the_benchmar
         with pytest.raises(DataError, match=rf"manifest\.json: unreadable {what} manifest \(.*\); use {force} to "
                                             r"start over$"):
             cls(root, {"a": 1})
+
+
+def test_unit_carrying_defaults_come_from_the_rig(tmp_path):
+    """threshold, stuck_threshold and perturbation: rig3's values on rig3 (30 rpm), carried by the
+    nominal speed to a field string (5 rad/s, 1.6x) and by the steady twist for a twist's amplitude;
+    a value the scenario gives wins."""
+    from mitigate.scenario import make_scenario
+    from estimators.online.options import REFERENCE, rig_scales
+    rig3 = options_from_scenario(load_scenario(ROOT / "scenarios" / "stick_slip_30rpm.toml"))
+    assert (rig3.threshold, rig3.stuck_threshold, rig3.perturbation) == pytest.approx((0.05, 1e-6, 0.01))
+    field = ROOT / "tests" / "rigs" / "field_drillstring.toml"
+    m = get_model(str(field))
+    w0 = abs(m.nominal_speed())
+    assert w0 > 1.5 * 3.1416                          # not rig3's scale
+    sc = make_scenario(name="f", model=str(field), duration=10.0, controllers=[])
+    o = options_from_scenario(sc)
+    ratio = w0 / REFERENCE.speed
+    assert (o.threshold, o.stuck_threshold, o.perturbation) == pytest.approx((0.05 * ratio, 1e-6 * ratio, 0.01 * ratio))
+    twist = next(s for s in m.states if s.startswith("twist_"))
+    o = options_from_scenario(sc, amplitude_of=twist)
+    assert o.threshold == pytest.approx(0.05 * rig_scales(m, m.published()).twist / REFERENCE.twist)
+    assert options_from_scenario(sc, threshold=0.2).threshold == 0.2

@@ -1,9 +1,10 @@
 """What an online estimator reads and what it adds to the rig's states.
 
 - :func:`default_channels`: every encoder angle and speed, speed sensor and torque sensor
-  channel of the rig that is not an input; :func:`resolve_channels` checks a given list;
+  channel of the rig that is not an input; :func:`resolve_channels` checks a given list (and
+  leaves out a lone encoder angle by default: the estimator measures angle differences);
 - :func:`default_augment`: ``load:`` on the objective body's contact and ``offset:`` on every
-  torque channel used (why: :mod:`estimators.online.model`); :func:`resolve_augment` checks a
+  torque channel used when an angle pair measures the twists (why: :mod:`estimators.online.model`); :func:`resolve_augment` checks a
   given list;
 - :func:`angle_combination` / :func:`angle_node`: an encoder angle as a combination of the
   twists; :func:`state_units`: the SI unit of every estimator state.
@@ -40,15 +41,23 @@ def default_channels(model: RigModel) -> tuple[str, ...]:
 
 
 def default_augment(model: RigModel, channels) -> tuple[str, ...]:
-    """``load:`` on the objective body's contact, ``offset:`` on every torque channel used."""
+    """``load:`` on the objective body's contact; ``offset:`` on every torque channel used when
+    two or more encoder angles measure the twists.
+
+    Without an angle pair the torque channels are the only handle on the twists' level: an offset
+    state would trade off exactly against the load factor at steady sliding, and the filter
+    drifts along that direction to a bound (measured: a motor encoder and a torque sensor, load
+    factor at its bound of 5, twists 5x the truth).  There the channel is taken as tared (its
+    rig parameter ``<channel>_offset``); give ``augment`` to estimate it anyway."""
     out = []
     body = model.objective_body
     if body in model.contact_bodies:
         out.append(f"load:{model.contact_names[model.contact_bodies.index(body)][0]}")
-    for c in channels:
-        s = model.sensor_of(c)
-        if s is not None and s.kind == "torque":
-            out.append(f"offset:{c}")
+    if sum(angle_node(model, c) is not None for c in channels) >= 2:
+        for c in channels:
+            s = model.sensor_of(c)
+            if s is not None and s.kind == "torque":
+                out.append(f"offset:{c}")
     return tuple(out)
 
 
@@ -102,6 +111,15 @@ def resolve_channels(model: RigModel, o, where: str) -> tuple[str, ...]:
                               f"reading); inputs go in u, the measurements are some of {', '.join(ok)}")
         chans = tuple(c for c in ok if c in o.channels)      # the rig's sensor order
     angles = [c for c in chans if angle_node(model, c) is not None]
+    if len(angles) == 1 and o.channels is None:
+        # the estimator measures angle differences (twists); a lone encoder's angle carries none, so
+        # by default it reads that encoder's speed (and the other sensors) and the observability
+        # check decides whether the twists are seen through the dynamics
+        chans = tuple(c for c in chans if c != angles[0])
+        angles = []
+        if not chans:
+            raise ConfigError(f"{where}: rig {model.name!r} has one encoder angle and no speed or torque channel; "
+                              f"the estimator measures angle differences (twists), and one angle carries none")
     if len(angles) == 1:
         raise ConfigError(f"{where}.channels: one encoder angle ({angles[0]}) alone carries no twist (the estimator "
                           f"measures angle differences); give at least two encoder angles or none")

@@ -38,9 +38,12 @@ The ``[sweep]`` table of a scenario sets defaults::
     speed = "omega1"          # state whose speed gives severity, stuck fraction, frequency
     amplitude_of = "omega1"   # state whose half peak-to-peak is the amplitude (unit of that state)
     threshold = 0.05          # amplitude above which a point counts as a limit cycle (if also sustained:
-                              # the late half of the window swings >= 80 % of the early half)
+                              # the late half of the window swings >= 80 % of the early half);
+                              # default 1.6 % of the rig's nominal speed (of its steady twist, for a twist)
     perturbation = 0.01       # [rad/s] added to the contact speeds of a steady-sliding start
+                              # (default 0.3 % of the nominal speed)
     stuck_threshold = 1e-6    # [rad/s] |speed| at or below which the body counts as stuck
+                              # (default 3e-7 of the nominal speed: a numerical zero)
     chunk = 50                # points per chunk (unit of parallelism and of resuming)
     block = 200               # time steps per compiled call
     duration = 30.0           # [s] overrides scenario.duration for the sweep

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +16,8 @@ import numpy as np
 from models.checks import choice, integer, number, options_from_mapping, prefix
 from models.errors import ConfigError
 
-__all__ = ["Axis", "parse_axis", "SweepOptions", "options_from_scenario", "SweepPlan", "plan_sweep", "MAX_POINTS"]
+__all__ = ["Axis", "parse_axis", "SweepOptions", "options_from_scenario", "SweepPlan", "plan_sweep", "MAX_POINTS",
+           "rig_defaults", "REFERENCE_DEFAULTS"]
 
 #: the most points a sweep may have (all axes multiplied; a 1000 x 1000 map), checked before anything
 #: is allocated; and the plan must fit in memory at BYTES_PER_POINT per point
@@ -74,7 +75,10 @@ def parse_axis(text: str) -> Axis:
 # ----------------------------------------------------------------------------- options
 @dataclass(frozen=True, kw_only=True)
 class SweepOptions:
-    """How each point is simulated and reduced (see module docstring for the meaning)."""
+    """How each point is simulated and reduced (see module docstring for the meaning).
+
+    ``threshold``, ``stuck_threshold`` and ``perturbation`` carry units: None (their default) is
+    resolved by :func:`options_from_scenario` from the rig (:func:`rig_defaults`)."""
 
     start: str = "rest"
     duration: float = 30.0
@@ -83,12 +87,12 @@ class SweepOptions:
     settle: float | None = None
     speed: str = ""
     amplitude_of: str = ""
-    threshold: float = 0.05
-    stuck_threshold: float = 1e-6
+    threshold: float | None = None
+    stuck_threshold: float | None = None
     chunk: int = 50
     block: int = 200
     stability_points: int = 20
-    perturbation: float = 0.01
+    perturbation: float | None = None
     backend: str = "compiled"
 
     def __post_init__(self):
@@ -100,7 +104,7 @@ class SweepOptions:
             integer(getattr(self, n), f"{w}.{n}", lo=1)
         number(self.settle, f"{w}.settle", lo=0.0, hi=self.duration, hi_open=True, unit="s", none=True)
         for n in ("threshold", "stuck_threshold", "perturbation"):
-            number(getattr(self, n), f"{w}.{n}", lo=0.0)
+            number(getattr(self, n), f"{w}.{n}", lo=0.0, none=True)
         choice(self.backend, f"{w}.backend", ("compiled", "vm"))
         if int(round(self.duration / self.dt)) < 4:
             raise ConfigError(f"{w}.duration must span at least 4 samples of dt={self.dt} s, got {self.duration}")
@@ -130,9 +134,9 @@ def options_from_scenario(sc: Scenario, **overrides) -> SweepOptions:
     speed = amp = f"omega_{sc.plant_model.objective_body}"
     kw = dict(start=tab.get("start", "rest"), duration=tab.get("duration", sc.duration), dt=tab.get("dt", sc.dt),
               nsub=tab.get("nsub", sc.sim.nsub), settle=tab.get("settle"), speed=tab.get("speed", speed),
-              amplitude_of=tab.get("amplitude_of", amp), threshold=tab.get("threshold", 0.05),
-              stuck_threshold=tab.get("stuck_threshold", 1e-6), chunk=tab.get("chunk", 50), block=tab.get("block", 200),
-              stability_points=tab.get("stability_points", 20), perturbation=tab.get("perturbation", 0.01))
+              amplitude_of=tab.get("amplitude_of", amp), threshold=tab.get("threshold"),
+              stuck_threshold=tab.get("stuck_threshold"), chunk=tab.get("chunk", 50), block=tab.get("block", 200),
+              stability_points=tab.get("stability_points", 20), perturbation=tab.get("perturbation"))
     if overrides.get("duration") is not None and overrides.get("settle") is None:
         kw["settle"] = None   # a new duration without a new settle time: discard its first half
     kw.update({k: v for k, v in overrides.items() if v is not None})
@@ -142,7 +146,32 @@ def options_from_scenario(sc: Scenario, **overrides) -> SweepOptions:
         if getattr(opts, n) not in model.states:
             raise ConfigError(f"{sc.where}: sweep.{n} must be a state of {model.name} ({', '.join(model.states)}), "
                               f"got {getattr(opts, n)!r}")
+    unset = {n: None for n in ("threshold", "stuck_threshold", "perturbation") if getattr(opts, n) is None}
+    if unset:
+        d = rig_defaults(model, sc.plant_params, opts.amplitude_of)
+        opts = replace(opts, **{n: d[n] for n in unset})
     return opts
+
+
+#: rig3's values (30 rpm, twist 0.81 rad at N1 = 20 N), carried to any rig by its scales
+#: (:func:`estimators.online.options.rig_scales`): a limit cycle's amplitude above 1.6 % of the
+#: nominal speed (of the steady twist, for a twist), a stuck body at or below 3e-7 of it (the exact
+#: plant holds a stuck body at exactly 0; this is a numerical zero), a sliding start kicked by 0.3 %
+REFERENCE_DEFAULTS = {"threshold": 0.05, "stuck_threshold": 1e-6, "perturbation": 0.01}
+
+
+def rig_defaults(model, params, amplitude_of: str) -> dict:
+    """``threshold`` [unit of ``amplitude_of``], ``stuck_threshold`` and ``perturbation`` [rad/s]
+    from the rig's scales: rig3's values (:data:`REFERENCE_DEFAULTS`) times the rig's nominal speed
+    (or, for an amplitude of a twist or a current, its steady twist or current limit) over rig3's."""
+    from estimators.online.options import REFERENCE, rig_scales
+    sc = rig_scales(model, params)
+    unit = dict(zip(model.states, model.state_units)).get(amplitude_of, "rad/s")
+    kind = {"rad": "twist", "A": "current"}.get(unit, "speed")
+    speed = sc.speed / REFERENCE.speed
+    return {"threshold": REFERENCE_DEFAULTS["threshold"] * getattr(sc, kind) / getattr(REFERENCE, kind),
+            "stuck_threshold": REFERENCE_DEFAULTS["stuck_threshold"] * speed,
+            "perturbation": REFERENCE_DEFAULTS["perturbation"] * speed}
 
 
 @dataclass(frozen=True)

@@ -46,6 +46,7 @@ from mitigate.controllers.nmpc.ocp import solver_failures
 from mitigate.controllers.nmpc.solvers import make_ocp_solver
 from mitigate.controllers.nmpc.options import MAX_SUBSTEPS, WEIGHT_NAMES, NMPCOptions
 from mitigate.controllers.nmpc.schedule import CalmSchedule
+from mitigate.controllers.nmpc.trim import SpeedTrim
 from mitigate.tunables import Tunable
 from models.discretise import integration
 from models.actuators import Servo
@@ -180,6 +181,8 @@ class NMPC(Controller):
         self._load_keys = {f"load:{c}": i for i, names in enumerate(m.contact_names) for c in names}
         self.period = cfg.period
         self.schedule = CalmSchedule(self.period, self.dt_daq, o.calm_band, cfg.hold_gain)
+        # the trim moves the speed the drive's set-point aims at: without the drive, nothing to trim
+        self.trim = SpeedTrim(cfg.speed_trim if self.drives else 0.0, self.period, self.dt_daq, o.calm_band[0])
         self._i_ref, self._i_force, self._i_dref = (L.q_w + WEIGHT_NAMES.index(k) for k in ("ref", "force", "d_ref"))
         self._i_speed = m.speed_index(self.body)
         self._names_seen = None
@@ -218,18 +221,18 @@ class NMPC(Controller):
     def tuning_values(self) -> dict[str, float]:
         """The settings the NMPC runs with (given, or derived from the rig: :mod:`.defaults`), for
         the report: dt [s], horizon [-], eps [rad/s], setpoint_band and setpoint_rate [rad/s, rad/s^2
-        or N m, N m/s], force_filter [s], hold_gain [-]."""
+        or N m, N m/s], force_filter [s], hold_gain [-], speed_trim [s]."""
         c = self.cfg
         return {"dt": c.dt, "horizon": float(self.spec.horizon), "eps": c.eps,
                 "setpoint_band": c.setpoint_band, "setpoint_rate": c.setpoint_rate,
-                "force_filter": c.force_filter, "hold_gain": c.hold_gain}
+                "force_filter": c.force_filter, "hold_gain": c.hold_gain, "speed_trim": c.speed_trim}
 
     @property
     def derived_units(self) -> dict[str, str]:
         """The unit of each :meth:`tuning_values` entry (a torque drive's set-point is a torque)."""
         sp, rate = ("N m", "N m/s") if self._torque_drive else ("rad/s", "rad/s^2")
         return {"dt": "s", "horizon": "-", "eps": "rad/s", "setpoint_band": sp, "setpoint_rate": rate,
-                "force_filter": "s", "hold_gain": "-"}
+                "force_filter": "s", "hold_gain": "-", "speed_trim": "s"}
 
     def _nominal(self, t: float, u_prog) -> float:
         """Nominal speed of the objective body [rad/s]."""
@@ -256,6 +259,7 @@ class NMPC(Controller):
         self._dev = {}            # low-passed (reading - programme) of each held measured input
         self._fc = np.ones(len(self.model.contacts))   # friction factors of the plan
         self.schedule.reset()
+        self.trim.reset()
         self.last_result = None
 
     def _measured(self, j: int, measurement, fallback: float) -> float:
@@ -353,6 +357,7 @@ class NMPC(Controller):
         xe = getattr(estimate, "x", None)
         if xe is not None and len(xe) > self._i_speed:
             self.schedule.update(float(xe[self._i_speed]), self._nominal(t, u_prog))
+            self.trim.update(float(xe[self._i_speed]), self._nominal(t, u_prog))
         dt = self.cfg.dt
         due = self._t_solve is None or t - self._t_solve >= dt - 0.5 * self.dt_daq
         if not due and self._action is not None:
@@ -379,7 +384,7 @@ class NMPC(Controller):
             if self.drives:
                 xa0[L.i_wprev] = self._u_prev[0]
             at_min = [float(hold[j] <= lo + 1e-9 * max(abs(lo), 1.0)) for j, lo in zip(L.u_servo, self._n_min)]
-            q = L.set_q(self._q.copy(), hold, self._nominal(t, u_prog), fc, at_min)
+            q = L.set_q(self._q.copy(), hold, self._nominal(t, u_prog) + self.trim.value, fc, at_min)
             f = self.schedule.current()
             q[self._i_ref] *= f
             q[self._i_dref] *= f

@@ -16,6 +16,7 @@ setpoint_rate  15 x band / T (the set-point may cross its band in 1/15 of   20 r
                a period)
 force_filter   the horizon, horizon x dt                                     1.0 s
 schedule       one period T                                                  2.3 s
+speed_trim     one period T (the offset-free trim's time constant, ``trim``) 2.3 s
 hold_gain      60 where steady sliding at the programme (at the nominal      60 (30 rpm, 20 N;
                speed) is linearly stable, 15 where it is unstable or cannot  15 at 20 rpm, 15 N
                be decided (dimensionless; the rig decides which)             or 50 N)
@@ -64,7 +65,7 @@ class Resolved:
     """The NMPC's unit-carrying settings on one rig: given options, or the rig's defaults.
 
     period [s]; dt [s]; eps [rad/s]; setpoint_band, setpoint_rate [rad/s, rad/s^2 or N m, N m/s];
-    force_filter [s]; hold_gain [-]; derived: the names of the settings that came from the rig
+    force_filter [s]; hold_gain [-]; speed_trim [s]; derived: the names of the settings that came from the rig
     """
 
     period: float
@@ -74,6 +75,7 @@ class Resolved:
     setpoint_rate: float
     force_filter: float
     hold_gain: float
+    speed_trim: float
     derived: tuple[str, ...]
 
 
@@ -137,7 +139,12 @@ def resolve(options, model, params, dt_daq: float, nominal_speed: float, setpoin
         stable = u is not None and sliding_is_stable(model, params, u, nominal_speed)
         hold = HOLD_GAIN_STABLE if stable else HOLD_GAIN_UNSTABLE
         derived.append("hold_gain")
-    return Resolved(period, dt, eps, band, rate, ff, hold, tuple(derived))
+    if o.speed_trim is not None:
+        trim = float(o.speed_trim)
+    else:
+        trim = period
+        derived.append("speed_trim")
+    return Resolved(period, dt, eps, band, rate, ff, hold, trim, tuple(derived))
 
 
 def sliding_is_stable(model, params, u, nominal_speed: float) -> bool | None:

@@ -142,6 +142,9 @@ class NMPCOptions:
         (calm, the plan must keep damping an unstable equilibrium)
     calm_band : ``(s_lo, s_hi)``: the estimated severity over one stick-slip period below which
         the NMPC holds (``hold_gain``) and above which it suppresses (factor 1); log-linear between
+    speed_trim : time constant [s] of the offset-free trim of the speed target by the objective
+        body's mean speed (:mod:`mitigate.controllers.nmpc.trim`); None: one stick-slip period;
+        0: no trim
     """
 
     horizon: int = 20
@@ -165,6 +168,7 @@ class NMPCOptions:
     force_filter: float | None = None
     hold_gain: float | None = None
     calm_band: tuple[float, float] = (0.01, 0.1)
+    speed_trim: float | None = None
     where: str = "nmpc"
 
     def __post_init__(self):
@@ -217,6 +221,8 @@ class NMPCOptions:
         object.__setattr__(self, "calm_band", (float(band[0]), float(band[1])))
         if self.force_filter is not None:
             finite_number(self.force_filter, f"{w}.force_filter", nonneg=True, unit="s")
+        if self.speed_trim is not None:
+            finite_number(self.speed_trim, f"{w}.speed_trim", nonneg=True, unit="s")
         for name in ("compile", "model_servo", "prepare_ahead", "use_load_estimate"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{w}.{name} must be true or false, got {getattr(self, name)!r}")
