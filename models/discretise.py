@@ -157,7 +157,8 @@ def stiff_rates(model, params, u, *, eps: float | None = None, speed: float | No
     eps : friction regularisation [rad/s] of a regularised consumer: every contact body at rest
         or sliding at ``speed`` counts; None (the exact stick/slip plant): only sliding, at the
         model's default regularisation (whose sliding slope is the law's own)
-    speed : the sliding speed [rad/s] (default: the drive's, at least 1 rad/s)
+    speed : the sliding speed [rad/s] of every body (default: the drive's, at least 1 rad/s; a torque
+        drive's: the speed its torque sustains, or the rig's nominal speed where it sustains none)
     reduced : with the DC motor's current quasi-static
     """
     pv = np.asarray(params.vector() if hasattr(params, "vector") else params, float)
@@ -174,7 +175,16 @@ def stiff_rates(model, params, u, *, eps: float | None = None, speed: float | No
         if model.drive_kind != "torque":
             speed = max(abs(float(u[model.inputs.index(model.drive_input)])), 1.0)
         elif model.contacts:
-            speed = max(abs(float(xs[model.contacts[0]])), 1.0)
+            # the speed the torque sustains; where none does, the guess runs off (100 x the rig's nominal
+            # speed and more): the rig's nominal speed then
+            w, w_nom = abs(float(xs[model.contacts[0]])), abs(float(model.nominal_speed()))
+            speed = max(w if w <= 100 * max(w_nom, 1.0) else w_nom, 1.0)
+    # every body at the sliding speed (the guess has them at one speed, its own): a torque the friction
+    # holds at every speed has no steady sliding and the guess runs off (a lead screw under an axial load
+    # its drive torque cannot turn: 6e8 rad/s), and the springs' dampers between a body at that speed and
+    # a contact body at ``speed`` then gave the lead screw's speed-dependent inertia a rate of 2e8 1/s
+    for b in model.bodies:
+        xs[model.speed_index(b)] = speed
     nc = min(len(model.contacts), 4)
     combos = [2 ** nc - 1] if eps is None else range(2 ** nc)
     lam = 0.0

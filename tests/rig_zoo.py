@@ -17,9 +17,8 @@ from dataclasses import dataclass
 
 from hypothesis import strategies as st
 
-#: laws of the registry a generated rig may use (the lead-screw law needs a screw's geometry: its
-#: own rig file covers it)
-LAWS = ("stribeck", "bit_rock", "vahid_araghi", "coulomb")
+#: laws of the registry a generated rig may use (every registered law: test_rig_zoo checks it)
+LAWS = ("stribeck", "bit_rock", "vahid_araghi", "coulomb", "leadscrew")
 DRIVE_INPUT_NAMES = ("omega_ref", "w_set", "u", "tau_top", "speed_cmd")
 NORMAL_INPUT_NAMES = ("n_brake", "f_pin", "x", "wob", "p", "load")
 
@@ -52,9 +51,9 @@ def _q(v: float) -> str:
 
 @st.composite
 def zoo_rigs(draw, max_bodies: int = 6, drives=("speed", "torque", "dc_motor"), log_scale=(-3.0, 3.0),
-             log_tau_e=(math.log10(5e-5), math.log10(5e-3))) -> ZooRig:
-    """A rig (module docstring); ``drives``, ``log_scale`` (log10 of the inertia scale) and
-    ``log_tau_e`` (log10 of a DC motor's L/R [s]) narrow the draw."""
+             log_tau_e=(math.log10(5e-5), math.log10(5e-3)), laws=LAWS) -> ZooRig:
+    """A rig (module docstring); ``drives``, ``log_scale`` (log10 of the inertia scale),
+    ``log_tau_e`` (log10 of a DC motor's L/R [s]) and ``laws`` narrow the draw."""
     # (the draws are arranged so that hypothesis' simplest example is a rich rig: the most bodies,
     # every sensor, a servo, a Stribeck contact)
     n = max_bodies - draw(st.integers(0, max_bodies - 1), label="bodies fewer than the most")
@@ -66,7 +65,7 @@ def zoo_rigs(draw, max_bodies: int = 6, drives=("speed", "torque", "dc_motor"), 
     speed = draw(st.floats(1.0, 6.0), label="sliding speed [rad/s]")
     twist = draw(st.floats(0.05, 0.5), label="twist under the friction torque [rad]")
     drive = draw(st.sampled_from(tuple(drives)), label="drive")
-    law = draw(st.sampled_from(LAWS), label="law")
+    law = draw(st.sampled_from(tuple(laws)), label="law")
     din = draw(st.sampled_from(DRIVE_INPUT_NAMES), label="drive input")
     nin = draw(st.sampled_from([x for x in NORMAL_INPUT_NAMES if x != din]), label="normal input")
     contact = leaves[draw(st.integers(0, len(leaves) - 1), label="contact leaf")]
@@ -85,6 +84,17 @@ def zoo_rigs(draw, max_bodies: int = 6, drives=("speed", "torque", "dc_motor"), 
     r = 0.05
     mu_k = 0.3
     N = T / (r * mu_k)
+    if law == "leadscrew":
+        # a self-locking screw (thread friction above the lead angle's tangent, seed 002: 0.218 against
+        # tan 5.57 deg = 0.098): pitch radius r, the axial load N is the normal input, the support
+        # friction T0 2 % and the slider resistance F0 1 % of the load; forward, the thread's torque is
+        # r xi(mu1) (N - F0) + T0 = T (seed 002 eqs. 9.7, 9.31)
+        lam = draw(st.floats(0.05, 0.15), label="lead angle [rad]")
+        mu_k = draw(st.floats(0.2, 0.3), label="thread friction mu1")
+        xi = (mu_k - math.tan(lam)) / (1 + mu_k * math.tan(lam))
+        N = 0.98 * T / (r * xi * 0.99)
+        # the nut's translating mass adds tan(lam) |xi| m r^2 (seed 002 eq. 9.31): 5 % of the screw's inertia
+        m_nut = 0.05 * J[contact] / (r ** 2 * math.tan(lam))
     names = [f"b{i}" for i in range(n)]
 
     L = ["[rig]", f'name = "zoo_{n}{drive[0]}{law[:2]}"',
@@ -115,10 +125,21 @@ def zoo_rigs(draw, max_bodies: int = 6, drives=("speed", "torque", "dc_motor"), 
               f'v_b = {{ value = {_q(0.3 * speed)}, unit = "rad/s", positive = true }}',
               f'c_b = {{ value = {_q(0.01 * T / speed)}, unit = "N m s/rad" }}']
         law_keys = {"mu_sb": "mu_sb", "mu_cb": "mu_cb", "v_b": "v_b", "c_b": "c_b"}
-    else:
+    elif law == "vahid_araghi":
         L += [f"mu1 = {{ value = {mu_k} }}", "mu2 = { value = 0.2 }", 'mu3 = { value = 0.0, unit = "s/rad" }',
               f'r0 = {{ value = {_q(1.0 / (0.3 * speed))}, unit = "s/rad" }}', "sm = { value = 1.0 }"]
         law_keys = {"mu1": "mu1", "mu2": "mu2", "mu3": "mu3", "r0": "r0", "sm": "sm"}
+    else:
+        # seed 002 Table 9.5's Stribeck part (mu2 / mu1 ~ 0.1) made clearer, decaying over 0.3 of the
+        # speed; the smoothing of eq. (9.33) over 2 % of the speed (the exact plant does not use it)
+        L += [f"mu1 = {{ value = {_q(mu_k)} }}", f"mu2 = {{ value = {_q(0.3 * mu_k)} }}",
+              'mu3 = { value = 0.0, unit = "s/rad" }',
+              f'r0 = {{ value = {_q(1.0 / (0.3 * speed))}, unit = "s/rad" }}', "sm = { value = 1.0 }",
+              f'lam = {{ value = {_q(lam)}, unit = "rad" }}', f'm_nut = {{ value = {_q(m_nut)}, unit = "kg" }}',
+              f'F0 = {{ value = {_q(0.01 * N)}, unit = "N" }}', f'T0 = {{ value = {_q(0.02 * T)}, unit = "N m" }}',
+              f'r1 = {{ value = {_q(1.0 / (0.02 * speed))}, unit = "s/rad", positive = true }}']
+        law_keys = {"mu1": "mu1", "mu2": "mu2", "mu3": "mu3", "r0": "r0", "sm": "sm", "lam": "lam", "m": "m_nut",
+                    "F0": "F0", "T0": "T0", "r1": "r1"}
     motor = drive == "dc_motor"
     if motor:
         tau_e = 10.0 ** draw(st.floats(*log_tau_e), label="L/R [s]")

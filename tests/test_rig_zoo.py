@@ -8,9 +8,24 @@ frequency within 2 %.
 
 CI runs four fixed corners (a lab rig on a DC motor with L/R = 0.05 ms, a field-scale string on
 a torque drive, a lab speed drive, a DC motor with L/R = 5 ms) and a derandomised handful of rigs
-(``ZOO_EXAMPLES``, default 3): about 30 s with a warm compiled-code cache.
-``HYPOTHESIS_PROFILE=zoo`` runs 40 random rigs of up to 6 bodies, with shrinking.  NOT checked yet:
-the NMPC's severity against PI's (the runs here are a few seconds long).
+(``ZOO_EXAMPLES``, default 3): about 50 s with a warm compiled-code cache on the shared 2 cores.
+``HYPOTHESIS_PROFILE=zoo`` runs 40 random rigs of up to 6 bodies, with shrinking.
+
+The NMPC against PI (:func:`nmpc_vs_pi`), on every rig the zoo draws (the corners and the
+examples alike): a slow programme (0.1 of the nominal speed, below the laws' weakening range; 0.5 on
+a torque drive), the controllers switched on after 4 of the rig's stick-slip periods T, then 8 T;
+the NMPC's residual severity (last 3 T, against the programmed speed) is not above PI's unless
+both are below 1e-3.  ``pytest -s`` prints, per rig, what PI left (stick-slip,
+a stuck string, an oscillation without sticking, quiet) and the NMPC/PI ratio.  On a torque drive a
+constant torque below the static level never starts a string at rest: PI's "stuck" (severity 1) is
+what the NMPC is compared with there.  An NMPC that refuses the rig in one line (its RK4 substeps at
+the programme's regularisation) is recorded, not compared; so is an NMPC above PI on a rig whose
+string the estimator cannot observe (``NMPC_BLIND``, with its strict xfail), and a string the NMPC
+stalls (below half its programmed speed: the residual severity cannot see it) is flagged.
+
+Every law of the registry is drawn, the lead screw's (seed 002) included.  Findings, reported:
+the identification confidently wrong on the field-scale corner (:data:`IDENT_FINDINGS`) and with
+the lead-screw law (:data:`IDENT_LAW_FINDINGS`, :func:`test_leadscrew_identification_finding`).
 """
 
 import math
@@ -19,7 +34,7 @@ import os
 import numpy as np
 import pytest
 import scipy.linalg
-from hypothesis import HealthCheck, Phase, given, seed, settings
+from hypothesis import HealthCheck, Phase, find, given, seed, settings
 
 from rig_zoo import zoo_rigs
 from estimators.identify import IdentifyOptions, identify
@@ -29,6 +44,7 @@ from mitigate.runner import run
 from mitigate.scenario import make_scenario
 from models import get_model
 from models.errors import ConfigError
+from mitigate.metrics import rig_period
 from models.modal import linearise, modes, operating_point
 from models.plant import SimOptions, simulate
 from models.status import Status
@@ -138,6 +154,105 @@ def pipeline(m, z, path):
                        for r in res.runs})
 
 
+#: the NMPC-vs-PI programme as a fraction of the rig's nominal speed: below the generated laws'
+#: weakening range (0.3 of the nominal speed), where a start from rest sticks and slips under PI.
+#: (Chosen by the linear stability of sliding instead, the DC-motor corners got 0.2 or 0.5, where PI
+#: left an oscillation without sticking, severity 0.57 / 0.22; at 0.1 sliding is linearly stable on
+#: them and the stick-slip cycle from rest stays all the same, severity 1.04.)  A torque drive at
+#: 0.5: the torque that holds 0.1 lies near the static level and once the string breaks away it runs
+#: off under PI (severity 11-20 on four rigs); at 0.5 PI left stick-slip on two of them, a stuck
+#: string and an oscillation on the others
+SLOW_FRACTION = 0.1
+SLOW_FRACTION_TORQUE = 0.5
+#: a residual severity below which a run counts as quiet (so two quiet runs are equal) [-]
+QUIET = 1e-3
+#: controlled periods after the switch-on, and periods of PI before it
+CONTROLLED_PERIODS, SWITCH_ON_PERIODS = 8, 4
+#: the NMPC's mean speed over the residual window below this fraction of the programme: a stalled string
+STALLED = 0.5
+#: per rig, the NMPC-vs-PI record (printed at the end of the module: ``pytest -s``)
+NMPC_RECORDS: list[dict] = []
+#: rigs on which the NMPC's residual severity was found above PI's: xfail with the numbers until fixed
+NMPC_FINDINGS: dict[str, str] = {}
+#: the NMPC above PI on rigs whose string the estimator cannot observe (its observability report
+#: says so): the drive's own encoder alone on a speed drive, or an encoder far from the contact.
+#: Reported; the zoo records such a rig and goes on
+NMPC_BLIND = ("a 1-body lead-screw rig read by the drive's encoder alone: PI 1.00 (stuck), NMPC 3.84 (stuck 68 %); "
+              "in the zoo also 2.02 / 2.21 on a 2-body lead-screw rig with the drive encoder and a load cell")
+
+
+def slow_programme(m):
+    """The programme of the NMPC-vs-PI check: ``(inputs, [control] table, fraction)`` at
+    :data:`SLOW_FRACTION` of the nominal speed (a torque drive: :data:`SLOW_FRACTION_TORQUE`, its
+    torque that of steady sliding at that speed and the speed its ``[control] speed``).  From rest a
+    torque below the static level never starts the string: PI's string is then stuck (severity 1)."""
+    f = SLOW_FRACTION_TORQUE if m.drive_kind == "torque" else SLOW_FRACTION
+    w = f * m.nominal_speed()
+    u, _ = operating_point(m, m.published(), omega=w)
+    return {n: float(v) for n, v in zip(m.inputs, u)}, ({"speed": w} if m.drive_kind == "torque" else {}), f
+
+
+def nmpc_vs_pi(m, z, path, name="", blind_ok=True):
+    """PI and the NMPC (compile=False, with the EKF) on the slow programme (:func:`slow_programme`):
+    switched on after ``SWITCH_ON_PERIODS`` of the rig's stick-slip period T (its lowest mode with the drive held,
+    :func:`mitigate.metrics.rig_period`), then ``CONTROLLED_PERIODS``; DAQ period T / 100 (the
+    NMPC's interval is T / 50). The NMPC's ``residual_severity`` (last 3 T, against the programmed
+    speed) must not be above PI's unless both are below :data:`QUIET`.  ``blind_ok``: where the
+    estimator's observability report says the string is not observable from the rig's sensors, an
+    NMPC above PI is the named finding :data:`NMPC_BLIND` (recorded; :func:`test_nmpc_blind_finding`
+    is its strict xfail), not a failure."""
+    p = m.published()
+    T = rig_period(m, p)
+    ins, control, frac = slow_programme(m)
+    start = SWITCH_ON_PERIODS * T
+    ctrls = ["pi", {"name": "nmpc", "kind": "nmpc", "compile": False}]
+    est = {"kind": "ekf", "compile": False}
+    common = dict(name="zoo_nmpc", model=str(path), duration=start + CONTROLLED_PERIODS * T, dt=T / 100, seed=4,
+                  inputs=ins, controllers=ctrls, control={"start": start, **control})
+    try:
+        # (a lone encoder: the EKF reads its speed, not its angle.  Not the FD baseline: it holds the
+        # twists it does not read at 0, and the NMPC fed that lost to PI on 4 of 5 such rigs: PI 1.03 /
+        # NMPC 1.69 on a 2-body lead-screw rig, 0.056 / 0.178 on a 1-body Vahid-Araghi rig, 1.53 / 2.55
+        # on a 6-body DC-motor rig)
+        res = run(make_scenario(estimator=est, **common), jobs=1)
+    except ConfigError as exc:
+        # the NMPC refusing the rig in one line (its substeps at the slow programme's eps): recorded
+        msg = one_line(exc)
+        assert "'nmpc'" in msg, msg
+        NMPC_RECORDS.append(dict(rig=f"{name}: {z.describe()}" if name else z.describe(), law=z.law, drive=z.drive,
+                                 fraction=frac, refused=msg))
+        return f"NMPC refused at {frac:g} w0: {msg}"
+    bad = [f"{r.name}: {r.message}" for r in res.runs if r.status is Status.FAILED]
+    assert not bad, bad
+    pi, nmpc = res.run("pi").metrics, res.run("nmpc").metrics
+    s_pi, s_nmpc = pi["residual_severity"], nmpc["residual_severity"]
+    stuck = pi["residual_stuck_fraction"]
+    kind = ("stuck" if stuck >= 1 else "stick-slip" if stuck > 0 and s_pi > 0.1
+            else "oscillation" if s_pi > QUIET else "quiet")
+    rec = dict(rig=f"{name}: {z.describe()}" if name else z.describe(), law=z.law, drive=z.drive, fraction=frac,
+               pi_under=kind, pi=s_pi, nmpc=s_nmpc, ratio=s_nmpc / s_pi if s_pi > 0 else float("inf"),
+               nmpc_speed_ratio=nmpc["residual_speed_ratio"], nmpc_stuck=nmpc["residual_stuck_fraction"],
+               fallbacks=res.run("nmpc").result.controller_counts.get("fallbacks", 0))
+    if all(r["rig"] != rec["rig"] for r in NMPC_RECORDS):     # (hypothesis replays a failing example)
+        NMPC_RECORDS.append(rec)
+    # a string the NMPC holds nearly at rest has a small residual severity (it is not stuck throughout,
+    # so the stuck rule does not give it 1): not a win, recorded and printed (seen once in ~35 random
+    # rigs: a 5-body torque-drive bit-rock string at 0.0002 of its target speed, severity 0.0014)
+    rec["stalled"] = bool(rec["nmpc_speed_ratio"] < STALLED)
+    note = (f"NMPC vs PI at {frac:g} w0: PI {kind}, residual PI {s_pi:.4f} NMPC {s_nmpc:.4f} (ratio "
+            f"{rec['ratio']:.3g}, NMPC speed {rec['nmpc_speed_ratio']:.3g} x programme, stuck {rec['nmpc_stuck']:.2f}, "
+            f"{rec['fallbacks']} fallbacks{', STALLED' if rec['stalled'] else ''})")
+    obs = res.run("nmpc").result.observability
+    if not s_nmpc <= max(s_pi, QUIET) and blind_ok and obs is not None and not obs.observable:
+        rec["blind"] = obs.message
+        return f"{note}: the known finding NMPC_BLIND ({obs.message})"
+    if not s_nmpc <= max(s_pi, QUIET):
+        if name in NMPC_FINDINGS:
+            pytest.xfail(f"NMPC above PI on {name}: {NMPC_FINDINGS[name]} ({note})")
+        raise AssertionError(f"the NMPC's residual severity is above PI's: {note}")
+    return note
+
+
 def identification(m):
     """Two parameters (the first spring's stiffness, the contact's kinetic level) from 4 s of a
     simulated log from rest (the start-up excites the string), started 20 % off: a fit whose truth
@@ -181,18 +296,26 @@ CORNERS = {
 #: off and the states' scales with it, tests/test_identify_scales.py; its unmeasured node states now
 #: start from the EKF where a torque is known, estimators.identify.start.filtered_states)
 IDENT_FINDINGS: dict[str, str] = {}
+#: laws with which the zoo found the identification confidently wrong: reported to the identification's
+#: owner; a zoo rig with such a law records the failure and goes on (a hypothesis test ends at its first
+#: xfail, hiding the rigs after it), and :func:`test_leadscrew_identification_finding` is the strict xfail
+IDENT_LAW_FINDINGS = {"leadscrew": "k0 36.7 +- 0.16 N m/rad against 39.5 (1 body, speed drive, one encoder on the "
+                                   "screw, J ~ 1 kg m^2); in the zoo also mu1 -0.035 +- 0.0009 against 0.246 (1 body, "
+                                   "one encoder) and mu1 0.337 +- 0.010 against 0.290 (1 body, torque drive)"}
 
 
 def check(tmp_path_factory, z, corner=None):
     path = _write(tmp_path_factory, z)
     m = get_model(str(path))
-    notes = [z.describe(), modal_vs_simulation(m), str(pipeline(m, z, path))]
+    notes = [z.describe(), modal_vs_simulation(m), str(pipeline(m, z, path)), nmpc_vs_pi(m, z, path, corner or "")]
     try:
         notes.append(identification(m))
     except AssertionError as exc:
         if corner in IDENT_FINDINGS:
             pytest.xfail(f"identification confidently wrong on {corner}: {IDENT_FINDINGS[corner]} ({exc})")
-        raise
+        if z.law not in IDENT_LAW_FINDINGS:
+            raise
+        notes.append(f"identification confidently wrong (the known {z.law} finding): {exc}".replace("\n", " "))
     print(" | ".join(notes))
 
 
@@ -215,3 +338,66 @@ def test_rig_zoo_corners(tmp_path_factory, corner):
 @given(z=zoo_rigs(max_bodies=6 if ZOO else 3))
 def test_rig_zoo(tmp_path_factory, z):
     check(tmp_path_factory, z)
+
+
+#: a fixed rig with a property: the simplest (shrunk) derandomised draw that has it
+FIND = settings(database=None, derandomize=True, suppress_health_check=list(HealthCheck))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not ZOO, reason="13 s of CI's zoo budget: HYPOTHESIS_PROFILE=zoo runs it")
+@pytest.mark.xfail(raises=AssertionError, strict=True,
+                   reason="identification confidently wrong with the lead-screw law: "
+                          f"{IDENT_LAW_FINDINGS['leadscrew']}")
+def test_leadscrew_identification_finding(tmp_path_factory):
+    """The lead-screw finding of :data:`IDENT_LAW_FINDINGS` on the simplest zoo rig that shows it: one
+    body on a speed drive, read by one encoder on the screw (strict: passes once it is fixed)."""
+    z = find(zoo_rigs(max_bodies=1, drives=("speed",), laws=("leadscrew",)), lambda z: z.sensors == ("enc_c",),
+             settings=FIND)
+    identification(get_model(str(_write(tmp_path_factory, z))))
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(raises=AssertionError, strict=True,
+                   reason=f"NMPC above PI where the string is unobserved: {NMPC_BLIND}")
+def test_nmpc_blind_finding(tmp_path_factory):
+    """:data:`NMPC_BLIND` on the simplest zoo rig that shows it (strict: passes once it is fixed)."""
+    z = find(zoo_rigs(max_bodies=1, drives=("speed",), laws=("leadscrew",)), lambda z: z.sensors == ("enc_d",),
+             settings=FIND)
+    path = _write(tmp_path_factory, z)
+    nmpc_vs_pi(get_model(str(path)), z, path, blind_ok=False)
+
+
+def teardown_module():
+    """The NMPC-vs-PI records of this session, one line each (``pytest -s`` shows them)."""
+    if NMPC_RECORDS:
+        under = [r.get("pi_under", "-") for r in NMPC_RECORDS]
+        print(f"\nNMPC vs PI on {len(NMPC_RECORDS)} zoo rigs: PI {under.count('stick-slip')} stick-slip, "
+              f"{under.count('stuck')} stuck, {under.count('oscillation')} oscillating, {under.count('quiet')} quiet, "
+              f"{under.count('-')} refused by the NMPC")
+        for r in NMPC_RECORDS:
+            if "refused" in r:
+                print(f"  {r['law']:12s} {r['drive']:8s} NMPC refused: {r['refused']} | {r['rig']}")
+                continue
+            print(f"  {r['law']:12s} {r['drive']:8s} {r['pi_under']:11s} PI {r['pi']:.4f} NMPC {r['nmpc']:.4f} "
+                  f"ratio {r['ratio']:.3g} speed {r['nmpc_speed_ratio']:.3g} stuck {r['nmpc_stuck']:.2f} "
+                  f"fallbacks {r['fallbacks']}{' BLIND' if 'blind' in r else ''}{' STALLED' if r['stalled'] else ''}"
+                  f" | {r['rig']}")
+
+
+def test_stiff_rates_where_no_sliding_is_sustained(tmp_path_factory):
+    """A lead screw on a torque drive under 2.5 x its axial load (a servo's n_max): no torque up to
+    twice the programme's turns it, the steady-sliding guess runs off to ~1e8 rad/s, and the rate the
+    integration rule took there (the dampers against the screw's speed-dependent inertia) was 1e8-1e9
+    1/s: the NMPC and the identification refused the rig.  Taken at the sliding speed: the string's own."""
+    from models.discretise import stiff_rates
+    z = find(zoo_rigs(max_bodies=1, drives=("torque",), laws=("leadscrew",)), lambda z: True,
+             settings=FIND)
+    m = get_model(str(_write(tmp_path_factory, z)))
+    p = m.published()
+    u, x = operating_point(m, p)
+    low = stiff_rates(m, p, u, eps=0.016 * z.speed, speed=z.speed)
+    u_max = u * np.array([2.0 if n == m.drive_input else 2.5 for n in m.inputs])
+    assert abs(m.sliding_guess(u_max, p)[m.contacts[0]]) > 1e3 * z.speed       # no steady sliding there
+    for speed in (z.speed, None):
+        assert stiff_rates(m, p, u_max, eps=0.016 * z.speed, speed=speed) < 10 * low

@@ -135,11 +135,13 @@ class NMPC(Controller):
         self.servos = tuple(n for n in self.inputs if n != drive)
         self._torque_drive = m.drive_kind == "torque"
         if o.speed is None and self._torque_drive:
+            # the scenario's [control] speed (ControlContext.target_speed, as SoftSpeed and Z-Torque);
+            # without one the rig's operating_point.speed
             op = m.spec.extra.get("operating_point", {})
-            if "speed" not in op:
+            if context.speed is None and "speed" not in op:
                 raise ConfigError(f"{where}.speed: rig {m.name!r} has a torque drive and no operating_point.speed; "
-                                  f"give the nominal speed of {self.body!r} [rad/s]")
-            self._speed0 = float(op["speed"])
+                                  f"give the nominal speed of {self.body!r} [rad/s] (or the scenario's control.speed)")
+            self._speed0 = None
         else:
             self._speed0 = None if o.speed is None else float(o.speed)
         acts = [m.actuator(n) for n in self.servos]
@@ -236,6 +238,8 @@ class NMPC(Controller):
         """Nominal speed of the objective body [rad/s]."""
         if self._speed0 is not None:
             return self._speed0
+        if self._torque_drive:
+            return self.context.target_speed(t)
         return float(u_prog[self.model.inputs.index(self.model.drive_input)])
 
     def actuated_inputs(self) -> tuple[str, ...]:

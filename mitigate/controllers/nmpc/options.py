@@ -111,7 +111,7 @@ class NMPCOptions:
         force from its load cell) or, for the drive, at the programme's
     body : the body whose stick-slip the cost suppresses (None: the rig's ``objective_body``)
     speed : nominal speed of that body [rad/s] (None: the programme's drive speed; a torque
-        drive: the rig's ``operating_point.speed``)
+        drive: the scenario's ``[control] speed``, else the rig's ``operating_point.speed``)
     weights : :class:`NMPCWeights` (or a table of them)
     setpoint_band : the drive's set-point stays within the programme's +- this [rad/s, or N m
         for a torque drive] (a speed set-point never changes sign; None: the programme's own
