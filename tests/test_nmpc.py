@@ -640,20 +640,21 @@ def test_torque_drive_rig2_holds_its_operating_speed():
 def test_torque_drive_follows_the_scenarios_control_speed():
     """A torque drive's target is the scenario's ``[control] speed`` (ControlContext.speed), as for
     SoftSpeed and Z-Torque, not the rig file's operating_point.speed: at 0.7 rad/s on rig2 the NMPC
-    once held the disc at the file's 1 rad/s (the rig zoo found it: 1.9-5x the target speed).  The
-    offset-free trim is off: started from rest, it winds up while the disc is still (a calm record)
-    and the disc ran at 0.78 rad/s after 8 s."""
+    once held the disc at the file's 1 rad/s (the rig zoo found it: 1.9-5x the target speed).  Started
+    from rest with the offset-free trim on: it once wound up while the disc was still (a calm record)
+    and the disc ran at 0.78 rad/s after 8 s; it integrates only while the disc slides now."""
     m = get_model("rig2")
     p = m.published()
     u0 = np.asarray(m.operating_point(0.7, [0.0], p)[0], float)
     ctx = ControlContext(m, p, 0.01, 0.01, lambda t: u0, where="nmpc", speed=lambda t: 0.7)
-    c = make_controller({"kind": "nmpc", "horizon": 20, "compile": False, "setpoint_band": 0.3, "setpoint_rate": 2.0,
-                         "speed_trim": 0.0}, ctx)
+    c = make_controller({"kind": "nmpc", "horizon": 20, "compile": False, "setpoint_band": 0.3, "setpoint_rate": 2.0},
+                        ctx)
     assert c.tuning_values()["eps"] == pytest.approx(0.016 * 0.7)
     plant = Plant(m, p, SimOptions(seed=0), sensors=None, u0=u0)
     w, acts, _ = _closed_loop(c, plant, 0.0, 800, u_prog=u0, model=m)
     assert np.mean(w[-200:]) == pytest.approx(0.7, abs=0.02) and severity(w[-200:]) < 0.05
     assert c.counts.failures == 0
+
 
 def test_too_stiff_a_rig_for_the_interval_is_a_config_error():
     """The lead screw (seed 002) at dt = 0.05 s would need tens of thousands of RK4 substeps."""

@@ -303,7 +303,7 @@ def test_speed_trim_integrates_a_calm_mean_error_only_and_is_bounded():
     for k in range(100000):
         tr.update(3.12, 3.0)
     assert tr.value == pytest.approx(-TRIM_LIMIT * 3.0)    # bounded
-    for tau, w in ((0.0, 3.12), (2.0, 3.0 * (1 + 0.9 * TRIM_DEADBAND))):   # off; within the deadband
+    for tau, w in ((0.0, 3.12), (2.0, 3.0 * (1 + 0.9 * TRIM_DEADBAND)), (2.0, 0.0)):  # off; deadband; still
         off = SpeedTrim(tau=tau, window=1.0, dt=0.01, calm=0.1)
         for k in range(300):
             off.update(w, 3.0)
