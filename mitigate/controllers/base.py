@@ -47,7 +47,7 @@ from models.params import ParameterSet
 from models.sensors import SensorOptions
 from models.status import Status
 
-__all__ = ["Action", "Controller", "ControllerCounts", "ControlContext", "NEEDS", "reading"]
+__all__ = ["Action", "Controller", "ControllerCounts", "ControlContext", "NEEDS", "reading", "sees_string"]
 
 #: what a controller may declare in ``Controller.needs`` (a class attribute), and what it means
 #: on a rig; :meth:`ControlContext.missing` says which of them a rig lacks (README, "What each
@@ -59,7 +59,20 @@ NEEDS: dict[str, str] = {
     "servo": "a servo on a contact's normal force ([actuators] kind = \"servo\")",
     "servo_body_speed": "the measured speed of the body the servo's contact acts on",
     "objective_speed": "the measured speed of the objective body",
+    "string_sensor": "a sensor that sees the string: an encoder or speed sensor on a body a speed drive does not "
+                     "set, or a torque sensor (a speed drive's own encoder reads only its set-point)",
 }
+
+
+def sees_string(model) -> bool:
+    """Whether the rig's sensors see the string: a speed drive follows its set-point, so its own
+    encoder reads the programme and nothing of the string; a motor's or a torque drive's body does
+    respond to the string."""
+    from models.rig.spec import NODE_DRIVE
+    if model.drive_kind != "speed":
+        return True
+    return any(s.kind == "torque" or (s.kind in ("encoder", "speed") and s.target != NODE_DRIVE)
+               for s in model.spec.sensors)
 
 
 def reading(measurement: Mapping[str, float] | None, channel: str) -> float:
@@ -179,6 +192,10 @@ class ControlContext:
                 if m.speed_channel(body) is None:
                     out.append(f"the speed of {body!r}, the body its servo's contact acts on (add an encoder or "
                                f"speed sensor on {body!r})")
+            elif n == "string_sensor" and not sees_string(m):
+                out.append(f"a sensor that sees the string (rig {m.name!r} is read only at its speed drive, whose "
+                           f"encoder reads the set-point it follows: add an encoder on a body of the string or a "
+                           f"torque sensor)")
             elif n == "objective_speed" and m.speed_channel(m.objective_body) is None:
                 out.append(f"the speed of the objective body {m.objective_body!r} (add an encoder or speed sensor "
                            f"on {m.objective_body!r})")

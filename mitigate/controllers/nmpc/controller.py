@@ -103,6 +103,9 @@ class NMPC(Controller):
 
     kind = "nmpc"
     options_class = NMPCOptions
+    #: a plan on the model needs the string's state: a rig read only at its speed drive gives the
+    #: estimator nothing of it (the rig zoo: a 1-body lead screw, PI 1.00, the blind NMPC 3.84)
+    needs = ("string_sensor",)
     #: the cost weights (dimensionless), a decade or so around the defaults (``mitigate tune``)
     tunables = {
         "weights.speed": Tunable(low=0.1, high=10.0), "weights.rel": Tunable(low=0.03, high=3.0),
