@@ -54,7 +54,7 @@ from estimators.identify.noise import detect_input_noise, input_noise_hints, out
 from estimators.identify.options import EPS_RIG3, IdentifyOptions, default_eps
 from estimators.identify.outputs import input_delays, plan_channels
 from estimators.identify.result import (FitResult, IdentifiabilityWarning, convergence_message, fit_status,
-                                        identifiability_warnings)
+                                        identifiability_warnings, level_twist_warning)
 from estimators.identify.shooting import ShootingProblem
 from estimators.identify.start import (constraint_rows, constraints, feasible, free_bounds, initial_nodes,
                                       scaled_constraints, state_scales)
@@ -469,7 +469,8 @@ class IdentificationProblem:
             for ch, j in zi.items():
                 zero_names[j] = ch + (f" (log {li + 1})" if len(self.zero_index) > 1 else "")
         warns = list(self.hints) + identifiability_warnings(self.free, theta, se, corr, unc, at_bound, active, o,
-                                                            zero_names)
+                                                            zero_names) \
+            + level_twist_warning(self.model, self.free, self.channels)
         for msg in warns:
             warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
         message = convergence_message(res.reason, res.success, iterations=res.iterations, max_iter=o.max_iter,

@@ -26,7 +26,7 @@ from models.params import ParameterSet
 from models.status import Outcome, Status
 
 __all__ = ["FitResult", "IdentifiabilityWarning", "convergence_message", "fit_status", "identifiability_warnings",
-           "BEST_FIT"]
+           "level_twist_warning", "BEST_FIT"]
 
 #: how a fit that converged (or stopped stationary) but whose structure misses is reported
 BEST_FIT = "best fit within the model"
@@ -125,6 +125,35 @@ def identifiability_warnings(free, theta, se, corr, unc, at_bound, active, optio
     for c in active:
         warns.append(f"constraint {c} is active at the solution")
     return warns
+
+
+def level_twist_warning(model, free, channels) -> list[str]:
+    """A contact's friction level free on a log that measures no torque and no twist: one warning.
+
+    Without a torque sensor, a torque drive's known input or a DC motor's model of its torque, and
+    without an encoder pair that measures a twist, a friction level and the string's twist at the
+    log's start trade off: a constant twist offset balances a constant change of the level, and
+    only the breakaways tell them apart.  The fit then ends in whichever minimum its start lies
+    near, each with a small standard error (the rig zoo: a 1-body speed drive read by its encoder's
+    speed, mu1 -0.12 +- 0.03 from one start and 0.11 +- 0.64 from another at the same cost, truth
+    0.3; lead screws: mu1 -0.035 +- 0.0009 against 0.246).  Empty when nothing is at stake."""
+    from models.friction import get_law
+    levels = []
+    for c in model.spec.contacts:
+        refs = dict(c.params)
+        for prm in get_law(c.law).params:
+            ref = refs.get(prm.name)
+            if (prm.kind == "level" or prm.role in ("kinetic", "static", "excess")) and ref is not None \
+                    and ref.kind == "param" and ref.name in free:
+                levels.append(ref.name)
+    if not levels or model.drive_kind in ("torque", "dc_motor"):
+        return []
+    if any(ch.kind == "twist" or getattr(model.sensor_of(ch.name), "kind", None) == "torque" for ch in channels):
+        return []
+    return [f"{', '.join(dict.fromkeys(levels))}: a friction level and the string's twist at the log's start trade "
+            f"off (the log measures no torque and no twist): the level rests on the breakaways alone, and a fit from "
+            f"another start may end elsewhere with as small an error; a torque sensor or an encoder pair on the "
+            f"string determines it"]
 
 
 def fit_status(reason: str, success: bool, message: str, *, warned: bool, structure=None, history=(),

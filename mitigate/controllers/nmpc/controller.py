@@ -27,6 +27,9 @@ steps reach the prediction at once.
 
 **Failures.**  A failed or bound-violating solve: the previous plan shifted to now
 (``Status.FALLBACK``); no plan left: an empty action, i.e. the programme (``Status.FALLBACK``).
+The stall guard (:meth:`NMPC._stalled`): a plan that holds the drive below half its programme while
+the objective body has stuck for a whole stick-slip period is replaced by the programme
+(``Status.FALLBACK``, counted as a fallback).
 Every failure is counted in ``counts.failures``.  A failure is a :class:`SolverFailure` (the OCP
 solver's numerical errors are turned into one, :func:`.ocp.solver_failures`); any other exception
 is a bug and fails the run.
@@ -263,6 +266,7 @@ class NMPC(Controller):
         self._fc = np.ones(len(self.model.contacts))   # friction factors of the plan
         self.schedule.reset()
         self.trim.reset()
+        self._t_moving = None     # last time the objective body slid (the stall guard)
         self.last_result = None
 
     def _measured(self, j: int, measurement, fallback: float) -> float:
@@ -361,6 +365,8 @@ class NMPC(Controller):
         if xe is not None and len(xe) > self._i_speed:
             self.schedule.update(float(xe[self._i_speed]), self._nominal(t, u_prog))
             self.trim.update(float(xe[self._i_speed]), self._nominal(t, u_prog))
+            if self._t_moving is None or abs(float(xe[self._i_speed])) > SLIDING_FRACTION * abs(self._nominal(t, u_prog)):
+                self._t_moving = t
         dt = self.cfg.dt
         due = self._t_solve is None or t - self._t_solve >= dt - 0.5 * self.dt_daq
         if not due and self._action is not None:
@@ -407,7 +413,26 @@ class NMPC(Controller):
             self._prep_q = q
         # remove QP-tolerance excursions only; the ranges may have been widened for reachability
         u0 = np.clip(res.u[0], *self.ocp.first_range(xa0, lo, hi, self._rate, self.ocp.last_bounds))
+        if self._stalled(t, u0, u_prog):
+            return self._hold(Action({}, Status.FALLBACK,
+                                     f"stall guard: {self.body!r} has not slid for a stick-slip period "
+                                     f"({self.period:.3g} s) and the plan slowed the drive below half its programme: "
+                                     f"the programme"))
         return self._hold(Action(dict(zip(self.inputs, map(float, u0))), Status.OK, res.message))
+
+    def _stalled(self, t: float, u0, u_prog) -> bool:
+        """The stall guard: the objective body has stuck for a whole stick-slip period while the plan
+        holds the drive below half its programme.  Within its horizon (half a period) the plan cannot
+        see the wind-up that breaks a stuck string free, and every term of its cost then favours a
+        still drive: on the suite's ``mismatch_m40`` (plant 40 % softer, heavier, smoother) the NMPC
+        set the drive to 0 and left the disc stuck to the end in 3 of 18 runs (the two-input NMPC at
+        13-19 % of its speed).  The programme winds the string up again; the plan takes over once it
+        slides."""
+        if not self.drives or self._t_moving is None:
+            return False
+        j = self.model.inputs.index(self.model.drive_input)
+        return (t - self._t_moving >= self.period
+                and abs(float(u0[0])) < SLIDING_FRACTION * abs(float(u_prog[j])))
 
     def _shift_or_programme(self, t: float, u_prog, why: str) -> Action:
         if self._plan_u is not None:
