@@ -351,3 +351,11 @@ def test_the_stall_guard_keeps_the_drill_drilling():
     assert abs(r.metrics["residual_speed_ratio"] - 1.0) < 0.02 and r.metrics["residual_stuck_fraction"] == 0.0
     assert r.metrics["residual_severity"] < 0.01
     assert r.metrics["controller_fallbacks"] >= 1          # the guard acted (a counted fallback)
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), "fast"])
+def test_a_bad_speed_trim_is_one_line_naming_the_field(bad):
+    from mitigate.controllers.nmpc.options import NMPCOptions
+    with pytest.raises(ConfigError, match=r"^nmpc\.speed_trim must be") as exc:
+        NMPCOptions(speed_trim=bad)
+    assert "\n" not in str(exc.value)
