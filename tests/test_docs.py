@@ -160,6 +160,14 @@ def test_python_blocks_run(page, request, tmp_path):
     assert result == "ok", f"{_page_id(page)}: its Python blocks failed:\n{result}"
 
 
+def test_the_plugin_page_quotes_the_tested_example():
+    """docs/plugins.md shows tests/plugins/my_controller.py's code (run by tests/test_user_controller.py)."""
+    shown = blocks(DOCS / "plugins.md", "python")[0][1]
+    example = (ROOT / "tests" / "plugins" / "my_controller.py").read_text(encoding="utf-8")
+    assert "class HighPassTorque(Controller):" in shown
+    assert shown.strip() in example, "docs/plugins.md's first block is no longer the code of tests/plugins/my_controller.py"
+
+
 def test_toml_blocks_parse_and_whole_files_load(tmp_path):
     from mitigate import load_scenario
     from models import load_rig
