@@ -35,7 +35,7 @@ LINK = re.compile(r"(\]\()([^)\s]+)((?:\s+\"[^\"]*\")?\))")
 FENCE = re.compile(r"^([ \t]*)(```|~~~)")
 HELP = re.compile(r"<!--\s*mitigate-help(?::\s*([\w-]+))?\s*-->")
 HELP_REST = "<!-- mitigate-help-rest -->"
-HELP_COLUMNS = "100"
+HELP_COLUMNS = "96"
 
 
 def _root(config) -> Path:
