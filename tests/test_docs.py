@@ -223,6 +223,21 @@ def test_bash_blocks_mitigate_lines_parse():
 
 # --- the site ----------------------------------------------------------------------------
 
+def test_numpydoc_entries_become_descriptions_and_types_stay():
+    """docs/tools/griffe_numpydoc.py: ``name : what it is`` is a description; ``name : int`` a type."""
+    sys.path.insert(0, str(DOCS / "tools"))
+    try:
+        from griffe_numpydoc import rewrite
+    finally:
+        sys.path.remove(str(DOCS / "tools"))
+    doc = ("Summary.\n\n    Parameters\n    ----------\n    log : a Log holding\n        the inputs\n"
+           "    n : int | None\n        how many\n\n    Raises\n    ------\n    ConfigError : a bad spec\n\n"
+           "    Notes\n    -----\n    x : y stays prose here\n")
+    assert rewrite(doc) == ("Summary.\n\n    Parameters\n    ----------\n    log\n        a Log holding\n        the inputs\n"
+                            "    n : int | None\n        how many\n\n    Raises\n    ------\n    ConfigError\n        a bad spec"
+                            "\n\n    Notes\n    -----\n    x : y stays prose here")
+
+
 @pytest.mark.slow
 def test_site_builds_strict_with_no_warning(tmp_path):
     """``mkdocs build --strict`` into a temporary folder: any warning (a broken link or anchor, a
