@@ -33,7 +33,8 @@ REPO_PREFIX = "repo"
 # an inline Markdown link or image target: ](target) or ](target "title"), fragment allowed
 LINK = re.compile(r"(\]\()([^)\s]+)((?:\s+\"[^\"]*\")?\))")
 FENCE = re.compile(r"^([ \t]*)(```|~~~)")
-HELP = re.compile(r"<!--\s*mitigate-help(?::\s*([\w-]+))?\s*-->")
+# a marker alone on its line (one quoted in prose or code is left alone)
+HELP = re.compile(r"^[ \t]*<!--\s*mitigate-help(?::\s*([\w-]+))?\s*-->[ \t]*$", flags=re.M)
 HELP_REST = "<!-- mitigate-help-rest -->"
 HELP_COLUMNS = "96"
 
@@ -128,7 +129,7 @@ def on_page_markdown(markdown, page, config, files):
         last = b
     out.append(markdown[last:])
     markdown = "".join(out)
-    if HELP.search(markdown) or HELP_REST in markdown:
+    if HELP.search(markdown) or re.search(r"^" + re.escape(HELP_REST) + r"$", markdown, flags=re.M):
         markdown = _fill_help(markdown, config)
     return markdown
 
@@ -174,5 +175,5 @@ def _fill_help(markdown: str, config) -> str:
     markdown = HELP.sub(fill, markdown)
     rest = [n for n in commands if n not in marked]
     body = "".join(f"\n## `mitigate {n}`\n\n{_help_block(commands[n])}\n" for n in rest)
-    return markdown.replace(HELP_REST, body)
+    return re.sub(r"^" + re.escape(HELP_REST) + r"$", lambda _: body, markdown, flags=re.M)
 
