@@ -1,7 +1,7 @@
 """Your own controller: a Controller subclass in any importable module, named ``module:Class`` in a
 scenario, runs in the loop beside the built-in ones with the same estimator, metrics and report.
 
-The example is ``tests/plugins/my_controller.py`` (the README quotes it); this test puts the
+The example is ``tests/plugins/my_controller.py`` (docs/plugins.md quotes it; tests/test_docs.py checks the quote); this test puts the
 repository root on ``sys.path`` so that ``tests.plugins.my_controller`` imports, as a user's own
 folder would be on theirs.
 """

@@ -122,11 +122,11 @@ def test_every_missing_channel_of_every_controller_in_one_line_before_anything_r
     assert not (tmp_path / "out").exists()
 
 
-def test_the_readme_table_says_what_each_controller_declares():
+def test_the_docs_table_says_what_each_controller_declares():
     from mitigate.controllers.base import NEEDS
     from mitigate.controllers.factory import CONTROLLER_KINDS, controller_class
-    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
-    table = readme.split("<!-- needs-table")[1].split("\n\n")[0]
+    page = (Path(__file__).resolve().parent.parent / "docs" / "controllers.md").read_text()
+    table = page.split("<!-- needs-table")[1].split("\n\n")[0]
     rows = dict(re.findall(r"^\| `(\w+)` \| (.*) \|$", table, re.M))
     assert set(rows) == set(CONTROLLER_KINDS)
     for kind in CONTROLLER_KINDS:
@@ -350,10 +350,11 @@ def test_small_ones_messages_read_plainly(capsys):
     assert "error %" in out and "%%" not in out
 
 
-def test_the_readme_documents_descriptions_and_the_torque_channel():
-    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
-    rig_block = readme[readme.index("[rig]\nname = \"rig3\""):]
+def test_the_docs_document_descriptions_and_the_torque_channel():
+    docs = Path(__file__).resolve().parent.parent / "docs"
+    rigs, scenarios = (docs / "rig-files.md").read_text(), (docs / "scenarios.md").read_text()
+    rig_block = rigs[rigs.index("[rig]\nname = \"rig3\""):]
     assert rig_block.index("description = ") < rig_block.index("[parameters]")
-    sc_block = readme[readme.index("[scenario]\nname = \"stick_slip_30rpm\""):]
+    sc_block = scenarios[scenarios.index("[scenario]\nname = \"stick_slip_30rpm\""):]
     assert sc_block.index("description = ") < sc_block.index("[plant]")
-    assert "`torque_drive`" in readme and "`torque_drive_offset`" in readme
+    assert "`torque_drive`" in rigs and "`torque_drive_offset`" in rigs

@@ -55,6 +55,8 @@ class LinearConstraint:
     upper : the right-hand side
     text : how it reads (for messages)
 
+    Notes
+    -----
     Build one from text with :meth:`parse`, e.g. ``LinearConstraint.parse("mu_k - mu_s <= 0")``
     or ``"k1 + 2.5 k2 >= 1"``.
     """

@@ -65,6 +65,8 @@ class EKFOptions:
         :class:`estimators.online.ekf.ObservabilityMixin`)
     observability_window : length of the start-up trajectory [s]
 
+    Notes
+    -----
     The defaults are rig3's measured choices (:mod:`estimators.online.model`, "Defaults, and
     why").  Those that carry a unit (:data:`SCALED`) default to None: :func:`for_rig` carries
     rig3's value to the rig at hand by the ratio of the rig's scale to rig3's (:class:`RigScales`:
