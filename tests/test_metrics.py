@@ -128,8 +128,8 @@ def test_closed_loop_metrics_hand_computed():
     r = _result(sc, w1, w1, tw, cur, z, n2, w3, [0.001, 0.002, 0.003], [False, True, True])
     opts = M.MetricOptions(period=0.1, window_periods=2, moving_periods=2, residual_periods=2, suppress_threshold=0.1)
     m = M.closed_loop_metrics(r, sc, opts)
-    assert set(m) == set(M.METRIC_UNITS) | {"normal_force_mean_n2", "normal_force_ratio_n2"}
-    assert all(M.metric_unit(k) for k in m)
+    assert set(m) == set(M.units()) | {"normal_force_mean_n2", "normal_force_ratio_n2"}
+    assert all(M.unit(k) for k in m) and M.unit("normal_force_mean_n2") == "N"
     # after the start omega_R1 alternates 0, 2: mean 1, SSS = (2 - 0) / (2 x 1) = 1
     assert m["sss"] == pytest.approx(1.0)
     # what stays: the last 2 periods (0.2 s, 2 samples: 0, 2) against the programmed 30 rpm = pi rad/s
