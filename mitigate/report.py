@@ -126,7 +126,7 @@ def render_report(sc, result, files, slug_names) -> str:
           + f"; wall time {result.elapsed:.1f} s", "",
           "## Metrics (after the control start)", "",
           f"Every physical metric comes from the TRUE plant states and applied inputs (what the rig did), for "
-          f"`{body}`, the body whose stick-slip is suppressed (`mitigate/metrics.py`). *What stays*: "
+          f"`{body}`, the body whose stick-slip is suppressed (`mitigate/metrics/`). *What stays*: "
           "`residual_severity`, (max - min) / (2 x programmed speed) over the last few stick-slip periods; "
           "*t suppress*: from the switch-on until the moving severity stays below the threshold (never: it did "
           "not); *overshoot*: the peak above the programmed speed, over it; *set-point var.*: the total variation "

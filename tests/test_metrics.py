@@ -311,3 +311,11 @@ def test_metric_options_check_themselves(kw, match):
     assert o.force_band == (0.7, 1.3) and o.where == "s: metrics"
     with pytest.raises(dataclasses.FrozenInstanceError):
         o.period = 2.0
+
+
+def test_the_docs_list_every_declared_metric():
+    from pathlib import Path
+
+    from mitigate.metrics import markdown_table
+    page = (Path(__file__).resolve().parents[1] / "docs" / "metric-registry.md").read_text()
+    assert page.endswith(markdown_table()), "docs/metric-registry.md: paste mitigate.metrics.markdown_table() again"

@@ -89,3 +89,4 @@ def test_the_sweep_store_round_trips_records_and_reads_old_chunks(tmp_path):
     store.chunk_path("rest_00002").write_text("index,status\n8.0,splendid\n")
     with pytest.raises(DataError, match=r"rest_00002\.csv: unreadable chunk .*; delete it to recompute it$"):
         store.read_chunk("rest_00002")
+

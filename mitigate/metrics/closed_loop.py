@@ -4,7 +4,7 @@ Of the objective body's TRUE speed (rig3: R1, "the bit") after the control start
 (normalised by the PROGRAMMED speed: a run's own mean would reward a controller that runs the bit
 fast and is 0/0 for a stuck bit), how fast it goes, how far above the programme, whether the run kept
 the programme's bands; then effort, the friction work split by what a contact is for
-(:func:`mitigate.metrics.window.force_roles`: the process load gives ``cutting_work``, a brake
+(:func:`mitigate.metrics.quantities.force_roles`: the process load gives ``cutting_work``, a brake
 ``pin_work``), the literature's severity ``sss`` kept for continuity, the controller's and the
 estimator's counts and call times.  Declaration order is the order of every table and CSV.
 """
@@ -16,7 +16,8 @@ import math
 import numpy as np
 
 from mitigate.metrics.registry import evaluate, metric
-from mitigate.metrics.window import ClosedLoopWindow, MetricOptions, result_voltage
+from mitigate.metrics.quantities import MetricOptions, result_voltage
+from mitigate.metrics.window import ClosedLoopWindow
 from mitigate.severity import rms, severity, stuck_fraction, time_to_suppress, total_variation
 from models.status import Status
 

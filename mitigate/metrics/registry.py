@@ -36,12 +36,13 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
-from typing import Callable, Mapping
+from typing import Callable
 
 from models.errors import ConfigError
 
 __all__ = ["Metric", "metric", "NEEDS", "RUN_KINDS", "PLACES", "KINDS", "registered", "get", "columns", "ranked",
-           "shown", "unit", "units", "evaluate", "unregister", "is_timing", "is_count", "in_order"]
+           "shown", "unit", "units", "evaluate", "unregister", "is_timing", "is_count", "in_order",
+           "markdown_table"]
 
 #: what a metric may need of a run (a run window's ``has`` says what it has)
 NEEDS = {
@@ -249,6 +250,17 @@ def is_count(key: str) -> bool:
         return get(key).kind == "count"
     except ConfigError:
         return False
+
+
+def markdown_table() -> str:
+    """Every declared metric as a Markdown table (name, unit, rank, kind, needs, where shown, what it is)."""
+    lines = ["| metric | unit | ranked | kind | needs | shown in | what it is |", "|---|---|---|---|---|---|---|"]
+    for m in registered():
+        rank = f"{m.rank} ({m.better} is better)" if m.rank is not None else "-"
+        kind = m.kind + (", timing" if m.timing else "")
+        lines.append(f"| `{m.name}` | {m.unit} | {rank} | {kind} | {', '.join(sorted(m.needs)) or '-'} | "
+                     f"{', '.join(p for p in PLACES if p in m.show) or '-'} | {m.description} |")
+    return "\n".join(lines) + "\n"
 
 
 def evaluate(window) -> dict[str, float]:
