@@ -41,7 +41,7 @@ def _runs_csv(res) -> str:
     for r in res.records:
         q = r.run
         w.writerow([q.scenario, q.controller, r.actuator_class, q.phase, q.seed, q.switch_on, q.run_seed, r.applicable,
-                    r.status.value, r.message]
+                    r.status.value if r.applicable else "not applicable", r.message]
                    + [f"{float(r.metrics[k]):.6g}" if k in r.metrics else "" for k in keys]
                    + [f"{float(r.timings[k]):.6g}" if k in r.timings else "" for k in times])
     return buf.getvalue()

@@ -48,8 +48,8 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
 
 
 # --------------------------------------------------------------------------- ranked: what stays, how fast
-@metric("residual_severity", "-", "what stays: (max - min) / (2 w_prog) of the objective body's speed over the "
-        "residual window (the last few stick-slip periods); a body stuck throughout counts 1", needs=_CTRL, rank=1,
+@metric("residual_severity", "-", "the oscillation that stays: (max - min) / (2 w_prog) of the objective body's "
+        "speed over the residual window (the last few stick-slip periods); a body stuck throughout counts 1", needs=_CTRL, rank=1,
         show=_TABLES + ("terminal", "report", "bars"), header="what stays", percent=True)
 def residual_severity(w: ClosedLoopWindow) -> float:
     return severity(w.tail, w.ref, w.stuck_speed)
