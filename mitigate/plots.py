@@ -18,20 +18,7 @@ import numpy as np  # noqa: E402
 
 from mitigate.cliutil import finish_figure  # noqa: E402
 
-__all__ = ["plot_comparison", "plot_phase_portraits", "plot_metric_bars", "BAR_METRICS", "objective_twist"]
-
-#: (metric key, axis label) of the bar chart
-BAR_METRICS = (
-    ("residual_severity", "what stays: residual severity [-]"),
-    ("time_to_suppress", "time to suppress after switch-on [s]"),
-    ("peak_overshoot", "peak overshoot above programme [-]"),
-    ("stuck_fraction", "fraction of time stuck [-]"),
-    ("setpoint_variation", "set-point variation [1/s]"),
-    ("pin_work", "brake wear at servo pins [J]"),
-    ("drive_energy", "drive energy [J]"),
-    ("plan_median_ms", "median planning-call time [ms]"),
-)
-
+__all__ = ["plot_comparison", "plot_phase_portraits", "plot_metric_bars", "objective_twist"]
 
 def objective_twist(model) -> str | None:
     """Name of the twist of the first spring that touches the objective body (None if none)."""
@@ -100,10 +87,15 @@ def plot_phase_portraits(sc, results: Mapping[str, object], title: str, path: st
 
 
 def plot_metric_bars(metrics: Mapping[str, Mapping[str, float]], title: str, path: str | os.PathLike,
-                     keys: Sequence[tuple[str, str]] = BAR_METRICS, dpi: int = 110):
-    """One bar panel per metric, one bar per controller.  An infinite value (``time_to_suppress``:
-    never suppressed) is a hatched bar to the top of the panel labelled "never" -- the worst, not
-    an empty slot that would read as 0; a missing value (NaN) is labelled "n/a"."""
+                     keys: Sequence[tuple[str, str]] | None = None, dpi: int = 110):
+    """One bar panel per metric, one bar per controller; ``keys``: ``(metric, label)`` pairs (None: the
+    registry's ``"bars"``, :func:`mitigate.metrics.shown`).  An infinite value (``time_to_suppress``:
+    never suppressed) is a hatched bar to the top of the panel labelled as its metric reads it
+    ("never") -- the worst, not an empty slot that would read as 0; a missing value (NaN) is "n/a"."""
+    from mitigate.metrics import get, shown
+    from models.errors import ConfigError
+    if keys is None:
+        keys = [(m.name, m.label) for m in shown("bars")]
     names = list(metrics)
     cols = 4
     rows = int(np.ceil(len(keys) / cols))
@@ -113,11 +105,15 @@ def plot_metric_bars(metrics: Mapping[str, Mapping[str, float]], title: str, pat
         vals = np.array([float(metrics[n].get(key, np.nan)) for n in names])
         fin = vals[np.isfinite(vals)]
         top = 1.15 * float(np.max(fin)) if fin.size and np.max(fin) > 0 else 1.0
+        try:
+            inf_text = get(key).inf
+        except ConfigError:
+            inf_text = "inf"
         for j, v in enumerate(vals):
             c = colors[j % len(colors)]
             if np.isinf(v):
                 ax.bar(j, top, color="white", edgecolor=c, hatch="//", lw=1.2)
-                ax.text(j, 0.5 * top, "never", ha="center", va="center", rotation=90, fontsize=8)
+                ax.text(j, 0.5 * top, inf_text, ha="center", va="center", rotation=90, fontsize=8)
             elif np.isnan(v):
                 ax.text(j, 0.02 * top, "n/a", ha="center", va="bottom", fontsize=8)
             else:

@@ -16,31 +16,28 @@ from pathlib import Path
 
 from models.files import atomic_write_text
 
-__all__ = ["write_report", "render_report", "summary_rows", "SUMMARY_COLUMNS", "verdict_entries"]
-
-#: (metric key, header) of the summary table, between the controller's name, kind and status and its
-#: fallbacks and "job done" (the report and the terminal table of ``mitigate run``)
-SUMMARY_COLUMNS = (("residual_severity", "what stays [-]"), ("time_to_suppress", "t suppress [s]"),
-                   ("peak_overshoot", "overshoot [-]"), ("setpoint_variation", "set-point var [1/s]"),
-                   ("pin_work", "pin work [J]"))
+__all__ = ["write_report", "render_report", "summary_rows", "verdict_entries"]
 
 
-def _fmt(v, key: str = "") -> str:
+def _fmt(v, metric=None) -> str:
+    """A number for the report: 4 significant digits, ``-`` for NaN, an infinite value as its metric
+    reads it (``never`` for the time to suppress)."""
     if isinstance(v, (int,)) and not isinstance(v, bool):
         return str(v)
     v = float(v)
     if math.isnan(v):
         return "-"
     if math.isinf(v):
-        return "never" if key == "time_to_suppress" and v > 0 else ("inf" if v > 0 else "-inf")
+        return metric.inf if metric is not None and v > 0 else ("inf" if v > 0 else "-inf")
     return f"{v:.4g}"
 
 
 def verdict_entries(sc, runs) -> dict:
     """``{controller name: Entry}`` (:func:`mitigate.benchmark.stats.summarise` of each single run)."""
     from mitigate.benchmark.stats import summarise
-    recs = [{"scenario": sc.name, "controller": r.name, "applicable": True, "failed": int(not r.success),
-             "class": "", "message": r.message, "metrics": r.metrics} for r in runs]
+    from mitigate.record import BenchmarkRun, RunRecord
+    recs = [RunRecord.measured(BenchmarkRun(r.name, sc.name, r.name, 0, 0, sc.control_start, sc.seed), r.status,
+                               r.message, r.metrics, elapsed=r.elapsed) for r in runs]
     return {c: e for (_s, c), e in summarise(recs, {r.name: r.kind for r in runs}).items()}
 
 
@@ -50,15 +47,18 @@ def job_done(entry) -> bool:
 
 
 def summary_rows(sc, runs) -> tuple[list[str], list[list[str]]]:
-    """The summary table (header, rows of strings): controller, kind, status, :data:`SUMMARY_COLUMNS`,
-    fallbacks (controller / estimator) and job done."""
+    """The summary table (header, rows of strings): controller, kind, status, the metrics the registry
+    shows in the ``"report"`` (:func:`mitigate.metrics.shown`), fallbacks (controller / estimator) and
+    job done."""
+    from mitigate.metrics import shown
     entries = verdict_entries(sc, runs)
-    hdr = ["controller", "kind", "status"] + [h for _k, h in SUMMARY_COLUMNS] + ["fallbacks (ctrl/est)", "job done"]
+    cols = shown("report")
+    hdr = ["controller", "kind", "status"] + [m.label for m in cols] + ["fallbacks (ctrl/est)", "job done"]
     rows = []
     for r in runs:
         fb = "/".join(_fmt(r.metrics.get(k, math.nan)) for k in ("controller_fallbacks", "estimator_fallbacks"))
         rows.append([r.name, r.kind, r.status.value]
-                    + [_fmt(r.metrics.get(k, math.nan), k) for k, _h in SUMMARY_COLUMNS]
+                    + [_fmt(r.metrics.get(m.name, math.nan), m) for m in cols]
                     + [fb, "yes" if r.success and job_done(entries[r.name]) else "no"])
     return hdr, rows
 
@@ -126,12 +126,12 @@ def render_report(sc, result, files, slug_names) -> str:
           + f"; wall time {result.elapsed:.1f} s", "",
           "## Metrics (after the control start)", "",
           f"Every physical metric comes from the TRUE plant states and applied inputs (what the rig did), for "
-          f"`{body}`, the body whose stick-slip is suppressed (`mitigate/metrics.py`). *What stays*: "
+          f"`{body}`, the body whose stick-slip is suppressed (`mitigate/metrics/`). *What stays*: "
           "`residual_severity`, (max - min) / (2 x programmed speed) over the last few stick-slip periods; "
           "*t suppress*: from the switch-on until the moving severity stays below the threshold (never: it did "
-          "not); *overshoot*: the peak above the programmed speed, over it; *set-point var*: the total variation "
-          "of the commanded inputs per second, each scaled by its programme (the effort); *pin work*: the wear a "
-          "brake's normal force causes at its pin; *fallbacks*: the controller's and the estimator's calls "
+          "not); *overshoot*: the peak above the programmed speed, over it; *set-point var.*: the total variation "
+          "of the commanded inputs per second, each scaled by its programme (the effort); *brake wear*: the "
+          "friction work a brake's normal force causes at its pin; *fallbacks*: the controller's and the estimator's calls "
           "answered by their fallback; *job done*: the stick-slip suppressed and the run inside the programme's "
           "speed and normal-force bands. The other metrics (SSS, stuck fraction, speed error, drive energy, "
           "call times, ...) are in the CSV and JSON files.", ""]

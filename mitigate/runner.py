@@ -36,6 +36,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import re
 import time
 from dataclasses import dataclass, field
@@ -44,7 +45,7 @@ from pathlib import Path
 from models.errors import ConfigError, PluginError, SolverFailure
 from models.files import check_output_dir, output_set
 from models.status import Outcome, Status
-from mitigate.metrics import METRIC_UNITS, closed_loop_metrics
+from mitigate.metrics import closed_loop_metrics, is_count, units
 from mitigate.scenario import Scenario, load_scenario
 
 __all__ = ["ControllerRun", "RunResult", "run", "run_scenario", "validate_scenario", "output_paths", "slugs"]
@@ -189,7 +190,7 @@ def run_one(scenario: Scenario, index: int) -> ControllerRun:
         return failed_run(spec, res.message, time.perf_counter() - t0)
     met = closed_loop_metrics(res, scenario)
     if res.status is Status.FAILED:    # what it did until it failed is no result: only the counts stay
-        met = {k: (v if k.startswith(COUNT_PREFIXES) else float("nan")) for k, v in met.items()}
+        met = {k: (v if is_count(k) else float("nan")) for k, v in met.items()}
     return ControllerRun(spec.name, spec.kind, res, met, time.perf_counter() - t0, res.status, res.message,
                          *tuning_of(ctrl))
 
@@ -214,13 +215,9 @@ def tuning_of(ctrl) -> tuple[dict[str, float], dict[str, str]]:
 #: code that the per-call timeout cannot interrupt) is killed and its run FAILED (mitigate.workers)
 STALL_TIMEOUT = 600.0
 
-#: metrics that stay in a FAILED run's row (counts of what happened); the others are NaN there
-COUNT_PREFIXES = ("controller_", "estimator_", "plan_calls")
-
-
 def failed_run(spec, why: str, elapsed: float = 0.0) -> ControllerRun:
     """The FAILED run of a controller that could not run at all (no result; NaN metrics)."""
-    return ControllerRun(spec.name, spec.kind, None, {k: float("nan") for k in METRIC_UNITS}, elapsed,
+    return ControllerRun(spec.name, spec.kind, None, {k: float("nan") for k in units()}, elapsed,
                          Status.FAILED, why)
 
 
@@ -252,12 +249,13 @@ def _execute(sc: Scenario, jobs: int, progress: bool, broken: dict[int, str] | N
 
 
 def _metrics_csv(runs) -> str:
-    keys = list(METRIC_UNITS)
+    keys = units()
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["controller", "kind", "status", "message"] + [f"{k} [{METRIC_UNITS[k]}]" for k in keys])
+    w.writerow(["controller", "kind", "status", "message"] + [f"{k} [{u}]" for k, u in keys.items()])
     for r in runs:
-        w.writerow([r.name, r.kind, r.status.value, r.message] + [f"{float(r.metrics[k]):.6g}" for k in keys])
+        w.writerow([r.name, r.kind, r.status.value, r.message]
+                   + [f"{float(r.metrics.get(k, math.nan)):.6g}" for k in keys])
     return buf.getvalue()
 
 
@@ -299,7 +297,7 @@ def _write_set(result: RunResult, w) -> None:
     payload = result.as_dict()
     payload["files"] = {k: str(v) for k, v in files.items()
                         if not (k.startswith(("log_", "timeseries_")) and not staged[k].exists())}
-    payload["metric_units"] = METRIC_UNITS
+    payload["metric_units"] = units()
     w.write_text("metrics.json", json.dumps(payload, indent=2) + "\n")
     write_report(sc, result, files, names, staged["report"])
 

@@ -8,9 +8,9 @@ From Python::
     r.held_out                # residual severity of the defaults and of the tuned values on other seeds
 
 A trial runs the controller with one set of values at ``phases`` switch-on phases (spread over the
-scenario's measured stick-slip period) and ``seeds`` TUNING noise seeds, and scores the mean residual
-severity (a failed run scores 10, a run outside the programme's normal-force band adds 1: the
-severity of a body that stopped).  The first trial is the shipped options.  Optuna's TPE sampler
+scenario's measured stick-slip period) and ``seeds`` TUNING noise seeds, and scores the mean of the
+ranking's first metric (:func:`mitigate.metrics.ranked`: the residual severity; a failed run scores
+10, a run outside the programme's band adds 1: the severity of a body that stopped).  The first trial is the shipped options.  Optuna's TPE sampler
 (seeded) proposes the rest; a median pruner stops a trial whose running mean is worse than the
 median of earlier trials at the same run.  The study lives in a journal file under ``out``
 (:class:`optuna.storages.JournalStorage`): an interrupted tuning continues where it stopped, and
@@ -34,7 +34,8 @@ from typing import Any, Mapping
 from models.errors import ConfigError
 from models.status import Outcome, Status
 from mitigate.benchmark.plan import Reference, RunTask, reference_run, run_seed, slug
-from mitigate.metrics import MetricOptions
+from mitigate.metrics import MetricOptions, ranked
+from mitigate.record import RunRecord
 from mitigate.tunables import set_option
 
 __all__ = ["TuneResult", "tune", "tune_suite", "TUNING_SEED_OFFSET", "HELD_OUT_SEED_OFFSET", "FAILED_SCORE"]
@@ -94,11 +95,14 @@ def _optuna():
     return optuna
 
 
-def _score(rec: Mapping) -> float:
-    if rec.get("failed") or not rec.get("applicable", True):
+def _score(rec: RunRecord) -> float:
+    """The ranking's first metric (:func:`mitigate.metrics.ranked`: the residual severity), plus 1 for a
+    run outside the programme's band; :data:`FAILED_SCORE` for a failed run."""
+    if rec.failed or not rec.applicable:
         return FAILED_SCORE
-    m = rec["metrics"]
-    return float(m["residual_severity"]) + float(m.get("band_violation", 0))
+    first = ranked()[0]
+    v = rec.value(first.name)
+    return (v if first.better == "lower" else -v) + rec.metrics.get("band_violation", 0)
 
 
 class _Objective:
@@ -293,11 +297,11 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
         ho = _tasks(sc, spec, ref, mo, phases, held_out_seeds, HELD_OUT_SEED_OFFSET)
         for label, opts in (("defaults", dict(spec.options)), ("tuned", best_options)):
             recs = [run_task(dataclasses.replace(t, options=opts)) for t in ho]
-            vals = [r["metrics"]["residual_severity"] for r in recs if not r.get("failed") and r.get("applicable")]
+            vals = [r.value(ranked()[0].name) for r in recs if not r.failed and r.applicable]
             med, lo, hi = interval(vals)
             held[label] = {"median": med, "ci_low": lo, "ci_high": hi, "n_runs": len(recs),
-                           "failed": sum(int(r.get("failed", 0)) for r in recs),
-                           "violations": sum(int(r["metrics"].get("band_violation", 0)) for r in recs if r["metrics"])}
+                           "failed": sum(r.failed for r in recs),
+                           "violations": sum(int(r.metrics.get("band_violation", 0)) for r in recs)}
     n_pruned = sum(t.state is TrialState.PRUNED for t in study.trials)
     return TuneResult(sc.name, spec.name, spec.kind, budget,
                       {n: {"low": lo, "high": hi, "log": log, "unit": u} for n, (lo, hi, log, _i, u) in space.items()},

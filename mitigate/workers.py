@@ -2,12 +2,12 @@
 
 :class:`WorkerPool` runs independent tasks (``fn(*args)``, picklable) in at most ``jobs``
 spawned processes (``jobs = 1``: in this process, the same API) and yields each task's
-:class:`Outcome` as it finishes.  What it guarantees:
+:class:`Finished` as it finishes.  What it guarantees:
 
 - **A failing task fails alone.**  An exception in a task, a task whose worker dies (``os._exit``,
   a crash, a kill) or stalls (no message for ``stall_timeout`` seconds: a call stuck in C code that
   the per-call timeout of :mod:`models.plugins` cannot interrupt; the worker is killed) gives that
-  task an :class:`Outcome` with ``ok = False`` and the reason; the other tasks go on (a new worker
+  task a :class:`Finished` with ``ok = False`` and the reason; the other tasks go on (a new worker
   replaces a lost one).
 - **No worker outlives the command.**  Each worker asks the kernel to kill it when its parent
   dies (Linux ``prctl(PR_SET_PDEATHSIG, SIGKILL)``, set in the worker before anything else, and a
@@ -46,15 +46,16 @@ from typing import Any, Callable, Iterator, Sequence
 from models.errors import ConfigError
 from models.plugins import describe
 
-__all__ = ["WorkerPool", "Outcome", "report", "die_with_parent"]
+__all__ = ["WorkerPool", "Finished", "report", "die_with_parent"]
 
 PR_SET_PDEATHSIG = 1
 _reporter: Callable[[int], None] | None = None
 
 
 @dataclass(frozen=True)
-class Outcome:
-    """What became of one task: ``value`` if ``ok``, else ``error`` (one line: why)."""
+class Finished:
+    """A task that finished: ``value`` if ``ok``, else ``error`` (one line: why).  (Not a result with a
+    :class:`models.status.Status`: a task's own value carries that.)"""
 
     index: int
     ok: bool
@@ -265,9 +266,9 @@ class WorkerPool:
 
     # ------------------------------------------------------------------ tasks
     def map(self, fn: Callable, tasks: Sequence[tuple], *,
-            on_progress: Callable[[int, int], None] | None = None) -> Iterator[Outcome]:
-        """Run ``fn(*args)`` for every ``args`` of ``tasks``; yield an :class:`Outcome` per task
-        as it finishes (``Outcome.index``: its position in ``tasks``)."""
+            on_progress: Callable[[int, int], None] | None = None) -> Iterator[Finished]:
+        """Run ``fn(*args)`` for every ``args`` of ``tasks``; yield a :class:`Finished` per task
+        as it finishes (``Finished.index``: its position in ``tasks``)."""
         global _reporter
         tasks = list(tasks)
         if self.jobs == 1 or len(tasks) <= 1 and self.stall_timeout is None or not _main_importable():
@@ -279,9 +280,9 @@ class WorkerPool:
                 except KeyboardInterrupt:
                     raise
                 except Exception as exc:  # noqa: BLE001 - a task's failure is its outcome
-                    yield Outcome(i, False, error=describe(exc))
+                    yield Finished(i, False, error=describe(exc))
                 else:
-                    yield Outcome(i, True, value)
+                    yield Finished(i, True, value)
                 finally:
                     _reporter = None
             return
@@ -326,7 +327,7 @@ class WorkerPool:
                         if kind in ("done", "error"):
                             w["task"] = None
                             left -= 1
-                            yield Outcome(i, kind == "done", payload if kind == "done" else None,
+                            yield Finished(i, kind == "done", payload if kind == "done" else None,
                                           payload if kind == "error" else "")
                             continue
                     if w["proc"].sentinel in ready or w["conn"] in ready:     # died, or closed its pipe
@@ -334,12 +335,12 @@ class WorkerPool:
                         why = f"its worker process died ({_exit_reason(w['proc'].exitcode)})"
                         self._retire(w, kill=True)
                         left -= 1
-                        yield Outcome(i, False, error=why)
+                        yield Finished(i, False, error=why)
                     elif self.stall_timeout is not None and w["ready"] \
                             and time.monotonic() - w["last"] > self.stall_timeout:
                         self._retire(w, kill=True)
                         left -= 1
-                        yield Outcome(i, False, error=f"its worker sent nothing for {self.stall_timeout:g} s "
+                        yield Finished(i, False, error=f"its worker sent nothing for {self.stall_timeout:g} s "
                                                       f"(stuck); killed")
         finally:
             if left:

@@ -181,8 +181,8 @@ def test_like_for_like_classes_and_the_weight_on_bit_band(result):
     assert re.search(r"\| 1 \| D-OSKIL \| force \| 6/6 \| [0-9.]+ \[[0-9.]+, [0-9.]+\]", md)
     # force and speed leave their bands separately: counted apart in the entries, the tables and the report
     assert b.n_force_violations == 6 and b.n_violations == b.n_force_violations + b.n_speed_violations \
-        - sum(1 for r in result.records if r["scenario"] == "drill" and r["controller"] == "brake"
-              and r["metrics"].get("force_violation") and r["metrics"].get("speed_violation"))
+        - sum(1 for r in result.records if r.run.scenario == "drill" and r.run.controller == "brake"
+              and r.metrics.get("force_violation") and r.metrics.get("speed_violation"))
     brow = next(r for r in t["force"] if r["controller"] == "brake")
     assert brow["force_violations"] == 6 and brow["speed_violations"] == b.n_speed_violations
     assert "| left force band | left speed band |" in md
@@ -226,19 +226,19 @@ def test_the_motor_only_nmpc_is_bit_reproducible_in_workers(suite_dir):
     here = run_task(t)
     with pool(2) as p:
         there = [o.value for o in p.map(run_task, [(t,), (t,)])]
-    assert here["status"] != "failed" and here["metrics"]["controller_steps"] > 0
+    assert here.status is not Status.FAILED and here.metrics["controller_steps"] > 0
     for r in there:
         for m in ("residual_severity", "time_to_suppress", "drive_energy", "setpoint_variation", "plan_calls"):
-            assert r["metrics"][m] == here["metrics"][m], m          # bit for bit
+            assert r.metrics[m] == here.metrics[m], m          # bit for bit
 
 
 def test_runs_are_bit_reproducible_in_workers_and_resume_after_a_kill(suite_dir, tmp_path):
     s = load_suite(suite_dir / "suite.toml", only=["drill"])
     ref = run_benchmark(s, phases=2, seeds=2, jobs=1)                     # in this process
     par = run_benchmark(s, phases=2, seeds=2, jobs=2, store=tmp_path / "b")   # spawned workers
-    key = lambda r: (r["controller"], r["phase"], r["seed"])               # noqa: E731
-    a = {key(r): r["metrics"] for r in ref.records}
-    b = {key(r): r["metrics"] for r in par.records}
+    key = lambda r: (r.run.controller, r.run.phase, r.run.seed)            # noqa: E731
+    a = {key(r): r.metrics for r in ref.records}
+    b = {key(r): r.metrics for r in par.records}
     assert a.keys() == b.keys() and len(a) == 12
     for k in a:
         for m in ("residual_severity", "time_to_suppress", "drive_energy", "setpoint_variation"):
@@ -253,7 +253,7 @@ def test_runs_are_bit_reproducible_in_workers_and_resume_after_a_kill(suite_dir,
     (tmp_path / "b" / "runs" / "drill" / "brake" / "p0_s0.json.tmp").write_text("{half")   # a write cut short
     third = run_benchmark(s, phases=2, seeds=2, jobs=1, store=tmp_path / "b")
     assert third.computed == 3
-    assert {key(r): r["metrics"]["residual_severity"] for r in third.records} == \
+    assert {key(r): r.metrics["residual_severity"] for r in third.records} == \
         {k: v["residual_severity"] for k, v in a.items()}
     # another definition in the same folder is refused, not mixed
     with pytest.raises(ConfigError, match="runs of a different benchmark"):
@@ -353,8 +353,8 @@ def test_a_dask_cluster_gives_the_same_runs(suite_dir, tmp_path):
         remote = run_benchmark(s, phases=1, seeds=2, scheduler=cluster.scheduler_address,
                                store=tmp_path / "d")
     assert remote.computed == 6
-    a = {(r["controller"], r["seed"]): r["metrics"] for r in local.records}
-    b = {(r["controller"], r["seed"]): r["metrics"] for r in remote.records}
+    a = {(r.run.controller, r.run.seed): r.metrics for r in local.records}
+    b = {(r.run.controller, r.run.seed): r.metrics for r in remote.records}
     assert a.keys() == b.keys()
     assert all(a[k]["residual_severity"] == b[k]["residual_severity"] for k in a)
 

@@ -128,8 +128,8 @@ def test_closed_loop_metrics_hand_computed():
     r = _result(sc, w1, w1, tw, cur, z, n2, w3, [0.001, 0.002, 0.003], [False, True, True])
     opts = M.MetricOptions(period=0.1, window_periods=2, moving_periods=2, residual_periods=2, suppress_threshold=0.1)
     m = M.closed_loop_metrics(r, sc, opts)
-    assert set(m) == set(M.METRIC_UNITS) | {"normal_force_mean_n2", "normal_force_ratio_n2"}
-    assert all(M.metric_unit(k) for k in m)
+    assert set(m) == set(M.units()) | {"normal_force_mean_n2", "normal_force_ratio_n2"}
+    assert all(M.unit(k) for k in m) and M.unit("normal_force_mean_n2") == "N"
     # after the start omega_R1 alternates 0, 2: mean 1, SSS = (2 - 0) / (2 x 1) = 1
     assert m["sss"] == pytest.approx(1.0)
     # what stays: the last 2 periods (0.2 s, 2 samples: 0, 2) against the programmed 30 rpm = pi rad/s
@@ -311,3 +311,11 @@ def test_metric_options_check_themselves(kw, match):
     assert o.force_band == (0.7, 1.3) and o.where == "s: metrics"
     with pytest.raises(dataclasses.FrozenInstanceError):
         o.period = 2.0
+
+
+def test_the_docs_list_every_declared_metric():
+    from pathlib import Path
+
+    from mitigate.metrics import markdown_table
+    page = (Path(__file__).resolve().parents[1] / "docs" / "metric-registry.md").read_text()
+    assert page.endswith(markdown_table()), "docs/metric-registry.md: paste mitigate.metrics.markdown_table() again"

@@ -1,4 +1,4 @@
-"""Scale-free metric defaults (issue 18 item 5): every default of mitigate/metrics.py that carries a
+"""Scale-free metric defaults (issue 18 item 5): every default of mitigate/metrics/ that carries a
 unit comes from the scenario -- a torque drive's programmed speed is its [control] speed, a measured
 stuck threshold comes from the encoder or the programmed speed, never rig3's 0.05 rad/s."""
 

@@ -12,7 +12,7 @@ import numpy as np
 import mitigate.plots as P
 from mitigate.cli import main
 from mitigate.controllers.factory import context_for, make_controller
-from mitigate.metrics import METRIC_UNITS
+from mitigate.metrics import units
 from mitigate.report import _fmt
 from mitigate.scenario import load_scenario
 from models import get_model
@@ -63,7 +63,7 @@ def test_report_json_and_table_of_a_run(tmp_path, capsys):
     head = next(ln for ln in term_lines if ln.startswith("controller "))
     assert len(re.split(r"\s{2,}", head.strip())) <= 10
     csv_head = (out / "metrics.csv").read_text().splitlines()[0]
-    assert all(f"{k} [{u}]" in csv_head for k, u in METRIC_UNITS.items())
+    assert all(f"{k} [{u}]" in csv_head for k, u in units().items())
     for name, *_ in LAWS:
         row = next(ln for ln in rep.splitlines() if ln.startswith(f"| {name} |"))
         done = [c.strip() for c in row.strip("|").split("|")][-1]
@@ -131,7 +131,7 @@ def test_no_generic_nmpc_centred_why_list(tmp_path):
     p = tmp_path / "s.toml"
     p.write_text(scenario_toml('[scenario]\nname = "s"\nduration = 2.0', controllers=[PI, ("NMPC", "nmpc")]))
     sc = load_scenario(p)
-    base = {k: 0.0 for k in METRIC_UNITS}
+    base = {k: 0.0 for k in units()}
     runs = [ControllerRun("PI only", "pi", None, {**base, "residual_severity": 0.1, "time_to_suppress": 1.0}),
             ControllerRun("NMPC", "nmpc", None, {**base, "residual_severity": 0.5, "time_to_suppress": math.inf,
                                                  "plan_median_ms": 4.0, "plan_p95_ms": 12.0, "solve_max_ms": 30.0})]

@@ -17,6 +17,7 @@ from mitigate.sweep import (Axis, SweepStore, make_tasks, options_from_scenario,
 from models import get_model
 from models.errors import ConfigError
 from models.plant import SimOptions, simulate
+from models.status import Status
 
 ROOT = Path(__file__).resolve().parents[1]
 RIG3 = ROOT / "scenarios" / "sweep_rig3.toml"
@@ -31,6 +32,11 @@ def _cache(tmp_path_factory, monkeypatch):
 @pytest.fixture
 def main():
     return cli.main
+
+
+def _col(records, name: str) -> np.ndarray:
+    """One metric of a chunk's point records, as an array in point order."""
+    return np.array([r.metrics[name] for r in records])
 
 
 def test_parse_axis():
@@ -83,9 +89,10 @@ def test_batched_chunk_equals_the_simulator_per_point():
         r = simulate(m, plan.point_params(j), plan.point_input(j), o.duration,
                      SimOptions(dt=o.dt, nsub=o.nsub), sensors=None)
         w = r.x[o.settle_steps + 1:, m.states.index("omega_R1")]
-        assert res["amplitude"][j] == pytest.approx(mx.amplitude(w), rel=1e-9, abs=1e-12)
-        assert res["severity"][j] == pytest.approx(mx.severity(w), rel=1e-9, abs=1e-12)
-        assert res["stuck_fraction"][j] == pytest.approx(mx.stuck_fraction(w, o.stuck_threshold))
+        assert res[j].run.index == j and res[j].status is Status.OK
+        assert res[j].metrics["amplitude"] == pytest.approx(mx.amplitude(w), rel=1e-9, abs=1e-12)
+        assert res[j].metrics["severity"] == pytest.approx(mx.severity(w), rel=1e-9, abs=1e-12)
+        assert res[j].metrics["stuck_fraction"] == pytest.approx(mx.stuck_fraction(w, o.stuck_threshold))
 
 
 def test_compiled_backend_equals_vm():
@@ -97,7 +104,7 @@ def test_compiled_backend_equals_vm():
         plan = plan_sweep(sc, [parse_axis("axial_force=50:350:3")], o)
         outs.append(run_chunk([t for t in make_tasks(plan) if t.kind == "simulate"][0]))
     for k in ("amplitude", "severity", "stuck_fraction"):
-        assert np.allclose(outs[0][k], outs[1][k], rtol=1e-9, atol=1e-12), k
+        assert np.allclose(_col(outs[0], k), _col(outs[1], k), rtol=1e-9, atol=1e-12), k
 
 
 def test_leadscrew_threshold_and_speed_trend(tmp_path):
@@ -130,8 +137,8 @@ def test_rig3_sliding_start_agrees_with_linear_stability(tmp_path):
     stable = [sliding_stability(m, plan.point_params(j), plan.point_input(j))[0] for j in range(2)]
     assert stable == [False, True]
     res = run_chunk([t for t in make_tasks(plan) if t.kind == "simulate"][0])
-    assert res["limit_cycle"].tolist() == [1.0, 0.0]
-    assert res["stuck_fraction"][0] > 0.05 and res["stuck_fraction"][1] == 0.0
+    assert _col(res, "limit_cycle").tolist() == [1.0, 0.0]
+    assert res[0].metrics["stuck_fraction"] > 0.05 and res[1].metrics["stuck_fraction"] == 0.0
 
 
 def test_cli_maps_json_and_refusal(main, tmp_path, capsys):
@@ -173,9 +180,10 @@ def test_closed_loop_pi_only_equals_open_loop():
     pi = run_chunk([t for t in make_tasks(plan, "PI only") if t.kind == "simulate"][0])
     brake = run_chunk([t for t in make_tasks(plan, "R2 brake") if t.kind == "simulate"][0])
     for k in ("amplitude", "severity", "stuck_fraction"):
-        assert np.allclose(pi[k], open_[k], rtol=1e-9, atol=1e-12), k
-    assert np.all(open_["limit_cycle"] == 1)
-    assert not np.allclose(brake["amplitude"], open_["amplitude"], rtol=1e-3)   # the brake acts from t = 10 s
+        assert np.allclose(_col(pi, k), _col(open_, k), rtol=1e-9, atol=1e-12), k
+    assert np.all(_col(open_, "limit_cycle") == 1)
+    assert [r.run.controller for r in (open_[0], pi[0], brake[0])] == ["", "PI only", "R2 brake"]
+    assert not np.allclose(_col(brake, "amplitude"), _col(open_, "amplitude"), rtol=1e-3)   # the brake acts from 10 s
     with pytest.raises(ConfigError, match="controllers"):
         make_tasks(plan, "nope")
 
@@ -195,7 +203,7 @@ def test_python_entry_point_resumes_and_sweeps_a_structured_plant(tmp_path):
     sc = make_scenario(name="elements", duration=2.0, inputs={"omega_ref": 3.0, "n1": 20.0}, estimator="fd",
                        structure={"shaft_elements": {"count": 2, "inertia": 1e-3}})
     r2 = sweep(sc, ["n1=10:30:2"], out=tmp_path / "b", maps=False, **kw)
-    assert r2.success and r2.maps["rest"]["ok"].tolist() == [1.0, 1.0]
+    assert r2.success and r2.statuses["rest"].tolist() == [Status.OK, Status.OK]
     # the elements' inertia and modes change the response: not the nominal plant's numbers
     nominal = sweep(sc.replace(plant_model=sc.model, plant_params=sc.model_params, structure={}), ["n1=10:30:2"],
                     out=tmp_path / "c", maps=False, **kw)

@@ -125,5 +125,5 @@ def test_the_tuned_benchmark_mode_tunes_every_controller_with_the_same_budget(dr
     assert [s["n_trials"] for s in studies] == [3, 3] and all(s["budget"] == 3 for s in studies)
     res = run_benchmark(suite, phases=1, seeds=1, jobs=1, tuned=tuned)
     assert res.mode == "tuned" and res.tuned == tuned
-    assert {r["controller"]: r["options"] for r in res.records}["SS"] == tuned[("drill", "SS")]
+    assert {r.run.controller: r.run.options for r in res.records}["SS"] == tuned[("drill", "SS")]
     assert "## Tuned values" in render_ranking(res) and "f_t = " in render_ranking(res)

@@ -14,10 +14,10 @@ from mitigate.benchmark.execute import RunStore, execute, run_task
 from mitigate.benchmark.plan import Reference, RunTask, make_tasks, reference_run, run_seed
 from mitigate.benchmark.render import render_ranking, verdict
 from mitigate.benchmark.result import BenchmarkResult, references, run_benchmark
-from mitigate.benchmark.stats import EFFORT, RANKED, Entry
+from mitigate.benchmark.stats import Entry
 from mitigate.benchmark.suite import Suite, load_suite
 from mitigate.benchmark.write import BENCHMARK_FILES, output_paths, write_benchmark
 
 __all__ = ["Suite", "load_suite", "Reference", "RunTask", "make_tasks", "reference_run", "run_seed", "RunStore",
-           "execute", "run_task", "Entry", "RANKED", "EFFORT", "BenchmarkResult", "run_benchmark", "references",
+           "execute", "run_task", "Entry", "BenchmarkResult", "run_benchmark", "references",
            "render_ranking", "verdict", "write_benchmark", "output_paths", "BENCHMARK_FILES"]

@@ -21,7 +21,9 @@ from typing import Any, Callable, Iterable, Mapping
 
 from models.errors import ConfigError, DataError
 from models.files import atomic_write_text
+from models.status import Status
 from mitigate.benchmark.plan import RunTask, task_scenario
+from mitigate.record import RunRecord
 
 __all__ = ["run_task", "RunStore", "execute", "pool", "failed_record"]
 
@@ -30,66 +32,44 @@ __all__ = ["run_task", "RunStore", "execute", "pool", "failed_record"]
 WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
-def run_task(task: RunTask) -> dict[str, Any]:
-    """Run one task; a record ``{key, scenario, controller, phase, seed, switch_on, run_seed, applicable,
-    status, message, failed, class, metrics, elapsed}``.  A controller the rig cannot host is not
-    applicable; a controller that raises, or a run that diverges, is FAILED with the reason."""
+def run_task(task: RunTask) -> RunRecord:
+    """Run one task; its :class:`mitigate.record.RunRecord`.  A controller the rig cannot host is not
+    applicable (``applicable = False``, the reason in ``message``); a controller that raises, or a run
+    that diverges, is FAILED with the reason."""
     from mitigate.closedloop import run_closed_loop
     from mitigate.controllers.factory import context_for, make_controller
     from mitigate.metrics import closed_loop_metrics
     from mitigate.tunables import actuator_class
 
     t0 = time.perf_counter()
-    rec: dict[str, Any] = {"key": task.key, "scenario": task.scenario.name, "controller": task.controller,
-                           "phase": task.phase, "seed": task.seed, "switch_on": task.switch_on,
-                           "run_seed": task.run_seed, "options": dict(task.options)}
+    run = task.identity()
     sc = task_scenario(task)
     try:
         ctrl = make_controller(sc.controllers[0], context_for(sc, 0))
     except ConfigError as exc:     # the rig lacks what the controller needs: not applicable here
-        return rec | {"applicable": False, "status": "not applicable", "message": str(exc), "failed": 0,
-                      "class": "", "metrics": {}, "elapsed": time.perf_counter() - t0}
+        return RunRecord.measured(run, Status.FAILED, str(exc), {}, elapsed=time.perf_counter() - t0,
+                                  applicable=False)
     except Exception as exc:  # noqa: BLE001 - a user's controller may fail in any way: its run fails
-        return rec | {"applicable": True, "status": "failed", "message": _one_line(exc), "failed": 1, "class": "",
-                      "metrics": {}, "elapsed": time.perf_counter() - t0}
+        return RunRecord.measured(run, Status.FAILED, _one_line(exc), {}, elapsed=time.perf_counter() - t0)
     klass = actuator_class(sc.model, ctrl.actuated_inputs())
     try:
         res = run_closed_loop(sc, ctrl)
         met = closed_loop_metrics(res, sc, task.metrics)
     except Exception as exc:  # noqa: BLE001 - a controller or estimator that raises fails its run
-        return rec | {"applicable": True, "status": "failed", "message": _one_line(exc), "failed": 1,
-                      "class": klass, "metrics": {}, "elapsed": time.perf_counter() - t0}
-    return rec | {"applicable": True, "status": res.status.value, "message": res.message,
-                  "failed": int(not res.success), "class": klass, "metrics": met,
-                  "elapsed": time.perf_counter() - t0}
+        return RunRecord.measured(run, Status.FAILED, _one_line(exc), {}, elapsed=time.perf_counter() - t0,
+                                  actuator_class=klass)
+    return RunRecord.measured(run, res.status, res.message, met, elapsed=time.perf_counter() - t0,
+                              actuator_class=klass)
 
 
-def failed_record(task: RunTask, why: str) -> dict[str, Any]:
+def failed_record(task: RunTask, why: str) -> RunRecord:
     """The record of a run that could not finish in its worker (the worker died or stalled): FAILED
-    with the reason, ``lost = True`` (not stored: a rerun retries it)."""
-    return {"key": task.key, "scenario": task.scenario.name, "controller": task.controller, "phase": task.phase,
-            "seed": task.seed, "switch_on": task.switch_on, "run_seed": task.run_seed, "options": dict(task.options),
-            "applicable": True, "status": "failed", "message": " ".join(str(why).split())[:300], "failed": 1,
-            "class": "", "metrics": {}, "elapsed": 0.0, "lost": True}
+    with the reason (:func:`execute` does not store it: a rerun retries it)."""
+    return RunRecord.measured(task.identity(), Status.FAILED, " ".join(str(why).split())[:300], {}, elapsed=0.0)
 
 
 def _one_line(exc: BaseException) -> str:
     return " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
-
-
-def _jsonable(rec: Mapping) -> dict:
-    from mitigate.cliutil import to_jsonable
-    out = to_jsonable(dict(rec))
-    # inf and nan survive a round trip as strings (JSON has neither)
-    out["metrics"] = {k: (v if isinstance(v, (int, float)) and v == v and abs(v) != float("inf")
-                          else ("inf" if v == float("inf") else "-inf" if v == float("-inf") else "nan"))
-                      for k, v in rec.get("metrics", {}).items()}
-    return out
-
-
-def _from_json(rec: dict) -> dict:
-    rec["metrics"] = {k: float(v) if isinstance(v, str) else v for k, v in rec.get("metrics", {}).items()}
-    return rec
 
 
 class RunStore:
@@ -127,18 +107,24 @@ class RunStore:
         """Keys of the runs on disk."""
         return {str(p.relative_to(self.run_dir).with_suffix("")) for p in self.run_dir.rglob("*.json")}
 
-    def write(self, record: Mapping[str, Any]) -> Path:
+    def write(self, record: RunRecord) -> Path:
         """Write one finished run (the only function that writes a run's result)."""
-        p = self.path(record["key"])
+        p = self.path(record.run.key)
         p.parent.mkdir(parents=True, exist_ok=True)
-        return atomic_write_text(p, json.dumps(_jsonable(record)) + "\n", overwrite=True, durable=True)
+        return atomic_write_text(p, json.dumps(record.to_json()) + "\n", overwrite=True, durable=True)
 
-    def read(self, key: str) -> dict:
+    def read(self, key: str) -> RunRecord:
+        """The record of run ``key`` (written by :meth:`write`, or by a version before the records
+        were typed: :meth:`mitigate.record.RunRecord.from_json`)."""
         p = self.path(key)
         try:
-            return _from_json(json.loads(p.read_text()))
+            data = json.loads(p.read_text())
         except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise DataError(f"{p}: unreadable run record ({exc}); delete it to rerun that run") from None
+        try:
+            return RunRecord.from_json(data, str(p))
+        except DataError as exc:
+            raise DataError(f"{exc}; delete it to rerun that run") from None
 
 
 def pool(workers: int):
@@ -153,7 +139,7 @@ def pool(workers: int):
 
 def execute(tasks: Iterable[RunTask], *, store: RunStore | None = None, jobs: int = 1, scheduler: str | None = None,
             client=None, progress: bool = False, desc: str = "benchmark",
-            on_record: Callable[[dict], None] | None = None) -> dict[str, dict]:
+            on_record: Callable[[RunRecord], None] | None = None) -> dict[str, RunRecord]:
     """Run ``tasks`` (skipping those ``store`` has) and return ``{key: record}`` for all of them.
 
     Parameters
@@ -178,10 +164,10 @@ def execute(tasks: Iterable[RunTask], *, store: RunStore | None = None, jobs: in
     bar = tqdm(total=len(tasks), initial=len(tasks) - len(pending), desc=desc, unit="run",
                disable=not progress)
 
-    def finish(rec):
-        if store is not None and not rec.get("lost"):
+    def finish(rec: RunRecord, keep: bool = True):
+        if store is not None and keep:          # a run whose worker was lost is not kept: a rerun retries it
             store.write(rec)
-        out[rec["key"]] = rec
+        out[rec.run.key] = rec
         bar.update()
         if on_record is not None:
             on_record(rec)
@@ -207,7 +193,7 @@ def execute(tasks: Iterable[RunTask], *, store: RunStore | None = None, jobs: in
         else:
             with pool(min(jobs, len(pending))) as p:
                 for res in p.map(run_task, [(t,) for t in pending]):
-                    finish(res.value if res.ok else failed_record(pending[res.index], res.error))
+                    finish(res.value if res.ok else failed_record(pending[res.index], res.error), res.ok)
     finally:
         bar.close()
     return {k: out[k] for k in keys}

@@ -77,9 +77,9 @@ def plot_distribution(res, path) -> None:
     for ax, s in zip(axes.ravel(), scen):
         data = []
         for n in names:
-            v = [100 * float(r["metrics"]["residual_severity"]) for r in res.records
-                 if r["scenario"] == s and r["controller"] == n and r.get("applicable", True) and not r.get("failed")
-                 and "residual_severity" in r["metrics"]]
+            v = [100 * r.value("residual_severity") for r in res.records
+                 if r.run.scenario == s and r.run.controller == n and r.applicable and not r.failed
+                 and "residual_severity" in r.metrics]
             data.append(np.maximum(np.array(v, float), 1e-3))
         pos = [j for j, d in enumerate(data) if d.size]
         if pos:

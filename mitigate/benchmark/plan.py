@@ -24,6 +24,7 @@ import numpy as np
 from models.errors import ConfigError
 from models.signals import stick_slip_cycles
 from mitigate.metrics import MetricOptions, moving_severity, programmed_speed, rig_period, windows
+from mitigate.record import BenchmarkRun
 
 __all__ = ["Reference", "RunTask", "reference_run", "make_tasks", "run_seed", "task_scenario", "slug"]
 
@@ -89,6 +90,11 @@ class RunTask:
         """``<scenario>/<controller>/p<phase>_s<seed>`` (file-name safe; ``tag`` prefixes it)."""
         base = f"{slug(self.scenario.name)}/{slug(self.controller)}/p{self.phase}_s{self.seed}"
         return f"{self.tag}/{base}" if self.tag else base
+
+    def identity(self) -> BenchmarkRun:
+        """Which run this is, for its record."""
+        return BenchmarkRun(self.key, self.scenario.name, self.controller, self.phase, self.seed, self.switch_on,
+                            self.run_seed, dict(self.options))
 
 
 def reference_run(scenario, metrics: MetricOptions = MetricOptions()) -> Reference:

@@ -6,8 +6,9 @@ from __future__ import annotations
 import math
 
 from mitigate.benchmark.stats import Entry
+from mitigate.metrics import Metric, ranked, shown
 
-__all__ = ["render_ranking", "verdict", "fmt", "CLASS_TITLES"]
+__all__ = ["render_ranking", "verdict", "fmt", "CLASS_TITLES", "table_header", "table_value"]
 
 CLASS_TITLES = {
     "overall": "Overall (every controller, whatever it actuates)",
@@ -15,11 +16,16 @@ CLASS_TITLES = {
     "force": "Normal force only (like for like: the brake, D-OSKIL, the pin-only NMPC)",
     "both": "Drive and normal force",
 }
-#: (key, header, scale, unit shown) of the tables: severities and overshoot as % of the programme
-_COLS = (("residual_severity", "what stays", 100, "%"), ("time_to_suppress", "t suppress", 1, "s"),
-         ("peak_overshoot", "overshoot", 100, "%"), ("setpoint_variation", "set-point var.", 1, "1/s"),
-         ("drive_energy", "drive energy", 1, "J"), ("pin_work", "brake wear", 1, "J"),
-         ("normal_force_ratio", "force / programme", 1, "-"), ("residual_speed_ratio", "speed / programme", 1, "-"))
+
+
+def table_header(m: Metric) -> str:
+    """A metric's column header in the benchmark's tables: ``header [unit]`` (``[%]`` for a percentage)."""
+    return f"{m.header or m.name} [{'%' if m.percent else m.unit}]"
+
+
+def table_value(m: Metric, v) -> str:
+    """A metric's value as the benchmark's tables show it (:func:`fmt`, x 100 for a percentage)."""
+    return fmt(v, 100 if m.percent else 1)
 
 
 def fmt(v, scale: float = 1.0) -> str:
@@ -34,13 +40,14 @@ def fmt(v, scale: float = 1.0) -> str:
     return f"{v * scale:.3g}"
 
 
-def _ci(e: Entry, key: str, scale: float = 1.0) -> str:
-    m = e.metrics.get(key)
+def _ci(e: Entry, metric: Metric) -> str:
+    m = e.metrics.get(metric.name)
     if not m or math.isnan(m["median"]):
         return "-"
     if m["ci_low"] == m["ci_high"]:
-        return fmt(m["median"], scale)
-    return f"{fmt(m['median'], scale)} [{fmt(m['ci_low'], scale)}, {fmt(m['ci_high'], scale)}]"
+        return table_value(metric, m["median"])
+    return (f"{table_value(metric, m['median'])} [{table_value(metric, m['ci_low'])}, "
+            f"{table_value(metric, m['ci_high'])}]")
 
 
 def verdict(e: Entry, ref=None, programme_force: bool = False) -> str:
@@ -97,13 +104,14 @@ def verdict(e: Entry, ref=None, programme_force: bool = False) -> str:
 
 
 def _class_table(rows) -> list[str]:
-    hdr = ["controller", "class", "mean rank", "first", "job done"] + [f"{h} [{u}]" for _k, h, _s, u in _COLS] + \
+    cols = shown("ranking")
+    hdr = ["controller", "class", "mean rank", "first", "job done"] + [table_header(m) for m in cols] + \
         ["runs", "failed", "left force band", "left speed band", "fallbacks"]
     L = ["| " + " | ".join(hdr) + " |", "|" + "---|" * len(hdr)]
     for r in rows:
         L.append("| " + " | ".join([r["controller"], r["class"] or "-", f"{r['mean_rank']:.2f}",
                                     f"{r['first']}/{r['scenarios']}", f"{r['job_done']}/{r['scenarios']}"]
-                                   + [fmt(r[k], s) for k, _h, s, _u in _COLS]
+                                   + [table_value(m, r[m.name]) for m in cols]
                                    + [str(r["n_runs"]), str(r["failed"]), str(r["force_violations"]),
                                       str(r["speed_violations"]), str(r["fallbacks"])])
                  + " |")
@@ -121,16 +129,16 @@ def render_ranking(res, command: str = "") -> str:
           f"{res.elapsed:.0f} s; status: {res.status.value} ({res.message}).", "",
           "How to read it. Every number is the median over a controller's runs on a scenario (its switch-on "
           "phases spread over one stick-slip period of the uncontrolled run, and its noise seeds), with a 95 % "
-          "bootstrap interval in brackets. *What stays* is the residual severity, (max - min) / (2 x programmed "
-          "speed) of the objective body's true speed over the last few stick-slip periods; *t suppress* is from "
-          "the switch-on until the moving severity stays below the threshold (never: it did not). A rank is one "
-          "plus the number of controllers clearly better: a controller that did the job (kept the programme, "
-          "did not fail) beats one that did not; otherwise the one whose interval of what "
-          "stays lies entirely below the other's, and if those overlap, the one that suppresses clearly faster. "
+          "bootstrap interval in brackets. "
+          + " ".join(f"*{m.header or m.name}* ({m.name}): {m.description}." for m in ranked()) +
+          " A rank is one plus the number of controllers clearly better: a controller that did the job (kept the "
+          "programme, did not fail) beats one that did not; otherwise, in this order, "
+          + ", then ".join(f"*{m.header or m.name}* ({m.better} is better)" for m in ranked()) +
+          ": at the first whose intervals do not overlap, the one whose interval lies entirely on the better side. "
           "The programme is the speed and the normal forces: a run whose mean speed over the last periods, or "
           "mean applied normal force, leaves the suite's band around it has not drilled as programmed. "
-          "Overlapping intervals share a rank. Effort (set-point variation per second, drive energy, brake "
-          "wear) is shown beside the ranks, never folded into them.", ""]
+          "Overlapping intervals share a rank. Every other column (effort: set-point variation per second, "
+          "drive energy, brake wear) is shown beside the ranks, never folded into them.", ""]
     L += ["## The uncontrolled runs", "",
           "| scenario | kind | stick-slip period [s] | stick-slip at switch-on | severity before [%] | "
           "what stays uncontrolled [%] |", "|---|---|---|---|---|---|"]
@@ -149,20 +157,21 @@ def render_ranking(res, command: str = "") -> str:
               "scenarios ranked first (ties included), scenarios where the job was done, then the median over "
               "scenarios of each controller's medians.", ""] + _class_table(rows) + [""]
     names = [c.name for c in su.controllers]
+    cols = shown("scenario")
     for sc in su.scenarios:
         ref = res.references[sc.name]
         es = sorted((res.entries[(sc.name, n)] for n in names), key=lambda e: (e.rank or 10**6, e.controller))
         prog_force = any(sc.model.contact_of_input(n) is not None and sc.inputs[n](sc.control_start) > 0
                          for n in sc.model.servo_inputs)
         L += [f"## Scenario `{sc.name}`", "", sc.description, "",
-              "| rank | controller | class | runs | " + " | ".join(f"{h} [{u}]" for _k, h, _s, u in _COLS[:5])
-              + " | left force band | left speed band |", "|" + "---|" * 11]
+              "| rank | controller | class | runs | " + " | ".join(table_header(m) for m in cols)
+              + " | left force band | left speed band |", "|" + "---|" * (len(cols) + 6)]
         for e in es:
             if not e.applicable:
-                L.append(f"| - | {e.controller} | - | 0 | n/a | | | | | | |")
+                L.append(f"| - | {e.controller} | - | 0 | n/a |" + " |" * (len(cols) + 1))
                 continue
             L.append(f"| {e.rank} | {e.controller} | {e.klass} | {e.n_runs - e.n_failed}/{e.n_runs} | "
-                     + " | ".join(_ci(e, k, s) for k, _h, s, _u in _COLS[:5])
+                     + " | ".join(_ci(e, m) for m in cols)
                      + f" | {e.n_force_violations} | {e.n_speed_violations} |")
         L.append("")
         L += [f"- {verdict(e, ref, prog_force)}" for e in es]

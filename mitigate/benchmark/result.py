@@ -35,7 +35,7 @@ class BenchmarkResult(Outcome):
     ----------
     suite : the Suite
     references : ``{scenario: Reference}`` (the uncontrolled runs: periods, stick-slip at switch-on)
-    records : every run's record (:func:`mitigate.benchmark.execute.run_task`)
+    records : every run's :class:`mitigate.record.RunRecord` (:func:`mitigate.benchmark.execute.run_task`)
     entries : ``{(scenario, controller): Entry}`` (n_runs, medians and intervals, ranks)
     tables : ``{"overall" | "drive" | "force" | "both": rows}`` (:func:`mitigate.benchmark.stats.class_tables`)
     phases, seeds : per (scenario, controller)
@@ -179,16 +179,14 @@ def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None 
             for s, r in row["ranks"].items():
                 if entries[(s, row["controller"])].klass == klass:
                     entries[(s, row["controller"])].class_rank = r
-    failed = sum(int(r.get("failed", 0)) for r in records)
+    failed = sum(r.failed for r in records)
     no_slip = [k for k, v in refs.items() if not v.prevention and not v.stick_slip]
     notes = []
     if failed:
         notes.append(f"{failed} run(s) failed or diverged")
     if no_slip:
         notes.append(f"no stick-slip at the switch-on of {', '.join(no_slip)}")
-    known = {s.value for s in Status}
-    runs = [Status(r["status"]) if r.get("status") in known else Status.FAILED if r.get("failed") else Status.OK
-            for r in records if r.get("applicable", True)]
+    runs = [r.status for r in records if r.applicable]
     warned = sum(s is Status.WARNING for s in runs)
     if warned:
         notes.append(f"{warned} run(s) with warnings")

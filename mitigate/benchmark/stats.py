@@ -1,16 +1,19 @@
 """Statistics of the benchmark: per (scenario, controller) medians with bootstrap intervals, ranks
 with ties, and the tables per actuator class.
 
-Each entry (a controller on a scenario, over its phases and seeds) gives ``n_runs`` and, per ranked
-metric, the median over the runs that finished and its 95 % bootstrap interval
-(:func:`scipy.stats.bootstrap`, percentile method, a fixed seed: the same runs give the same interval).
+Each entry (a controller on a scenario, over its phases and seeds) gives ``n_runs`` and, per metric
+the registry shows in ``"entries"`` (:func:`mitigate.metrics.shown`: the ranked ones first), the
+median over the runs that finished and its 95 % bootstrap interval (:func:`scipy.stats.bootstrap`,
+percentile method, a fixed seed: the same runs give the same interval); the registry's counts are
+summed over those runs.
 
 **Ranks.**  Within a table (a scenario, over a set of controllers), A is *clearly better* than B when
 A did the job and B did not (most of B's runs failed or left the programme: the band of an actuated
-normal force, or of the objective body's speed once the transient is over), or, both alike, when A's interval of the residual severity lies entirely below B's,
-or, those intervals overlapping, when A's interval of the time to suppress lies entirely below B's.
-A controller's rank is one plus the number of controllers clearly better than it: controllers whose
-intervals overlap share a rank (a tie is declared, not broken by a decimal).
+normal force, or of the objective body's speed once the transient is over), or, both alike, in the
+registry's ranking order (:func:`mitigate.metrics.ranked`: the residual severity, then the time to
+suppress): at the first ranked metric whose intervals do not overlap, A's lies entirely on the better
+side of B's.  A controller's rank is one plus the number of controllers clearly better than it:
+controllers whose intervals overlap share a rank (a tie is declared, not broken by a decimal).
 """
 
 from __future__ import annotations
@@ -21,18 +24,18 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from mitigate.metrics import Metric, ranked, registered, shown
+from mitigate.record import RunRecord
 from mitigate.tunables import ACTUATOR_CLASSES
 
-__all__ = ["RANKED", "EFFORT", "interval", "summarise", "rank", "class_tables", "Entry"]
+__all__ = ["interval", "summarise", "rank", "class_tables", "Entry", "clearly_better", "entry_metrics"]
 
-#: the ranked metrics (lower is better): what stays, how fast, how far above the programme
-RANKED = ("residual_severity", "time_to_suppress", "peak_overshoot")
-#: effort and side-effect metrics shown beside them (medians with intervals too)
-EFFORT = ("setpoint_variation", "drive_energy", "pin_work", "normal_force_ratio", "cutting_work_ratio",
-          "speed_ratio", "residual_speed_ratio", "plan_p95_ms")
-#: counts summed over the runs
-COUNTS = ("controller_fallbacks", "controller_failures", "controller_deadline_misses", "estimator_fallbacks")
 CONFIDENCE = 0.95
+
+
+def entry_metrics() -> tuple[str, ...]:
+    """The metrics an entry summarises (median and interval): the registry's ``"entries"``."""
+    return tuple(m.name for m in shown("entries"))
 
 
 def interval(values, *, seed: int = 0) -> tuple[float, float, float]:
@@ -96,54 +99,62 @@ class Entry:
                 "messages": self.messages[:5], "options": self.options}
 
 
-def summarise(records: Iterable[Mapping], kinds: Mapping[str, str], *, seed: int = 0) -> dict[tuple, Entry]:
+def _flag(r: RunRecord, name: str) -> int:
+    v = r.value(name)
+    return int(v) if math.isfinite(v) else 0
+
+
+def summarise(records: Iterable[RunRecord], kinds: Mapping[str, str], *, seed: int = 0) -> dict[tuple, Entry]:
     """``{(scenario, controller): Entry}`` from run records (:func:`mitigate.benchmark.execute.run_task`)."""
-    groups: dict[tuple, list] = {}
+    groups: dict[tuple, list[RunRecord]] = {}
     for r in records:
-        groups.setdefault((r["scenario"], r["controller"]), []).append(r)
+        groups.setdefault((r.run.scenario, r.run.controller), []).append(r)
+    counts = [m.name for m in registered() if m.kind == "count"]
     out = {}
     for (s, c), recs in groups.items():
-        e = Entry(s, c, kinds.get(c, ""), options=dict(recs[0].get("options", {})))
-        app = [r for r in recs if r.get("applicable", True)]
+        e = Entry(s, c, kinds.get(c, ""), options=dict(recs[0].run.options))
+        app = [r for r in recs if r.applicable]
         if not app:
             e.applicable = False
-            e.messages = [recs[0].get("message", "")]
+            e.messages = [recs[0].message]
             out[(s, c)] = e
             continue
-        e.klass = next((r["class"] for r in app if r.get("class")), "")
+        e.klass = next((r.actuator_class for r in app if r.actuator_class), "")
         e.n_runs = len(app)
-        ok = [r for r in app if not r.get("failed")]
+        ok = [r for r in app if not r.failed]
         e.n_failed = len(app) - len(ok)
-        e.n_violations = sum(int(r["metrics"].get("band_violation", 0)) for r in ok)
-        e.n_force_violations = sum(int(r["metrics"].get("force_violation", 0)) for r in ok)
-        e.n_speed_violations = sum(int(r["metrics"].get("speed_violation", 0)) for r in ok)
-        e.n_suppressed = sum(math.isfinite(float(r["metrics"].get("time_to_suppress", math.inf))) for r in ok)
-        e.messages = sorted({r.get("message", "") for r in app if r.get("failed") or r.get("message") not in ("ok", "")})
-        for key in RANKED + EFFORT:
-            med, lo, hi = interval([r["metrics"].get(key, math.nan) for r in ok], seed=seed)
+        e.n_violations = sum(_flag(r, "band_violation") for r in ok)
+        e.n_force_violations = sum(_flag(r, "force_violation") for r in ok)
+        e.n_speed_violations = sum(_flag(r, "speed_violation") for r in ok)
+        e.n_suppressed = sum(math.isfinite(r.metrics.get("time_to_suppress", math.inf)) for r in ok)
+        e.messages = sorted({r.message for r in app if r.failed or r.message not in ("ok", "")})
+        for key in entry_metrics():
+            med, lo, hi = interval([r.value(key) for r in ok], seed=seed)
             e.metrics[key] = {"median": med, "ci_low": lo, "ci_high": hi}
-        e.counts = {k: int(sum(r["metrics"].get(k, 0) for r in ok)) for k in COUNTS}
+        e.counts = {k: int(sum(v for r in ok if math.isfinite(v := r.value(k)))) for k in counts}
         out[(s, c)] = e
     return out
 
 
-def _below(a: Entry, b: Entry, key: str) -> bool:
-    """A's interval of ``key`` lies entirely below B's."""
-    ah, bl = a.value(key, "ci_high"), b.value(key, "ci_low")
-    return not (math.isnan(ah) or math.isnan(bl)) and ah < bl
+def _better(a: Entry, b: Entry, m: Metric) -> bool:
+    """A's interval of metric ``m`` lies entirely on the better side of B's."""
+    if m.better == "lower":
+        return m.better_than(a.value(m.name, "ci_high"), b.value(m.name, "ci_low"))
+    return m.better_than(a.value(m.name, "ci_low"), b.value(m.name, "ci_high"))
 
 
 def clearly_better(a: Entry, b: Entry) -> bool:
-    """The order of the module docstring."""
+    """The order of the module docstring: the job done, then the registry's ranked metrics in order."""
     if a.job_done != b.job_done:
         return a.job_done
     if not a.job_done:
         return False
-    if _below(a, b, "residual_severity"):
-        return True
-    if _below(b, a, "residual_severity"):
-        return False
-    return _below(a, b, "time_to_suppress")
+    for m in ranked():
+        if _better(a, b, m):
+            return True
+        if _better(b, a, m):
+            return False
+    return False
 
 
 def rank(entries: Iterable[Entry]) -> dict[str, int]:
@@ -183,7 +194,7 @@ def class_tables(entries: Mapping[tuple, Entry], scenarios, controllers) -> dict
                                    "force_violations": int(sum(e.n_force_violations for e in es)),
                                    "speed_violations": int(sum(e.n_speed_violations for e in es)),
                                    "fallbacks": int(sum(e.counts.get("controller_fallbacks", 0) for e in es))}
-            for key in RANKED + EFFORT:
+            for key in entry_metrics():
                 v = np.array([e.value(key) for e in es], float)
                 v = v[~np.isnan(v)]
                 row[key] = float(np.median(v)) if v.size else math.nan

@@ -14,8 +14,8 @@ from pathlib import Path
 
 from models.files import OutputSet, output_set
 from mitigate.benchmark.render import render_ranking
-from mitigate.benchmark.stats import EFFORT, RANKED
-from mitigate.metrics import metric_unit
+from mitigate.benchmark.stats import entry_metrics
+from mitigate.metrics import in_order, unit
 
 __all__ = ["write_benchmark", "output_paths", "BENCHMARK_FILES"]
 
@@ -31,26 +31,29 @@ def output_paths(out) -> dict[str, Path]:
 
 
 def _runs_csv(res) -> str:
-    keys = sorted({k for r in res.records for k in r.get("metrics", {})})
+    """One row per run: its identity, status and message, every result, then every timing."""
+    keys = in_order({k for r in res.records for k in r.metrics})
+    times = in_order({k for r in res.records for k in r.timings})
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["scenario", "controller", "class", "phase", "seed", "switch_on [s]", "run_seed", "applicable",
-                "status", "failed"] + [f"{k} [{metric_unit(k) or '-'}]" for k in keys])
+                "status", "message"] + [f"{k} [{unit(k) or ('s' if k == 'elapsed_s' else '-')}]" for k in keys + times])
     for r in res.records:
-        m = r.get("metrics", {})
-        w.writerow([r["scenario"], r["controller"], r.get("class", ""), r["phase"], r["seed"], r["switch_on"],
-                    r["run_seed"], r.get("applicable", True), r.get("status", ""), r.get("failed", 0)]
-                   + [f"{float(m[k]):.6g}" if k in m else "" for k in keys])
+        q = r.run
+        w.writerow([q.scenario, q.controller, r.actuator_class, q.phase, q.seed, q.switch_on, q.run_seed, r.applicable,
+                    r.status.value if r.applicable else "not applicable", r.message]
+                   + [f"{float(r.metrics[k]):.6g}" if k in r.metrics else "" for k in keys]
+                   + [f"{float(r.timings[k]):.6g}" if k in r.timings else "" for k in times])
     return buf.getvalue()
 
 
 def _entries_csv(res) -> str:
-    keys = RANKED + EFFORT
+    keys = entry_metrics()
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["scenario", "controller", "kind", "class", "applicable", "n_runs", "n_failed", "n_violations",
                 "job_done", "rank", "class_rank"]
-               + [f"{k}_{s} [{metric_unit(k) or '-'}]" for k in keys for s in ("median", "ci_low", "ci_high")])
+               + [f"{k}_{s} [{unit(k) or '-'}]" for k in keys for s in ("median", "ci_low", "ci_high")])
     for e in res.entries.values():
         w.writerow([e.scenario, e.controller, e.kind, e.klass, e.applicable, e.n_runs, e.n_failed, e.n_violations,
                     e.job_done, e.rank if e.rank is not None else "", e.class_rank if e.class_rank is not None else ""]

@@ -130,16 +130,17 @@ def run(args) -> int:
         d["files"] = {k: str(v) for k, v in files.items()}
         emit_json(d)
     else:
-        from mitigate.benchmark.render import CLASS_TITLES
+        from mitigate.benchmark.render import CLASS_TITLES, table_header
+        from mitigate.metrics import shown
+        cols = shown("terminal")
         for klass, rows in res.tables.items():
             print(f"\n{CLASS_TITLES[klass]}")
-            print(format_table(["controller", "class", "mean rank", "first", "job done", "what stays [%]",
-                                "t suppress [s]", "set-point var [1/s]", "failed", "left force band",
-                                "left speed band"],
+            print(format_table(["controller", "class", "mean rank", "first", "job done"]
+                               + [table_header(m) for m in cols] + ["failed", "left force band", "left speed band"],
                                [[r["controller"], r["class"], r["mean_rank"], f"{r['first']}/{r['scenarios']}",
-                                 f"{r['job_done']}/{r['scenarios']}", 100 * r["residual_severity"],
-                                 r["time_to_suppress"], r["setpoint_variation"], r["failed"], r["force_violations"],
-                                 r["speed_violations"]] for r in rows]))
+                                 f"{r['job_done']}/{r['scenarios']}"]
+                                + [(100 if m.percent else 1) * r[m.name] for m in cols]
+                                + [r["failed"], r["force_violations"], r["speed_violations"]] for r in rows]))
         print(f"\n{res.status.value} ({res.message}); {len(res.records)} runs, {res.computed} computed now; "
               f"{res.elapsed:.0f} s; ranking in {files['ranking']}")
     return 0 if res.success else 1

@@ -1,8 +1,9 @@
 """Parameter sweeps: maps of where stick-slip appears and how large it is (seed 002, Figs. 9.31-9.33).
 
 A sweep runs one open-loop simulation of a scenario per point of a grid over some of
-its numeric fields and reduces each run, after a settling time, to stick-slip
-metrics (:mod:`mitigate.metrics`).  Axes are written ``name=start:stop:count``
+its numeric fields and reduces each run, after a settling time, to the stick-slip
+metrics the registry declares for a sweep point (:func:`mitigate.metrics.columns` ``("sweep")``),
+one :class:`mitigate.record.RunRecord` per point.  Axes are written ``name=start:stop:count``
 (``count`` points from ``start`` to ``stop`` inclusive, linear), where ``name`` is
 
 - a model input (``n1``, ``omega_ref``, ``axial_force``, ``omega_drive``, ...): the
@@ -53,13 +54,13 @@ The ``[sweep]`` table of a scenario sets defaults::
                               # values per axis (models.modal.sliding_stability; ~60 ms per point)
 """
 
-from mitigate.sweep.chunks import METRICS, ChunkTask, batched_step, run_chunk
+from mitigate.sweep.chunks import ChunkTask, batched_step, run_chunk, sweep_metrics
 from mitigate.sweep.execute import (SweepResult, assemble, connect_scheduler, make_tasks, run_sweep,
                                     stability_indices, stability_subgrid)
 from mitigate.sweep.plan import Axis, SweepOptions, SweepPlan, options_from_scenario, parse_axis, plan_sweep
 from mitigate.sweep.store import SweepStore, definition_hash
 
-__all__ = ["Axis", "parse_axis", "SweepOptions", "options_from_scenario", "SweepPlan", "plan_sweep", "METRICS",
+__all__ = ["Axis", "parse_axis", "SweepOptions", "options_from_scenario", "SweepPlan", "plan_sweep", "sweep_metrics",
            "ChunkTask", "batched_step", "run_chunk", "make_tasks", "run_sweep", "assemble", "SweepResult",
            "connect_scheduler", "stability_indices", "stability_subgrid", "SweepStore", "definition_hash", "sweep"]
 

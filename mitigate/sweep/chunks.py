@@ -16,12 +16,17 @@ import numpy as np
 
 from models.codegen import compiled_or_none
 from models.plant.hybrid import hybrid_step_function
-from mitigate import metrics as mx
+from models.status import Status
+from mitigate.metrics import SweepWindow, columns, evaluate
+from mitigate.record import RunRecord, SweepPoint
 
-__all__ = ["METRICS", "batched_step", "ChunkTask", "run_chunk"]
+__all__ = ["batched_step", "ChunkTask", "run_chunk", "sweep_metrics"]
 
-#: per-point outputs of a sweep (besides the axis values)
-METRICS = ("amplitude", "severity", "stuck_fraction", "frequency", "mean_speed", "growth", "limit_cycle", "ok")
+
+def sweep_metrics() -> tuple[str, ...]:
+    """The metrics of a sweep point: the registry's columns of a sweep
+    (:func:`mitigate.metrics.columns` ``("sweep")``)."""
+    return tuple(m.name for m in columns("sweep"))
 
 
 _FN_CACHE: dict = {}
@@ -87,6 +92,12 @@ class ChunkTask:
     kind: str = "simulate"       # simulate | stability (linear stability of steady sliding)
     params: Any = None           # the scenario's plant ParameterSet (for kind="stability")
     quasi_static: bool = False   # a DC motor's current quasi-static (models.discretise.integration)
+    scenario: str = ""           # the scenario's name (the points' records)
+
+    def point(self, j: int) -> SweepPoint:
+        """Which run point ``j`` of the chunk is."""
+        ctrl = self.controller[0].controllers[self.controller[1]].name if self.controller is not None else ""
+        return SweepPoint(self.scenario, ctrl, self.start, int(self.indices[j]))
 
 
 def _x0(model, start, u, pvec, perturbation=0.0):
@@ -102,24 +113,23 @@ def _x0(model, start, u, pvec, perturbation=0.0):
         return np.zeros(model.nx), False
 
 
-def _reduce(speed: np.ndarray, amp: np.ndarray, dt: float, task: ChunkTask) -> dict[str, float]:
-    if not (np.all(np.isfinite(speed)) and np.all(np.isfinite(amp))):
-        return {k: float("nan") for k in METRICS[:-2]} | {"limit_cycle": float("nan"), "ok": 0.0}
-    a = mx.amplitude(amp)
-    # sustained, not a decaying transient: the late half of the window swings at least 80 % of the early half
-    h = len(amp) // 2
-    a_early, a_late = mx.amplitude(amp[:h]), mx.amplitude(amp[h:])
-    growth = a_late / a_early if a_early > 0 else (1.0 if a_late == 0 else float("inf"))
-    cycle = bool(a > task.threshold and growth >= 0.8)
-    # a frequency is only meaningful for a limit cycle (else it is the spectrum of rounding noise)
-    return {"amplitude": a, "severity": mx.severity(speed),
-            "stuck_fraction": mx.stuck_fraction(speed, task.stuck_threshold),
-            "frequency": mx.dominant_frequency(speed, dt) if cycle else float("nan"),
-            "mean_speed": float(np.mean(speed)), "growth": float(growth), "limit_cycle": float(cycle), "ok": 1.0}
+def _record(task: ChunkTask, j: int, speed: np.ndarray, amp: np.ndarray, started: bool,
+            failed: str = "") -> RunRecord:
+    """The record of point ``j``: the registry's sweep metrics over its window after the settling time
+    (NaN when the run failed or left the finite numbers)."""
+    if not failed and not (np.all(np.isfinite(speed)) and np.all(np.isfinite(amp))):
+        failed = "non-finite state"
+    if failed:
+        return RunRecord(task.point(j), Status.FAILED, failed, {k: float("nan") for k in sweep_metrics()})
+    values = evaluate(SweepWindow(speed, amp, task.dt, task.threshold, task.stuck_threshold))
+    if not started:          # it ran from rest instead: its numbers are kept, the point is not what was asked
+        return RunRecord(task.point(j), Status.FAILED, "no steady sliding to start from (ran from rest)", values)
+    return RunRecord(task.point(j), Status.OK, "ok", values)
 
 
-def run_chunk(task: ChunkTask) -> dict[str, np.ndarray]:
-    """Simulate one chunk of points and reduce each to :data:`METRICS` (plus ``index``)."""
+def run_chunk(task: ChunkTask) -> list[RunRecord] | dict[str, np.ndarray]:
+    """Simulate one chunk of points: a :class:`mitigate.record.RunRecord` per point (its
+    :func:`sweep_metrics`); a stability chunk gives the columns ``index`` and ``max_real``."""
     if task.kind == "stability":
         return _run_chunk_stability(task)
     if task.controller is not None:
@@ -155,12 +165,7 @@ def run_chunk(task: ChunkTask) -> dict[str, np.ndarray]:
         x = X[:, :, -1]
         th = np.asarray(T).reshape(1, m, b)[:, :, -1]
         k += b
-    rows = [_reduce(spd[j], amp[j], task.dt, task) for j in range(m)]
-    out = {"index": np.asarray(task.indices, dtype=float)}
-    for name in METRICS:
-        out[name] = np.array([r[name] for r in rows])
-    out["ok"] = out["ok"] * started
-    return out
+    return [_record(task, j, spd[j], amp[j], bool(started[j])) for j in range(m)]
 
 
 def _run_chunk_stability(task: ChunkTask) -> dict[str, np.ndarray]:
@@ -177,7 +182,7 @@ def _run_chunk_stability(task: ChunkTask) -> dict[str, np.ndarray]:
     return {"index": np.asarray(task.indices, dtype=float), "max_real": out}
 
 
-def _run_chunk_closed_loop(task: ChunkTask) -> dict[str, np.ndarray]:
+def _run_chunk_closed_loop(task: ChunkTask) -> list[RunRecord]:
     """Closed loop per point (``mitigate.closedloop``): the scenario with the point's constant inputs and
     plant parameters, its estimator and the named controller (which keeps the NOMINAL model)."""
     import dataclasses
@@ -189,9 +194,8 @@ def _run_chunk_closed_loop(task: ChunkTask) -> dict[str, np.ndarray]:
 
     sc0, index, duration = task.controller
     model = task.model
-    m = len(task.indices)
-    rows, started = [], np.ones(m, dtype=bool)
-    for j in range(m):
+    out = []
+    for j in range(len(task.indices)):
         inputs = dict(sc0.inputs)
         for c, v in zip(task.u_cols, task.u_vals[j]):
             inputs[model.inputs[c]] = Profile("constant", (0.0,), (float(v),))
@@ -199,17 +203,14 @@ def _run_chunk_closed_loop(task: ChunkTask) -> dict[str, np.ndarray]:
         sim = dataclasses.replace(sc0.sim, dt=task.dt, nsub=task.nsub, start=task.start)
         sc = sc0.replace(inputs=inputs, plant_params=params, sim=sim, dt=task.dt, duration=duration)
         u0 = sc.programme(0.0)
-        x0, started[j] = _x0(model, task.start, u0, task.P[j], task.perturbation)
+        x0, started = _x0(model, task.start, u0, task.P[j], task.perturbation)
         plant = Plant(model, params, sim, sensors=sc.sensors, x0=x0, u0=u0, drift=sc.drift)
         res = run_closed_loop(sc, make_controller(sc.controllers[index], context_for(sc, index)), plant=plant)
         X = np.asarray(res.x)
         if not res.success or X.shape[0] < task.settle_steps + 4:
-            rows.append({k: float("nan") for k in METRICS[:-2]} | {"limit_cycle": float("nan"), "ok": 0.0})
+            why = res.message if not res.success else "the run ended before the settling time"
+            out.append(_record(task, j, X[:0, 0], X[:0, 0], started, failed=why or "failed"))
             continue
-        rows.append(_reduce(X[task.settle_steps + 1:, task.speed_index], X[task.settle_steps + 1:, task.amp_index],
-                            task.dt, task))
-    out = {"index": np.asarray(task.indices, dtype=float)}
-    for k in METRICS:
-        out[k] = np.array([r[k] for r in rows])
-    out["ok"] = out["ok"] * started
+        out.append(_record(task, j, X[task.settle_steps + 1:, task.speed_index],
+                           X[task.settle_steps + 1:, task.amp_index], started))
     return out

@@ -13,7 +13,7 @@ from models.errors import ConfigError
 from models.plant import SimOptions, plant_integration
 from models.plugins import describe
 from models.status import Outcome, Status
-from mitigate.sweep.chunks import METRICS, ChunkTask, run_chunk
+from mitigate.sweep.chunks import ChunkTask, run_chunk, sweep_metrics
 from mitigate.sweep.plan import Axis, SweepPlan
 from mitigate.sweep.store import SweepStore
 
@@ -47,7 +47,7 @@ def make_tasks(plan: SweepPlan, controller: str | None = None) -> list[ChunkTask
                                    speed_index=model.states.index(o.speed),
                                    amp_index=model.states.index(o.amplitude_of), threshold=o.threshold,
                                    stuck_threshold=o.stuck_threshold, backend=o.backend, controller=controller,
-                                   perturbation=o.perturbation, quasi_static=qs))
+                                   perturbation=o.perturbation, quasi_static=qs, scenario=plan.scenario.name))
     if model.drive_kind != "torque" and "force" in model.input_kinds:
         idx = stability_indices(plan)
         for c, lo in enumerate(range(0, len(idx), o.chunk)):
@@ -93,7 +93,10 @@ class SweepResult(Outcome):
     Attributes
     ----------
     axes : the axes; grid : (n_points, n_axes)
-    maps : {start: {metric: (count_1, ..., count_k) array}} (axis order as given)
+    maps : {start: {metric: (count_1, ..., count_k) array}} (axis order as given) of every
+        :func:`mitigate.sweep.chunks.sweep_metrics`
+    statuses : {start: (count_1, ..., count_k) array of Status}: each point run's (FAILED where it
+        failed, found no steady sliding to start from, or its chunk was not written)
     stability : max real part [1/s] of the sliding linearisation per point (n_points,; NaN off the
         stability sub-grid :func:`stability_subgrid`), or None
     computed, reused : numbers of chunks computed now and found on disk
@@ -112,6 +115,7 @@ class SweepResult(Outcome):
     message: str = "ok"
     files: dict = field(default_factory=dict)
     stability_subgrid: tuple = ()
+    statuses: dict = field(default_factory=dict)
 
 
 def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None, scheduler: str | None = None,
@@ -140,7 +144,10 @@ def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None,
                    initial=sum(len(t.indices) for t in tasks if t.key in done))
 
     def finish(task, res):
-        store.write_chunk(task.key, res)
+        if task.kind == "simulate":
+            store.write_records(task.key, res)
+        else:
+            store.write_chunk(task.key, res)
         if bar is not None:
             bar.update(len(task.indices))
         if on_chunk is not None:
@@ -185,26 +192,37 @@ def run_sweep(plan: SweepPlan, store: SweepStore, *, workers: int | None = None,
         message = (f"{len(failed)} chunk(s) failed and were not written (the first: {failed[0]}); rerun the same "
                    f"command to retry them; {message}")
     return SweepResult(plan.axes, plan.grid, result[0], result[1], len(pending) - len(failed), reused,
-                       time.perf_counter() - t0, status, message, stability_subgrid=stability_subgrid(plan))
+                       time.perf_counter() - t0, status, message, stability_subgrid=stability_subgrid(plan),
+                       statuses=result[4])
 
 
 def assemble(plan: SweepPlan, store: SweepStore, tasks):
-    """Read all chunks of a finished sweep into maps and write ``results.csv``."""
+    """Read all chunks of a finished sweep into maps and write ``results.csv``: ``(maps, stability,
+    status, message, statuses)`` (:class:`SweepResult`).  A metric a chunk has no column for (declared
+    after it was written) is NaN at its points."""
     shape = tuple(a.count for a in plan.axes)
-    maps = {}
+    names = sweep_metrics()
+    maps, statuses = {}, {}
     cols: dict[str, np.ndarray] = {a.name: plan.grid[:, i] for i, a in enumerate(plan.axes)}
+    reasons: list[str] = []
     for start in plan.options.starts:
-        arr = {m: np.full(plan.n_points, np.nan) for m in METRICS}
+        arr = {m: np.full(plan.n_points, np.nan) for m in names}
+        st = np.full(plan.n_points, Status.FAILED, dtype=object)   # a chunk that failed: its points stay FAILED
         for t in tasks:
             if t.start != start or t.kind != "simulate" or not store.chunk_path(t.key).exists():
-                continue       # a chunk that failed: its points stay NaN (and count as failed below)
+                continue
             d = store.read_chunk(t.key)
             idx = d["index"].astype(int)
-            for m in METRICS:
-                arr[m][idx] = d[m]
+            for m in names:
+                if m in d:
+                    arr[m][idx] = d[m]
+            st[idx] = d["status"]
+            reasons += [msg for s, msg in zip(d["status"], d["message"]) if not s.success]
         maps[start] = {m: v.reshape(shape) for m, v in arr.items()}
-        for m in METRICS:
+        statuses[start] = st.reshape(shape)
+        for m in names:
             cols[f"{m}_{start}"] = arr[m]
+        cols[f"status_{start}"] = st
     stab = None
     stab_tasks = [t for t in tasks if t.kind == "stability"]
     if stab_tasks:
@@ -216,9 +234,9 @@ def assemble(plan: SweepPlan, store: SweepStore, tasks):
             stab[d["index"].astype(int)] = d["max_real"]
     if stab is not None:
         cols["sliding_max_real"] = stab
-    bad = int(sum(np.sum(~(maps[s]["ok"] == 1)) for s in maps))
+    points = [s for v in statuses.values() for s in v.ravel()]
+    bad = sum(not s.success for s in points)
     store.write_results(cols)
-    message = "ok" if bad == 0 else f"{bad} point run(s) failed (non-finite state or no steady sliding)"
+    message = "ok" if bad == 0 else f"{bad} point run(s) failed (the first: {reasons[0] if reasons else 'chunk lost'})"
     # a point whose run did not succeed is a failed part of the sweep (as a failed run is of ``run()``)
-    points = (Status.OK if ok == 1 else Status.FAILED for s in maps for ok in maps[s]["ok"].ravel())
-    return maps, stab, Status.worst(points), message
+    return maps, stab, Status.worst(points), message, statuses

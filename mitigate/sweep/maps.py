@@ -1,6 +1,7 @@
 """PNG maps of a sweep in the manner of seed 002 Figs. 9.31-9.33.
 
-- 2 axes: filled contours of each metric (first axis horizontal), one figure per start
+- 2 axes: filled contours of each metric the registry shows on a map (:func:`mitigate.metrics.shown`
+  ``("map")``; first axis horizontal), one figure per start
   mode, with the linear stability boundary of steady sliding (max real part = 0) as a
   thick black line and the limit-cycle threshold as a dashed white line;
 - 2 axes and both start modes: a bistability map (where the run from rest and the run
@@ -18,14 +19,20 @@ import numpy as np
 
 from mitigate.cliutil import savefig_atomic
 
-__all__ = ["plot_maps", "LABELS"]
+__all__ = ["plot_maps", "metric_label"]
 
-LABELS = {
-    "amplitude": "stick-slip amplitude",
-    "severity": "severity SSS [-]",
-    "stuck_fraction": "fraction of time stuck [-]",
-    "frequency": "dominant frequency [Hz]",
-}
+
+def metric_label(name: str, amp_unit: str) -> str:
+    """A metric's axis label: ``header [unit]``, the amplitude in the unit of its state ``amp_unit``."""
+    from mitigate.metrics import get
+    from mitigate.metrics.sweep import AMPLITUDE_UNIT
+    m = get(name)
+    return f"{m.header or m.name} [{amp_unit if m.unit == AMPLITUDE_UNIT else m.unit}]"
+
+
+def _mapped() -> tuple[str, ...]:
+    from mitigate.metrics import shown
+    return tuple(m.name for m in shown("map"))
 
 _UNITS: dict = {}   # name -> SI unit, set by plot_maps from the scenario
 
@@ -55,10 +62,10 @@ def plot_maps(result, out_dir, *, title: str, amp_unit: str, threshold: float, p
         files += _lines(result, out_dir, title, amp_unit, prefix)
     elif len(axes) == 2:
         for start, maps in result.maps.items():
-            for metric in ("amplitude", "severity", "stuck_fraction", "frequency"):
+            for metric in _mapped():
                 files.append(_contour(result, maps[metric], out_dir / f"{prefix}_{metric}_{start}.png",
-                                      f"{title}: {LABELS[metric]}{f' [{amp_unit}]' if metric == 'amplitude' else ''}"
-                                      f"\nstarted from {start}", metric, maps["amplitude"], threshold, amp_unit))
+                                      f"{title}: {metric_label(metric, amp_unit)}\nstarted from {start}", metric,
+                                      maps["amplitude"], threshold, amp_unit))
         if len(result.maps) == 2:
             files.append(_bistability(result, out_dir / f"{prefix}_bistability.png", title))
     elif len(axes) == 3:
@@ -86,10 +93,10 @@ def _contour(result, Z, path, title, metric, amp, threshold, amp_unit=""):
     Zp = np.ma.masked_invalid(Z)
     if Zp.count() and np.ptp(Zp.compressed()) > 0:
         cs = ax.contourf(X, Y, Zp, levels=14, cmap="viridis")
-        fig.colorbar(cs, ax=ax, label=LABELS[metric] + (f" [{amp_unit}]" if metric == "amplitude" else ""))
+        fig.colorbar(cs, ax=ax, label=metric_label(metric, amp_unit))
     else:
         ax.pcolormesh(X, Y, Zp, shading="nearest", cmap="viridis")
-        ax.text(0.5, 0.5, f"{LABELS[metric]} constant ({float(Zp.mean()) if Zp.count() else float('nan'):.3g})",
+        ax.text(0.5, 0.5, f"{metric_label(metric, amp_unit)} constant ({float(Zp.mean()) if Zp.count() else float('nan'):.3g})",
                 transform=ax.transAxes, ha="center", color="w")
     handles = []
     if np.nanmax(amp) > threshold > np.nanmin(amp):
@@ -187,14 +194,18 @@ def _threshold_family(result, out_dir, title, amp_unit, threshold, prefix):
 def _lines(result, out_dir, title, amp_unit, prefix):
     plt = _plt()
     ax0 = result.axes[0]
-    fig, axs = plt.subplots(2, 2, figsize=(9, 6.5), sharex=True)
-    for a, metric in zip(axs.ravel(), ("amplitude", "severity", "stuck_fraction", "frequency")):
+    mapped = _mapped()
+    rows = max(1, -(-len(mapped) // 2))
+    fig, axs = plt.subplots(rows, 2, figsize=(9, 3.25 * rows), sharex=True, squeeze=False)
+    for a, metric in zip(axs.ravel(), mapped):
         for start, maps in result.maps.items():
             a.plot(ax0.values, maps[metric], marker=".", label=f"from {start}")
-        a.set_ylabel(LABELS[metric] + (f" [{amp_unit}]" if metric == "amplitude" else ""))
+        a.set_ylabel(metric_label(metric, amp_unit))
         a.grid(True, alpha=0.3)
         a.legend(fontsize=8)
-    for a in axs[1]:
+    for a in axs.ravel()[len(mapped):]:
+        a.set_visible(False)
+    for a in axs[-1]:
         a.set_xlabel(_label(ax0.name))
     fig.suptitle(f"{title}: sweep over {ax0.name}")
     fig.tight_layout()

@@ -3,8 +3,13 @@
 Layout of a sweep folder::
 
     DIR/manifest.json            grid definition, options and their hash
-    DIR/chunks/rest_00012.csv    one finished chunk of points (written to a temp file, then renamed)
-    DIR/results.csv              all points (written at the end)
+    DIR/chunks/rest_00012.csv    one finished chunk of points (written to a temp file, then renamed):
+                                 ``index,status,message,<metric>...`` (one row per point's record)
+    DIR/results.csv              all points (written at the end): the axes, ``<metric>_<start>`` and
+                                 ``status_<start>`` per start mode, ``sliding_max_real``
+
+A chunk written before the points had records (an ``ok`` column of 1.0 / 0.0 instead of ``status``
+and ``message``) is still read: ``ok`` 1 is Status.OK, anything else Status.FAILED.
 
 A chunk file exists only when all of its points are finished (``os.replace`` is atomic
 on POSIX), so a sweep killed at any moment (Ctrl-C, ``kill -9``) loses at most the
@@ -17,6 +22,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import io
 import json
 import os
 import shutil
@@ -27,6 +33,7 @@ import numpy as np
 
 from models.errors import ConfigError, DataError
 from models.files import atomic_write_text
+from models.status import Status
 
 __all__ = ["SweepStore", "definition_hash", "manifest_hash"]
 
@@ -96,18 +103,26 @@ class SweepStore:
         """Keys of the chunks already on disk."""
         return {p.stem for p in self.chunk_dir.glob("*.csv")}
 
-    def write_chunk(self, key: str, columns: Mapping[str, np.ndarray]) -> Path:
-        """Write one finished chunk atomically (columns of equal length)."""
-        names = list(columns)
-        rows = zip(*[np.asarray(columns[n]).tolist() for n in names])
-        lines = [",".join(names)]
-        for r in rows:
-            lines.append(",".join(repr(float(v)) if not isinstance(v, str) else v for v in r))
+    def write_records(self, key: str, records) -> Path:
+        """Write one finished chunk of points atomically: a row per :class:`mitigate.record.RunRecord`
+        (its point index, status, message and metrics)."""
+        from mitigate.metrics import in_order
+        names = in_order({k for r in records for k in r.metrics})
+        cols: dict[str, list] = {"index": [float(r.run.index) for r in records],
+                                 "status": [r.status.value for r in records],
+                                 "message": [r.message for r in records]}
+        cols.update({n: [r.metrics.get(n, float("nan")) for r in records] for n in names})
+        return self.write_chunk(key, cols)
+
+    def write_chunk(self, key: str, columns: Mapping[str, Any]) -> Path:
+        """Write one finished chunk atomically (columns of equal length; numbers or text)."""
         path = self.chunk_path(key)
-        atomic_write_text(path, "\n".join(lines) + "\n", overwrite=True, durable=True)
+        atomic_write_text(path, _csv(columns), overwrite=True, durable=True)
         return path
 
     def read_chunk(self, key: str) -> dict[str, np.ndarray]:
+        """The columns of a chunk: numbers as float arrays, ``status`` as an array of Status and
+        ``message`` as strings (a chunk with the old ``ok`` column: see the module docstring)."""
         path = self.chunk_path(key)
         with open(path, newline="") as fh:
             reader = csv.reader(fh)
@@ -115,16 +130,38 @@ class SweepStore:
                 header = next(reader)
             except StopIteration:
                 raise DataError(f"{path}: empty chunk file") from None
-            data = [list(map(float, r)) for r in reader if r]
-        arr = np.array(data, dtype=float).reshape(len(data), len(header))
-        return {h: arr[:, j] for j, h in enumerate(header)}
+            rows = [r for r in reader if r]
+        if any(len(r) != len(header) for r in rows):
+            raise DataError(f"{path}: a row has not {len(header)} fields; delete the chunk to recompute it")
+        text = {"status", "message"}
+        out: dict[str, np.ndarray] = {}
+        try:
+            for j, h in enumerate(header):
+                col = [r[j] for r in rows]
+                out[h] = np.array(col, dtype=object if h in text else float)
+            if "status" in out:
+                out["status"] = np.array([Status(v) for v in out["status"]], dtype=object)
+        except ValueError as exc:
+            raise DataError(f"{path}: unreadable chunk ({exc}); delete it to recompute it") from None
+        if "ok" in out and "status" not in out:          # written before the points had records
+            ok = out.pop("ok") == 1
+            out["status"] = np.array([Status.OK if k else Status.FAILED for k in ok], dtype=object)
+            out["message"] = np.array(["ok" if k else "failed (no reason recorded)" for k in ok], dtype=object)
+        return out
 
-    def write_results(self, columns: Mapping[str, np.ndarray]) -> Path:
+    def write_results(self, columns: Mapping[str, Any]) -> Path:
         """All points in one CSV (``results.csv``), written atomically."""
-        names = list(columns)
-        lines = [",".join(names)]
-        for r in zip(*[np.asarray(columns[n]).tolist() for n in names]):
-            lines.append(",".join(repr(float(v)) for v in r))
         path = self.root / "results.csv"
-        atomic_write_text(path, "\n".join(lines) + "\n", overwrite=True, durable=True)
+        atomic_write_text(path, _csv(columns), overwrite=True, durable=True)
         return path
+
+
+def _csv(columns: Mapping[str, Any]) -> str:
+    """CSV text of equal-length columns: numbers as ``repr(float)`` (exact round trip), text as is."""
+    names = list(columns)
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(names)
+    for r in zip(*[list(columns[n]) for n in names]):
+        w.writerow([v.value if isinstance(v, Status) else v if isinstance(v, str) else repr(float(v)) for v in r])
+    return buf.getvalue()
