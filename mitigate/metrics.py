@@ -219,7 +219,7 @@ def programmed_speed(scenario, t: np.ndarray) -> np.ndarray:
     at), else the rig file's ``operating_point.speed`` (NaN if it has none)."""
     m = scenario.model
     t = np.asarray(t, float)
-    if m.drive_kind == "torque":
+    if not m.drive.sets_speed:
         if getattr(scenario, "control_speed", None) is not None:
             return np.array([scenario.control_speed(tk) for tk in t], float)
         v = m.spec.extra.get("operating_point", {}).get("speed")      # SI, resolved by the rig parser
@@ -354,13 +354,8 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
         else:
             scale = max(float(np.mean(np.abs(prog[:, j]))), abs(w_ref) if ref else 0.0) or own
         tv += total_variation(c) / scale if scale > 0 else 0.0
-    if pm.drive_kind == "dc_motor":
-        drive_energy = float(np.sum(np.abs(result_voltage(pm, pp, X, U) * X[:, pm.nx - 2])) * dt)
-    elif pm.drive_kind == "torque":
-        drive_energy = float(np.sum(np.abs(U[:, pm.inputs.index(pm.drive_input)]
-                                           * X[:, pm.speed_index(pm.drive_body)])) * dt)
-    else:
-        drive_energy = float("nan")
+    power = pm.drive.power(pm, pp, X, U)
+    drive_energy = float(np.sum(np.abs(power)) * dt) if power is not None else float("nan")
     st = solve_time_stats(result.solve_times)
     plans = result.plan_calls if result.plan_calls is not None else np.ones(len(result.solve_times), bool)
     sp = solve_time_stats(np.asarray(result.solve_times)[plans] if len(result.solve_times) else result.solve_times)
@@ -415,9 +410,3 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
         "diverged": int(result.status is Status.DIVERGED),
     })
     return out
-
-
-def result_voltage(model, params, X: np.ndarray, U: np.ndarray) -> np.ndarray:
-    """The DC motor's armature voltage along a trajectory (its drive's limits applied) [V]."""
-    f = model.meas_vector(["voltage"])
-    return np.array(f.map(X.shape[0])(X.T, U.T, np.asarray(params.vector(), float))).ravel()

@@ -297,7 +297,7 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
     check_keys(ctl, {"start", "every", "deadline", "timeout", "latency", "speed"}, f"{where}: control")
     control_speed = None
     if "speed" in ctl:
-        if model.drive_kind != "torque":
+        if model.drive.sets_speed:
             raise ConfigError(f"{where}: control.speed applies to a torque drive; rig {model.name!r} sets its speed "
                               f"through input {model.drive_input!r} (give it in [inputs])")
         control_speed = parse_profile(ctl["speed"], f"{where}: control.speed", duration, quantity="speed")

@@ -44,7 +44,7 @@ def default_max_speed(model, inputs, control_speed, duration: float) -> float:
     """``[plant] max_speed``'s default [rad/s]: MAX_SPEED_FACTOR times the largest drive speed the
     scenario programmes (a torque drive: its ``[control] speed``, else the rig's nominal speed)."""
     ts = np.linspace(0.0, duration, 201)
-    if model.drive_kind != "torque":
+    if model.drive.sets_speed:
         w = max(abs(float(inputs[model.drive_input](t))) for t in ts)
     elif control_speed is not None:
         w = max(abs(float(control_speed(t))) for t in ts)

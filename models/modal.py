@@ -283,7 +283,7 @@ def chain_matrices(model, params: ParameterSet | None = None, *, clamped: bool =
                 mat[ib, ia] -= v
     dofs = tuple(f"theta_{b}" for b in bodies)
     if clamped:
-        if model.drive_kind == "speed":
+        if not model.drive.on_body:          # a prescribed speed already holds its end of the chain
             return M, Cd, K, dofs
         keep = [i for i, b in enumerate(bodies) if b != model.drive_body]
         sel = np.ix_(keep, keep)
@@ -409,7 +409,7 @@ def sliding_stability(model, params: ParameterSet | None, u, eps: float | None =
     max_real : that largest real part [1/s]
     """
     model = get_model(model)
-    if x_op is None and model.drive_kind == "torque":
+    if x_op is None and not model.drive.sets_speed:
         x_op = model.sliding_guess(u, _params(model, params))
     lin = linearise(model, params, u, eps=eps, x_op=x_op)
     ev = np.linalg.eigvals(lin.A)
@@ -434,7 +434,7 @@ def stability_map(model, params: ParameterSet | None, load_values, omega_values,
     """
     model = get_model(model)
     params = _params(model, params)
-    if model.drive_kind == "torque" or "force" not in model.input_kinds:
+    if not model.drive.sets_speed or "force" not in model.input_kinds:
         raise ConfigError(f"stability_map needs a rig with a speed-setting drive and a normal-force input, "
                           f"got {model.name!r} ({model.drive_kind} drive, inputs {', '.join(model.inputs)})")
     base, _ = operating_point(model, params)

@@ -205,10 +205,9 @@ def rig_scales(model, params) -> RigScales:
     torque = max((abs(float(x[j]) * c.stiffness.value(P)) for j, c in enumerate(springs)), default=0.0)
     twist = max((abs(float(x[j])) for j in range(len(springs))), default=0.0)
     speed = speed_scale(model)
-    cur = model.spec.drive.param("i_max") if model.drive_kind == "dc_motor" else None
-    current = float(cur.value(P)) if cur is not None else math.nan
+    current = model.drive.current_limit(P)
     try:
-        r = modes(model, params, "clamped" if model.drive_kind != "speed" else "free")
+        r = modes(model, params, "clamped" if model.drive.on_body else "free")
         osc = [f for f, o in zip(r.freq_hz, r.oscillatory) if o and f > 0]
         period = 1.0 / osc[0] if osc else REFERENCE.period
     except ConfigError:

@@ -69,7 +69,7 @@ def sees_string(model) -> bool:
     encoder reads the programme and nothing of the string; a motor's or a torque drive's body does
     respond to the string."""
     from models.rig.spec import NODE_DRIVE
-    if model.drive_kind != "speed":
+    if model.drive.on_body:
         return True
     return any(s.kind == "torque" or (s.kind in ("encoder", "speed") and s.target != NODE_DRIVE)
                for s in model.spec.sensors)
@@ -151,14 +151,14 @@ class ControlContext:
         input; a torque drive's ``[control] speed`` profile, else the rig file's operating-point
         ``speed`` (a torque programme sets no speed)."""
         m = self.model
-        if m.drive_kind != "torque":
+        if m.drive.sets_speed:
             return self.scheduled(t, m.drive_input)
         return float(self.speed(t)) if self.speed is not None else m.nominal_speed()
 
     @property
     def torque_max(self) -> float:
-        """A torque drive's torque limit [N m] (``[drive] torque_max``; inf: none)."""
-        return float(self.model.spec.drive.torque_max)
+        """The drive's torque limit [N m] (a torque drive's ``[drive] torque_max``; inf: none)."""
+        return float(self.model.drive.torque_limit(self.params))
 
     def scheduled(self, t: float, name: str) -> float:
         """The programme's value of input ``name`` at ``t`` (one input's profile when the context
@@ -176,13 +176,13 @@ class ControlContext:
         if unknown:
             raise ConfigError(f"{self.where}: unknown need(s) {', '.join(map(repr, unknown))}; expected some of "
                               f"{', '.join(NEEDS)}")
-        drive = m.drive_body if m.drive_kind != "speed" else "drive"
+        drive = m.drive_node
         for n in needs:
             if n == "drive_speed" and m.speed_channel(drive) is None:
                 out.append(f"the drive's speed (add an encoder or speed sensor on body {drive!r})")
             elif n == "drive_torque" and not any(s.kind == "torque" and s.target == "drive" for s in m.sensors):
                 out.append("the torque at the drive (add a torque sensor with at = \"drive\")")
-            elif n == "speed_drive" and m.drive_kind == "torque":
+            elif n == "speed_drive" and not m.drive.sets_speed:
                 out.append(f"a speed-setting drive (rig {m.name!r} has a torque drive, input {m.drive_input!r} [N m])")
             elif n == "servo" and not m.servo_inputs:
                 out.append(f"a servo on a contact's normal force (rig {m.name!r} has no actuator: add an "

@@ -63,7 +63,7 @@ def _path(model, start: str, end: str) -> list:
 
 def drive_inertia(model, params) -> float:
     """The drive body's total inertia (a DC motor's ``ratio^2 Jm`` included) [kg m^2]; 0 for a speed drive."""
-    if model.drive_kind == "speed":
+    if not model.drive.on_body:
         return 0.0
     return float(model.inertia(model.spec.drive.body, params.as_dict()))
 
@@ -110,7 +110,7 @@ def absorber_frequency(model, params, Kp: float) -> float:
     import scipy.linalg
     from models.modal import chain_matrices
     body = model.spec.drive.body
-    if model.drive_kind == "speed" or body not in model.bodies:
+    if not model.drive.on_body or body not in model.bodies:
         return stick_slip_frequency(model, params)
     M, Cd, K, _ = chain_matrices(model, params, clamped=False, damped=True)
     d = list(model.bodies).index(body)
@@ -185,7 +185,7 @@ def drive_speed_channel(context) -> str:
     """The measured channel of the drive's speed (a DC motor's or torque drive's body, or a speed
     drive's encoder), or a one-line ConfigError."""
     m = context.model
-    ch = m.speed_channel(m.drive_body) if m.drive_kind != "speed" else m.speed_channel("drive")
+    ch = m.speed_channel(m.drive_node)
     if ch is None:
         raise ConfigError(f"{context.where}: needs the drive's speed, which rig {m.name!r} does not measure "
                           f"(add an encoder or speed sensor on {m.drive_body or 'the drive'!r})")
@@ -226,19 +226,8 @@ class PipeTorque:
         self.torque_ch = drive_torque_channel(context)
         self.dt = context.period
         self.tau, self.tau_acc = tau, tau_acc
-        self.friction = None
-        if m.drive_kind == "dc_motor":
-            d = m.spec.drive
-            eta, Jm = d.param("ratio").value(P), d.param("Jm").value(P)
-            sensor = m.sensor_of(self.torque_ch)
-            if sensor.definition == "electromagnetic":
-                self.J = m.inertia(d.body, P)
-                Tf, Cm, eps = d.param("Tf").value(P), d.param("Cm").value(P), d.eps_motor
-                self.friction = lambda w: eta * (Tf * math.tanh(eta * w / eps) + Cm * eta * w)  # noqa: E731
-            else:
-                self.J = eta * Jm
-        else:
-            self.J = drive_inertia(m, context.params)
+        # the sensor reads T_pipe + J w' + friction(w) (models.rig.drives.Drive.pipe_torque_terms)
+        self.J, self.friction = m.drive.pipe_torque_terms(m, m.sensor_of(self.torque_ch), P)
         self.reset()
 
     def reset(self) -> None:

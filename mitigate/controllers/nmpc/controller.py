@@ -139,7 +139,7 @@ class NMPC(Controller):
         drive = m.drive_input
         self.drives = drive in self.inputs
         self.servos = tuple(n for n in self.inputs if n != drive)
-        self._torque_drive = m.drive_kind == "torque"
+        self._torque_drive = not m.drive.sets_speed
         if o.speed is None and self._torque_drive:
             # the scenario's [control] speed (ControlContext.target_speed, as SoftSpeed and Z-Torque);
             # without one the rig's operating_point.speed

@@ -157,7 +157,7 @@ def sliding_is_stable(model, params, u, nominal_speed: float) -> bool | None:
     from models.modal import sliding_stability
     try:
         x_op, u = None, np.asarray(u, float)
-        if model.drive_kind == "torque":
+        if not model.drive.sets_speed:
             u, x_op = model.operating_point(float(nominal_speed), u, params)
             if not (np.all(np.isfinite(x_op)) and np.all(np.isfinite(u))):
                 return None
@@ -168,7 +168,7 @@ def sliding_is_stable(model, params, u, nominal_speed: float) -> bool | None:
 
 def _period(model, params) -> float | None:
     """The rig's stick-slip period [s] (module docstring), or None without a torsional mode."""
-    if model.drive_kind == "torque":
+    if not model.drive.sets_speed:
         from models.modal import modes
         r = modes(model, params, "free", damped=True)
         osc = [f for f, o in zip(r.freq_hz, r.oscillatory) if o and f > 0]
