@@ -127,7 +127,7 @@ def stick_slip_period(path: Path) -> tuple[float, float]:
     from models.signals import dominant_frequency, stick_slip_cycles
 
     base = build(path, estimator="fd", controller=("PI only", "pi", {}))
-    start = base.control_start
+    start = base.control.start
     if start <= 0:
         # prevention from rest: the stick-slip the uncontrolled run develops over 30 s
         base = build(path, estimator="fd", controller=("PI only", "pi", {}), start=0.0,

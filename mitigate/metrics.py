@@ -220,8 +220,8 @@ def programmed_speed(scenario, t: np.ndarray) -> np.ndarray:
     m = scenario.model
     t = np.asarray(t, float)
     if not m.drive.sets_speed:
-        if getattr(scenario, "control_speed", None) is not None:
-            return np.array([scenario.control_speed(tk) for tk in t], float)
+        if scenario.control.speed is not None:
+            return np.array([scenario.control.speed(tk) for tk in t], float)
         v = m.spec.extra.get("operating_point", {}).get("speed")      # SI, resolved by the rig parser
         return np.full(t.shape, float(v) if v is not None else np.nan)
     prof = scenario.inputs[m.drive_input]

@@ -107,13 +107,13 @@ def test_load_suite(suite_dir):
 
 def test_the_suite_sets_every_scenarios_deadline_unless_the_scenario_does(suite_dir):
     s = load_suite(suite_dir / "suite.toml")
-    assert all(sc.control_deadline is None for sc in s.scenarios)
+    assert all(sc.control.deadline is None for sc in s.scenarios)
     text = (suite_dir / "suite.toml").read_text()
     (suite_dir / "on.toml").write_text(text.replace('deadline = "off"', 'deadline = "period"'))
     on = load_suite(suite_dir / "on.toml")
-    assert [sc.control_deadline for sc in on.scenarios] == [sc.dt * sc.control_every for sc in on.scenarios]
+    assert [sc.control.deadline for sc in on.scenarios] == [sc.dt * sc.control.every for sc in on.scenarios]
     (suite_dir / "ms.toml").write_text(text.replace('deadline = "off"', 'deadline = "7 ms"'))
-    assert [sc.control_deadline for sc in load_suite(suite_dir / "ms.toml").scenarios] == pytest.approx([0.007] * 3)
+    assert [sc.control.deadline for sc in load_suite(suite_dir / "ms.toml").scenarios] == pytest.approx([0.007] * 3)
     (suite_dir / "bad.toml").write_text(text.replace('deadline = "off"', "deadline = true"))
     with pytest.raises(ConfigError, match="suite.deadline must be"):
         load_suite(suite_dir / "bad.toml")

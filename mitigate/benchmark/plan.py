@@ -102,7 +102,7 @@ def reference_run(scenario, metrics: MetricOptions = MetricOptions()) -> Referen
         t_rig = rig_period(sc.model, sc.model_params)
     except ConfigError:
         t_rig = float("nan")
-    start = sc.control_start
+    start = sc.control.start
     guess = t_rig if math.isfinite(t_rig) else sc.duration / 10
     extra = 2 * guess
     run = run_closed_loop(sc.replace(duration=sc.duration + extra, controllers=()),
@@ -150,10 +150,10 @@ def task_scenario(task: RunTask):
     shift), its noise from ``task.run_seed``, only the task's controller with the task's options."""
     from mitigate.scenario import ControllerSpec
     sc = task.scenario
-    shift = max(0.0, task.switch_on - sc.control_start)
+    shift = max(0.0, task.switch_on - sc.control.start)
     spec = next(c for c in sc.controllers if c.name == task.controller)
-    return sc.replace(duration=sc.duration + shift, control_start=task.switch_on, seed=task.run_seed,
-                      sim=dataclasses.replace(sc.sim, seed=task.run_seed),
+    return sc.replace(duration=sc.duration + shift, control=dataclasses.replace(sc.control, start=task.switch_on),
+                      seed=task.run_seed, sim=dataclasses.replace(sc.sim, seed=task.run_seed),
                       controllers=(ControllerSpec(spec.name, spec.kind, dict(task.options)),))
 
 
@@ -180,7 +180,7 @@ def make_tasks(suite, references: Mapping[str, Reference], *, phases: int, seeds
                 continue
             opts = dict((options or {}).get((sc.name, c.name), c.options))
             for k in range(phases):
-                t_on = sc.control_start + (0.0 if ref.prevention else k * ref.period / phases)
+                t_on = sc.control.start + (0.0 if ref.prevention else k * ref.period / phases)
                 for j in range(seeds):
                     s = run_seed(sc.seed, k, j)
                     tasks.append(RunTask(sc, c.name, k, j, round(t_on, 9), s, opts, mo, tag))

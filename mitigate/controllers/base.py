@@ -46,6 +46,7 @@ from models.errors import ConfigError, PluginError, SolverFailure, quote
 from models.params import ParameterSet
 from models.sensors import SensorOptions
 from models.status import Status
+from mitigate.scenario_fields import ControlSection
 
 __all__ = ["Action", "Controller", "ControllerCounts", "ControlContext", "NEEDS", "reading", "sees_string"]
 
@@ -120,31 +121,46 @@ class ControlContext:
     ----------
     model : the rig (:class:`models.rig.RigModel`) the controller believes
     params : its nominal parameters (never the plant's true ones)
-    dt : DAQ period [s]; period : the controller's call period [s] (``dt`` x ``control.every``)
+    dt : DAQ period [s]
     programme : ``t -> (nu,)`` the scenario's scheduled inputs in ``model.inputs`` order
         (the speed programme, the normal forces)
-    schedule : ``{input: t -> value}``, the same per input (faster for a law that needs one)
     sensors : the sensor settings (noise levels follow from the rig file and these)
-    where : prefix of error messages (``"scenario.toml: controllers[2]"``)
-    deadline : wall time a call may take [s] before its answer counts as a deadline miss and the
-        fallback acts instead (None: no deadline; ``[control] deadline``)
-    timeout : wall time after which a call that has not returned fails the run [s]
-        (``[control] timeout``; None: never)
-    speed : a torque drive's target speed ``t -> [rad/s]`` (the scenario's ``[control] speed``), or
-        None (:meth:`target_speed`)
+    where : prefix of error messages (``"scenario.toml: controller 2 'NMPC'"``)
+    schedule : ``{input: t -> value}``, the same per input (faster for a law that needs one)
+    control : the scenario's ``[control]`` section, whole (:class:`mitigate.scenario_fields.ControlSection`):
+        the call period (:attr:`period`), the ``deadline`` a call may take before its answer counts as a
+        deadline miss and the fallback acts, the ``timeout`` after which a call that has not returned fails
+        the run, a torque drive's target ``speed`` (:meth:`target_speed`)
     """
 
     model: Any
     params: ParameterSet
     dt: float
-    period: float
     programme: Callable[[float], np.ndarray]
     sensors: SensorOptions = SensorOptions()
     where: str = "controller"
     schedule: Mapping[str, Callable[[float], float]] = field(default_factory=dict)
-    deadline: float | None = None
-    timeout: float | None = None
-    speed: Callable[[float], float] | None = None
+    control: ControlSection = ControlSection()
+
+    @property
+    def period(self) -> float:
+        """The controller's call period [s] (``dt`` x ``control.every``)."""
+        return self.control.period(self.dt)
+
+    @property
+    def deadline(self) -> float | None:
+        """``control.deadline`` [s] or None."""
+        return self.control.deadline
+
+    @property
+    def timeout(self) -> float | None:
+        """``control.timeout`` [s] or None."""
+        return self.control.timeout
+
+    @property
+    def speed(self) -> Callable[[float], float] | None:
+        """``control.speed``: a torque drive's target speed ``t -> [rad/s]``, or None."""
+        return self.control.speed
 
     def target_speed(self, t: float) -> float:
         """The drive speed the programme asks for at ``t`` [rad/s]: a speed-setting drive's scheduled
