@@ -138,9 +138,8 @@ class MetricOptions:
 
     Parameters
     ----------
-    period : the stick-slip period [s] that sets the windows (None: the rig's lowest torsional mode
-        with the drive held, :func:`rig_period`; the benchmark passes the period it measured on the
-        uncontrolled run)
+    period : the stick-slip period [s] that sets the windows (None: the rig's estimate,
+        :func:`rig_period`; the benchmark passes the period it measured on the uncontrolled run)
     residual_periods : length of the residual window in periods [-] (3; whole periods, see below)
     residual_fraction : the residual window is at most this fraction of the controlled part [-]
         (0.5: the first half holds the switch-on transient); it is a whole number of periods (at
@@ -207,10 +206,10 @@ class MetricOptions:
 
 
 def rig_period(model, params) -> float:
-    """The rig's stick-slip period estimate [s]: its lowest torsional mode with the drive held
-    (:func:`mitigate.controllers.tuning.stick_slip_frequency`)."""
-    from mitigate.controllers.tuning import stick_slip_frequency
-    return 1.0 / stick_slip_frequency(model, params)
+    """The rig's stick-slip period estimate [s] (:func:`models.modal.stick_slip_period`: its lowest
+    torsional mode with its drive's boundary condition)."""
+    from models.modal import stick_slip_period
+    return stick_slip_period(model, params)
 
 
 def programmed_speed(scenario, t: np.ndarray) -> np.ndarray:
@@ -292,7 +291,7 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
     if period is None:
         try:
             period = rig_period(scenario.model, scenario.model_params)
-        except ConfigError:          # no torsional mode with the drive held: a quarter of the controlled part
+        except ConfigError:          # no torsional mode: a quarter of the controlled part
             period = span / 4
     res_win, win, mov_win = windows(o, period, span, dt)
     n_res = max(2, min(len(w), int(round(res_win / dt))))

@@ -158,7 +158,7 @@ class RigScales:
 
     speed : nominal speed [rad/s]; torque : largest steady shaft torque at the operating point
     [N m]; twist : largest steady twist [rad]; current : a DC motor's current limit [A] (nan:
-    none); period : the drive-held chain's lowest period [s]
+    none); period : the rig's stick-slip period [s] (:func:`models.modal.stick_slip_period`)
     """
 
     speed: float
@@ -196,7 +196,7 @@ def by_speed(value_at_rig3: float, model) -> float:
 
 def rig_scales(model, params) -> RigScales:
     """The :class:`RigScales` of a rig at its nominal operating point (steady sliding)."""
-    from models.modal import operating_point, modes
+    from models.modal import operating_point, stick_slip_period
     P = params.as_dict()
     u, x = operating_point(model, params)
     if x is None:
@@ -207,9 +207,7 @@ def rig_scales(model, params) -> RigScales:
     speed = speed_scale(model)
     current = model.drive.current_limit(P)
     try:
-        r = modes(model, params, "clamped" if model.drive.on_body else "free")
-        osc = [f for f, o in zip(r.freq_hz, r.oscillatory) if o and f > 0]
-        period = 1.0 / osc[0] if osc else REFERENCE.period
+        period = stick_slip_period(model, params)
     except ConfigError:
         period = REFERENCE.period
     ref = REFERENCE

@@ -47,7 +47,7 @@ class Reference:
     scenario : its name
     period : the stick-slip period [s] the phases and the metric windows use
     period_source : "measured" (stick-slip cycles of the objective body before the switch-on),
-        "spectrum" (its dominant frequency) or "rig" (the rig's lowest mode with the drive held)
+        "spectrum" (its dominant frequency) or "rig" (the rig's estimate, :func:`models.modal.stick_slip_period`)
     prevention : the control starts at t = 0 (no stick-slip at the switch-on by design)
     stick_slip : the objective body sticks and slips in the period before the switch-on
     severity_before : severity of that period against the programmed speed [-]
@@ -131,7 +131,7 @@ def reference_run(scenario, metrics: MetricOptions = MetricOptions()) -> Referen
             period, source = t_rig, "rig"
         else:
             raise ConfigError(f"{sc.where}: no stick-slip period: the uncontrolled run does not oscillate and "
-                              f"rig {sc.model.name!r} has no torsional mode with the drive held")
+                              f"rig {sc.model.name!r} has no torsional mode")
     # stick-slip at the switch-on: the body stuck at least once in the two periods before it, and the
     # severity of that stretch above the suppression threshold (a run that diverged has none)
     k0 = int(round(start / dt))

@@ -16,9 +16,10 @@ instead of reflecting it (reflection coefficient ``(Z - c)/(Z + c)``); for one l
 spring with a damper ``c`` at its far end, ``c = sqrt(k J)`` is also the damper that damps the
 mode most.
 
-The stick-slip frequency is near the lowest torsional mode of the chain with its drive held
-(:func:`stick_slip_frequency`, from :func:`models.modal.modes` ``"clamped"``; rig3: 0.428 Hz,
-its stick-slip cycle at 30 rpm and 20 N is ~2.3 s, 0.44 Hz).
+The stick-slip frequency is near the lowest torsional mode of the chain with the boundary its
+drive puts on the top (:func:`models.modal.stick_slip_frequency`, re-exported here: held by a
+speed-setting drive, rig3: 0.428 Hz, its stick-slip cycle at 30 rpm and 20 N is ~2.3 s, 0.44 Hz;
+free with its inertia under a torque drive).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import numpy as np
 
 from mitigate.controllers.base import reading
 from models.errors import ConfigError
+from models.modal import stick_slip_frequency
 
 __all__ = ["DriveTuning", "string_impedance", "stick_slip_frequency", "drive_inertia", "tuning_for",
            "absorber_frequency", "VirtualDrive"]
@@ -82,16 +84,6 @@ def string_impedance(model, params, body: str | None = None) -> tuple[float, flo
     nodes = {x for c in springs for x in (c.a, c.b)} - {start, "drive", "ground"}
     J = sum(model.inertia(b, P) for b in nodes)
     return math.sqrt(k * J), k, J
-
-
-def stick_slip_frequency(model, params) -> float:
-    """The lowest torsional mode of the chain with the drive held [Hz] (the stick-slip band)."""
-    from models.modal import modes
-    r = modes(model, params, "clamped", damped=True)
-    osc = [f for f, o in zip(r.freq_hz, r.oscillatory) if o and f > 0]
-    if not osc:
-        raise ConfigError(f"rig {model.name!r} has no torsional mode with its drive held")
-    return float(osc[0])
 
 
 def absorber_frequency(model, params, Kp: float) -> float:
@@ -152,7 +144,8 @@ class VirtualDrive:
 class DriveTuning:
     """What the industry's tuning rules need, derived from a rig (see module docstring).
 
-    Z [N m s/rad], k_string [N m/rad], J_string [kg m^2], J_drive [kg m^2], f_ss [Hz]
+    Z [N m s/rad], k_string [N m/rad], J_string [kg m^2], J_drive [kg m^2], f_ss [Hz] (the rig's
+    stick-slip frequency, :func:`models.modal.stick_slip_frequency`)
     """
 
     Z: float
