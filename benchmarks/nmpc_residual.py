@@ -160,7 +160,7 @@ def run_metrics(res, sc, period: float) -> dict:
     after = max(t[-1] - res.control_start, dt)
     win = min(max(RESIDUAL_MIN_S, RESIDUAL_PERIODS * period), 0.5 * after)
     last = t >= t[-1] - win + 0.5 * dt
-    if model.drive_kind == "torque":
+    if not model.drive.sets_speed:
         nominal = float(model.spec.extra.get("operating_point", {}).get("speed", float("nan")))
         w_prog = np.full(len(t), nominal)
     else:

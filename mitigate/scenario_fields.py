@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -69,6 +70,10 @@ class ControlSection:
     def period(self, dt: float) -> float:
         """The controllers' call period [s] for a DAQ period ``dt`` [s]."""
         return dt * self.every
+
+    def replace(self, **changes) -> "ControlSection":
+        """The section with ``changes`` (e.g. ``scenario.control.replace(start=5.0)``)."""
+        return dataclasses.replace(self, **changes)
 
 
 def parse_control(ctl: Mapping, model, dt: float, duration: float, where: str) -> ControlSection:

@@ -133,7 +133,7 @@ def test_switch_on_phases_span_one_measured_period_and_seeds_come_from_scenario_
         {run_seed(8, k, j) for k in range(4) for j in range(3)}
     assert run_seed(8, 1, 2) == run_seed(8, 1, 2) != run_seed(8, 2, 1)
     # a prevention scenario (control from t = 0) varies only the seed: K x S distinct seeds
-    prev = s.scenarios[0].replace(control_start=0.0)
+    prev = s.scenarios[0].replace(control=s.scenarios[0].control.replace(start=0.0))
     pref = reference_run(prev, s.metrics)
     assert pref.prevention and not pref.stick_slip
     pt = make_tasks(s.__class__(s.name, "", (prev,), s.controllers, metrics=s.metrics), {"drill": pref}, phases=3,

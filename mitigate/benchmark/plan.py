@@ -152,7 +152,7 @@ def task_scenario(task: RunTask):
     sc = task.scenario
     shift = max(0.0, task.switch_on - sc.control.start)
     spec = next(c for c in sc.controllers if c.name == task.controller)
-    return sc.replace(duration=sc.duration + shift, control=dataclasses.replace(sc.control, start=task.switch_on),
+    return sc.replace(duration=sc.duration + shift, control=sc.control.replace(start=task.switch_on),
                       seed=task.run_seed, sim=dataclasses.replace(sc.sim, seed=task.run_seed),
                       controllers=(ControllerSpec(spec.name, spec.kind, dict(task.options)),))
 
