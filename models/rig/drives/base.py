@@ -91,28 +91,6 @@ class Drive:
     definitions: ClassVar[tuple[str, ...]] = ()
     geared: ClassVar[bool] = False
 
-    def __init__(self, spec: DriveSpec):
-        self.spec = spec
-
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}({self.kind!r}, input {self.input!r}{f', body {self.body!r}' if self.on_body else ''})"
-
-    # ------------------------------------------------------------------ the declaration's answers
-    @property
-    def input(self) -> str:
-        """The drive's input (a speed set-point, a prescribed speed or a torque)."""
-        return self.spec.input
-
-    @property
-    def body(self) -> str:
-        """The body the drive acts on ("" when it prescribes the node ``"drive"``)."""
-        return self.spec.body
-
-    @property
-    def node(self) -> str:
-        """The node whose speed is the drive's: its body, or ``"drive"``."""
-        return self.spec.body if self.on_body else NODE_DRIVE
-
     #: whether the input is a speed (a set-point the drive follows, or the speed it prescribes): the
     #: programme then sets the rig's sliding speed; a torque input leaves the speed to the balance of
     #: torques (the operating point solves it).  Follows from :attr:`setpoint`.
@@ -140,6 +118,29 @@ class Drive:
         cls.unit = SI_UNITS.get(cls.setpoint, "")
         cls.rate_unit = {"speed": "rad/s^2", "torque": "N m/s"}.get(cls.setpoint, "")
 
+    def __init__(self, spec: DriveSpec):
+        self.spec = spec
+
+    def __repr__(self) -> str:
+        body = f", body {self.body!r}" if self.on_body else ""
+        return f"{type(self).__name__}({self.kind!r}, input {self.input!r}{body})"
+
+    # ------------------------------------------------------------------ the declaration's answers
+    @property
+    def input(self) -> str:
+        """The drive's input (a speed set-point, a prescribed speed or a torque)."""
+        return self.spec.input
+
+    @property
+    def body(self) -> str:
+        """The body the drive acts on ("" when it prescribes the node ``"drive"``)."""
+        return self.spec.body
+
+    @property
+    def node(self) -> str:
+        """The node whose speed is the drive's: its body, or ``"drive"``."""
+        return self.spec.body if self.on_body else NODE_DRIVE
+
     def param(self, name: str) -> Ref | None:
         """The reference of drive parameter ``name``, or None."""
         return self.spec.param(name)
@@ -147,7 +148,9 @@ class Drive:
     # ------------------------------------------------------------------ rig file
     @classmethod
     def allowed_keys(cls) -> set[str]:
-        return {"kind", "input", "doc"} | ({"body"} if cls.on_body else set()) | {f.name for f in cls.fields} | set(cls.keys)
+        """The keys its ``[drive]`` table may hold."""
+        body = {"body"} if cls.on_body else set()
+        return {"kind", "input", "doc"} | body | {f.name for f in cls.fields} | set(cls.keys)
 
     @classmethod
     def parse_settings(cls, table: Mapping[str, Any], ctx) -> dict:
@@ -157,8 +160,8 @@ class Drive:
 
     @classmethod
     def reflected_inertia(cls, value: Callable[[Ref | None], Any], spec: DriveSpec):
-        """The inertia the drive adds to its body [kg m^2] (a rotor through a gearbox), given
-        ``value(ref)`` of its parameters (symbolic or numeric; None while unknown, then None)."""
+        """The inertia a :attr:`geared` drive adds to its body [kg m^2] (its rotor through the gearbox),
+        given ``value(ref)`` of its parameters (symbolic or numeric; None while unknown, then None)."""
         return 0.0
 
     # ------------------------------------------------------------------ dynamics

@@ -105,7 +105,8 @@ class DCMotor(Drive):
         if friction:
             wm = eta * x[model.speed_index(d.body)]
             tanh = ca.tanh if _sym(wm) or _sym(T) else np.tanh
-            T = T - eta * (d.param("Tf").value(P, u_named) * tanh(wm / d.eps_motor) + d.param("Cm").value(P, u_named) * wm)
+            T = T - eta * (d.param("Tf").value(P, u_named) * tanh(wm / d.eps_motor)
+                           + d.param("Cm").value(P, u_named) * wm)
         return T
 
     # ------------------------------------------------------------------ Drive
