@@ -71,7 +71,7 @@ def run(solver: str, horizon: int, duration: float, inputs: str, extra: dict, we
     pp = plant_params(mismatch)
     x0, t0 = stick_slip_start(mismatch)
     u_prog = np.array([W0, N1, 0.0])
-    ctx = ControlContext(m, p, DT, DT, lambda t: u_prog, where="bench")
+    ctx = ControlContext(m, p, DT, lambda t: u_prog, where="bench")
     opts = NMPCOptions(horizon=horizon, solver=solver, inputs=inputs,
                        weights=NMPCWeights(**(weights or {})), **extra)
     t_build = time.perf_counter()
@@ -133,7 +133,7 @@ def qp_study(horizon: int, duration: float, repeats: int = 3) -> list[dict]:
     p = m.published()
     x0, t0 = stick_slip_start()
     u_prog = np.array([W0, N1, 0.0])
-    c = NMPC(NMPCOptions(horizon=horizon), ControlContext(m, p, DT, DT, lambda t: u_prog, where="bench"))
+    c = NMPC(NMPCOptions(horizon=horizon), ControlContext(m, p, DT, lambda t: u_prog, where="bench"))
     qp = c.ocp.qp
     recorded = []
     solve = qp.solve

@@ -127,7 +127,7 @@ def stick_slip_period(path: Path) -> tuple[float, float]:
     from models.signals import dominant_frequency, stick_slip_cycles
 
     base = build(path, estimator="fd", controller=("PI only", "pi", {}))
-    start = base.control_start
+    start = base.control.start
     if start <= 0:
         # prevention from rest: the stick-slip the uncontrolled run develops over 30 s
         base = build(path, estimator="fd", controller=("PI only", "pi", {}), start=0.0,
@@ -160,7 +160,7 @@ def run_metrics(res, sc, period: float) -> dict:
     after = max(t[-1] - res.control_start, dt)
     win = min(max(RESIDUAL_MIN_S, RESIDUAL_PERIODS * period), 0.5 * after)
     last = t >= t[-1] - win + 0.5 * dt
-    if model.drive_kind == "torque":
+    if not model.drive.sets_speed:
         nominal = float(model.spec.extra.get("operating_point", {}).get("speed", float("nan")))
         w_prog = np.full(len(t), nominal)
     else:

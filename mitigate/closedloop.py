@@ -207,9 +207,9 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
     if plant is None:
         plant = Plant(pm, scenario.plant_params, scenario.sim, sensors=scenario.sensors, u0=u0,
                       drift=scenario.drift)
-    timeout = getattr(scenario, "control_timeout", None)
-    deadline = getattr(scenario, "control_deadline", None)
-    latency = getattr(scenario, "control_latency", 0.0)
+    timeout = scenario.control.timeout
+    deadline = scenario.control.deadline
+    latency = scenario.control.latency
     if estimator is None:
         from estimators.base import EstimatorContext
         from estimators.online.factory import make_estimator
@@ -217,8 +217,8 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
         x0 = model.steady_sliding(u0, scenario.model_params) if scenario.sim.start == "sliding" else np.zeros(model.nx)
         estimator = make_estimator(scenario.estimator, EstimatorContext(
             model, scenario.model_params, dt, scenario.sensors, x0, f"{scenario.where}: estimator", timeout))
-    k_start = int(math.ceil(scenario.control_start / dt - 1e-9))
-    every = scenario.control_every
+    k_start = int(math.ceil(scenario.control.start / dt - 1e-9))
+    every = scenario.control.every
     twist_map = model_twists(model, pm)
     twist_names = tuple(f"twist_{c.name}" for c in model.spec.connections if c.stiffness is not None)
     speed_idx = np.array([pm.speed_index(b) for b in pm.bodies])
@@ -376,7 +376,7 @@ def _warnings(scenario, controller, estimator, commands, active, first_fallback)
         warn = warn or fb > FALLBACK_WARN_FRACTION * calls
         notes.append(detail)
     chatter = []
-    prog = np.array([scenario.programme(t) for t in (scenario.control_start, scenario.duration)])
+    prog = np.array([scenario.programme(t) for t in (scenario.control.start, scenario.duration)])
     for name, cmd in commands.items():
         c = np.asarray(cmd)[active]
         j = scenario.model.inputs.index(name)
@@ -386,7 +386,7 @@ def _warnings(scenario, controller, estimator, commands, active, first_fallback)
     if chatter:
         warn = True
         try:
-            tv = plugins.call(controller.tuning_values, timeout=getattr(scenario, "control_timeout", None)) \
+            tv = plugins.call(controller.tuning_values, timeout=scenario.control.timeout) \
                 if hasattr(controller, "tuning_values") else {}
         except PluginError:
             tv = {}

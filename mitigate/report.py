@@ -36,7 +36,7 @@ def verdict_entries(sc, runs) -> dict:
     """``{controller name: Entry}`` (:func:`mitigate.benchmark.stats.summarise` of each single run)."""
     from mitigate.benchmark.stats import summarise
     from mitigate.record import BenchmarkRun, RunRecord
-    recs = [RunRecord.measured(BenchmarkRun(r.name, sc.name, r.name, 0, 0, sc.control_start, sc.seed), r.status,
+    recs = [RunRecord.measured(BenchmarkRun(r.name, sc.name, r.name, 0, 0, sc.control.start, sc.seed), r.status,
                                r.message, r.metrics, elapsed=r.elapsed) for r in runs]
     return {c: e for (_s, c), e in summarise(recs, {r.name: r.kind for r in runs}).items()}
 
@@ -74,7 +74,7 @@ def _verdicts(sc, runs) -> list[str]:
     """One sentence per controller, and under it the tuning values it ran with."""
     from mitigate.benchmark.render import verdict
     entries = verdict_entries(sc, runs)
-    prog_force = any(sc.inputs[n](sc.control_start) > 0 for n in sc.model.servo_inputs)
+    prog_force = any(sc.inputs[n](sc.control.start) > 0 for n in sc.model.servo_inputs)
     L = ["## Verdicts", ""]
     for r in runs:
         L.append(f"- {verdict(entries[r.name], None, prog_force)}")
@@ -88,10 +88,10 @@ def _timing(sc, runs) -> list[str]:
     rows = [r for r in runs if math.isfinite(float(r.metrics.get("plan_p95_ms", math.nan)))]
     if not rows:
         return []
-    period = 1e3 * sc.dt * sc.control_every
+    period = 1e3 * sc.dt * sc.control.every
     L = ["## Time per controller call", "",
          f"Wall time of the controller's calls in this run (median / p95 / max), against its control period of "
-         f"{period:.3g} ms (a call every {sc.control_every} DAQ sample(s)); a p95 above it would not keep up on "
+         f"{period:.3g} ms (a call every {sc.control.every} DAQ sample(s)); a p95 above it would not keep up on "
          "the rig.", ""]
     for r in rows:
         m = r.metrics
@@ -105,13 +105,13 @@ def render_report(sc, result, files, slug_names) -> str:
     """The markdown text (relative links to the files in the same folder)."""
     runs = result.runs
     rel = {k: Path(v).name for k, v in files.items()}
-    period = sc.dt * sc.control_every
+    period = sc.dt * sc.control.every
     body = sc.model.objective_body
     L = [f"# Scenario `{sc.name}`", "", sc.description or "", "",
          f"- rig: `{sc.model.name}`" + (f" ({sc.model.description})" if sc.model.description else "")
          + f"; scenario file: `{sc.path or '(built in Python)'}`",
          f"- duration {sc.duration:g} s, DAQ period {1e3 * sc.dt:g} ms, controllers run every "
-         f"{sc.control_every} sample(s) ({1e3 * period:g} ms), switched on at t = {sc.control_start:g} s "
+         f"{sc.control.every} sample(s) ({1e3 * period:g} ms), switched on at t = {sc.control.start:g} s "
          "(the programme alone before)",
          f"- plant: `{sc.sim.method}` stepping ({sc.sim.nsub} substeps), start from {sc.sim.start}; "
          f"parameter mismatch {dict(sc.mismatch) if sc.mismatch else 'none'}; structure "

@@ -149,7 +149,7 @@ def _build_all(sc: Scenario) -> dict[int, str]:
     broken: dict[int, str] = {}
     try:
         make_estimator(sc.estimator, EstimatorContext(sc.model, sc.model_params, sc.dt, sc.sensors, None,
-                                                      f"{sc.where}: estimator", sc.control_timeout))
+                                                      f"{sc.where}: estimator", sc.control.timeout))
     except PluginError as exc:
         broken = {i: f"estimator failed to build: {exc}" for i in range(len(sc.controllers))}
     for i, spec in enumerate(sc.controllers):

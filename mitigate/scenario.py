@@ -72,7 +72,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from models.checks import finite_number as _num, read_toml
-from models.errors import ConfigError, quote
+from models.errors import ConfigError
 from models.params import ParameterSet
 from models.plant import SimOptions, plant_integration
 from models.rig import RigModel, get_model, load_params
@@ -80,11 +80,11 @@ from models.sensors import SensorOptions
 from mitigate.profiles import Profile, parse_profile
 # limits and field converters live in mitigate.scenario_fields; their public names are also read from here
 from mitigate.scenario_fields import (BYTES_PER_SAMPLE, DEFAULT_TIMEOUT, MAX_CALL_TIME, MAX_SAMPLES,
-                                      MAX_SPEED_FACTOR, TIMEOUT_PERIODS, check_keys, check_size, control_timing,
-                                      default_max_speed, memory_bytes, si_value, table)
+                                      MAX_SPEED_FACTOR, TIMEOUT_PERIODS, ControlSection, check_keys, check_size,
+                                      default_max_speed, memory_bytes, parse_control, si_value, table)
 from mitigate.scenario_structure import apply_structure
 
-__all__ = ["Scenario", "ControllerSpec", "load_scenario", "parse_scenario", "make_scenario", "controller_where",
+__all__ = ["Scenario", "ControllerSpec", "ControlSection", "load_scenario", "parse_scenario", "make_scenario", "controller_where",
            "MAX_SAMPLES", "BYTES_PER_SAMPLE", "DEFAULT_TIMEOUT", "TIMEOUT_PERIODS", "MAX_CALL_TIME",
            "MAX_SPEED_FACTOR", "memory_bytes", "default_max_speed"]
 
@@ -121,9 +121,8 @@ class Scenario:
     sim, sensors : plant simulator and sensor settings
     drift : ``{parameter: relative rate [1/s]}`` of the plant (wear)
     messages : notes made while building it (e.g. substeps raised for a stiff plant)
-    control_deadline, control_timeout : [s] or None (``[control] deadline`` / ``timeout``)
-    control_latency : [s] applied to each controller answer, or "measured" (its own wall time)
-    control_speed : a torque drive's target speed (``[control] speed``, a Profile [rad/s]) or None
+    control : the ``[control]`` section (:class:`mitigate.scenario_fields.ControlSection`: start, every,
+        deadline, timeout, latency, a torque drive's target speed)
     """
 
     name: str
@@ -138,12 +137,7 @@ class Scenario:
     sim: SimOptions
     sensors: SensorOptions = SensorOptions()
     description: str = ""
-    control_start: float = 0.0
-    control_every: int = 1
-    control_deadline: float | None = None
-    control_timeout: float | None = None
-    control_latency: float | str = 0.0
-    control_speed: Any = None
+    control: ControlSection = ControlSection()
     estimator: Mapping[str, Any] = field(default_factory=lambda: {"kind": "ekf"})
     controllers: tuple[ControllerSpec, ...] = ()
     mismatch: Mapping[str, float] = field(default_factory=dict)
@@ -293,22 +287,7 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
         inputs[n] = parse_profile(inp[n], f"{where}: inputs.{n}", duration, quantity=kind,
                                   nonnegative=(kind == "force"), base=base)
 
-    ctl = table(data, "control", where)
-    check_keys(ctl, {"start", "every", "deadline", "timeout", "latency", "speed"}, f"{where}: control")
-    control_speed = None
-    if "speed" in ctl:
-        if model.drive_kind != "torque":
-            raise ConfigError(f"{where}: control.speed applies to a torque drive; rig {model.name!r} sets its speed "
-                              f"through input {model.drive_input!r} (give it in [inputs])")
-        control_speed = parse_profile(ctl["speed"], f"{where}: control.speed", duration, quantity="speed")
-    cstart = _num(ctl.get("start", 0.0), f"{where}: control.start", nonneg=True, unit="s")
-    if cstart >= duration:
-        raise ConfigError(f"{where}: control.start must be < scenario.duration = {duration:g} s (the controllers "
-                          f"would never act), got {cstart:g} s")
-    every = ctl.get("every", 1)
-    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-        raise ConfigError(f"{where}: control.every must be an integer >= 1, got {quote(every)}")
-    deadline, timeout, latency = control_timing(ctl, dt * every, f"{where}: control")
+    control = parse_control(table(data, "control", where), model, dt, duration, where)
 
     est = dict(table(data, "estimator", where)) or {"kind": "ekf"}
     if not isinstance(est.get("kind", "ekf"), str):
@@ -333,7 +312,7 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
     sweep = dict(table(data, "sweep", where))
     u0 = np.array([inputs[n](0.0) for n in model.inputs])
     if max_speed is None:
-        max_speed = default_max_speed(model, inputs, control_speed, duration)
+        max_speed = default_max_speed(model, inputs, control.speed, duration)
     # the plant states how it integrates when the rule changes what the scenario asked for
     # (more substeps for a stiff rig, the current of a fast motor quasi-static)
     integ = plant_integration(plant_model, plant_params, sim, u0)
@@ -342,9 +321,8 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
         sim = dataclasses.replace(sim, nsub=integ.nsub)
     return Scenario(name=name.strip(), model=model, model_params=nominal, plant_model=plant_model,
                     plant_params=plant_params, duration=duration, dt=dt, seed=seed, inputs=inputs, sim=sim,
-                    sensors=sensors, description=str(sc.get("description", "")), control_start=cstart,
-                    control_every=every, control_deadline=deadline, control_timeout=timeout,
-                    control_latency=latency, control_speed=control_speed, estimator=est, controllers=tuple(ctrls), mismatch=factors,
+                    sensors=sensors, description=str(sc.get("description", "")), control=control,
+                    estimator=est, controllers=tuple(ctrls), mismatch=factors,
                     structure=structure, drift=drift, max_speed=max_speed, sweep=sweep, path=str(path or ""),
                     messages=tuple(notes))
 

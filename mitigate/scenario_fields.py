@@ -1,16 +1,19 @@
 """The scenario file's limits and field converters (:mod:`mitigate.scenario` reads a file with them).
 
-What a run may cost (samples, this machine's memory), the ``[control]`` timing fields, quantities
-converted to SI, the tables and keys a section may hold, and ``[plant] max_speed``'s default.
-Every error is one line naming the field (``where``).
+What a run may cost (samples, this machine's memory), the ``[control]`` section
+(:class:`ControlSection`, parsed once by :func:`parse_control` and carried whole to the
+controllers), quantities converted to SI, the tables and keys a section may hold, and
+``[plant] max_speed``'s default.  Every error is one line naming the field (``where``).
 """
 
 from __future__ import annotations
 
 import math
 import os
+import dataclasses
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -21,7 +24,7 @@ from models.units import parse_quantity
 
 __all__ = ["MAX_SAMPLES", "BYTES_PER_SAMPLE", "DEFAULT_TIMEOUT", "TIMEOUT_PERIODS", "MAX_CALL_TIME",
            "MAX_SPEED_FACTOR", "memory_bytes", "check_size", "table", "check_keys", "si_value", "call_time",
-           "control_timing", "default_max_speed"]
+           "control_timing", "default_max_speed", "ControlSection", "parse_control"]
 
 # A run keeps every sample in memory (states, measurements, estimates, actions: about 0.7 kB
 # per sample and controller while it runs, measured on rig3 with the EKF), then hands it back
@@ -40,11 +43,66 @@ MAX_CALL_TIME = 86400.0
 MAX_SPEED_FACTOR = 100.0 / math.pi
 
 
+@dataclass(frozen=True)
+class ControlSection:
+    """The scenario's ``[control]`` section, parsed once (:func:`parse_control`) and carried whole
+    from the scenario to the closed loop and the controllers (:class:`mitigate.controllers.base.ControlContext`).
+
+    Attributes
+    ----------
+    start : the time the controllers act from [s] (before it, the programme alone)
+    every : a controller is called every ``every`` DAQ samples (its call period is ``every dt``)
+    deadline : the wall time a call may take [s] before its answer is a counted deadline miss and the
+        fallback acts, or None
+    timeout : the wall time after which a call that has not returned fails its run [s], or None
+    latency : the delay [s] applied to each answer, or ``"measured"`` (the call's own wall time)
+    speed : the target speed ``t -> [rad/s]`` of a drive whose input is not a speed (a torque drive's
+        ``speed``, a profile), or None
+    """
+
+    start: float = 0.0
+    every: int = 1
+    deadline: float | None = None
+    timeout: float | None = None
+    latency: float | str = 0.0
+    speed: Callable[[float], float] | None = None
+
+    def period(self, dt: float) -> float:
+        """The controllers' call period [s] for a DAQ period ``dt`` [s]."""
+        return dt * self.every
+
+    def replace(self, **changes) -> "ControlSection":
+        """The section with ``changes`` (e.g. ``scenario.control.replace(start=5.0)``)."""
+        return dataclasses.replace(self, **changes)
+
+
+def parse_control(ctl: Mapping, model, dt: float, duration: float, where: str) -> ControlSection:
+    """The :class:`ControlSection` of a scenario's ``[control]`` table (``where``: the file, for messages;
+    ``dt``, ``duration`` [s]: the scenario's)."""
+    from mitigate.profiles import parse_profile
+    check_keys(ctl, {"start", "every", "deadline", "timeout", "latency", "speed"}, f"{where}: control")
+    speed = None
+    if "speed" in ctl:
+        if model.drive.sets_speed:
+            raise ConfigError(f"{where}: control.speed applies to a torque drive; rig {model.name!r} sets its speed "
+                              f"through input {model.drive_input!r} (give it in [inputs])")
+        speed = parse_profile(ctl["speed"], f"{where}: control.speed", duration, quantity="speed")
+    start = finite_number(ctl.get("start", 0.0), f"{where}: control.start", nonneg=True, unit="s")
+    if start >= duration:
+        raise ConfigError(f"{where}: control.start must be < scenario.duration = {duration:g} s (the controllers "
+                          f"would never act), got {start:g} s")
+    every = ctl.get("every", 1)
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ConfigError(f"{where}: control.every must be an integer >= 1, got {quote(every)}")
+    deadline, timeout, latency = control_timing(ctl, dt * every, f"{where}: control")
+    return ControlSection(start, every, deadline, timeout, latency, speed)
+
+
 def default_max_speed(model, inputs, control_speed, duration: float) -> float:
     """``[plant] max_speed``'s default [rad/s]: MAX_SPEED_FACTOR times the largest drive speed the
     scenario programmes (a torque drive: its ``[control] speed``, else the rig's nominal speed)."""
     ts = np.linspace(0.0, duration, 201)
-    if model.drive_kind != "torque":
+    if model.drive.sets_speed:
         w = max(abs(float(inputs[model.drive_input](t))) for t in ts)
     elif control_speed is not None:
         w = max(abs(float(control_speed(t))) for t in ts)

@@ -65,7 +65,7 @@ def plot_run(sc, r, title: str, path: str | os.PathLike, dpi: int = 110):
     the measured torque channel(s), the applied normal forces, the drive's set-point."""
     m = sc.model
     speeds = {f"{b} (true)": r.state(f"omega_{b}") for b in m.bodies if f"omega_{b}" in r.states}
-    if m.drive_input in r.commands and m.drive_kind != "torque":
+    if m.drive_input in r.commands and m.drive.sets_speed:
         speeds[f"{m.drive_input} (set-point sent)"] = r.commands[m.drive_input]
     twists = {k: v for k, v in r.twists.items()}
     torques = {ch: r.y[s.channels[0]] for s in m.sensors if s.kind == "torque" for ch in s.channels if ch in r.y}

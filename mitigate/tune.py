@@ -196,7 +196,7 @@ def _resolve(scenario, controller):
 def _tasks(sc, spec, ref: Reference, mo: MetricOptions, phases: int, seeds: int, offset: int) -> list[RunTask]:
     out = []
     for k in range(phases):
-        t_on = sc.control_start + (0.0 if ref.prevention else k * ref.period / phases)
+        t_on = sc.control.start + (0.0 if ref.prevention else k * ref.period / phases)
         for j in range(seeds):
             s = run_seed(sc.seed, k, offset + j)
             out.append(RunTask(sc, spec.name, k, offset + j, round(t_on, 9), s, dict(spec.options), mo, "tune"))

@@ -172,7 +172,7 @@ def stiff_rates(model, params, u, *, eps: float | None = None, speed: float | No
     xs = np.where(np.isfinite(xs), xs, 0.0)
     if speed is None:
         speed = 1.0
-        if model.drive_kind != "torque":
+        if model.drive.sets_speed:
             speed = max(abs(float(u[model.inputs.index(model.drive_input)])), 1.0)
         elif model.contacts:
             # the speed the torque sustains; where none does, the guess runs off (100 x the rig's nominal
@@ -239,7 +239,7 @@ def integration(model, params, dt: float, *, u=None, eps: float | None = None, s
         u = nominal_operating_point(model, params)[0]
     extra = max([float(r) for r in rates], default=0.0)
     lam_full = max(stiff_rates(model, params, u, eps=eps, speed=speed), extra)
-    tau_e = model.electrical_time_constant(params) if model.drive_kind == "dc_motor" else 0.0
+    tau_e = model.electrical_time_constant(params)
     if not math.isfinite(lam_full):
         raise ConfigError(f"{where}: the model of rig {model.name!r} has non-finite rates at its operating point "
                           f"(check its parameters)")

@@ -15,6 +15,9 @@ Three questions are answered here, for every rig file:
 
    :func:`compare_measured` sets them against the frequencies the rig file gives as
    measured (``[rig] measured_modes_hz``; the thesis: 0, 0.396 and 1.781 Hz, Fig. 3.7).
+   :func:`stick_slip_period` is the rig's stick-slip period estimate, the lowest mode with the
+   drive's own boundary condition; the metrics' windows, the controllers' tuning rules and the
+   NMPC's defaults all ask it.
 2. *Is steady sliding stable?*  :func:`sliding_stability` returns the largest real part of
    the linearisation; :func:`stability_map` maps it over (normal force, speed).  A positive
    value means the falling friction law beats the damping and the rig falls into
@@ -64,6 +67,8 @@ __all__ = [
     "sliding_stability",
     "stability_map",
     "stribeck_onset",
+    "stick_slip_frequency",
+    "stick_slip_period",
 ]
 
 #: Modal variants: mechanical chain free / clamped at the drive, or the full closed loop.
@@ -283,7 +288,7 @@ def chain_matrices(model, params: ParameterSet | None = None, *, clamped: bool =
                 mat[ib, ia] -= v
     dofs = tuple(f"theta_{b}" for b in bodies)
     if clamped:
-        if model.drive_kind == "speed":
+        if not model.drive.on_body:          # a prescribed speed already holds its end of the chain
             return M, Cd, K, dofs
         keep = [i for i, b in enumerate(bodies) if b != model.drive_body]
         sel = np.ix_(keep, keep)
@@ -398,6 +403,37 @@ def compare_measured(result: ModalResult, measured=None) -> list[tuple[str, floa
     return rows
 
 
+# ----------------------------------------------------------------------------- stick-slip period
+def stick_slip_frequency(model, params: ParameterSet | None = None) -> float:
+    """The rig's stick-slip frequency estimate [Hz]: the lowest torsional mode of its mechanical
+    chain (damped, no friction) with the boundary condition its drive puts on the top of the string
+    (:attr:`models.rig.drives.Drive.boundary`).
+
+    - A drive that holds a speed (a DC motor under its PI loop, a prescribed speed) clamps the top:
+      its speed loop is far stiffer than the string, so the string winds up against a held end
+      (``"clamped"``).  rig3: 0.4285 Hz, 2.33 s; its stick-slip cycle at 30 rpm and 20 N is 2.3 s.
+    - A torque drive leaves the top free: the drive body turns with the string, its own inertia in
+      the chain (``"free"``).  The field string (Navarro-Lopez & Cortes 2007): 7.19 s, where its
+      limit cycle from rest under 10 kN m is 8.3 s; held at the top it would be 15.7 s.
+
+    The limit cycle is longer than the mode by its stick phase; the mode is its lower bound and the
+    time scale of the slip.  ``ConfigError`` when the chain has no oscillatory mode.
+    """
+    model = get_model(model)
+    params = _params(model, params)
+    r = modes(model, params, model.drive.boundary, damped=True)
+    osc = [f for f, o in zip(r.freq_hz, r.oscillatory) if o and f > 0]
+    if not osc:
+        held = "with its drive held" if model.drive.boundary == "clamped" else "with its drive free"
+        raise ConfigError(f"rig {model.name!r} has no torsional mode {held}")
+    return float(osc[0])
+
+
+def stick_slip_period(model, params: ParameterSet | None = None) -> float:
+    """The rig's stick-slip period estimate [s], ``1 / stick_slip_frequency`` (:func:`stick_slip_frequency`)."""
+    return 1.0 / stick_slip_frequency(model, params)
+
+
 # ----------------------------------------------------------------------------- stability of sliding
 def sliding_stability(model, params: ParameterSet | None, u, eps: float | None = None,
                       x_op=None) -> tuple[bool, float]:
@@ -409,7 +445,7 @@ def sliding_stability(model, params: ParameterSet | None, u, eps: float | None =
     max_real : that largest real part [1/s]
     """
     model = get_model(model)
-    if x_op is None and model.drive_kind == "torque":
+    if x_op is None and not model.drive.sets_speed:
         x_op = model.sliding_guess(u, _params(model, params))
     lin = linearise(model, params, u, eps=eps, x_op=x_op)
     ev = np.linalg.eigvals(lin.A)
@@ -434,7 +470,7 @@ def stability_map(model, params: ParameterSet | None, load_values, omega_values,
     """
     model = get_model(model)
     params = _params(model, params)
-    if model.drive_kind == "torque" or "force" not in model.input_kinds:
+    if not model.drive.sets_speed or "force" not in model.input_kinds:
         raise ConfigError(f"stability_map needs a rig with a speed-setting drive and a normal-force input, "
                           f"got {model.name!r} ({model.drive_kind} drive, inputs {', '.join(model.inputs)})")
     base, _ = operating_point(model, params)

@@ -107,13 +107,13 @@ def test_load_suite(suite_dir):
 
 def test_the_suite_sets_every_scenarios_deadline_unless_the_scenario_does(suite_dir):
     s = load_suite(suite_dir / "suite.toml")
-    assert all(sc.control_deadline is None for sc in s.scenarios)
+    assert all(sc.control.deadline is None for sc in s.scenarios)
     text = (suite_dir / "suite.toml").read_text()
     (suite_dir / "on.toml").write_text(text.replace('deadline = "off"', 'deadline = "period"'))
     on = load_suite(suite_dir / "on.toml")
-    assert [sc.control_deadline for sc in on.scenarios] == [sc.dt * sc.control_every for sc in on.scenarios]
+    assert [sc.control.deadline for sc in on.scenarios] == [sc.dt * sc.control.every for sc in on.scenarios]
     (suite_dir / "ms.toml").write_text(text.replace('deadline = "off"', 'deadline = "7 ms"'))
-    assert [sc.control_deadline for sc in load_suite(suite_dir / "ms.toml").scenarios] == pytest.approx([0.007] * 3)
+    assert [sc.control.deadline for sc in load_suite(suite_dir / "ms.toml").scenarios] == pytest.approx([0.007] * 3)
     (suite_dir / "bad.toml").write_text(text.replace('deadline = "off"', "deadline = true"))
     with pytest.raises(ConfigError, match="suite.deadline must be"):
         load_suite(suite_dir / "bad.toml")
@@ -133,7 +133,7 @@ def test_switch_on_phases_span_one_measured_period_and_seeds_come_from_scenario_
         {run_seed(8, k, j) for k in range(4) for j in range(3)}
     assert run_seed(8, 1, 2) == run_seed(8, 1, 2) != run_seed(8, 2, 1)
     # a prevention scenario (control from t = 0) varies only the seed: K x S distinct seeds
-    prev = s.scenarios[0].replace(control_start=0.0)
+    prev = s.scenarios[0].replace(control=s.scenarios[0].control.replace(start=0.0))
     pref = reference_run(prev, s.metrics)
     assert pref.prevention and not pref.stick_slip
     pt = make_tasks(s.__class__(s.name, "", (prev,), s.controllers, metrics=s.metrics), {"drill": pref}, phases=3,

@@ -480,8 +480,8 @@ def test_pi_integral_stays_where_the_anti_windup_keeps_it():
 
     sc = load_scenario("scenarios/benchmark/realistic.toml")
     seed = run_seed(sc.seed, 1, 0)
-    sc = sc.replace(duration=1.0, control_start=0.5, seed=seed, sim=dataclasses.replace(sc.sim, seed=seed),
-                    controllers=(ControllerSpec("PI only", "pi", {}),))
+    sc = sc.replace(duration=1.0, control=sc.control.replace(start=0.5), seed=seed,
+                    sim=dataclasses.replace(sc.sim, seed=seed), controllers=(ControllerSpec("PI only", "pi", {}),))
     res = run_closed_loop(sc, make_controller(sc.controllers[0], context_for(sc, 0)))
     z_true, z_hat = res.state("pi_integral"), res.estimate("pi_integral")
     load = res.estimate("load:pin1")

@@ -94,11 +94,11 @@ def test_a_step_that_sleeps_far_too_long_is_stopped_at_the_timeout():
 
 
 def test_the_default_timeout_comes_from_the_control_period():
-    assert scenario().control_timeout == 2.0                               # 100 x 10 ms < 2 s
+    assert scenario().control.timeout == 2.0                               # 100 x 10 ms < 2 s
     sc = parse_scenario({"scenario": {"name": "t", "duration": 200.0, "dt": 0.1},
                          "inputs": {"omega_ref": 3.0, "n1": 20.0}, "control": {"every": 5}}, "t.toml")
-    assert sc.control_timeout == pytest.approx(50.0)                      # 100 control periods of 0.5 s
-    assert scenario(control={"timeout": "off"}).control_timeout is None
+    assert sc.control.timeout == pytest.approx(50.0)                      # 100 control periods of 0.5 s
+    assert scenario(control={"timeout": "off"}).control.timeout is None
 
 
 def test_the_readme_controller_on_a_rig_whose_torque_channel_is_torque_drive_fails_with_keyerror(tmp_path, capsys):
@@ -198,11 +198,11 @@ def test_a_late_answer_is_a_counted_deadline_miss_and_the_fallback_acts():
 
 
 def test_deadline_period_is_one_control_period_and_the_benchmark_turns_it_on():
-    assert scenario(control={"deadline": "period", "every": 5}).control_deadline == pytest.approx(0.05)
-    assert scenario().control_deadline is None                               # off by default
+    assert scenario(control={"deadline": "period", "every": 5}).control.deadline == pytest.approx(0.05)
+    assert scenario().control.deadline is None                               # off by default
     from mitigate.benchmark import load_suite
     suite = load_suite(ROOT / "scenarios/benchmark/suite.toml", only=["established"])
-    assert suite.scenarios[0].control_deadline == pytest.approx(suite.scenarios[0].dt * suite.scenarios[0].control_every)
+    assert suite.scenarios[0].control.deadline == pytest.approx(suite.scenarios[0].dt * suite.scenarios[0].control.every)
 
 
 @pytest.mark.parametrize("latency, delay", [("30 ms", 3), ("25 ms", 3), ("10 ms", 1), (0.0, 0)])

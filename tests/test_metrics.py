@@ -106,12 +106,12 @@ def _result(sc, w1, w2, twist, current, z, n2, w3, solve_times, plan_calls, stat
     return ClosedLoopResult(
         t=t, x=x, twists={"twist_shaft1": x[:, 0], "twist_shaft2": x[:, 1]}, y=y, xhat=x.copy(),
         xhat_names=m.states, u=u, commands={"omega_ref": u[:, 0], "n2": u[:, 2]},
-        controller_active=t >= sc.control_start, controller_ok=np.ones(n, bool),
+        controller_active=t >= sc.control.start, controller_ok=np.ones(n, bool),
         solve_times=np.asarray(solve_times), plan_calls=np.asarray(plan_calls), estimator_times=np.zeros(n),
         controller_counts={"steps": 3, "failures": 1, "fallbacks": 2, "holds": 1},
         estimator_counts={"steps": n, "failures": 0, "fallbacks": 0, "dropouts": 4},
         controller="test", model=m.name, objective_body="R1", states=m.states, inputs=m.inputs,
-        control_start=sc.control_start, status=status)
+        control_start=sc.control.start, status=status)
 
 
 def test_closed_loop_metrics_hand_computed():

@@ -25,6 +25,7 @@ from mitigate.controllers.nmpc import NMPC, MAX_HORIZON, NMPCOptions, NMPCWeight
 from mitigate.controllers.nmpc.stage import prediction_rhs
 from mitigate.controllers.nmpc.qp import ConicQP, HpipmQP
 from mitigate.metrics import severity
+from mitigate.scenario_fields import ControlSection
 from models import get_model
 from models.errors import ConfigError
 from models.plant import Plant, SimOptions
@@ -40,7 +41,7 @@ def _ctx(model=M, params=None, programme=None, dt=0.01, where="nmpc"):
     model = get_model(model)
     u = U0 if programme is None else programme
     prog = u if callable(u) else (lambda t, u=np.asarray(u, float): u)
-    return ControlContext(model, model.published() if params is None else params, dt, dt, prog, where=where)
+    return ControlContext(model, model.published() if params is None else params, dt, prog, where=where)
 
 
 def _nmpc(opts=None, **kw) -> NMPC:
@@ -646,7 +647,7 @@ def test_torque_drive_follows_the_scenarios_control_speed():
     m = get_model("rig2")
     p = m.published()
     u0 = np.asarray(m.operating_point(0.7, [0.0], p)[0], float)
-    ctx = ControlContext(m, p, 0.01, 0.01, lambda t: u0, where="nmpc", speed=lambda t: 0.7)
+    ctx = ControlContext(m, p, 0.01, lambda t: u0, where="nmpc", control=ControlSection(speed=lambda t: 0.7))
     c = make_controller({"kind": "nmpc", "horizon": 20, "compile": False, "setpoint_band": 0.3, "setpoint_rate": 2.0},
                         ctx)
     assert c.tuning_values()["eps"] == pytest.approx(0.016 * 0.7)

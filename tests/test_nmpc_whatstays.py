@@ -35,7 +35,7 @@ FIELD = Path(__file__).resolve().parent / "rigs" / "field_drillstring.toml"
 
 def _ctx(model, programme, dt=0.01, params=None):
     u = np.asarray(programme, float)
-    return ControlContext(model, model.published() if params is None else params, dt, dt, lambda t: u, where="nmpc")
+    return ControlContext(model, model.published() if params is None else params, dt, lambda t: u, where="nmpc")
 
 
 def _loop(c, plant, model, u_prog, n, dt, t0=0.0):

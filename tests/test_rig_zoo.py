@@ -45,7 +45,7 @@ from mitigate.scenario import make_scenario
 from models import get_model
 from models.errors import ConfigError, SolverFailure
 from mitigate.metrics import rig_period
-from models.modal import linearise, modes, operating_point
+from models.modal import linearise, operating_point, stick_slip_period
 from models.plant import SimOptions, simulate
 from models.status import Status
 
@@ -112,9 +112,10 @@ def pipeline(m, z, path):
     """simulate, the EKF and every controller kind; a two-parameter identification."""
     p = m.published()
     ins = _inputs(m, z)
-    r = modes(m, p, "clamped" if m.drive_kind != "speed" else "free")
-    f = [f for f, o in zip(r.freq_hz, r.oscillatory) if o and f > 0]
-    period = 1.0 / f[0] if f else 1.0
+    try:
+        period = stick_slip_period(m, p)
+    except ConfigError:
+        period = 1.0
     duration = min(max(3.0, 3 * period), 6.0)
     # open loop from rest, sensors on
     sim = simulate(m, p, np.array([ins[n] for n in m.inputs]), duration, SimOptions(seed=1))
@@ -190,16 +191,16 @@ def slow_programme(m):
     :data:`SLOW_FRACTION` of the nominal speed (a torque drive: :data:`SLOW_FRACTION_TORQUE`, its
     torque that of steady sliding at that speed and the speed its ``[control] speed``).  From rest a
     torque below the static level never starts the string: PI's string is then stuck (severity 1)."""
-    f = SLOW_FRACTION_TORQUE if m.drive_kind == "torque" else SLOW_FRACTION
+    f = SLOW_FRACTION if m.drive.sets_speed else SLOW_FRACTION_TORQUE
     w = f * m.nominal_speed()
     u, _ = operating_point(m, m.published(), omega=w)
-    return {n: float(v) for n, v in zip(m.inputs, u)}, ({"speed": w} if m.drive_kind == "torque" else {}), f
+    return {n: float(v) for n, v in zip(m.inputs, u)}, ({} if m.drive.sets_speed else {"speed": w}), f
 
 
 def nmpc_vs_pi(m, z, path, name="", blind_ok=True):
     """PI and the NMPC (compile=False, with the EKF) on the slow programme (:func:`slow_programme`):
-    switched on after ``SWITCH_ON_PERIODS`` of the rig's stick-slip period T (its lowest mode with the drive held,
-    :func:`mitigate.metrics.rig_period`), then ``CONTROLLED_PERIODS``; DAQ period T / 100 (the
+    switched on after ``SWITCH_ON_PERIODS`` of the rig's stick-slip period T (its lowest mode with its drive's
+    boundary, :func:`mitigate.metrics.rig_period`), then ``CONTROLLED_PERIODS``; DAQ period T / 100 (the
     NMPC's interval is T / 50). The NMPC's ``residual_severity`` (last 3 T, against the programmed
     speed) must not be above PI's unless both are below :data:`QUIET`.  ``blind_ok``: where the
     estimator's observability report says the string is not observable from the rig's sensors, an

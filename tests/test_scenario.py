@@ -78,7 +78,7 @@ def test_make_scenario_builds_what_the_toml_file_builds(tmp_path):
     assert a.plant_params["mu_k"] == pytest.approx(1.1 * a.model_params["mu_k"])
     assert a.plant_params["motor_torque_offset"] == 0.05 and a.model_params["motor_torque_offset"] == 0.0
     assert a.model.actuator("n2").n_max == 30.0 == a.plant_model.actuator("n2").n_max
-    assert (a.control_every, a.sensors.noise_scale, a.max_speed, a.drift) == (2, 2.0, 80.0, {"mu_k": 0.001})
+    assert (a.control.every, a.sensors.noise_scale, a.max_speed, a.drift) == (2, 2.0, 80.0, {"mu_k": 0.001})
     assert a.where == "demo.toml" and b.where == "demo"
 
 

@@ -265,7 +265,7 @@ def test_the_controllers_and_the_estimator_keep_the_nominal_model():
     rig3 = get_model("rig3")
     assert sc.model.spec == rig3.spec and np.array_equal(sc.model_params.vector(), rig3.published().vector())
     assert sc.plant_model.spec != rig3.spec and sc.plant_model.nx > rig3.nx
-    sc = sc.replace(duration=1.0, control_start=0.5, estimator={"kind": "fd"})
+    sc = sc.replace(duration=1.0, control=sc.control.replace(start=0.5), estimator={"kind": "fd"})
     for i, spec in enumerate(sc.controllers):
         if spec.kind != "nmpc":
             c = make_controller(spec, context_for(sc, i))
@@ -281,7 +281,7 @@ def test_the_controllers_and_the_estimator_keep_the_nominal_model():
 
 def test_realistic_scenario_runs_10_s_with_pi():
     sc = load_scenario(ROOT / "scenarios" / "realistic.toml")
-    sc = sc.replace(duration=10.0, control_start=5.0, estimator={"kind": "fd"})
+    sc = sc.replace(duration=10.0, control=sc.control.replace(start=5.0), estimator={"kind": "fd"})
     i = next(i for i, c in enumerate(sc.controllers) if c.kind == "pi")
     r = run_closed_loop(sc, make_controller(sc.controllers[i], context_for(sc, i)))
     assert r.status is Status.OK and r.t[-1] == pytest.approx(10.0)

@@ -313,22 +313,13 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
         if tq.target == NODE_DRIVE:
             side = set(model.bodies)
             d = model.spec.drive
-            if model.drive_kind == "torque":
-                T_in = T
-            elif model.drive_kind == "dc_motor" and data.speed(d.body) is not None:
-                eta, Jm = float(d.param("ratio").value(P)), float(d.param("Jm").value(P))
-                wd = data.speed(d.body)
-                if tq.definition == "electromagnetic":
-                    T_in = T - eta * (float(d.param("Tf").value(P)) * np.tanh(eta * wd / d.eps_motor)
-                                      + float(d.param("Cm").value(P)) * eta * wd)
-                else:
-                    T_in = T + eta * (eta - 1) * Jm * data.accel(d.body)
-                    # the delivered torque, for the stiffness of the drive's only shaft
-                    conns = [c for c in model.spec.connections if c.stiffness is not None and d.body in (c.a, c.b)]
-                    if len(conns) == 1 and d.body not in model.contact_bodies:
-                        c2 = conns[0]
-                        delivered = T - eta * Jm * data.accel(d.body)
-                        k_conn = (c2, delivered if d.body == c2.a else -delivered)
+            wd = data.speed(d.body)
+            T_in, delivered = model.drive.torque_on_body(model, tq, T, wd, None if wd is None else data.accel(d.body), P)
+            # the delivered torque, for the stiffness of the drive's only shaft
+            conns = [c for c in model.spec.connections if c.stiffness is not None and d.body in (c.a, c.b)]
+            if delivered is not None and len(conns) == 1 and d.body not in model.contact_bodies:
+                c2 = conns[0]
+                k_conn = (c2, delivered if d.body == c2.a else -delivered)
         else:
             c = next(c for c in model.spec.connections if c.name == tq.target)
             side = far_side(model, c)

@@ -51,7 +51,7 @@ class GuessData:
             ch = model.speed_channel(b)
             if ch is not None and ch in log.channels:
                 self.speeds[b] = np.asarray(log[ch], float)
-        if model.drive_kind == "speed":
+        if not model.drive.on_body:             # a prescribed speed: the node "drive" turns at the input
             self.speeds[NODE_DRIVE] = self.u[model.drive_input]
         self.speeds[NODE_GROUND] = np.zeros(n)
 

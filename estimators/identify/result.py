@@ -146,7 +146,7 @@ def level_twist_warning(model, free, channels) -> list[str]:
             if (prm.kind == "level" or prm.role in ("kinetic", "static", "excess")) and ref is not None \
                     and ref.kind == "param" and ref.name in free:
                 levels.append(ref.name)
-    if not levels or model.drive_kind in ("torque", "dc_motor"):
+    if not levels or model.drive.on_body:       # the drive's modelled torque sets the twists' level
         return []
     if any(ch.kind == "twist" or getattr(model.sensor_of(ch.name), "kind", None) == "torque" for ch in channels):
         return []

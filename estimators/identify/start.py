@@ -291,8 +291,8 @@ def filtered_states(model, d, initial, measured: set, channels=()):
     mech = [i for i, s in enumerate(model.states) if s.startswith(("twist_", "omega_"))]
     if all(i in measured for i in mech):
         return None
-    if model.drive_kind != "torque" and not any(getattr(model.sensor_of(c), "kind", None) == "torque"
-                                                for c in channels):
+    if model.drive.sets_speed and not any(getattr(model.sensor_of(c), "kind", None) == "torque"
+                                          for c in channels):
         return None
     from estimators.online.replay import estimate_log
     try:

@@ -80,7 +80,7 @@ class FiniteDifference(StateEstimator):
         # covariance: quantisation through the least squares; held states keep the default prior
         prior = for_rig(EKFOptions(), model, context.params)
         P = np.diag([prior.p0_twist ** 2] * n_tw + [prior.p0_speed ** 2] * len(model.bodies)
-                    + ([prior.p0_current ** 2, prior.p0_pi ** 2] if model.drive_kind == "dc_motor" else []))
+                    + [getattr(prior, f"p0_{s.prior}") ** 2 for s in model.drive.states])
         if self._pairs:
             T = np.zeros((len(self._pairs), len(chans)))
             for k, (a, b) in enumerate(self._pairs):

@@ -407,6 +407,7 @@ def _prod(terms):
 
 def _process_variances(model: RigModel, names, P_num: dict, dt: float, o) -> np.ndarray:
     out = []
+    drive_states = {s.name: s for s in model.drive.states}
     for n in names:
         kind, _, target = n.partition(":")
         if not target:
@@ -415,10 +416,9 @@ def _process_variances(model: RigModel, names, P_num: dict, dt: float, o) -> np.
             elif n.startswith("omega_"):
                 J = float(model.inertia(n[len("omega_"):], P_num))
                 v = (o.q_torque * dt / J) ** 2 if J > 0 else o.q_torque ** 2
-            elif n == "current":
-                v = o.q_current ** 2
-            else:           # pi_integral: integrates known signals exactly
-                v = 0.0
+            else:           # the drive's: its family's process noise, none when it integrates known signals
+                st = drive_states.get(n)
+                v = getattr(o, f"q_{st.noise}") ** 2 if st is not None and st.noise else 0.0
         elif kind == "load":
             v = o.q_load ** 2 * dt
         elif kind == "offset":
@@ -452,6 +452,7 @@ def _prior(model: RigModel, names, idx, P_num, o, x0, where):
         else:
             x[:nxr] = x0
     std = []
+    drive_prior = {s.name: s.prior for s in model.drive.states}
     for n in names:
         kind, _, target = n.partition(":")
         base = target if (kind == "zero" or kind.startswith("lag")) else n
@@ -459,10 +460,8 @@ def _prior(model: RigModel, names, idx, P_num, o, x0, where):
             s = o.p0_twist
         elif base.startswith("omega_"):
             s = o.p0_speed
-        elif base == "current":
-            s = o.p0_current
-        elif base == "pi_integral":
-            s = o.p0_pi
+        elif base in drive_prior:
+            s = getattr(o, f"p0_{drive_prior[base]}")
         elif kind == "load":
             s = o.p0_load
         elif kind == "offset":

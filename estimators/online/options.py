@@ -160,7 +160,7 @@ class RigScales:
 
     speed : nominal speed [rad/s]; torque : largest steady shaft torque at the operating point
     [N m]; twist : largest steady twist [rad]; current : a DC motor's current limit [A] (nan:
-    none); period : the drive-held chain's lowest period [s]
+    none); period : the rig's stick-slip period [s] (:func:`models.modal.stick_slip_period`)
     """
 
     speed: float
@@ -198,7 +198,7 @@ def by_speed(value_at_rig3: float, model) -> float:
 
 def rig_scales(model, params) -> RigScales:
     """The :class:`RigScales` of a rig at its nominal operating point (steady sliding)."""
-    from models.modal import operating_point, modes
+    from models.modal import operating_point, stick_slip_period
     P = params.as_dict()
     u, x = operating_point(model, params)
     if x is None:
@@ -207,12 +207,9 @@ def rig_scales(model, params) -> RigScales:
     torque = max((abs(float(x[j]) * c.stiffness.value(P)) for j, c in enumerate(springs)), default=0.0)
     twist = max((abs(float(x[j])) for j in range(len(springs))), default=0.0)
     speed = speed_scale(model)
-    cur = model.spec.drive.param("i_max") if model.drive_kind == "dc_motor" else None
-    current = float(cur.value(P)) if cur is not None else math.nan
+    current = model.drive.current_limit(P)
     try:
-        r = modes(model, params, "clamped" if model.drive_kind != "speed" else "free")
-        osc = [f for f, o in zip(r.freq_hz, r.oscillatory) if o and f > 0]
-        period = 1.0 / osc[0] if osc else REFERENCE.period
+        period = stick_slip_period(model, params)
     except ConfigError:
         period = REFERENCE.period
     ref = REFERENCE

@@ -48,7 +48,7 @@ class Reference:
     scenario : its name
     period : the stick-slip period [s] the phases and the metric windows use
     period_source : "measured" (stick-slip cycles of the objective body before the switch-on),
-        "spectrum" (its dominant frequency) or "rig" (the rig's lowest mode with the drive held)
+        "spectrum" (its dominant frequency) or "rig" (the rig's estimate, :func:`models.modal.stick_slip_period`)
     prevention : the control starts at t = 0 (no stick-slip at the switch-on by design)
     stick_slip : the objective body sticks and slips in the period before the switch-on
     severity_before : severity of that period against the programmed speed [-]
@@ -108,7 +108,7 @@ def reference_run(scenario, metrics: MetricOptions = MetricOptions()) -> Referen
         t_rig = rig_period(sc.model, sc.model_params)
     except ConfigError:
         t_rig = float("nan")
-    start = sc.control_start
+    start = sc.control.start
     guess = t_rig if math.isfinite(t_rig) else sc.duration / 10
     extra = 2 * guess
     run = run_closed_loop(sc.replace(duration=sc.duration + extra, controllers=()),
@@ -137,7 +137,7 @@ def reference_run(scenario, metrics: MetricOptions = MetricOptions()) -> Referen
             period, source = t_rig, "rig"
         else:
             raise ConfigError(f"{sc.where}: no stick-slip period: the uncontrolled run does not oscillate and "
-                              f"rig {sc.model.name!r} has no torsional mode with the drive held")
+                              f"rig {sc.model.name!r} has no torsional mode")
     # stick-slip at the switch-on: the body stuck at least once in the two periods before it, and the
     # severity of that stretch above the suppression threshold (a run that diverged has none)
     k0 = int(round(start / dt))
@@ -156,10 +156,10 @@ def task_scenario(task: RunTask):
     shift), its noise from ``task.run_seed``, only the task's controller with the task's options."""
     from mitigate.scenario import ControllerSpec
     sc = task.scenario
-    shift = max(0.0, task.switch_on - sc.control_start)
+    shift = max(0.0, task.switch_on - sc.control.start)
     spec = next(c for c in sc.controllers if c.name == task.controller)
-    return sc.replace(duration=sc.duration + shift, control_start=task.switch_on, seed=task.run_seed,
-                      sim=dataclasses.replace(sc.sim, seed=task.run_seed),
+    return sc.replace(duration=sc.duration + shift, control=sc.control.replace(start=task.switch_on),
+                      seed=task.run_seed, sim=dataclasses.replace(sc.sim, seed=task.run_seed),
                       controllers=(ControllerSpec(spec.name, spec.kind, dict(task.options)),))
 
 
@@ -186,7 +186,7 @@ def make_tasks(suite, references: Mapping[str, Reference], *, phases: int, seeds
                 continue
             opts = dict((options or {}).get((sc.name, c.name), c.options))
             for k in range(phases):
-                t_on = sc.control_start + (0.0 if ref.prevention else k * ref.period / phases)
+                t_on = sc.control.start + (0.0 if ref.prevention else k * ref.period / phases)
                 for j in range(seeds):
                     s = run_seed(sc.seed, k, j)
                     tasks.append(RunTask(sc, c.name, k, j, round(t_on, 9), s, opts, mo, tag))

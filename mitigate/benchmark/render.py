@@ -161,7 +161,7 @@ def render_ranking(res, command: str = "") -> str:
     for sc in su.scenarios:
         ref = res.references[sc.name]
         es = sorted((res.entries[(sc.name, n)] for n in names), key=lambda e: (e.rank or 10**6, e.controller))
-        prog_force = any(sc.model.contact_of_input(n) is not None and sc.inputs[n](sc.control_start) > 0
+        prog_force = any(sc.model.contact_of_input(n) is not None and sc.inputs[n](sc.control.start) > 0
                          for n in sc.model.servo_inputs)
         L += [f"## Scenario `{sc.name}`", "", sc.description, "",
               "| rank | controller | class | runs | " + " | ".join(table_header(m) for m in cols)

@@ -113,7 +113,7 @@ def run(args) -> int:
         raise ConfigError(f"--load must be >= 0 N, got {args.load}")
     out = check_output_dir(args.out) if args.out is not None else None
     loads = [n for n, k in zip(model.inputs, model.input_kinds) if k == "force"]
-    do_map = out is not None and (not args.no_map) and model.drive_kind != "torque" and bool(loads)
+    do_map = out is not None and (not args.no_map) and model.drive.sets_speed and bool(loads)
     with contextlib.ExitStack() as stack:
         w = None
         if out is not None:

@@ -46,6 +46,7 @@ from models.errors import ConfigError, PluginError, SolverFailure, quote
 from models.params import ParameterSet
 from models.sensors import SensorOptions
 from models.status import Status
+from mitigate.scenario_fields import ControlSection
 
 __all__ = ["Action", "Controller", "ControllerCounts", "ControlContext", "NEEDS", "reading", "sees_string"]
 
@@ -69,7 +70,7 @@ def sees_string(model) -> bool:
     encoder reads the programme and nothing of the string; a motor's or a torque drive's body does
     respond to the string."""
     from models.rig.spec import NODE_DRIVE
-    if model.drive_kind != "speed":
+    if model.drive.on_body:
         return True
     return any(s.kind == "torque" or (s.kind in ("encoder", "speed") and s.target != NODE_DRIVE)
                for s in model.spec.sensors)
@@ -120,45 +121,60 @@ class ControlContext:
     ----------
     model : the rig (:class:`models.rig.RigModel`) the controller believes
     params : its nominal parameters (never the plant's true ones)
-    dt : DAQ period [s]; period : the controller's call period [s] (``dt`` x ``control.every``)
+    dt : DAQ period [s]
     programme : ``t -> (nu,)`` the scenario's scheduled inputs in ``model.inputs`` order
         (the speed programme, the normal forces)
-    schedule : ``{input: t -> value}``, the same per input (faster for a law that needs one)
     sensors : the sensor settings (noise levels follow from the rig file and these)
-    where : prefix of error messages (``"scenario.toml: controllers[2]"``)
-    deadline : wall time a call may take [s] before its answer counts as a deadline miss and the
-        fallback acts instead (None: no deadline; ``[control] deadline``)
-    timeout : wall time after which a call that has not returned fails the run [s]
-        (``[control] timeout``; None: never)
-    speed : a torque drive's target speed ``t -> [rad/s]`` (the scenario's ``[control] speed``), or
-        None (:meth:`target_speed`)
+    where : prefix of error messages (``"scenario.toml: controller 2 'NMPC'"``)
+    schedule : ``{input: t -> value}``, the same per input (faster for a law that needs one)
+    control : the scenario's ``[control]`` section, whole (:class:`mitigate.scenario_fields.ControlSection`):
+        the call period (:attr:`period`), the ``deadline`` a call may take before its answer counts as a
+        deadline miss and the fallback acts, the ``timeout`` after which a call that has not returned fails
+        the run, a torque drive's target ``speed`` (:meth:`target_speed`)
     """
 
     model: Any
     params: ParameterSet
     dt: float
-    period: float
     programme: Callable[[float], np.ndarray]
     sensors: SensorOptions = SensorOptions()
     where: str = "controller"
     schedule: Mapping[str, Callable[[float], float]] = field(default_factory=dict)
-    deadline: float | None = None
-    timeout: float | None = None
-    speed: Callable[[float], float] | None = None
+    control: ControlSection = ControlSection()
+
+    @property
+    def period(self) -> float:
+        """The controller's call period [s] (``dt`` x ``control.every``)."""
+        return self.control.period(self.dt)
+
+    @property
+    def deadline(self) -> float | None:
+        """``control.deadline`` [s] or None."""
+        return self.control.deadline
+
+    @property
+    def timeout(self) -> float | None:
+        """``control.timeout`` [s] or None."""
+        return self.control.timeout
+
+    @property
+    def speed(self) -> Callable[[float], float] | None:
+        """``control.speed``: a torque drive's target speed ``t -> [rad/s]``, or None."""
+        return self.control.speed
 
     def target_speed(self, t: float) -> float:
         """The drive speed the programme asks for at ``t`` [rad/s]: a speed-setting drive's scheduled
         input; a torque drive's ``[control] speed`` profile, else the rig file's operating-point
         ``speed`` (a torque programme sets no speed)."""
         m = self.model
-        if m.drive_kind != "torque":
+        if m.drive.sets_speed:
             return self.scheduled(t, m.drive_input)
         return float(self.speed(t)) if self.speed is not None else m.nominal_speed()
 
     @property
     def torque_max(self) -> float:
-        """A torque drive's torque limit [N m] (``[drive] torque_max``; inf: none)."""
-        return float(self.model.spec.drive.torque_max)
+        """The drive's torque limit [N m] (a torque drive's ``[drive] torque_max``; inf: none)."""
+        return float(self.model.drive.torque_limit(self.params))
 
     def scheduled(self, t: float, name: str) -> float:
         """The programme's value of input ``name`` at ``t`` (one input's profile when the context
@@ -176,13 +192,13 @@ class ControlContext:
         if unknown:
             raise ConfigError(f"{self.where}: unknown need(s) {', '.join(map(repr, unknown))}; expected some of "
                               f"{', '.join(NEEDS)}")
-        drive = m.drive_body if m.drive_kind != "speed" else "drive"
+        drive = m.drive_node
         for n in needs:
             if n == "drive_speed" and m.speed_channel(drive) is None:
                 out.append(f"the drive's speed (add an encoder or speed sensor on body {drive!r})")
             elif n == "drive_torque" and not any(s.kind == "torque" and s.target == "drive" for s in m.sensors):
                 out.append("the torque at the drive (add a torque sensor with at = \"drive\")")
-            elif n == "speed_drive" and m.drive_kind == "torque":
+            elif n == "speed_drive" and not m.drive.sets_speed:
                 out.append(f"a speed-setting drive (rig {m.name!r} has a torque drive, input {m.drive_input!r} [N m])")
             elif n == "servo" and not m.servo_inputs:
                 out.append(f"a servo on a contact's normal force (rig {m.name!r} has no actuator: add an "

@@ -67,16 +67,14 @@ def options_of(cls, options: Mapping[str, Any], where: str):
 
 
 def context_for(scenario, index: int | None = None) -> ControlContext:
-    """The :class:`ControlContext` of a scenario (the nominal model, never the plant; the
-    ``[control]`` deadline and timeout)."""
+    """The :class:`ControlContext` of a scenario (the nominal model, never the plant; its ``[control]``
+    section whole)."""
     from mitigate.scenario import controller_where
     where = (controller_where(scenario.where, index, scenario.controllers[index].name)
              if index is not None and index < len(scenario.controllers) else f"{scenario.where}: controller")
     return ControlContext(model=scenario.model, params=scenario.model_params, dt=scenario.dt,
-                          period=scenario.dt * scenario.control_every, programme=scenario.programme,
-                          sensors=scenario.sensors, where=where, schedule=dict(scenario.inputs),
-                          deadline=scenario.control_deadline, timeout=scenario.control_timeout,
-                          speed=getattr(scenario, "control_speed", None))
+                          programme=scenario.programme, sensors=scenario.sensors, where=where,
+                          schedule=dict(scenario.inputs), control=scenario.control)
 
 
 def _split(spec) -> tuple[Any, dict]:

@@ -30,7 +30,7 @@ class DriveSetpointLaw(Controller):
         context.require_input(m.drive_input, "the drive's input")
         self.speed_ch = drive_speed_channel(context)
         self.tuning = tuning_for(m, context.params)
-        self.torque_drive = m.drive_kind == "torque"
+        self.torque_drive = not m.drive.sets_speed
 
     def actuated_inputs(self) -> tuple[str, ...]:
         return (self.context.model.drive_input,)

@@ -95,7 +95,7 @@ class SoftSpeed(DriveSetpointLaw):
     tunables = {
         "kp_factor": Tunable(low=0.25, high=8.0, doc="Kp in multiples of the string impedance Z"),
         "f_t": Tunable(low=0.25, high=4.0, scale=lambda c: tuning_for(c.model, c.params).f_ss, derived=1.0,
-                       doc="tuning frequency in multiples of the rig's lowest mode with the drive held"),
+                       doc="tuning frequency in multiples of the rig's stick-slip frequency"),
     }
     derived = ("Z", "J_v", "Kp", "Ki", "f_t", "tau_torque")
     derived_units = {"Z": "N m s/rad", "J_v": "kg m^2", "Kp": "N m s/rad", "Ki": "N m/rad", "f_t": "Hz",

@@ -122,7 +122,7 @@ class SpeedSupervisor(Controller):
         super().__init__(options, context)
         m = context.model
         context.require_input(m.drive_input, "the drive's set-point")
-        if m.drive_kind == "torque":
+        if not m.drive.sets_speed:
             # its offset is a speed [rad/s]: added to a torque input it would be a unit error
             raise ConfigError(f"{context.where}: the supervisor raises a speed set-point; rig {m.name!r} has a torque "
                               f"drive ({m.drive_input!r} [N m]): use softspeed or ztorque there")

@@ -16,9 +16,10 @@ instead of reflecting it (reflection coefficient ``(Z - c)/(Z + c)``); for one l
 spring with a damper ``c`` at its far end, ``c = sqrt(k J)`` is also the damper that damps the
 mode most.
 
-The stick-slip frequency is near the lowest torsional mode of the chain with its drive held
-(:func:`stick_slip_frequency`, from :func:`models.modal.modes` ``"clamped"``; rig3: 0.428 Hz,
-its stick-slip cycle at 30 rpm and 20 N is ~2.3 s, 0.44 Hz).
+The stick-slip frequency is near the lowest torsional mode of the chain with the boundary its
+drive puts on the top (:func:`models.modal.stick_slip_frequency`, re-exported here: held by a
+speed-setting drive, rig3: 0.428 Hz, its stick-slip cycle at 30 rpm and 20 N is ~2.3 s, 0.44 Hz;
+free with its inertia under a torque drive).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import numpy as np
 
 from mitigate.controllers.base import reading
 from models.errors import ConfigError
+from models.modal import stick_slip_frequency
 
 __all__ = ["DriveTuning", "string_impedance", "stick_slip_frequency", "drive_inertia", "tuning_for",
            "absorber_frequency", "VirtualDrive"]
@@ -63,7 +65,7 @@ def _path(model, start: str, end: str) -> list:
 
 def drive_inertia(model, params) -> float:
     """The drive body's total inertia (a DC motor's ``ratio^2 Jm`` included) [kg m^2]; 0 for a speed drive."""
-    if model.drive_kind == "speed":
+    if not model.drive.on_body:
         return 0.0
     return float(model.inertia(model.spec.drive.body, params.as_dict()))
 
@@ -84,16 +86,6 @@ def string_impedance(model, params, body: str | None = None) -> tuple[float, flo
     return math.sqrt(k * J), k, J
 
 
-def stick_slip_frequency(model, params) -> float:
-    """The lowest torsional mode of the chain with the drive held [Hz] (the stick-slip band)."""
-    from models.modal import modes
-    r = modes(model, params, "clamped", damped=True)
-    osc = [f for f, o in zip(r.freq_hz, r.oscillatory) if o and f > 0]
-    if not osc:
-        raise ConfigError(f"rig {model.name!r} has no torsional mode with its drive held")
-    return float(osc[0])
-
-
 def absorber_frequency(model, params, Kp: float) -> float:
     """The tuning frequency ``f_t`` [Hz] of a SoftSpeed drive: the lowest torsional mode of the string
     with the drive acting as the law makes it at ``f_t``, a pure damper ``Kp`` (its inertia cancelled
@@ -110,7 +102,7 @@ def absorber_frequency(model, params, Kp: float) -> float:
     import scipy.linalg
     from models.modal import chain_matrices
     body = model.spec.drive.body
-    if model.drive_kind == "speed" or body not in model.bodies:
+    if not model.drive.on_body or body not in model.bodies:
         return stick_slip_frequency(model, params)
     M, Cd, K, _ = chain_matrices(model, params, clamped=False, damped=True)
     d = list(model.bodies).index(body)
@@ -152,7 +144,8 @@ class VirtualDrive:
 class DriveTuning:
     """What the industry's tuning rules need, derived from a rig (see module docstring).
 
-    Z [N m s/rad], k_string [N m/rad], J_string [kg m^2], J_drive [kg m^2], f_ss [Hz]
+    Z [N m s/rad], k_string [N m/rad], J_string [kg m^2], J_drive [kg m^2], f_ss [Hz] (the rig's
+    stick-slip frequency, :func:`models.modal.stick_slip_frequency`)
     """
 
     Z: float
@@ -185,7 +178,7 @@ def drive_speed_channel(context) -> str:
     """The measured channel of the drive's speed (a DC motor's or torque drive's body, or a speed
     drive's encoder), or a one-line ConfigError."""
     m = context.model
-    ch = m.speed_channel(m.drive_body) if m.drive_kind != "speed" else m.speed_channel("drive")
+    ch = m.speed_channel(m.drive_node)
     if ch is None:
         raise ConfigError(f"{context.where}: needs the drive's speed, which rig {m.name!r} does not measure "
                           f"(add an encoder or speed sensor on {m.drive_body or 'the drive'!r})")
@@ -226,19 +219,8 @@ class PipeTorque:
         self.torque_ch = drive_torque_channel(context)
         self.dt = context.period
         self.tau, self.tau_acc = tau, tau_acc
-        self.friction = None
-        if m.drive_kind == "dc_motor":
-            d = m.spec.drive
-            eta, Jm = d.param("ratio").value(P), d.param("Jm").value(P)
-            sensor = m.sensor_of(self.torque_ch)
-            if sensor.definition == "electromagnetic":
-                self.J = m.inertia(d.body, P)
-                Tf, Cm, eps = d.param("Tf").value(P), d.param("Cm").value(P), d.eps_motor
-                self.friction = lambda w: eta * (Tf * math.tanh(eta * w / eps) + Cm * eta * w)  # noqa: E731
-            else:
-                self.J = eta * Jm
-        else:
-            self.J = drive_inertia(m, context.params)
+        # the sensor reads T_pipe + J w' + friction(w) (models.rig.drives.Drive.pipe_torque_terms)
+        self.J, self.friction = m.drive.pipe_torque_terms(m, m.sensor_of(self.torque_ch), P)
         self.reset()
 
     def reset(self) -> None:

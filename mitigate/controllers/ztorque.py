@@ -14,7 +14,7 @@ is an outer loop on the set-point::
 
 with ``T_pipe`` from :class:`mitigate.controllers.tuning.PipeTorque` (the reaction load cell minus
 ``ratio Jm w'``).  The high-pass time constant defaults to twice the stick-slip period of the rig
-(its lowest mode with the drive held; rig3: 2 x 2.3 s), so the stick-slip band passes and the
+(:func:`models.modal.stick_slip_period`; rig3: 2 x 2.3 s), so the stick-slip band passes and the
 mean load does not; ``Z = sqrt(k J)`` from the rig (:mod:`mitigate.controllers.tuning`).  ``z`` is
 0.35: NORCE's 0.25 gave a severity of 0.733 on the main scenario, 0.35 the sweep's lowest, 0.666
 (``benchmarks/industry_tuning.py``).  On a rig

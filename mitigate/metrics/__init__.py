@@ -26,7 +26,7 @@ metrics are built on are in :mod:`mitigate.severity`.
 from mitigate.metrics.registry import (Metric, columns, evaluate, get, in_order, is_count, is_timing, markdown_table,
                                        metric, ranked, registered, shown, unit, units, unregister)
 from mitigate.metrics.quantities import (MetricOptions, contact_work, force_roles, measured_stuck_speed,
-                                         programmed_speed, result_voltage, rig_period, solve_time_stats, windows)
+                                         programmed_speed, rig_period, solve_time_stats, windows)
 from mitigate.metrics.window import ClosedLoopWindow, RunWindow, SweepWindow
 from mitigate.metrics.closed_loop import closed_loop_metrics
 from mitigate.metrics import sweep as _sweep  # noqa: F401 - declares the sweep's metrics
@@ -37,6 +37,6 @@ from models.signals import dominant_frequency
 __all__ = ["Metric", "metric", "columns", "evaluate", "get", "in_order", "is_count", "markdown_table", "is_timing", "ranked", "registered", "shown",
            "unit", "units", "unregister", "RunWindow", "ClosedLoopWindow", "SweepWindow", "MetricOptions",
            "closed_loop_metrics", "contact_work", "force_roles", "measured_stuck_speed", "programmed_speed",
-           "result_voltage", "rig_period", "solve_time_stats", "windows", "severity", "windowed_severity",
+           "rig_period", "solve_time_stats", "windows", "severity", "windowed_severity",
            "moving_severity", "time_to_suppress", "stuck_fraction", "amplitude", "rms", "total_variation",
            "dominant_frequency"]

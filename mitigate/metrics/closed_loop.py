@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from mitigate.metrics.registry import evaluate, metric
-from mitigate.metrics.quantities import MetricOptions, result_voltage
+from mitigate.metrics.quantities import MetricOptions
 from mitigate.metrics.window import ClosedLoopWindow
 from mitigate.severity import rms, severity, stuck_fraction, time_to_suppress, total_variation
 from models.status import Status
@@ -92,12 +92,9 @@ def setpoint_variation(w: ClosedLoopWindow) -> float:
 @metric("drive_energy", "J", "effort: the DC motor's sum |V i| dt, a torque drive's sum |tau w| dt (NaN for a "
         "speed drive)", needs=_CTRL, show=_TABLES + ("bars",), header="drive energy")
 def drive_energy(w: ClosedLoopWindow) -> float:
-    pm, X, U, dt = w.plant, w.x, w.u, w.dt
-    if pm.drive_kind == "dc_motor":
-        return float(np.sum(np.abs(result_voltage(pm, w.params, X, U) * X[:, pm.nx - 2])) * dt)
-    if pm.drive_kind == "torque":
-        return float(np.sum(np.abs(U[:, pm.inputs.index(pm.drive_input)] * X[:, pm.speed_index(pm.drive_body)])) * dt)
-    return float("nan")
+    pm = w.plant
+    power = pm.drive.power(pm, w.params, w.x, w.u)      # the drive kind says what it draws (None: unknown)
+    return float(np.sum(np.abs(power)) * w.dt) if power is not None else float("nan")
 
 
 @metric("pin_work", "J", "brake wear: friction work at the contacts whose normal force is an input with a zero "

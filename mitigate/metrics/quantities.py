@@ -19,7 +19,7 @@ from models.checks import finite_number
 from models.errors import ConfigError
 
 __all__ = ["MetricOptions", "contact_work", "solve_time_stats", "programmed_speed", "measured_stuck_speed", "rig_period",
-           "force_roles", "windows", "result_voltage"]
+           "force_roles", "windows"]
 
 
 def contact_work(model, params, x: np.ndarray, u: np.ndarray, contact: str, dt: float, *,
@@ -76,9 +76,8 @@ class MetricOptions:
 
     Parameters
     ----------
-    period : the stick-slip period [s] that sets the windows (None: the rig's lowest torsional mode
-        with the drive held, :func:`rig_period`; the benchmark passes the period it measured on the
-        uncontrolled run)
+    period : the stick-slip period [s] that sets the windows (None: the rig's estimate,
+        :func:`rig_period`; the benchmark passes the period it measured on the uncontrolled run)
     residual_periods : length of the residual window in periods [-] (3; whole periods, see below)
     residual_fraction : the residual window is at most this fraction of the controlled part [-]
         (0.5: the first half holds the switch-on transient); it is a whole number of periods (at
@@ -145,10 +144,10 @@ class MetricOptions:
 
 
 def rig_period(model, params) -> float:
-    """The rig's stick-slip period estimate [s]: its lowest torsional mode with the drive held
-    (:func:`mitigate.controllers.tuning.stick_slip_frequency`)."""
-    from mitigate.controllers.tuning import stick_slip_frequency
-    return 1.0 / stick_slip_frequency(model, params)
+    """The rig's stick-slip period estimate [s] (:func:`models.modal.stick_slip_period`: its lowest
+    torsional mode with its drive's boundary condition)."""
+    from models.modal import stick_slip_period
+    return stick_slip_period(model, params)
 
 
 def programmed_speed(scenario, t: np.ndarray) -> np.ndarray:
@@ -157,9 +156,9 @@ def programmed_speed(scenario, t: np.ndarray) -> np.ndarray:
     at), else the rig file's ``operating_point.speed`` (NaN if it has none)."""
     m = scenario.model
     t = np.asarray(t, float)
-    if m.drive_kind == "torque":
-        if getattr(scenario, "control_speed", None) is not None:
-            return np.array([scenario.control_speed(tk) for tk in t], float)
+    if not m.drive.sets_speed:
+        if scenario.control.speed is not None:
+            return np.array([scenario.control.speed(tk) for tk in t], float)
         v = m.spec.extra.get("operating_point", {}).get("speed")      # SI, resolved by the rig parser
         return np.full(t.shape, float(v) if v is not None else np.nan)
     prof = scenario.inputs[m.drive_input]
@@ -197,9 +196,3 @@ def measured_stuck_speed(scenario, w_scale: float, given: float | None = None) -
     m = scenario.model
     ch = m.speed_channel(m.objective_body)
     return ch, (given if given is not None else stuck_speed(m, ch, scenario.dt, w_scale))
-
-
-def result_voltage(model, params, X: np.ndarray, U: np.ndarray) -> np.ndarray:
-    """The DC motor's armature voltage along a trajectory (its drive's limits applied) [V]."""
-    f = model.meas_vector(["voltage"])
-    return np.array(f.map(X.shape[0])(X.T, U.T, np.asarray(params.vector(), float))).ravel()

@@ -48,7 +48,7 @@ def make_tasks(plan: SweepPlan, controller: str | None = None) -> list[ChunkTask
                                    amp_index=model.states.index(o.amplitude_of), threshold=o.threshold,
                                    stuck_threshold=o.stuck_threshold, backend=o.backend, controller=controller,
                                    perturbation=o.perturbation, quasi_static=qs, scenario=plan.scenario.name))
-    if model.drive_kind != "torque" and "force" in model.input_kinds:
+    if model.drive.sets_speed and "force" in model.input_kinds:
         idx = stability_indices(plan)
         for c, lo in enumerate(range(0, len(idx), o.chunk)):
             ii = idx[lo:lo + o.chunk]

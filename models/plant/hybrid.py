@@ -105,7 +105,8 @@ def hybrid_step_function(model, dt: float, nsub: int, *, quasi_static: bool = Fa
     p = ca.SX.sym("p", model.n_p)
     P = model.unpack(p)
     if quasi_static and model.current_index is None:
-        raise ConfigError(f"quasi_static needs a DC motor drive; rig {model.name!r} has a {model.drive_kind} drive")
+        raise ConfigError(f"quasi_static needs a drive with a fast state (a DC motor's current); rig {model.name!r} has a "
+                          f"{model.drive_kind} drive")
     # one substep as its own Function keeps the graph small; it is called nsub times
     xs, ths = ca.SX.sym("xs", model.nx), ca.SX.sym("ths")
     sub = ca.Function(f"{model.cname}_hybrid_substep", [xs, ths, u, p], list(_substep(model, xs, ths, u, P, dt / nsub, quasi_static)),

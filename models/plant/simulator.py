@@ -185,7 +185,7 @@ class Plant:
         self.sensors = Sensors(model, sensors, options.dt, self.rng) if sensors is not None else None
         self.servos: dict[int, Servo] = {}
         #: (input index, limit [N m]) of a torque drive with ``[drive] torque_max``: its input is clipped
-        tmax = model.spec.drive.torque_max
+        tmax = model.drive.torque_limit() if not model.drive.sets_speed else math.inf
         self._torque_max = (model.inputs.index(model.drive_input), tmax) if math.isfinite(tmax) else None
         if actuators:
             for a in model.actuators:

@@ -7,13 +7,13 @@ from __future__ import annotations
 import math
 
 from models.rig.fields import Context, const_value, positive_check
-from models.rig.spec import DC_MOTOR_FIELDS, NODE_DRIVE, NODE_GROUND, SI_UNITS, DriveSpec, ParamDecl
+from models.rig.drives import get_drive
+from models.rig.spec import NODE_DRIVE, NODE_GROUND, SI_UNITS, DriveSpec, ParamDecl
 
 __all__ = ["check_values", "check_massless", "check_rates", "reference_node", "MAX_RATE"]
 
 
 def check_values(ctx: Context, decl, bodies, conns, contacts, drive: DriveSpec) -> None:
-    kind = drive.kind
     # ---- physical checks on values
     for b in bodies:
         positive_check(b.inertia, f"bodies.{b.name}.inertia", "kg m^2", ctx, decl)
@@ -25,12 +25,9 @@ def check_values(ctx: Context, decl, bodies, conns, contacts, drive: DriveSpec) 
         positive_check(c.radius, f"contacts.{c.name}.radius", "m", ctx, decl, strict=True)
         if c.normal is not None and c.normal.kind != "input":
             positive_check(c.normal, f"contacts.{c.name}.normal", "N", ctx, decl)
-    if kind == "dc_motor":
-        for pname in ("L", "R", "Jm", "ratio", "KT"):
-            positive_check(drive.param(pname), f"drive.{pname}", SI_UNITS[DC_MOTOR_FIELDS[pname][0]], ctx, decl,
-                            strict=True)
-        for pname in ("Tf", "Cm", "KE", "kp", "ki", "v_max", "i_max"):
-            positive_check(drive.param(pname), f"drive.{pname}", SI_UNITS[DC_MOTOR_FIELDS[pname][0]], ctx, decl)
+    fields = get_drive(drive.kind).fields
+    for fd in sorted(fields, key=lambda fd: not fd.strict):        # the strictly positive ones first
+        positive_check(drive.param(fd.name), f"drive.{fd.name}", SI_UNITS[fd.kind], ctx, decl, strict=fd.strict)
     # physical lower bounds for parameters used as inertias, stiffnesses, ...: default [0, inf)
     nonneg = {"inertia", "stiffness", "damping", "length", "mass", "inductance", "resistance", "time", "force_rate",
               "current", "voltage"}
@@ -52,7 +49,7 @@ def check_values(ctx: Context, decl, bodies, conns, contacts, drive: DriveSpec) 
 
 def reference_node(ctx: Context, conns, contacts, drive: DriveSpec, body_names, sensors) -> str:
     """The reference node, after checking that the springs form a forest and every body is joined."""
-    kind = drive.kind
+    on_body = get_drive(drive.kind).on_body
     # ---- topology: springs form a forest; every body is connected; a reference node
     parent: dict[str, str] = {}
 
@@ -70,17 +67,17 @@ def reference_node(ctx: Context, conns, contacts, drive: DriveSpec, body_names, 
                                                   "twist coordinates need the springs to form a tree")
         parent[ra] = rb
     touched = {x for c in conns for x in (c.a, c.b)}
-    if kind in ("dc_motor", "torque"):
+    if on_body:
         touched.add(drive.body)
     for c in contacts:
         touched.add(c.body)
     alone = [b for b in body_names if b not in {x for c in conns for x in (c.a, c.b)}]
-    if len(body_names) + (1 if kind == "speed" else 0) > 1:
+    if len(body_names) + (0 if on_body else 1) > 1:
         for b in alone:
             raise ctx.err(f"bodies.{b}", "nothing connects this body (give it a connection to another body, "
                                          "the drive or the ground)")
-    ref_node = drive.body if kind in ("dc_motor", "torque") else NODE_DRIVE
-    if kind == "speed" and NODE_DRIVE not in touched:
+    ref_node = drive.body if on_body else NODE_DRIVE
+    if not on_body and NODE_DRIVE not in touched:
         raise ctx.err("drive", "a speed drive must be joined to a body by a connection (between = [\"<body>\", \"drive\"])")
     for s in sensors:
         if s.kind == "encoder" and find(s.target) != find(ref_node) and s.target != ref_node:
@@ -98,11 +95,12 @@ MAX_RATE = 1e8
 
 
 def _reflected(ctx: Context, drive: DriveSpec, decl) -> tuple[str, float | None]:
-    """(body, ``ratio^2 Jm``) of a DC motor; ("", 0) otherwise; the value None while it is not known."""
-    if drive.kind != "dc_motor":
+    """(body, the inertia its drive adds to it: a geared rotor's ``ratio^2 Jm``); ("", 0) for a drive
+    without a rotor; the value None while it is not known."""
+    cls = get_drive(drive.kind)
+    if not cls.geared:
         return "", 0.0
-    eta, jm = const_value(drive.param("ratio"), ctx, decl), const_value(drive.param("Jm"), ctx, decl)
-    return drive.body, (None if eta is None or jm is None else eta * eta * jm)
+    return drive.body, cls.reflected_inertia(lambda r: const_value(r, ctx, decl), drive)
 
 
 def check_massless(ctx: Context, bodies, drive: DriveSpec, decl=None) -> None:

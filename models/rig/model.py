@@ -19,7 +19,8 @@ and the inertia a contact adds)::
 
 with ``G = ratio`` when the PI acts on the motor-side error (``pi_error = "motor"``), ``dz`` the
 backlash dead zone, and ``sat`` the supply-voltage limit and the drive's current limit
-(``v_max``, ``i_max``; see :meth:`RigModel.motor_voltage`).
+(``v_max``, ``i_max``; see :meth:`models.rig.drives.DCMotor.motor_voltage`).  The drive's terms come from
+its kind (:mod:`models.rig.drives`).
 
 The rest of the workbench uses the same interface for every rig:
 
@@ -45,6 +46,7 @@ from models import friction as fr
 from models.errors import ConfigError
 from models.params import ParameterSet, Spec
 from models.rig import steady
+from models.rig.drives import drive_of
 from models.rig.outputs import RigOutputs
 from models.rig.spec import NODE_DRIVE, NODE_GROUND, RigSpec, SI_UNITS
 
@@ -86,14 +88,13 @@ class RigModel(RigOutputs):
         self.description = spec.description
         self._springs = tuple(c for c in spec.connections if c.stiffness is not None)
         self._bodies = spec.body_names
-        drive = spec.drive
-        self.drive_kind = drive.kind
-        self.drive_body = drive.body
+        #: the drive (:mod:`models.rig.drives`): every question about it is asked there
+        self.drive = drive_of(spec.drive)
+        self.drive_body = spec.drive.body
         twist = tuple(f"twist_{c.name}" for c in self._springs)
         speeds = tuple(f"omega_{b}" for b in self._bodies)
-        dstates = ("current", "pi_integral") if drive.kind == "dc_motor" else ()
-        self.states = twist + speeds + dstates
-        self.state_units = ("rad",) * len(twist) + ("rad/s",) * len(speeds) + (("A", "rad") if dstates else ())
+        self.states = twist + speeds + tuple(s.name for s in self.drive.states)
+        self.state_units = ("rad",) * len(twist) + ("rad/s",) * len(speeds) + tuple(s.unit for s in self.drive.states)
         self.inputs = spec.inputs
         self.input_units = tuple(SI_UNITS[spec.input_kind(n)] for n in self.inputs)
         self.input_kinds = tuple(spec.input_kind(n) for n in self.inputs)
@@ -153,6 +154,17 @@ class RigModel(RigOutputs):
             return self._speed_index[body]
         except KeyError:
             raise ConfigError(f"{self.name}: no body {body!r} (bodies: {', '.join(self._bodies)})") from None
+
+    @property
+    def drive_kind(self) -> str:
+        """The drive's kind, by name (for messages; ask :attr:`drive` what it does)."""
+        return self.drive.kind
+
+    @property
+    def drive_node(self) -> str:
+        """The node whose speed is the drive's: the drive body, or ``"drive"`` for a drive that
+        prescribes a speed."""
+        return self.drive.node
 
     @property
     def drive_input(self) -> str:
@@ -246,78 +258,30 @@ class RigModel(RigOutputs):
             T = T + c.damping.value(P, u_named) * (wa - wb)
         return T
 
-    def motor_voltage(self, x, u_named, P):
-        """Armature voltage of the DC motor's PI loop, limited by the supply and the current limit.
-
-        ``V = G (kp e + ki z)`` with ``e = w_ref - w_b`` and ``G`` = 1 (PI on the output-side
-        error) or ``ratio`` (on the motor's).  With ``v_max`` it is clipped to the supply; with
-        ``i_max`` to ``R i_max + KE w_m`` above and ``-R i_max + KE w_m`` below, the voltage that
-        holds the current at its limit in steady state (a current-limited drive).
-        """
-        d = self.spec.drive
-        wb = x[self._speed_index[d.body]]
-        eta = d.param("ratio").value(P, u_named)
-        G = eta if d.pi_error == "motor" else 1.0
-        e = u_named[d.input] - wb
-        z = x[self.nx - 1]
-        V = G * (d.param("kp").value(P, u_named) * e + d.param("ki").value(P, u_named) * z)
-        hi, lo = None, None
-        vmax = d.param("v_max")
-        if vmax is not None:
-            hi, lo = vmax.value(P, u_named), -vmax.value(P, u_named)
-        imax = d.param("i_max")
-        if imax is not None:
-            wm = eta * wb
-            Rr, KE, im = d.param("R").value(P, u_named), d.param("KE").value(P, u_named), imax.value(P, u_named)
-            ih, il = Rr * im + KE * wm, -Rr * im + KE * wm
-            hi = ih if hi is None else ca.fmin(hi, ih)
-            lo = il if lo is None else ca.fmax(lo, il)
-        Vs = V
-        if hi is not None:
-            Vs = ca.fmin(ca.fmax(V, lo), hi)
-        return V, Vs
-
     @property
     def current_index(self) -> int | None:
-        """Index of a DC motor's armature current in the state, or None."""
-        return self.nx - 2 if self.drive_kind == "dc_motor" else None
+        """Index of the drive's fast state (a DC motor's armature current) in the state, or None."""
+        name = self.drive.fast_state
+        return None if name is None else self.drive.state_index(self, name)
 
     def quasi_static_current(self, x, u, P):
-        """The armature current with the inductance neglected, ``i = (V - KE ratio w_b) / R`` [A]
-        (``V`` the limited PI voltage, :meth:`motor_voltage`): what ``L i' = V - R i - KE w_m``
-        settles to when ``L/R`` is far below the time scales of interest
+        """The drive's fast state with its own dynamics neglected (a DC motor's armature current with
+        the inductance neglected, :meth:`models.rig.drives.DCMotor.quasi_static`): what it settles to
+        when its time constant is far below the time scales of interest
         (:func:`models.discretise.integration`).  ``u`` in ``inputs`` order or named."""
-        d = self.spec.drive
-        un = self._named_inputs(u)
-        _, Vs = self.motor_voltage(x, un, P)
-        wm = d.param("ratio").value(P) * x[self._speed_index[d.body]]
-        return (Vs - d.param("KE").value(P) * wm) / d.param("R").value(P)
+        return self.drive.quasi_static(self, x, self._named_inputs(u), P)
 
     def electrical_time_constant(self, params) -> float:
-        """A DC motor's ``L/R`` [s] (0 for other drives)."""
-        if self.drive_kind != "dc_motor":
+        """The time constant of the drive's fast state [s] (a DC motor's ``L/R``; 0 for other drives)."""
+        if self.drive.fast_state is None:
             return 0.0
         P = params if isinstance(params, dict) else dict(zip(self.param_names, np.asarray(
             params.vector() if hasattr(params, "vector") else params, float)))
-        d = self.spec.drive
-        return float(d.param("L").value(P)) / float(d.param("R").value(P))
-
-    def motor_torque_em(self, x, u_named, P, *, friction: bool = True):
-        """Torque the DC motor's rotor delivers through the gearbox, output side [N m]:
-        ``ratio (KT i - Tf tanh(w_m/eps_m) - Cm w_m)`` (``friction=False``: ``ratio KT i``)."""
-        d = self.spec.drive
-        eta = d.param("ratio").value(P, u_named)
-        i = x[self.nx - 2]
-        T = eta * d.param("KT").value(P, u_named) * i
-        if friction:
-            wm = eta * x[self._speed_index[d.body]]
-            tanh = ca.tanh if _sym(wm) or _sym(T) else np.tanh
-            T = T - eta * (d.param("Tf").value(P, u_named) * tanh(wm / d.eps_motor) + d.param("Cm").value(P, u_named) * wm)
-        return T
+        return self.drive.electrical_time_constant(P)
 
     def inertia(self, body: str, P) -> float:
-        """The body's total inertia [kg m^2]: its own, plus ``ratio^2 Jm`` when a DC motor drives
-        it (the rotor reflected through the gearbox; thesis eq. 3-3), without what a contact adds.
+        """The body's total inertia [kg m^2]: its own, plus what its drive adds (a DC motor's rotor
+        reflected through the gearbox, ``ratio^2 Jm``; thesis eq. 3-3), without what a contact adds.
 
         Parameters
         ----------
@@ -326,9 +290,9 @@ class RigModel(RigOutputs):
         """
         self.speed_index(body)
         J = self.spec.body(body).inertia.value(P)
-        d = self.spec.drive
-        if d.kind == "dc_motor" and d.body == body:
-            J = J + d.param("ratio").value(P) ** 2 * d.param("Jm").value(P)
+        d = self.drive
+        if d.geared and d.body == body:
+            J = J + d.reflected_inertia(lambda r: r.value(P), d.spec)
         return J
 
     def _named_inputs(self, u):
@@ -396,11 +360,9 @@ class RigModel(RigOutputs):
                 torque[c.a] = torque[c.a] - T
         for i, b in enumerate(self.contact_bodies):
             torque[b] = torque[b] + Tc[i]
-        d = self.spec.drive
-        if d.kind == "dc_motor":
-            torque[d.body] = torque[d.body] + self.motor_torque_em(x, un, P)
-        elif d.kind == "torque":
-            torque[d.body] = torque[d.body] + un[d.input]
+        d = self.drive
+        if d.on_body:
+            torque[d.body] = torque[d.body] + d.torque(self, x, un, P)
         out = []
         for c in self._springs:
             out.append(self._node_speed(c.a, x, un) - self._node_speed(c.b, x, un))
@@ -410,18 +372,7 @@ class RigModel(RigOutputs):
                 i = self.contact_bodies.index(b)
                 J = J + self._added_inertia(i, x, un, P, s[i])
             out.append(torque[b] / J)
-        if d.kind == "dc_motor":
-            eta = d.param("ratio").value(P, un)
-            wb = x[self._speed_index[d.body]]
-            V, Vs = self.motor_voltage(x, un, P)
-            e = un[d.input] - wb
-            di = (Vs - d.param("R").value(P, un) * x[self.nx - 2] - d.param("KE").value(P, un) * eta * wb) \
-                / d.param("L").value(P, un)
-            if d.param("v_max") is not None or d.param("i_max") is not None:
-                # anti-windup: the integral stops while the limit holds the voltage against the error
-                sat = ca.logic_and(ca.fabs(V - Vs) > 1e-9, ca.sign(V - Vs) == ca.sign(e))
-                e = ca.if_else(sat, 0, e)
-            out.extend([di, e])
+        out.extend(d.rates(self, x, un, P))
         return out
 
     def _added_inertia(self, i, x, un, P, s):

@@ -60,14 +60,8 @@ class RigOutputs:
         if s.kind == "speed":
             return [self._node_speed(s.target, x, un)]
         if s.kind == "torque":
-            if s.target == NODE_DRIVE and self.drive_kind == "torque":
-                return [un[self.spec.drive.input]]
             if s.target == NODE_DRIVE:
-                if s.definition == "electromagnetic":
-                    return [self.motor_torque_em(x, un, P, friction=False)]
-                d = self.spec.drive
-                eta, Jm = d.param("ratio").value(P, un), d.param("Jm").value(P, un)
-                return [self.motor_torque_em(x, un, P) - eta * (eta - 1) * Jm * self.acceleration(x, u, P, d.body)]
+                return [self.drive.torque_reading(self, s, x, u, un, P)]
             c = next(c for c in self.spec.connections if c.name == s.target)
             return [self.connection_torque(c, x, un, P)]
         c = next(c for c in self.spec.contacts if c.name == s.target)
@@ -76,8 +70,8 @@ class RigOutputs:
     def outputs(self, x, u, P, theta_ref) -> dict:
         """Noise-free readings of every sensor channel (gain and offset applied), the inputs,
         and physical quantities: twists (state names), body speeds, friction torques
-        (``friction_<contact>``, regularised), and for a DC motor ``current``, ``voltage``,
-        ``motor_speed`` and ``motor_torque_em``."""
+        (``friction_<contact>``, regularised), and the drive's own quantities (a DC motor's
+        ``current``, ``voltage``, ``motor_speed`` and ``motor_torque_em``)."""
         un = self._u_named(u)
         out: dict = {}
         for s in self.sensors:
@@ -91,13 +85,7 @@ class RigOutputs:
             out[f"twist_{c.name}"] = x[j]
         for b in self._bodies:
             out[f"omega_{b}"] = x[self._speed_index[b]]
-        d = self.spec.drive
-        if d.kind == "dc_motor":
-            eta = d.param("ratio").value(P, un)
-            out["current"] = x[self.nx - 2]
-            out["voltage"] = self.motor_voltage(x, un, P)[1]
-            out["motor_speed"] = eta * x[self._speed_index[d.body]]
-            out["motor_torque_em"] = self.motor_torque_em(x, un, P, friction=False)
+        out.update(self.drive.outputs(self, x, un, P))
         return out
 
     def input_from_measured(self, u_meas, P):
@@ -123,8 +111,7 @@ class RigOutputs:
         for n, u in zip(self.inputs, self.input_units):
             units.setdefault(n, u)
         units.update(zip(self.states, self.state_units))
-        if self.spec.drive.kind == "dc_motor":
-            units.update(current="A", voltage="V", motor_speed="rad/s", motor_torque_em="N m")
+        units.update(self.drive.output_units())
         return units
 
     def output_names(self) -> tuple[str, ...]:

@@ -17,8 +17,8 @@ from models.friction import get_law
 from models.rig.checks import check_massless, check_rates, check_values, reference_node
 from models.rig.fields import (Context, check_keys, check_name, entries, number, parse_parameters, table,
                                value_ref)
-from models.rig.spec import (DC_MOTOR_FIELDS, DRIVE_KINDS, NODE_DRIVE, NODE_GROUND, SENSOR_KINDS, SI_UNITS,
-                             TRUTH_PREFIX, ActuatorSpec, BodySpec, ConnectionSpec, ContactSpec, DriveSpec, ParamDecl, Ref,
+from models.rig.drives import get_drive
+from models.rig.spec import (NODE_DRIVE, NODE_GROUND, SENSOR_KINDS, SI_UNITS, TRUTH_PREFIX, ActuatorSpec, BodySpec, ConnectionSpec, ContactSpec, DriveSpec, ParamDecl, Ref,
                              RigSpec, SensorSpec)
 
 __all__ = ["parse_rig"]
@@ -70,53 +70,32 @@ def _parse_bodies(data, ctx: Context) -> list[BodySpec]:
 
 
 def _parse_drive(data, ctx: Context, body_names) -> DriveSpec:
-    # ---- drive
+    # ---- drive: its kind (models.rig.drives) says which keys and parameters it reads
     drv = table(data, "drive", ctx, required=True)
     kind = drv.get("kind")
-    if kind not in DRIVE_KINDS:
-        raise ctx.err("drive.kind", f"must be one of {', '.join(DRIVE_KINDS)}, got {kind!r}")
-    if kind == "dc_motor":
-        allowed_d = {"kind", "body", "input", "pi_error", "friction_smoothing", "doc"} | set(DC_MOTOR_FIELDS)
-    elif kind == "speed":
-        allowed_d = {"kind", "input", "doc"}
-    else:
-        allowed_d = {"kind", "body", "input", "torque_max", "doc"}
-    check_keys(drv, allowed_d, "drive", ctx)
+    cls = get_drive(kind, f"{ctx.where}: drive.kind")
+    check_keys(drv, cls.allowed_keys(), "drive", ctx)
     d_input = drv.get("input")
     check_name(d_input, "drive.input", ctx)
     d_body = drv.get("body", "")
-    if kind in ("dc_motor", "torque"):
+    if cls.on_body:
         if d_body not in body_names:
             raise ctx.err("drive.body", f"no body {d_body!r} (bodies: {', '.join(body_names)})")
     d_params = []
-    pi_error, eps_m = "disc", 0.05
-    if kind == "dc_motor":
-        for pname, (pkind, req, _lo) in DC_MOTOR_FIELDS.items():
-            if pname in drv:
-                d_params.append((pname, value_ref(drv[pname], pkind, f"drive.{pname}", ctx)))
-            elif req:
-                raise ctx.err(f"drive.{pname}", f"missing field (a dc_motor needs {', '.join(k for k, v in DC_MOTOR_FIELDS.items() if v[1])})")
-        pi_error = drv.get("pi_error", "disc")
-        if pi_error not in ("disc", "motor"):
-            raise ctx.err("drive.pi_error", f"must be 'disc' or 'motor', got {pi_error!r}")
-        eps_m = drv.get("friction_smoothing", 0.05)
-        eps_m = number(eps_m, "drive.friction_smoothing", ctx)
-        if not eps_m > 0:
-            raise ctx.err("drive.friction_smoothing", f"must be > 0 rad/s (motor side), got {eps_m:g}")
-    ctx.inputs[d_input] = "torque" if kind == "torque" else "speed"
-    torque_max = math.inf
-    if "torque_max" in drv:
-        r = value_ref(drv["torque_max"], "torque", "drive.torque_max", ctx)
-        if r.kind != "const" or not r.constant > 0:
-            raise ctx.err("drive.torque_max", f"must be a torque > 0 (a value, e.g. \"25 kN m\"), got {drv['torque_max']!r}")
-        torque_max = r.constant
-    drive = DriveSpec(kind, d_input, d_body, tuple(d_params), pi_error, eps_m, torque_max)
-    return drive
+    for fd in cls.fields:
+        if fd.name in drv:
+            d_params.append((fd.name, value_ref(drv[fd.name], fd.kind, f"drive.{fd.name}", ctx)))
+        elif fd.required:
+            raise ctx.err(f"drive.{fd.name}", f"missing field (a {kind} needs {', '.join(f.name for f in cls.fields if f.required)})")
+    settings = cls.parse_settings(drv, ctx)
+    ctx.inputs[d_input] = cls.setpoint
+    return DriveSpec(kind, d_input, d_body, tuple(d_params), **settings)
 
 
-def _parse_connections(data, ctx: Context, body_names, kind: str) -> list[ConnectionSpec]:
-    # ---- connections
-    nodes = set(body_names) | {NODE_GROUND} | ({NODE_DRIVE} if kind == "speed" else set())
+def _parse_connections(data, ctx: Context, body_names, drive: DriveSpec) -> list[ConnectionSpec]:
+    # ---- connections; a drive that prescribes a speed is the node "drive"
+    has_node = not get_drive(drive.kind).on_body
+    nodes = set(body_names) | {NODE_GROUND} | ({NODE_DRIVE} if has_node else set())
     conns = []
     for cname, f, c in entries(data, "connections", ctx):
         check_keys(c, {"between", "stiffness", "damping", "backlash", "doc"}, f, ctx)
@@ -127,7 +106,7 @@ def _parse_connections(data, ctx: Context, body_names, kind: str) -> list[Connec
             if x not in nodes:
                 hint = " ('drive' needs a drive of kind 'speed')" if x == NODE_DRIVE else ""
                 raise ctx.err(f"{f}.between", f"no body {x!r}{hint} (bodies: {', '.join(body_names)}; "
-                                              f"also 'ground'{', drive' if kind == 'speed' else ''})")
+                                              f"also 'ground'{', drive' if has_node else ''})")
         if btw[0] == btw[1]:
             raise ctx.err(f"{f}.between", f"must join two different nodes, got {btw!r}")
         if NODE_GROUND in btw and NODE_DRIVE in btw:
@@ -210,7 +189,7 @@ def _parse_actuators(data, ctx: Context, contacts) -> list[ActuatorSpec]:
 
 def _parse_sensors(data, ctx: Context, body_names, drive: DriveSpec, conns, contacts, raw_params):
     """(sensors, parameters they create for their offsets and gains)."""
-    kind, d_input = drive.kind, drive.input
+    cls, d_input = get_drive(drive.kind), drive.input
     inputs_now = [drive.input] + [c.normal.name for c in contacts if c.normal is not None and c.normal.kind == "input"]
     # ---- sensors
     sensors = []
@@ -244,7 +223,7 @@ def _parse_sensors(data, ctx: Context, body_names, drive: DriveSpec, conns, cont
         kw: dict[str, Any] = dict(delay=delay, noise=noise)
         if sk in ("encoder", "speed"):
             target = s.get("body")
-            if target not in body_names and not (target == NODE_DRIVE and kind == "speed"):
+            if target not in body_names and not (target == NODE_DRIVE and not cls.on_body):
                 raise ctx.err(f"{f}.body", f"no body {target!r} (bodies: {', '.join(body_names)})")
             if sk == "encoder":
                 ticks = s.get("ticks")
@@ -263,16 +242,7 @@ def _parse_sensors(data, ctx: Context, body_names, drive: DriveSpec, conns, cont
         elif sk == "torque":
             target = s.get("at")
             if target == NODE_DRIVE:
-                if kind == "speed":
-                    raise ctx.err(f"{f}.at", "a speed drive has no torque to measure; put the sensor on a connection")
-                if kind == "dc_motor":
-                    definition = s.get("definition", "reaction")
-                    if definition not in ("reaction", "electromagnetic"):
-                        raise ctx.err(f"{f}.definition", f"must be 'reaction' or 'electromagnetic', got {definition!r}")
-                    kw["definition"] = definition
-                elif "definition" in s:
-                    raise ctx.err(f"{f}.definition", "applies only to a DC motor's torque (a torque drive's sensor "
-                                                     "reads the applied torque)")
+                kw.update(cls.torque_sensor(s, f, ctx))
             elif target in conn_names:
                 if "definition" in s:
                     raise ctx.err(f"{f}.definition", "applies only to a torque sensor at the drive")
@@ -281,7 +251,9 @@ def _parse_sensors(data, ctx: Context, body_names, drive: DriveSpec, conns, cont
                     raise ctx.err(f"{f}.at", f"connection {target!r} carries no torque")
             else:
                 raise ctx.err(f"{f}.at", f"must be 'drive' or a connection ({', '.join(conn_names) or 'none'}), got {target!r}")
-            default = d_input if (target == NODE_DRIVE and kind == "torque") else f"torque_{target}"
+            # a torque sensor at a torque-input drive measures its input (the drive logs its command)
+            reads_input = target == NODE_DRIVE and not cls.sets_speed
+            default = d_input if reads_input else f"torque_{target}"
             chans = (s.get("channel", default),)
         else:
             target = s.get("contact")
@@ -302,7 +274,7 @@ def _parse_sensors(data, ctx: Context, body_names, drive: DriveSpec, conns, cont
             # a sensor may write an input's channel only when it measures that input: a load cell its
             # normal force, a torque drive's torque sensor its torque, a speed drive's encoder its speed
             measures_input = ((sk == "load_cell" and ch == chans[0])
-                              or (sk == "torque" and target == NODE_DRIVE and kind == "torque" and ch == d_input)
+                              or (sk == "torque" and target == NODE_DRIVE and not cls.sets_speed and ch == d_input)
                               or (sk in ("encoder", "speed") and target == NODE_DRIVE and ch == chans[-1]
                                   and ch == d_input))
             if ch in inputs_now and not measures_input:
@@ -341,7 +313,7 @@ def _parse_declared(ctx: Context, raw_params, auto_params) -> dict[str, ParamDec
 
 def _rig_extra(ctx: Context, rig, body_names, drive: DriveSpec, contacts) -> dict:
     """``objective_body``, ``operating_point`` and ``measured_modes_hz`` of the [rig] table."""
-    kind = drive.kind
+    cls = get_drive(drive.kind)
     extra: dict[str, Any] = {}
     if "objective_body" in rig:
         extra["objective_body"] = rig["objective_body"]
@@ -353,13 +325,13 @@ def _rig_extra(ctx: Context, rig, body_names, drive: DriveSpec, contacts) -> dic
     spec_inputs = [drive.input] + [c.normal.name for c in contacts if c.normal is not None and c.normal.kind == "input"]
     opv = {}
     for key, v in op.items():
-        if key == "speed" and kind == "torque":
-            k2 = "speed"
+        if key == "speed" and not cls.sets_speed:
+            k2 = "speed"          # the sliding speed of a drive whose input is not a speed
         elif key in spec_inputs:
-            k2 = "force" if key != drive.input else ("torque" if kind == "torque" else "speed")
+            k2 = "force" if key != drive.input else cls.setpoint
         else:
             raise ctx.err(f"rig.operating_point.{key}", f"not an input ({', '.join(spec_inputs)})"
-                                                        f"{' or speed' if kind == 'torque' else ''}")
+                                                        f"{'' if cls.sets_speed else ' or speed'}")
         r = value_ref(v, k2, f"rig.operating_point.{key}", ctx)
         if r.kind != "const":
             raise ctx.err(f"rig.operating_point.{key}", "must be a value, not a parameter")
@@ -387,7 +359,7 @@ def parse_rig(data: Mapping[str, Any], path: str = "<rig>") -> RigSpec:
     body_names = [b.name for b in bodies]
     drive = _parse_drive(data, ctx, body_names)
     check_massless(ctx, bodies, drive)
-    conns = _parse_connections(data, ctx, body_names, drive.kind)
+    conns = _parse_connections(data, ctx, body_names, drive)
     contacts = _parse_contacts(data, ctx, body_names, where)
     acts = _parse_actuators(data, ctx, contacts)
     sensors, auto_params = _parse_sensors(data, ctx, body_names, drive, conns, contacts, raw_params)

@@ -35,7 +35,7 @@ Schema (see ``models/rigs/*.toml`` for complete examples)::
     mu_k = "mu_k"
     v_s = "v_s"
 
-    [drive]                            # one of: dc_motor, speed, torque
+    [drive]                            # a kind of models.rig.drives.DRIVES: dc_motor, speed, torque
     kind = "dc_motor"
     body = "R3"
     input = "omega_ref"                # speed set-point [rad/s], output side of the gearbox
@@ -70,8 +70,7 @@ from typing import Any, Mapping
 from models.errors import ConfigError
 
 __all__ = ["Ref", "ParamDecl", "BodySpec", "ConnectionSpec", "ContactSpec", "DriveSpec", "ActuatorSpec",
-           "SensorSpec", "RigSpec", "SI_UNITS", "DRIVE_KINDS", "SENSOR_KINDS", "DC_MOTOR_FIELDS", "NODE_DRIVE",
-           "NODE_GROUND"]
+           "SensorSpec", "RigSpec", "SI_UNITS", "SENSOR_KINDS", "NODE_DRIVE", "NODE_GROUND"]
 
 #: prefix of the true-state columns a simulation writes (``true_twist_<connection>``, ``true_omega_<body>``);
 #: a rig file may not name a sensor channel with it
@@ -86,17 +85,8 @@ SI_UNITS: dict[str, str] = {
     "force_rate": "N/s", "torque_rate": "N m/s", "viscous_torque": "N m s/rad", "dimensionless": "-",
 }
 
-DRIVE_KINDS = ("dc_motor", "speed", "torque")
 SENSOR_KINDS = ("encoder", "speed", "torque", "load_cell")
 NODE_DRIVE, NODE_GROUND = "drive", "ground"
-
-#: drive parameter -> (quantity kind, required, physical lower bound)
-DC_MOTOR_FIELDS: dict[str, tuple[str, bool, float]] = {
-    "L": ("inductance", True, 0.0), "R": ("resistance", True, 0.0), "KT": ("torque_constant", True, 0.0),
-    "KE": ("voltage_constant", True, 0.0), "Tf": ("torque", True, 0.0), "Cm": ("damping", True, 0.0),
-    "Jm": ("inertia", True, 0.0), "ratio": ("dimensionless", True, 0.0), "kp": ("pi_kp", True, 0.0),
-    "ki": ("pi_ki", True, 0.0), "v_max": ("voltage", False, 0.0), "i_max": ("current", False, 0.0),
-}
 
 
 
@@ -181,6 +171,10 @@ class ContactSpec:
 
 @dataclass(frozen=True)
 class DriveSpec:
+    """The rig file's ``[drive]``: its kind (:data:`models.rig.drives.DRIVES`), input, body, parameters
+    and the settings some kinds read (a DC motor's ``pi_error`` and motor-side friction smoothing
+    [rad/s], a torque drive's ``torque_max``)."""
+
     kind: str
     input: str
     body: str = ""
@@ -265,7 +259,8 @@ class RigSpec:
 
     def input_kind(self, name: str) -> str:
         if name == self.drive.input:
-            return "torque" if self.drive.kind == "torque" else "speed"
+            from models.rig.drives import get_drive
+            return get_drive(self.drive.kind).setpoint
         return "force"
 
     def with_changes(self, **changes) -> "RigSpec":

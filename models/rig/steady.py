@@ -25,9 +25,9 @@ _STEADY_TOL = 1e-6
 
 def nominal_speed(model) -> float:
     """The rig's nominal sliding speed [rad/s]: the drive's input in the rig file's operating point
-    (a torque drive: its ``speed``), 1 rad/s when the file gives none."""
+    (a drive whose input is not a speed: its ``speed``), 1 rad/s when the file gives none."""
     op = model.spec.extra.get("operating_point", {})
-    key = "speed" if model.drive_kind == "torque" else model.drive_input
+    key = model.drive_input if model.drive.sets_speed else "speed"
     return float(op.get(key, 1.0))
 
 
@@ -49,7 +49,7 @@ def nominal_operating_point(model, params=None, *, omega: float | None = None,
         if not normals:
             raise ConfigError(f"rig {model.name!r} has no normal-force input for a load")
         u[normals[0]] = float(load)
-    if model.drive_kind == "torque":
+    if not model.drive.sets_speed:
         return operating_point(model, float(omega) if omega is not None else nominal_speed(model), u, params)
     u[model.inputs.index(model.drive_input)] = float(omega) if omega is not None else nominal_speed(model)
     return u, None
@@ -58,7 +58,7 @@ def nominal_operating_point(model, params=None, *, omega: float | None = None,
 def drive_speed_index(model) -> int | None:
     """Index of the input that sets the sliding speed (a speed set-point or a prescribed
     speed), or None for a torque drive."""
-    return None if model.drive_kind == "torque" else model.inputs.index(model.spec.drive.input)
+    return model.inputs.index(model.spec.drive.input) if model.drive.sets_speed else None
 
 
 def _steady_function(model, eps, mode: str, other: tuple, spd_idx: tuple, ju: int) -> ca.Function:
@@ -99,7 +99,7 @@ def _steady_solve(model, u, params, speed: float | None, eps: float | None = Non
     n_tw, nb = len(model.springs), len(model.bodies)
     spd_idx = list(range(n_tw, n_tw + nb))
     other = [j for j in range(model.nx) if j not in spd_idx]
-    torque_drive = model.drive_kind == "torque"
+    torque_drive = not model.drive.sets_speed
     ju = model.inputs.index(model.spec.drive.input)
     solve_speed = torque_drive and speed is None
     if speed is None:
@@ -120,8 +120,7 @@ def _steady_solve(model, u, params, speed: float | None, eps: float | None = Non
             zv[other.index(j)] = np.sign(speed or 1.0) * float(c.backlash.value(Pn))
     # a drive's voltage and current limits are flat outside their range: solve without them
     # first (they bind only in transients), then polish with them
-    limits = [model.param_names.index(r.name) for r in (model.spec.drive.param("v_max"), model.spec.drive.param("i_max"))
-              if r is not None and r.kind == "param"]
+    limits = [model.param_names.index(r.name) for r in model.drive.limit_refs() if r.kind == "param"]
     pvs = [pv]
     if limits:
         loose = pv.copy()
@@ -163,7 +162,7 @@ def sliding_guess(model, u, params) -> np.ndarray:
     Gauss-Newton solve of the force balance; a torque drive slides at the speed its
     torque sustains."""
     u = np.asarray(u, float)
-    if model.drive_kind == "torque":
+    if not model.drive.sets_speed:
         return _steady_solve(model, u, params, None)[0]
     return _steady_solve(model, u, params, float(u[model.inputs.index(model.spec.drive.input)]))[0]
 
@@ -173,7 +172,7 @@ def operating_point(model, speed: float, u, params) -> tuple[np.ndarray, np.ndar
     (a torque drive's input torque is solved for) and the state solved as in
     :meth:`sliding_guess`, then polished by Newton on the regularised model."""
     u = np.asarray(u, float).copy()
-    if model.drive_kind != "torque":
+    if model.drive.sets_speed:
         u[model.inputs.index(model.spec.drive.input)] = speed
         return u, steady_sliding(model, u, params)
     x, u = _steady_solve(model, u, params, float(speed))

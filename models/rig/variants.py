@@ -31,6 +31,7 @@ from typing import Mapping
 
 from models.errors import ConfigError
 from models.friction import get_law
+from models.rig.drives import get_drive
 from models.rig.spec import (ActuatorSpec, BodySpec, ConnectionSpec, ContactSpec, ParamDecl, Ref, RigSpec,
                              SensorSpec, SI_UNITS, NODE_DRIVE)
 
@@ -53,7 +54,8 @@ def with_torque_definition(spec: RigSpec, definition: str) -> RigSpec:
     """Every torque sensor at the DC motor reads ``definition`` ("reaction" or "electromagnetic")."""
     if definition not in ("reaction", "electromagnetic"):
         raise ConfigError(f"structure.torque_definition must be 'reaction' or 'electromagnetic', got {definition!r}")
-    hits = [s for s in spec.sensors if s.kind == "torque" and s.target == NODE_DRIVE and spec.drive.kind == "dc_motor"]
+    readable = definition in get_drive(spec.drive.kind).definitions
+    hits = [s for s in spec.sensors if s.kind == "torque" and s.target == NODE_DRIVE and readable]
     if not hits:
         raise ConfigError(f"structure.torque_definition: rig {spec.name!r} has no torque sensor at a DC motor")
     for s in hits:
@@ -63,7 +65,7 @@ def with_torque_definition(spec: RigSpec, definition: str) -> RigSpec:
 
 def with_pi_error(spec: RigSpec, side: str) -> RigSpec:
     """The DC motor's PI loop acts on the ``"disc"`` (output-side) or ``"motor"``-side speed error."""
-    if spec.drive.kind != "dc_motor":
+    if "pi_error" not in get_drive(spec.drive.kind).keys:
         raise ConfigError(f"structure.pi_error: rig {spec.name!r} has a {spec.drive.kind} drive, not a dc_motor")
     if side not in ("disc", "motor"):
         raise ConfigError(f"structure.pi_error must be 'disc' or 'motor', got {side!r}")
@@ -96,7 +98,7 @@ def with_backlash(spec: RigSpec, gap: float, stiffness: float, inertia: float, d
     damping ``damping`` [N m s/rad].
     """
     d = spec.drive
-    if d.kind != "dc_motor":
+    if not get_drive(d.kind).geared:
         raise ConfigError(f"structure.backlash: rig {spec.name!r} has a {d.kind} drive, not a dc_motor with a gearbox")
     for name, v, strict in (("gap", gap, False), ("stiffness", stiffness, True), ("inertia", inertia, True),
                             ("damping", damping, False)):

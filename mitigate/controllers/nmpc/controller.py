@@ -139,7 +139,7 @@ class NMPC(Controller):
         drive = m.drive_input
         self.drives = drive in self.inputs
         self.servos = tuple(n for n in self.inputs if n != drive)
-        self._torque_drive = m.drive_kind == "torque"
+        self._torque_drive = not m.drive.sets_speed
         if o.speed is None and self._torque_drive:
             # the scenario's [control] speed (ControlContext.target_speed, as SoftSpeed and Z-Torque);
             # without one the rig's operating_point.speed
@@ -236,7 +236,7 @@ class NMPC(Controller):
     @property
     def derived_units(self) -> dict[str, str]:
         """The unit of each :meth:`tuning_values` entry (a torque drive's set-point is a torque)."""
-        sp, rate = ("N m", "N m/s") if self._torque_drive else ("rad/s", "rad/s^2")
+        sp, rate = self.model.drive.unit, self.model.drive.rate_unit
         return {"dt": "s", "horizon": "-", "eps": "rad/s", "setpoint_band": sp, "setpoint_rate": rate,
                 "force_filter": "s", "hold_gain": "-", "speed_trim": "s"}
 
@@ -311,7 +311,7 @@ class NMPC(Controller):
             c = float(u_prog[self.layout.u_drive])
             band = self.cfg.setpoint_band
             lo[0], hi[0] = c - band, c + band
-            if not self._torque_drive:   # a speed set-point does not reverse the rotation
+            if not self.model.drive.reverses:   # a speed set-point does not reverse the rotation
                 if c >= 0:
                     lo[0] = max(lo[0], 0.0)
                 else:

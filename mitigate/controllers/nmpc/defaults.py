@@ -31,10 +31,9 @@ slope at the programme) the calm plan must keep damping: at 60 the residual on t
 unstable-sliding and low-speed scenarios rose from 0.0044 / 0.0058 to 0.0125 / 0.0208
 (``benchmarks/results/nmpc.md``).
 
-``T`` is the rig's stick-slip period: the lowest torsional mode with the drive held
-(:func:`mitigate.controllers.tuning.stick_slip_frequency`; rig3: 2.33 s, its stick-slip cycle at
-30 rpm is 2.3 s) -- or, on a torque drive, whose drive body turns freely, the lowest torsional
-mode of the free chain (the field drill string: 7.2 s, its stick-slip cycle at 10 kN m 8.3 s;
+``T`` is the rig's stick-slip period (:func:`models.modal.stick_slip_period`): the lowest torsional
+mode with the drive held (rig3: 2.33 s, its stick-slip cycle at 30 rpm is 2.3 s) -- or, on a torque
+drive, whose drive body turns freely, the lowest torsional mode of the free chain (the field drill string: 7.2 s, its stick-slip cycle at 10 kN m 8.3 s;
 with its table held it would be 15.7 s, and an NMPC planning at that period's 0.39 s ran the
 bit 27 % fast).  With the default horizon of 20 intervals the NMPC looks half a period ahead.
 """
@@ -104,7 +103,7 @@ def resolve(options, model, params, dt_daq: float, nominal_speed: float, setpoin
         dt = float(o.dt)
     else:
         if period is None:
-            raise ConfigError(f"{where}.dt: rig {model.name!r} has no torsional mode with its drive held to derive "
+            raise ConfigError(f"{where}.dt: rig {model.name!r} has no torsional mode to derive "
                               f"the OCP interval from; give dt [s]")
         dt = max(1, math.floor(period / INTERVALS_PER_PERIOD / dt_daq + 1e-9)) * dt_daq
         derived.append("dt")
@@ -157,7 +156,7 @@ def sliding_is_stable(model, params, u, nominal_speed: float) -> bool | None:
     from models.modal import sliding_stability
     try:
         x_op, u = None, np.asarray(u, float)
-        if model.drive_kind == "torque":
+        if not model.drive.sets_speed:
             u, x_op = model.operating_point(float(nominal_speed), u, params)
             if not (np.all(np.isfinite(x_op)) and np.all(np.isfinite(u))):
                 return None
@@ -167,14 +166,9 @@ def sliding_is_stable(model, params, u, nominal_speed: float) -> bool | None:
 
 
 def _period(model, params) -> float | None:
-    """The rig's stick-slip period [s] (module docstring), or None without a torsional mode."""
-    if model.drive_kind == "torque":
-        from models.modal import modes
-        r = modes(model, params, "free", damped=True)
-        osc = [f for f, o in zip(r.freq_hz, r.oscillatory) if o and f > 0]
-        return 1.0 / float(osc[0]) if osc else None
-    from mitigate.controllers.tuning import stick_slip_frequency
+    """The rig's stick-slip period [s] (:func:`models.modal.stick_slip_period`), or None without a torsional mode."""
+    from models.modal import stick_slip_period
     try:
-        return 1.0 / stick_slip_frequency(model, params)
+        return stick_slip_period(model, params)
     except ConfigError:
         return None
