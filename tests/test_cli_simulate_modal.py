@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import mitigate.cli as cli
 from mitigate.scenario import load_scenario
 from models import get_model
 from models.errors import ConfigError
@@ -32,11 +31,6 @@ n1 = { kind = "constant", value = 20.0 }
 
 
 
-
-
-@pytest.fixture
-def main():
-    return cli.main
 
 
 def _runs(mask):

@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import mitigate.cli as cli
 from mitigate.runner import run
 from models.logs import read_csv
 from models.status import Status
@@ -32,11 +31,6 @@ EXPECTED = ["metrics.csv", "metrics.json", "report.md", "comparison.png", "phase
 
 
 
-
-
-@pytest.fixture
-def main():
-    return cli.main
 
 
 @pytest.fixture

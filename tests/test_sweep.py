@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import mitigate.cli as cli
 from mitigate import metrics as mx
 from mitigate.scenario import load_scenario
 from mitigate.sweep import (Axis, SweepStore, make_tasks, options_from_scenario, parse_axis, plan_sweep, run_chunk,
@@ -26,11 +25,6 @@ LEAD = ROOT / "scenarios" / "sweep_leadscrew.toml"
 @pytest.fixture(autouse=True)
 def _cache(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("STICKSLIP_CACHE", str(tmp_path_factory.getbasetemp() / "cc_cache"))
-
-
-@pytest.fixture
-def main():
-    return cli.main
 
 
 def test_parse_axis():
