@@ -28,6 +28,7 @@ def _run(disc_csv, out, *args):
                  "--nsub", "10", *args])
 
 
+@pytest.mark.slow
 def test_identify_writes_params_and_plot(disc_csv, tmp_path, capsys):
     out, png = tmp_path / "fitted.toml", tmp_path / "fit.png"
     rc = _run(disc_csv, out, "--free", "k,mu_k", "--plot", str(png), "--json")
@@ -126,6 +127,7 @@ def test_unconverged_fit_exits_1_and_says_what_to_try(disc_csv, tmp_path, capsys
     assert "--max-iter 2" in text
 
 
+@pytest.mark.slow
 def test_systematic_flag_prints_columns_and_writes_total(disc_csv, tmp_path, capsys):
     out = tmp_path / "f.toml"
     rc = _run(disc_csv, out, "--free", "k", "--systematic", "--no-plot")
@@ -140,6 +142,7 @@ def test_systematic_flag_prints_columns_and_writes_total(disc_csv, tmp_path, cap
     assert p.stderr_of("k") == pytest.approx(doc["error"])
 
 
+@pytest.mark.slow
 def test_bootstrap_writes_rms_error_as_stderr(disc_csv, tmp_path, capsys):
     out = tmp_path / "boot.toml"
     rc = _run(disc_csv, out, "--free", "k,mu_k", "--bootstrap", "2", "--json", "--no-plot")

@@ -109,6 +109,7 @@ def test_bad_scenarios_exit_2_and_write_nothing(main, tmp_path, capsys, text, ma
     assert not out.exists() or not any(out.iterdir())
 
 
+@pytest.mark.slow
 def test_bad_scenario_subprocess_no_traceback(tmp_path):
     sc = tmp_path / "bad.toml"
     sc.write_text(SHORT + "[plant]\nparams = \"missing.toml\"\n")

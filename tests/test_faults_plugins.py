@@ -101,6 +101,7 @@ def test_the_default_timeout_comes_from_the_control_period():
     assert scenario(control={"timeout": "off"}).control_timeout is None
 
 
+@pytest.mark.slow
 def test_the_readme_controller_on_a_rig_whose_torque_channel_is_torque_drive_fails_with_keyerror(tmp_path, capsys):
     rig = (ROOT / "models/rigs/rig3.toml").read_text()
     assert 'channel = "motor_torque"' in rig

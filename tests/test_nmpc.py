@@ -224,6 +224,7 @@ def test_rti_step_at_equilibrium_matches_lqr(QP):
 
 
 # ----------------------------------------------------------------------------- solvers agree
+@pytest.mark.slow
 def test_gauss_newton_sqp_agrees_with_ipopt():
     x0 = M.steady_sliding(U0, P)
     x0[2] = 0.5  # R1 slowed down (deviation of 2.6 rad/s)
@@ -264,6 +265,7 @@ def stick_slip_start():
     return base.x.copy(), base.t
 
 
+@pytest.mark.slow
 def test_rti_closed_loop_matches_converged_sqp(stick_slip_start):
     """RTI (one QP per plan) and SQP iterated to convergence out of stick-slip: the same
     trajectory of R1 to within a few percent of its speed, and both suppress the stick-slip."""
@@ -367,6 +369,7 @@ def variants(stick_slip_start):
     return out
 
 
+@pytest.mark.slow
 def test_stick_slip_of_r1_suppressed(variants):
     tail = slice(-250, None)  # last 2.5 s (a stick-slip cycle takes about 2 s)
     s_free = severity(variants["free"][tail])
@@ -379,6 +382,7 @@ def test_stick_slip_of_r1_suppressed(variants):
         assert r["c"].counts.failures == 0
 
 
+@pytest.mark.slow
 def test_pin_only_never_moves_the_set_point_and_motor_only_never_presses(variants):
     pin, motor = variants["pin"], variants["motor"]
     assert all(set(a.u) == {"n2"} for a in pin["acts"])              # the set-point follows the programme
@@ -388,6 +392,7 @@ def test_pin_only_never_moves_the_set_point_and_motor_only_never_presses(variant
     assert np.ptp([a.u["omega_ref"] for a in motor["acts"]]) > 0.5   # the set-point does the work
 
 
+@pytest.mark.slow
 def test_inputs_respect_bounds_and_rate_limits(variants):
     r = variants["both"]
     c, acts, forces = r["c"], r["acts"], r["forces"]

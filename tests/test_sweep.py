@@ -65,6 +65,7 @@ def test_plan_resolves_inputs_params_scales_and_mismatch():
         options_from_scenario(sc, duration=0.1, settle=0.2)
 
 
+@pytest.mark.slow
 def test_batched_chunk_equals_the_simulator_per_point():
     """Cross-method: the mapped/accumulated step gives the same trajectories as models.plant."""
     sc = load_scenario(RIG3)
@@ -128,6 +129,7 @@ def test_rig3_sliding_start_agrees_with_linear_stability(tmp_path):
     assert res["stuck_fraction"][0] > 0.05 and res["stuck_fraction"][1] == 0.0
 
 
+@pytest.mark.slow
 def test_cli_maps_json_and_refusal(main, tmp_path, capsys):
     out = tmp_path / "sw"
     argv = ["sweep", str(RIG3), "--vary", "omega_ref=1:6:3", "--vary", "n1=10:35:3", "--duration", "2",
@@ -174,6 +176,7 @@ def test_closed_loop_pi_only_equals_open_loop():
         make_tasks(plan, "nope")
 
 
+@pytest.mark.slow
 def test_python_entry_point_resumes_and_sweeps_a_structured_plant(tmp_path):
     """``mitigate.sweep.sweep`` from Python: maps, files, resuming; on a scenario whose plant differs
     in structure (shaft elements) the plant's own states are simulated."""

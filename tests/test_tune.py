@@ -63,6 +63,7 @@ def test_tunables_are_declared_scale_free_and_follow_what_the_controller_sets():
         Tunable(low=0.0, high=1.0)
 
 
+@pytest.mark.slow
 def test_tune_starts_from_the_shipped_options_persists_and_resumes(drill, tmp_path):
     out = tmp_path / "study"
     r = tune(drill, {"name": "SS", "kind": "softspeed", "kp_factor": 2.0}, budget=6, phases=2, seeds=1,
@@ -92,6 +93,7 @@ def test_tune_starts_from_the_shipped_options_persists_and_resumes(drill, tmp_pa
         tune(drill, {"name": "SS", "kind": "softspeed", "kp_factor": 3.0}, budget=8, out=out)
 
 
+@pytest.mark.slow
 def test_tune_shares_a_study_between_processes(drill, tmp_path):
     r = tune(drill, "doskil", budget=4, phases=1, seeds=1, held_out_seeds=0, out=tmp_path, n_jobs=2)
     assert r.n_trials == 4 and r.n_complete + r.n_pruned == 4
@@ -104,6 +106,7 @@ def test_tune_refuses_what_it_cannot_tune(drill):
         tune(drill, "softspeed", budget=0)
 
 
+@pytest.mark.slow
 def test_the_tune_command(drill, tmp_path, capsys):
     from mitigate.cli import main
     code = main(["tune", str(drill), "--controller", "Z=ztorque,z=0.5", "--budget", "3", "--phases", "1",
@@ -116,6 +119,7 @@ def test_the_tune_command(drill, tmp_path, capsys):
     assert main(["tune", str(drill), "--controller", "lqr", "--budget", "2"]) == 2
 
 
+@pytest.mark.slow
 def test_the_tuned_benchmark_mode_tunes_every_controller_with_the_same_budget(drill, tmp_path):
     from mitigate.benchmark import load_suite, render_ranking, run_benchmark
     from mitigate.tune import tune_suite
