@@ -119,6 +119,7 @@ def test_the_suite_sets_every_scenarios_deadline_unless_the_scenario_does(suite_
         load_suite(suite_dir / "bad.toml")
 
 
+@pytest.mark.slow
 def test_switch_on_phases_span_one_measured_period_and_seeds_come_from_scenario_phase_seed(suite_dir):
     s = load_suite(suite_dir / "suite.toml", only=["drill"])
     ref = reference_run(s.scenarios[0], s.metrics)

@@ -28,6 +28,7 @@ def read_out(path):
     return rows[0], np.array(rows[1:], dtype=float)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind,extra", [("ekf", []), ("mhe", ["--window", "10"]), ("fd", [])])
 def test_estimate_writes_csv_and_json_summary(log_path, tmp_path, capsys, kind, extra):
     out = tmp_path / f"est_{kind}.csv"

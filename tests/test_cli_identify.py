@@ -47,6 +47,7 @@ def test_identify_writes_params_and_plot(disc_csv, tmp_path, capsys):
     assert _run(disc_csv, out, "--free", "k", "--force", "--no-plot") == 0
 
 
+@pytest.mark.slow
 def test_table_output(disc_csv, tmp_path, capsys):
     rc = _run(disc_csv, tmp_path / "f.toml", "--free", "k")
     assert rc == 0
@@ -60,6 +61,7 @@ def test_table_output(disc_csv, tmp_path, capsys):
     assert rc == 0 and (tmp_path / "g.toml").exists() and not (tmp_path / "g.png").exists()
 
 
+@pytest.mark.slow
 def test_rig_file_path_and_guess(disc_csv, tmp_path, capsys):
     rig = tmp_path / "my_disc.toml"
     shutil.copy(RIGS_DIR / "disc.toml", rig)

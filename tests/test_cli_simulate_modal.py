@@ -122,6 +122,7 @@ def test_bad_scenario_subprocess_no_traceback(tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_modal_json_and_png(main, tmp_path, capsys):
     out = tmp_path / "m"
     assert main(["modal", "--out", str(out), "--json", "--no-map"]) == 0
@@ -135,6 +136,7 @@ def test_modal_json_and_png(main, tmp_path, capsys):
     assert "exists" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_modal_accepts_fitted_params_and_rejects_bad_ones(main, tmp_path, capsys):
     p = get_model("rig3").published().replace(k1=2 * 1.1175)
     f = p.save(tmp_path / "fit.toml")

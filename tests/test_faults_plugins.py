@@ -152,6 +152,7 @@ def test_setpoint_chatter_rule_spares_noise_following_laws():
     assert setpoint_chatter(bang, 6.14).startswith("its increments change sign on 100 %")
 
 
+@pytest.mark.slow
 def test_the_shipped_laws_do_not_warn_on_the_main_scenario_family():
     sc = parse_scenario({"scenario": {"name": "t", "duration": 6.0, "seed": 1},
                          "inputs": {"omega_ref": "30 rpm", "n1": 20.0}, "control": {"start": 2.0},
@@ -311,6 +312,7 @@ gain = -1.0
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_error_messages_quote_at_most_80_characters_of_a_value():
     big = list(np.arange(100_000) * 1.5)
     msg = str(ConfigError(f"s.toml: scenario.duration must be a finite number s, got {big!r}"))

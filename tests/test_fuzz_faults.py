@@ -235,6 +235,7 @@ def test_a_log_profile_naming_a_foreign_file_never_echoes_its_content(ws, capsys
 BIG = "[" + ", ".join(f"{1.5 * i}" for i in range(100_000)) + "]"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("field, old, new", [
     ("scenario.duration", "duration = 2.0", f"duration = {BIG}"),
     ("scenario.seed", "seed = 1", f"seed = {BIG}"),
@@ -302,6 +303,7 @@ def test_an_abstract_plug_in_is_exit_2_before_anything_runs(ws, capsys):
     assert not (ws / "o").exists()
 
 
+@pytest.mark.slow
 def test_a_failing_plug_in_in_the_benchmark_fails_its_cell_and_the_command_exits_1(ws, capsys):
     assert main("benchmark", "suite.toml", "--out", "o", "--jobs", "1", "--json", "--quick",
                 "--controller", "Bad=tests.plugins.faulty:StepRaises",

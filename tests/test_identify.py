@@ -54,6 +54,7 @@ def short_log():
     return simulate(get_model("disc"), TRUE_DISC, np.array([1.0, 20.0]), 3.0, SimOptions(seed=4)).to_log()
 
 
+@pytest.mark.slow
 def test_disc_truth_recovery_two_logs(disc_logs):
     a, b = disc_logs
     assert np.mean(a["omega1"] == 0) > 0.2  # real stick phases in the data
@@ -76,6 +77,7 @@ def test_disc_truth_recovery_two_logs(disc_logs):
     assert fit.condition > 1 and fit.weak_directions
 
 
+@pytest.mark.slow
 def test_holdout_validation_uses_exact_plant(disc_logs):
     a, _ = disc_logs
     fit = quiet(identify, a, "disc", published("disc"),
@@ -184,6 +186,7 @@ def test_linear_constraint_parse():
     assert IdentifyOptions(free=("k",), constraints="k <= 2").constraints[0].terms == (("k", 1.0),)
 
 
+@pytest.mark.slow
 def test_mu_k_below_mu_s_held_when_the_data_push_past_it():
     """A plant whose kinetic friction EXCEEDS its static friction (velocity strengthening,
     mu_s = 0.26 < mu_k = 0.30): the default constraint mu_k <= mu_s holds at the solution (active,
@@ -461,6 +464,7 @@ def test_unconverged_fit_says_why_and_what_to_try(short_log):
     assert "Try:" in fit.message and "max_iter 2, CLI --max-iter 2" in fit.message and "a longer log" in fit.message
 
 
+@pytest.mark.slow
 def test_problem_refit_warm_start_and_pickle(short_log):
     opts = IdentifyOptions(free=("k", "mu_k"), nsub=10, encoder_zero="untwisted")
     prob = IdentificationProblem("disc", short_log, published("disc"), opts)

@@ -280,6 +280,7 @@ def test_rti_closed_loop_matches_converged_sqp(stick_slip_start):
     assert severity(runs["rti"][-100:]) < 0.02 and severity(runs["sqp"][-100:]) < 0.02
 
 
+@pytest.mark.slow
 def test_default_qp_tolerance_moves_like_a_tight_solve():
     """The default hpipm tolerance changes the applied first move by less than 3e-3 rad/s and
     0.04 N against an exact active-set solve (qrqp) of the same QP, from states in stick-slip."""
@@ -596,6 +597,7 @@ contact = "brake"
 """
 
 
+@pytest.mark.slow
 def test_two_disc_rig_file_with_a_servo_brake(tmp_path: Path):
     """A rig written here: speed drive, two discs, a servo brake on the upper disc.  The pin-only
     NMPC sets only the brake (within that servo's 30 N and 150 N/s x 40 ms) and stops D1's
@@ -621,6 +623,7 @@ def test_two_disc_rig_file_with_a_servo_brake(tmp_path: Path):
     assert np.all(np.abs(cmd - forces[:, 2])[plans] <= 150.0 * 0.04 * (1 + 1e-6) + 1e-9)
 
 
+@pytest.mark.slow
 def test_torque_drive_rig2_holds_its_operating_speed():
     """rig2 (seed 001): the motor torque is the command and the nominal speed is the rig file's
     operating_point.speed (1 rad/s); the NMPC stops the disc's stick-slip at that speed."""
@@ -642,6 +645,7 @@ def test_torque_drive_rig2_holds_its_operating_speed():
     assert all(abs(a.u["motor_torque"] - u0[0]) <= 0.3 + 1e-9 for a in acts) and c.counts.failures == 0
 
 
+@pytest.mark.slow
 def test_torque_drive_follows_the_scenarios_control_speed():
     """A torque drive's target is the scenario's ``[control] speed`` (ControlContext.speed), as for
     SoftSpeed and Z-Torque, not the rig file's operating_point.speed: at 0.7 rad/s on rig2 the NMPC

@@ -78,6 +78,7 @@ def test_field_string_slides_at_the_published_law_and_stick_slips_at_10_kNm():
     assert cyc is not None and 7.0 < cyc.period < 10.0 and cyc.peak_speed > 6.0
 
 
+@pytest.mark.slow
 def test_defaults_come_from_the_rig_at_both_scales():
     """rig3 gets the values it was tuned with; the field string (10^3 kg m^2, 10 kN m, torque
     drive) gets its own: dt a 40th of its free-chain period, a band of its programmed torque."""

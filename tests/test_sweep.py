@@ -83,6 +83,7 @@ def test_batched_chunk_equals_the_simulator_per_point():
         assert res["stuck_fraction"][j] == pytest.approx(mx.stuck_fraction(w, o.stuck_threshold))
 
 
+@pytest.mark.slow
 def test_compiled_backend_equals_vm():
     sc = load_scenario(LEAD)
     base = dict(duration=0.04, settle=0.02, start="rest", chunk=3, block=64)
@@ -158,6 +159,7 @@ def test_cli_maps_json_and_refusal(main, tmp_path, capsys):
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow
 def test_closed_loop_pi_only_equals_open_loop():
     """Cross-check: the closed loop with the 'PI only' controller (programmed set-point, N2 = 0) gives
     the same map as the open-loop batched plant; the brake changes it (how well it mitigates is

@@ -38,6 +38,7 @@ def drill(tmp_path_factory):
     return p
 
 
+@pytest.mark.slow
 def test_tunables_are_declared_scale_free_and_follow_what_the_controller_sets():
     sc = make_scenario(name="t", duration=1.0, inputs={"omega_ref": "30 rpm", "n1": 20.0}, estimator="fd")
     ss = make_controller(ControllerSpec("s", "softspeed", {}), context_for(sc, 0))

@@ -160,6 +160,7 @@ def test_a_torque_drive_has_a_torque_limit_the_plant_and_the_laws_honour(tmp_pat
         assert np.max(np.abs(cmd)) <= 0.3 + 1e-12 and np.max(cmd) == pytest.approx(0.3)   # it used the limit
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["softspeed", "ztorque"])
 def test_on_a_torque_drive_the_laws_aim_at_the_scenarios_target_speed(kind):
     """rig2's operating point says 1 rad/s; the scenario's [control] speed says 2 rad/s."""
