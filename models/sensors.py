@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.checks import finite_number
+from models.checks import check_options, option, prefix
 from models.errors import ConfigError
 
 __all__ = ["SensorOptions", "Sensors", "quantise", "encoder_step", "channel_variance", "channel_std", "FLOOR"]
@@ -48,13 +48,11 @@ class SensorOptions:
     quantise : count whole encoder ticks (False: ideal angles)
     """
 
-    noise_scale: float = 1.0
-    quantise: bool = True
+    noise_scale: float = option(1.0, lo=0.0)
+    quantise: bool = option(True)
 
     def __post_init__(self):
-        finite_number(self.noise_scale, "sensors.noise_scale", nonneg=True)
-        if not isinstance(self.quantise, bool):
-            raise ConfigError(f"sensors.quantise must be true or false, got {self.quantise!r}")
+        check_options(self, prefix("sensors"))
 
 
 def quantise(angle, step):

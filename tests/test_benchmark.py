@@ -119,6 +119,7 @@ def test_the_suite_sets_every_scenarios_deadline_unless_the_scenario_does(suite_
         load_suite(suite_dir / "bad.toml")
 
 
+@pytest.mark.slow
 def test_switch_on_phases_span_one_measured_period_and_seeds_come_from_scenario_phase_seed(suite_dir):
     s = load_suite(suite_dir / "suite.toml", only=["drill"])
     ref = reference_run(s.scenarios[0], s.metrics)
@@ -141,6 +142,7 @@ def test_switch_on_phases_span_one_measured_period_and_seeds_come_from_scenario_
     assert {t.switch_on for t in pt} == {0.0} and len({t.run_seed for t in pt}) == 6
 
 
+@pytest.mark.slow
 def test_every_entry_has_n_runs_and_intervals(result):
     for (s, c), e in result.entries.items():
         if not e.applicable:
@@ -159,6 +161,7 @@ def test_every_entry_has_n_runs_and_intervals(result):
     assert dk.n_suppressed == 6 and pi.n_suppressed == 0 and math.isinf(pi.value("time_to_suppress"))
 
 
+@pytest.mark.slow
 def test_like_for_like_classes_and_the_weight_on_bit_band(result):
     e = result.entries
     assert (e[("drill", "SoftSpeed")].klass, e[("drill", "brake")].klass, e[("drill", "D-OSKIL")].klass,
@@ -215,6 +218,7 @@ def test_bootstrap_interval_is_seeded_and_handles_never():
     assert m == math.inf and hi == math.inf and lo >= 1.0
 
 
+@pytest.mark.slow
 def test_the_motor_only_nmpc_is_bit_reproducible_in_workers(suite_dir):
     """Issue 17: the motor-only NMPC gave 0.0500 and 0.0511 on one scenario; now every run is
     seeded from (scenario seed, phase, seed) and the workers have one BLAS thread."""
@@ -232,6 +236,7 @@ def test_the_motor_only_nmpc_is_bit_reproducible_in_workers(suite_dir):
             assert r.metrics[m] == here.metrics[m], m          # bit for bit
 
 
+@pytest.mark.slow
 def test_runs_are_bit_reproducible_in_workers_and_resume_after_a_kill(suite_dir, tmp_path):
     s = load_suite(suite_dir / "suite.toml", only=["drill"])
     ref = run_benchmark(s, phases=2, seeds=2, jobs=1)                     # in this process
@@ -260,6 +265,7 @@ def test_runs_are_bit_reproducible_in_workers_and_resume_after_a_kill(suite_dir,
         run_benchmark(s, phases=3, seeds=2, jobs=1, store=tmp_path / "b")
 
 
+@pytest.mark.slow
 def test_write_benchmark(result, tmp_path):
     out = tmp_path / "bench"
     files = write_benchmark(result, out, command="mitigate benchmark suite.toml")
@@ -323,6 +329,7 @@ def test_bad_arguments(suite_dir, tmp_path):
         run_benchmark(s, phases=0, jobs=1)
 
 
+@pytest.mark.slow
 def test_the_cli_gives_every_entry_n_runs_and_its_interval(suite_dir, tmp_path, capsys):
     """Issue 17's target: ``--phases 3 --seeds 2 --json`` gives every entry n_runs = 6 and its interval."""
     from mitigate.cli import main
@@ -344,6 +351,7 @@ def test_the_cli_gives_every_entry_n_runs_and_its_interval(suite_dir, tmp_path, 
                  str(tmp_path / "x")]) == 2
 
 
+@pytest.mark.slow
 def test_a_dask_cluster_gives_the_same_runs(suite_dir, tmp_path):
     distributed = pytest.importorskip("distributed")
     s = load_suite(suite_dir / "suite.toml", only=["drill"])
@@ -359,6 +367,7 @@ def test_a_dask_cluster_gives_the_same_runs(suite_dir, tmp_path):
     assert all(a[k]["residual_severity"] == b[k]["residual_severity"] for k in a)
 
 
+@pytest.mark.slow
 def test_kill_9_then_rerun_redoes_only_the_unfinished_runs(suite_dir, tmp_path):
     """A benchmark killed with SIGKILL mid-way and started again gives the uninterrupted result."""
     import os

@@ -28,6 +28,7 @@ def test_there_are_benchmark_scripts():
     assert len(SCRIPTS) >= 10
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.stem)
 def test_help_only_prints_and_offers_quick(script, tmp_path):
     before = _results_state()

@@ -32,6 +32,7 @@ def fit_and_boot():
     return log, fit, boot
 
 
+@pytest.mark.slow
 def test_bootstrap_bias_reproduces_the_fits_actual_error(fit_and_boot):
     """Measured: errors k +0.0057, mu_k +0.0033, mu_s +0.0092; standard errors 0.0010, 0.0004, 0.0007
     (5.6, 8.3, 12.5 of them off); bootstrap bias +0.0053, -0.0033, +0.0031 with sd ~1e-4.  The
@@ -52,6 +53,7 @@ def test_bootstrap_bias_reproduces_the_fits_actual_error(fit_and_boot):
     assert d["replicates"] == 4 and d["status"] == "ok" and d["success"]
 
 
+@pytest.mark.slow
 def test_bootstrap_is_reproducible(fit_and_boot):
     _, fit, boot = fit_and_boot
     with warnings.catch_warnings():

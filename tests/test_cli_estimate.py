@@ -28,6 +28,7 @@ def read_out(path):
     return rows[0], np.array(rows[1:], dtype=float)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind,extra", [("ekf", []), ("mhe", ["--window", "10"]), ("fd", [])])
 def test_estimate_writes_csv_and_json_summary(log_path, tmp_path, capsys, kind, extra):
     out = tmp_path / f"est_{kind}.csv"
@@ -59,6 +60,7 @@ def test_estimate_writes_csv_and_json_summary(log_path, tmp_path, capsys, kind, 
     assert s["twist_shaft1_rmse_rad"] >= s["twist_shaft1_rmse_after_1s_rad"]
 
 
+@pytest.mark.slow
 def test_estimate_prints_the_verdict_line_and_takes_channels_and_augment(log_path, tmp_path, capsys):
     out = tmp_path / "enc.csv"
     args = ["estimate", str(log_path), "--out", str(out), "--channels", "theta1,theta2,theta3,omega1,omega2,omega3",

@@ -28,6 +28,7 @@ def _run(disc_csv, out, *args):
                  "--nsub", "10", *args])
 
 
+@pytest.mark.slow
 def test_identify_writes_params_and_plot(disc_csv, tmp_path, capsys):
     out, png = tmp_path / "fitted.toml", tmp_path / "fit.png"
     rc = _run(disc_csv, out, "--free", "k,mu_k", "--plot", str(png), "--json")
@@ -46,6 +47,7 @@ def test_identify_writes_params_and_plot(disc_csv, tmp_path, capsys):
     assert _run(disc_csv, out, "--free", "k", "--force", "--no-plot") == 0
 
 
+@pytest.mark.slow
 def test_table_output(disc_csv, tmp_path, capsys):
     rc = _run(disc_csv, tmp_path / "f.toml", "--free", "k")
     assert rc == 0
@@ -59,6 +61,7 @@ def test_table_output(disc_csv, tmp_path, capsys):
     assert rc == 0 and (tmp_path / "g.toml").exists() and not (tmp_path / "g.png").exists()
 
 
+@pytest.mark.slow
 def test_rig_file_path_and_guess(disc_csv, tmp_path, capsys):
     rig = tmp_path / "my_disc.toml"
     shutil.copy(RIGS_DIR / "disc.toml", rig)
@@ -126,6 +129,7 @@ def test_unconverged_fit_exits_1_and_says_what_to_try(disc_csv, tmp_path, capsys
     assert "--max-iter 2" in text
 
 
+@pytest.mark.slow
 def test_systematic_flag_prints_columns_and_writes_total(disc_csv, tmp_path, capsys):
     out = tmp_path / "f.toml"
     rc = _run(disc_csv, out, "--free", "k", "--systematic", "--no-plot")
@@ -140,6 +144,7 @@ def test_systematic_flag_prints_columns_and_writes_total(disc_csv, tmp_path, cap
     assert p.stderr_of("k") == pytest.approx(doc["error"])
 
 
+@pytest.mark.slow
 def test_bootstrap_writes_rms_error_as_stderr(disc_csv, tmp_path, capsys):
     out = tmp_path / "boot.toml"
     rc = _run(disc_csv, out, "--free", "k,mu_k", "--bootstrap", "2", "--json", "--no-plot")

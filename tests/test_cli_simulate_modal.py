@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import mitigate.cli as cli
 from mitigate.scenario import load_scenario
 from models import get_model
 from models.errors import ConfigError
@@ -32,11 +31,6 @@ n1 = { kind = "constant", value = 20.0 }
 
 
 
-
-
-@pytest.fixture
-def main():
-    return cli.main
 
 
 def _runs(mask):
@@ -115,6 +109,7 @@ def test_bad_scenarios_exit_2_and_write_nothing(main, tmp_path, capsys, text, ma
     assert not out.exists() or not any(out.iterdir())
 
 
+@pytest.mark.slow
 def test_bad_scenario_subprocess_no_traceback(tmp_path):
     sc = tmp_path / "bad.toml"
     sc.write_text(SHORT + "[plant]\nparams = \"missing.toml\"\n")
@@ -127,6 +122,7 @@ def test_bad_scenario_subprocess_no_traceback(tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_modal_json_and_png(main, tmp_path, capsys):
     out = tmp_path / "m"
     assert main(["modal", "--out", str(out), "--json", "--no-map"]) == 0
@@ -140,6 +136,7 @@ def test_modal_json_and_png(main, tmp_path, capsys):
     assert "exists" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_modal_accepts_fitted_params_and_rejects_bad_ones(main, tmp_path, capsys):
     p = get_model("rig3").published().replace(k1=2 * 1.1175)
     f = p.save(tmp_path / "fit.toml")

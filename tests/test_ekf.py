@@ -114,6 +114,7 @@ def test_one_step_equals_the_batch_ekf_update():
     assert yraw.shape == (em.ny,)
 
 
+@pytest.mark.slow
 def test_steady_state_covariance_matches_dlqe():
     """At steady sliding (a linear time-invariant case) the covariance converges to
     python-control's dlqe Riccati solution."""
@@ -161,6 +162,7 @@ def test_default_recovers_the_twist_of_a_shaft_twisted_at_power_on(run3):
     assert np.all(np.abs(XE[-1, :2] - X[-1, :2]) < 3 * sd + 0.005)
 
 
+@pytest.mark.slow
 def test_without_the_stick_noise_the_ekf_rides_the_regularised_creep(run3):
     """q_stick = 0 trusts the regularised creep in stick; on an exact stick plant the twist at
     power-on then converges slowly and to a wrong value (measured 0.13 / 0.39 rad RMSE over the
@@ -172,6 +174,7 @@ def test_without_the_stick_noise_the_ekf_rides_the_regularised_creep(run3):
     assert np.all(r0 > 2 * r2), (r0, r2)
 
 
+@pytest.mark.slow
 def test_torque_offset_is_estimated_on_a_plant_with_an_offset():
     """Plant: motor_torque_offset = 0.05 N m (the estimator believes 0): the offset state
     finds it, and without it the twist of shaft 2 is off by about 0.05 / k2."""
@@ -353,6 +356,7 @@ noise = "0.5 N"
 """
 
 
+@pytest.mark.slow
 def test_a_rig_written_in_the_test_nothing_is_rig3_specific(tmp_path):
     """A two-disc rig with a speed drive, encoders at the drive end and at the bit, a torque
     sensor on the upper spring and a weight-on-bit load cell.  The defaults follow its sensors
@@ -425,6 +429,7 @@ def test_load_cell_offset_and_gain_act_through_the_input_correction():
                                np.array(truth.F(x[:9], U, truth.p)).ravel()[:7], rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_delayed_channels_use_lagged_states_exactly():
     """A rig file whose sensors arrive one sample late: the estimator carries lag1 copies of the
     rig's states and its prediction reproduces the delayed readings of the instantaneous

@@ -101,6 +101,7 @@ def test_the_default_timeout_comes_from_the_control_period():
     assert scenario(control={"timeout": "off"}).control.timeout is None
 
 
+@pytest.mark.slow
 def test_the_readme_controller_on_a_rig_whose_torque_channel_is_torque_drive_fails_with_keyerror(tmp_path, capsys):
     rig = (ROOT / "models/rigs/rig3.toml").read_text()
     assert 'channel = "motor_torque"' in rig
@@ -151,6 +152,7 @@ def test_setpoint_chatter_rule_spares_noise_following_laws():
     assert setpoint_chatter(bang, 6.14).startswith("its increments change sign on 100 %")
 
 
+@pytest.mark.slow
 def test_the_shipped_laws_do_not_warn_on_the_main_scenario_family():
     sc = parse_scenario({"scenario": {"name": "t", "duration": 6.0, "seed": 1},
                          "inputs": {"omega_ref": "30 rpm", "n1": 20.0}, "control": {"start": 2.0},
@@ -310,6 +312,7 @@ gain = -1.0
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_error_messages_quote_at_most_80_characters_of_a_value():
     big = list(np.arange(100_000) * 1.5)
     msg = str(ConfigError(f"s.toml: scenario.duration must be a finite number s, got {big!r}"))

@@ -41,6 +41,7 @@ def _outcomes(pool, fn, n):
     return {o.index: o for o in pool.map(fn, [(i,) for i in range(n)])}
 
 
+@pytest.mark.slow
 def test_a_task_that_raises_fails_alone_in_workers_and_in_process():
     for jobs in (1, 2):
         with WorkerPool(jobs) as pool:
@@ -49,6 +50,7 @@ def test_a_task_that_raises_fails_alone_in_workers_and_in_process():
         assert out[2].error == "ValueError: two is bad" and out[3].value == 3
 
 
+@pytest.mark.slow
 def test_a_worker_that_dies_fails_its_task_and_is_replaced():
     with WorkerPool(2) as pool:
         out = _outcomes(pool, _exit_hard, 5)
@@ -56,6 +58,7 @@ def test_a_worker_that_dies_fails_its_task_and_is_replaced():
     assert [out[i].value for i in (0, 2, 3, 4)] == [0, 2, 3, 4]
 
 
+@pytest.mark.slow
 def test_a_stuck_worker_is_killed_after_the_stall_timeout():
     t0 = time.perf_counter()
     with WorkerPool(2, stall_timeout=1.0) as pool:

@@ -121,6 +121,7 @@ def test_an_unusable_output_location_is_one_line_and_exit_2_before_any_work(ws, 
                                                           + (["sub"] if case == "out_is_a_file" and file_out else []))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["run", "simulate", "benchmark"])
 def test_existing_outputs_are_refused_without_force_and_nothing_is_run(ws, capsys, command):
     out = ws / "o"
@@ -133,6 +134,7 @@ def test_existing_outputs_are_refused_without_force_and_nothing_is_run(ws, capsy
     assert not any(n.startswith(".mitigate") for n in before)          # no lock or staging left behind
 
 
+@pytest.mark.slow
 def test_a_busy_output_folder_is_refused(ws, capsys):
     with output_set(ws / "o", []):                  # another command holds the folder
         assert main("run", "tiny.toml", "--out", ws / "o") == 2
@@ -140,6 +142,7 @@ def test_a_busy_output_folder_is_refused(ws, capsys):
     assert main("run", "tiny.toml", "--out", ws / "o") == 0       # free again
 
 
+@pytest.mark.slow
 def test_two_runs_into_one_folder_at_once_never_mix_files(ws):
     (ws / "a.toml").write_text(tiny(name="a", duration=3.0, extra=bad("Follow")))
     (ws / "b.toml").write_text(tiny(name="b", duration=3.0, extra='[[controllers]]\nname = "brake"\nkind = "brake"\n'))
@@ -155,6 +158,7 @@ def test_two_runs_into_one_folder_at_once_never_mix_files(ws):
     assert json.loads((ws / "o" / "metrics.json").read_text())["scenario"] == winner["scenario"]
 
 
+@pytest.mark.slow
 def test_a_run_killed_while_writing_leaves_the_folder_as_it_was_and_the_rerun_needs_no_force(ws, capsys, monkeypatch):
     import mitigate.plots as plots
     real = plots.plot_metric_bars
@@ -170,6 +174,7 @@ def test_a_run_killed_while_writing_leaves_the_folder_as_it_was_and_the_rerun_ne
     assert (ws / "o" / "metrics.json").is_file() and (ws / "o" / "metrics.png").is_file()
 
 
+@pytest.mark.slow
 def test_a_forced_rerun_leaves_no_file_of_the_older_set_mixed_in(ws, capsys):
     (ws / "s.toml").write_text(tiny(extra=bad("Follow")))
     assert main("run", "s.toml", "--out", "o", "--jobs", "1") == 0
@@ -181,6 +186,7 @@ def test_a_forced_rerun_leaves_no_file_of_the_older_set_mixed_in(ws, capsys):
     assert {c["name"]: c["status"] for c in doc["controllers"]} == {"PI only": "ok", "bad": "failed"}
 
 
+@pytest.mark.slow
 def test_a_set_marked_incomplete_by_a_killed_commit_is_replaced_without_force(ws, capsys):
     out = ws / "o"
     assert main("run", "tiny.toml", "--out", out) == 0
@@ -229,6 +235,7 @@ def test_a_log_profile_naming_a_foreign_file_never_echoes_its_content(ws, capsys
 BIG = "[" + ", ".join(f"{1.5 * i}" for i in range(100_000)) + "]"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("field, old, new", [
     ("scenario.duration", "duration = 2.0", f"duration = {BIG}"),
     ("scenario.seed", "seed = 1", f"seed = {BIG}"),
@@ -274,6 +281,7 @@ def test_a_parameter_file_error_keeps_the_path_out_of_the_field_name(ws, capsys)
 
 
 # ----------------------------------------------------------------------------- plug-ins through the CLI
+@pytest.mark.slow
 @pytest.mark.parametrize("kind, why", [          # every kind in the library: test_faults_plugins.py
     ("InitRaises", "RuntimeError: boom in __init__"),
     ("StepRaises", "ValueError: boom in step"),
@@ -295,6 +303,7 @@ def test_an_abstract_plug_in_is_exit_2_before_anything_runs(ws, capsys):
     assert not (ws / "o").exists()
 
 
+@pytest.mark.slow
 def test_a_failing_plug_in_in_the_benchmark_fails_its_cell_and_the_command_exits_1(ws, capsys):
     assert main("benchmark", "suite.toml", "--out", "o", "--jobs", "1", "--json", "--quick",
                 "--controller", "Bad=tests.plugins.faulty:StepRaises",
@@ -318,6 +327,7 @@ def _cli(ws, *args, timeout=120):
     return subprocess.run(PY + [str(a) for a in args], cwd=ws, capture_output=True, text=True, timeout=timeout)
 
 
+@pytest.mark.slow
 def test_in_worker_processes_a_dying_worker_or_a_hang_fails_only_its_run(ws):
     (ws / "s.toml").write_text(tiny(extra=bad("KillsWorker") + bad("Sleeps", seconds=30.0).replace('"bad"', '"slow"')
                                     + bad("Prints").replace('"bad"', '"noisy"'))
@@ -374,6 +384,7 @@ def _gone(pgid, within=5.0):
 linux = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc (and PR_SET_PDEATHSIG)")
 
 
+@pytest.mark.slow
 @linux
 @pytest.mark.parametrize("command", ["run", "sweep", "benchmark"])
 def test_sigkill_leaves_no_process_of_the_command_after_5_s(ws, command):
@@ -393,6 +404,7 @@ def test_sigkill_leaves_no_process_of_the_command_after_5_s(ws, command):
         assert left <= ({"manifest.json", "runs"} if command == "benchmark" else set()), left
 
 
+@pytest.mark.slow
 @linux
 def test_ctrl_c_ends_cleanly_with_no_process_and_nothing_written(ws):
     (ws / "long.toml").write_text(tiny(name="long", duration=60.0, extra=bad("Follow")))

@@ -54,6 +54,7 @@ def short_log():
     return simulate(get_model("disc"), TRUE_DISC, np.array([1.0, 20.0]), 3.0, SimOptions(seed=4)).to_log()
 
 
+@pytest.mark.slow
 def test_disc_truth_recovery_two_logs(disc_logs):
     a, b = disc_logs
     assert np.mean(a["omega1"] == 0) > 0.2  # real stick phases in the data
@@ -76,6 +77,7 @@ def test_disc_truth_recovery_two_logs(disc_logs):
     assert fit.condition > 1 and fit.weak_directions
 
 
+@pytest.mark.slow
 def test_holdout_validation_uses_exact_plant(disc_logs):
     a, _ = disc_logs
     fit = quiet(identify, a, "disc", published("disc"),
@@ -87,6 +89,7 @@ def test_holdout_validation_uses_exact_plant(disc_logs):
     assert abs(v.period_error) < 0.2 and abs(v.amplitude_error) < 0.2
 
 
+@pytest.mark.slow
 def test_weak_direction_is_the_encoder_zero_symmetry(disc_logs):
     """Disc, no torque sensor, constant normal force: with the encoder zero free, shifting the twist
     by c and both friction levels by -k c/(N r) changes nothing, so mu_k and mu_s move together:
@@ -183,6 +186,7 @@ def test_linear_constraint_parse():
     assert IdentifyOptions(free=("k",), constraints="k <= 2").constraints[0].terms == (("k", 1.0),)
 
 
+@pytest.mark.slow
 def test_mu_k_below_mu_s_held_when_the_data_push_past_it():
     """A plant whose kinetic friction EXCEEDS its static friction (velocity strengthening,
     mu_s = 0.26 < mu_k = 0.30): the default constraint mu_k <= mu_s holds at the solution (active,
@@ -203,6 +207,7 @@ def test_mu_k_below_mu_s_held_when_the_data_push_past_it():
     assert est2["mu_k"] > est2["mu_s"] + 0.01
 
 
+@pytest.mark.slow
 def test_user_constraint_holds(disc_logs):
     a, _ = disc_logs
     fit = quiet(identify, a, "disc", published("disc").replace(k=0.9),
@@ -257,6 +262,7 @@ def test_encoder_zero_of_a_pre_twisted_log_rig3():
     assert max(abs(v) for v in rel(wrong, pub).values()) > 0.1
 
 
+@pytest.mark.slow
 def test_automatic_guess_converges_on_a_real_data_like_disc_log():
     """Real-data-like: the drive speed oscillates (two sines), the normal force drifts (20 +- 6 N) and
     its load cell is 3x noisier than nominal; the truth is far from the rig file's values (k -60 %,
@@ -294,6 +300,7 @@ def test_guess_rig3_from_the_reaction_torque():
     assert any("passed through R2" in n for n in g.notes)
 
 
+@pytest.mark.slow
 def test_rig2_truth_recovery():
     """rig2 (torque drive: the logged motor torque is the input) with a Stribeck drop so that it
     sticks and slips: k within 3 %, Tc and Ts within 5 % (Tc <= Ts is the constraint here)."""
@@ -323,6 +330,7 @@ def test_delay_detected_rig3():
     assert min(fit.delay_costs, key=fit.delay_costs.get) == 1 and "extra delay of 1 sample" in fit.message
 
 
+@pytest.mark.slow
 def test_gn_matches_ipopt_and_compiled_matches_vm(short_log):
     """The hand-written GN, its uncompiled variant and IPOPT (GN Hessian) reach the same optimum on
     the same problem (errors in the variables off: IPOPT does not have them).  With the encoder
@@ -395,6 +403,7 @@ def test_shooting_jacobians_match_finite_differences(eiv):
         np.testing.assert_allclose(prob.deltas(w).ravel(), 0.3 * w[-nint:])
 
 
+@pytest.mark.slow
 def test_systematic_error_from_halved_regularisation(disc_logs):
     a, _ = disc_logs
     opts = dict(free=("k", "mu_k"), nsub=10, encoder_zero="untwisted")
@@ -427,6 +436,7 @@ def test_noisy_force_input_gets_a_hint(disc_logs):
     assert input_noise_hints([clean], m, None) == []
 
 
+@pytest.mark.slow
 def test_errors_in_variables_fix_the_damping_bias_of_a_noisy_force():
     """Disc A (d +40 %), 60 s, load-cell noise x3 (0.6 N) on the logged N1: taking the force as
     exact puts the damping 61 % off and mu_k 11 % (measured); the default errors-in-variables
@@ -454,6 +464,7 @@ def test_unconverged_fit_says_why_and_what_to_try(short_log):
     assert "Try:" in fit.message and "max_iter 2, CLI --max-iter 2" in fit.message and "a longer log" in fit.message
 
 
+@pytest.mark.slow
 def test_problem_refit_warm_start_and_pickle(short_log):
     opts = IdentifyOptions(free=("k", "mu_k"), nsub=10, encoder_zero="untwisted")
     prob = IdentificationProblem("disc", short_log, published("disc"), opts)

@@ -55,6 +55,7 @@ def test_fixture_is_a_1khz_stick_slip_log_near_2_7_hz(log):
     assert np.std(log["wob"] - moving_average(log["wob"], 51)) > 2.0  # noisy WOB
 
 
+@pytest.mark.slow
 def test_torque_on_bit_pins_the_friction_level(fits):
     w, wo = fits["with"], fits["without"]
     true = truth()
@@ -72,6 +73,7 @@ def test_torque_on_bit_pins_the_friction_level(fits):
     assert set(TRUE) == set(FREE)
 
 
+@pytest.mark.slow
 def test_guess_comes_from_the_torque_sensor(fits):
     notes = " ".join(fits["with"].guess_notes)
     assert "torque_bit regressed on the encoder twist of pipe" in notes and "torque balance behind torque_bit" in notes

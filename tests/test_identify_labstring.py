@@ -75,6 +75,7 @@ def test_fixture_is_a_synthetic_stick_slip_log_of_a_world_we_did_not_write(log):
     assert not imported & {"models", "estimators", "mitigate"}
 
 
+@pytest.mark.slow
 def test_1dof_fit_of_the_lab_string_ends_with_a_usable_best_fit(cli_fit, log):
     rc, doc, out = cli_fit
     assert rc == 0 and out.exists()
@@ -99,6 +100,7 @@ def test_1dof_fit_of_the_lab_string_ends_with_a_usable_best_fit(cli_fit, log):
     assert abs(p_sim / p_log - 1) <= 0.10, (p_sim, p_log)
 
 
+@pytest.mark.slow
 def test_direct_gauss_newton_converges_where_it_ended_with_gaps(log):
     """The direct fit alone (no continuation): before the KKT solves were refined against the
     exact KKT matrix, gaps of delta * lambda (1e-12 x 1.6e8) stayed at the nodes of stuck
@@ -110,6 +112,7 @@ def test_direct_gauss_newton_converges_where_it_ended_with_gaps(log):
     assert fit.structure.max_gap < GAP_OK and len(fit.attempts) == 1
 
 
+@pytest.mark.slow
 def test_shipped_disc_rig_on_the_speed_channels(log, tmp_path, capsys):
     """The issue's user: speeds and the weight on bit only, the shipped 1-DOF disc rig (its
     channel names; its encoders coarser than the lab's, so its noise levels hide the miss)."""

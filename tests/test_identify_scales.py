@@ -64,6 +64,7 @@ def test_unmeasured_states_are_scaled_like_measured_ones(field):
     assert np.allclose(np.delete(capped, [j_b1, j_s1]), np.delete(sane, [j_b1, j_s1]))
 
 
+@pytest.mark.slow
 def test_field_scale_torque_drive_fit_is_not_confidently_wrong(field):
     """The rig zoo's field corner: k0 and the kinetic level from 4 s from rest, started 20 % off.
     The fit said k0 931 +- 11 N m/rad (true 780), status OK: its unmeasured middle body's start-up
@@ -97,6 +98,7 @@ def _short_log(m):
     return simulate(m, m.published(), u, 0.5, SimOptions(seed=1)).to_log()
 
 
+@pytest.mark.slow
 def test_eps_default_comes_from_the_rig(tmp_path):
     """rig3 keeps its 0.005 rad/s; the same rig run 4 times faster gets 4 times the regularisation,
     the field string at 1 rad/s 0.0016; a given eps wins; the fit states the value used."""

@@ -121,6 +121,7 @@ def test_steady_sliding_load_cell_reads_pin_friction(start):
     assert motor_loss > 0.9
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backlash", [0.0, 0.02])
 def test_reaction_torque_conserves_angular_momentum(backlash):
     """Whole rig (discs, shaft, floating motor+gearbox): d/dt H = T_lc - T_r1 - T_r2.
@@ -301,6 +302,7 @@ def test_module_is_independent_of_the_project():
         assert "import %s" % pkg not in src and "from %s" % pkg not in src
 
 
+@pytest.mark.slow
 def test_integrators_agree():
     """ODEPACK LSODA (default) and the solve_ivp solvers give the same trajectory."""
     kw = dict(omega_ref_profile=lambda t: 1.0 if t < 0.5 else 2.0, n1_profile=20.0,

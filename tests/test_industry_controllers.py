@@ -66,11 +66,13 @@ def established():
     return sc, closed_loop_metrics(pi, sc)
 
 
+@pytest.mark.slow
 def test_pi_alone_keeps_the_stick_slip(established):
     sc, m = established
     assert m["sss_final"] > 1.0 and m["stuck_fraction"] > 0.1 and m["time_to_suppress"] == math.inf
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", LAWS)
 def test_each_law_suppresses_the_established_stick_slip(established, kind):
     sc, m_pi = established
@@ -169,6 +171,7 @@ def test_without_a_servo_doskil_says_so(tmp_path):
     make_controller(_scenario_on(rig, "softspeed", tmp_path).controllers[0], context_for(sc, 0))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["softspeed", "ztorque"])
 def test_on_a_torque_drive_the_law_commands_the_torque(kind):
     """rig2 (seed 001): the motor torque is the input.  The law is the speed loop itself: it holds the

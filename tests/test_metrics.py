@@ -9,6 +9,7 @@ import pytest
 from mitigate import metrics as M
 from mitigate.closedloop import ClosedLoopResult
 from mitigate.scenario import make_scenario
+from models.checks import options_from_mapping
 from models.errors import ConfigError
 from models.status import Status
 
@@ -306,8 +307,8 @@ def test_metric_options_check_themselves(kw, match):
     with pytest.raises(ConfigError, match=match):
         M.MetricOptions(**kw)
     with pytest.raises(ConfigError, match=r"^suite\.toml: metrics\.windw: unknown key"):
-        M.MetricOptions.from_mapping({"windw": 1}, "suite.toml: metrics")
-    o = M.MetricOptions.from_mapping({"force_band": [0.7, 1.3]}, "s: metrics")
+        options_from_mapping(M.MetricOptions, {"windw": 1}, "suite.toml: metrics")
+    o = options_from_mapping(M.MetricOptions, {"force_band": [0.7, 1.3]}, "s: metrics")
     assert o.force_band == (0.7, 1.3) and o.where == "s: metrics"
     with pytest.raises(dataclasses.FrozenInstanceError):
         o.period = 2.0

@@ -52,6 +52,7 @@ def mhe(**kw):
     return MHE(MHEOptions(**kw), CTX)
 
 
+@pytest.mark.slow
 def test_mhe_tracks_stick_slip_from_a_wrong_start_and_agrees_with_the_ekf(run3):
     t, X, y = run3
     est = mhe(window=10)

@@ -67,6 +67,7 @@ def test_the_law_knows_its_roles(rig):
     assert law.linear_params == ("f_static", "f_coulomb", "c_visc") and law.with_role("kinetic") == "f_coulomb"
 
 
+@pytest.mark.slow
 def test_identification_fits_the_new_law(rig, log):
     from estimators.identify import IdentifiabilityWarning, IdentifyOptions, identify, initial_guess
 

@@ -78,6 +78,7 @@ def test_field_string_slides_at_the_published_law_and_stick_slips_at_10_kNm():
     assert cyc is not None and 7.0 < cyc.period < 10.0 and cyc.peak_speed > 6.0
 
 
+@pytest.mark.slow
 def test_defaults_come_from_the_rig_at_both_scales():
     """rig3 gets the values it was tuned with; the field string (10^3 kg m^2, 10 kN m, torque
     drive) gets its own: dt a 40th of its free-chain period, a band of its programmed torque."""
@@ -134,6 +135,7 @@ def test_hold_gain_follows_the_stability_of_sliding_at_the_programme():
     assert given.cfg.hold_gain == 4.0 and "hold_gain" not in given.cfg.derived
 
 
+@pytest.mark.slow
 def test_nmpc_on_the_field_string_suppresses_without_failures():
     """The torque-drive NMPC with the rig's defaults out of established stick-slip of the field
     string: no failure, the bit's severity over the last 15 s below 1 % and its mean within 1 %
@@ -182,6 +184,7 @@ def test_servo_force_residual_is_zero_at_the_programmed_weight_on_bit_not_at_zer
     assert float(cost(xa, np.array([0.0, 40.0]), q1)[1]) == pytest.approx(c.weights.force_linear * 40.0 / 400.0)
 
 
+@pytest.mark.slow
 def test_weight_on_bit_stays_at_the_programme_while_the_nmpc_suppresses():
     """Lab drill string, both inputs, out of established stick-slip: the mean weight on bit stays
     within 5 % of the programmed 200 N (the reviewer measured 28.7 N before: won by not drilling)."""
@@ -251,6 +254,7 @@ def test_friction_factor_is_held_while_the_contact_sticks():
 
 
 # ----------------------------------------------------------------------------- from rest, whole loop
+@pytest.mark.slow
 def test_from_rest_with_the_ekf_no_overshoot_and_no_fallback():
     """Issue 17 finding 7: rig3 at 30 rpm, N1 = 26 N, the NMPC (both inputs, EKF) in charge from
     t = 0.  The reviewer measured R1 at 6.2 rad/s (2x the set-point) and one fallback; now the
@@ -290,6 +294,7 @@ def test_unknown_ocp_solver_is_a_config_error():
 
 
 # ----------------------------------------------------------------------------- offset-free speed
+@pytest.mark.slow
 def test_speed_trim_integrates_a_calm_mean_error_only_and_is_bounded():
     from mitigate.controllers.nmpc.trim import TRIM_DEADBAND, TRIM_LIMIT, SpeedTrim
     tr = SpeedTrim(tau=2.0, window=1.0, dt=0.01, calm=0.1)
@@ -310,6 +315,7 @@ def test_speed_trim_integrates_a_calm_mean_error_only_and_is_bounded():
         assert off.value == 0.0
 
 
+@pytest.mark.slow
 def test_the_motor_nmpc_holds_the_programmed_speed_on_a_stiffer_plant():
     """Suite scenario ``mismatch_p40`` (the plant 40 % stiffer, lighter and rougher than the
     model; EKF): the EKF's state settles along the directions unobservable at steady sliding (twists
@@ -332,6 +338,7 @@ def test_the_motor_nmpc_holds_the_programmed_speed_on_a_stiffer_plant():
     assert by["trim"].metrics["controller_fallbacks"] == 0
 
 
+@pytest.mark.slow
 def test_the_stall_guard_keeps_the_drill_drilling():
     """Suite scenario ``mismatch_m40`` at its 4th switch-on phase (21.82 s): the disc stuck, the plan
     saw no use in turning the drive within its horizon and set it to 0, and the disc stayed stuck to

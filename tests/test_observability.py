@@ -79,6 +79,7 @@ def test_default_rig3_is_observable_along_its_start_up():
     assert "channels theta1..3, omega1..3, motor_torque" in rep.message
 
 
+@pytest.mark.slow
 def test_encoders_only_zeroed_are_not_observable_at_steady_sliding_and_say_what_trades_off():
     """Encoders only, zeroed at power-on: at steady sliding the twist trades off against the
     power-on twist and the R1 load factor; the message names them and the torque channel."""

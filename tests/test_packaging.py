@@ -96,6 +96,7 @@ def _assert_only_packages(names: set[str]):
     assert "entry_points: mitigate = mitigate.cli:main" in names
 
 
+@pytest.mark.slow
 def test_wheel_ships_every_package_module_and_data_file(clean_tree, tmp_path):
     names = _build_wheel(".", clean_tree, tmp_path / "wheels")
     expected = _expected(clean_tree)
@@ -105,6 +106,7 @@ def test_wheel_ships_every_package_module_and_data_file(clean_tree, tmp_path):
     _assert_only_packages(names)
 
 
+@pytest.mark.slow
 def test_sdist_and_its_wheel_ship_rig_and_data_files(clean_tree, tmp_path):
     """models/rigs/*.toml and models/data/*.toml reach the sdist, and the wheel built from it.
 

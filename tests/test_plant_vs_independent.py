@@ -24,6 +24,7 @@ def both():
              "twist12": ours.state("twist_shaft1")[k]})
 
 
+@pytest.mark.slow
 def test_stick_slip_cycle_agrees(both):
     a, b = both
     assert dominant_frequency(b["omega1"], 0.01) == pytest.approx(dominant_frequency(a["omega1"], 0.01), rel=0.02)
@@ -32,6 +33,7 @@ def test_stick_slip_cycle_agrees(both):
     assert stuck(b["omega1"]) == pytest.approx(stuck(a["omega1"]), abs=0.02)
 
 
+@pytest.mark.slow
 def test_torque_channel_and_twist_agree(both):
     """The reaction load cell: same mean (the pins' friction, not the motor's) and same swing."""
     a, b = both

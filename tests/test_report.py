@@ -8,6 +8,7 @@ import re
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 import mitigate.plots as P
 from mitigate.cli import main
@@ -24,6 +25,7 @@ LAWS = [PI, ("R2 brake", "brake", "gain_overspeed = 60.0"), ("SoftSpeed", "softs
 TEXT = scenario_toml('[scenario]\nname = "laws"\nduration = 2.0\nseed = 3', controllers=LAWS)
 
 
+@pytest.mark.slow
 def test_report_json_and_table_of_a_run(tmp_path, capsys):
     p = tmp_path / "laws.toml"
     p.write_text(TEXT)
@@ -82,6 +84,7 @@ def _verdict_line(rep: str, name: str) -> str:
     return next(ln[2:] for ln in rep.splitlines() if ln.startswith(f"- **{name}**"))
 
 
+@pytest.mark.slow
 def test_a_rig_without_description_prints_no_empty_parentheses(tmp_path):
     rig = tmp_path / "nodesc.toml"
     rig.write_text(re.sub(r'^description = .*$', "", RIG.read_text(), count=1, flags=re.M))

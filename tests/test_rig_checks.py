@@ -75,6 +75,7 @@ def test_absurd_damping_constant_is_refused(tmp_path):
         get_model(_write(tmp_path, text))
 
 
+@pytest.mark.slow
 def test_cli_gives_one_line_and_exit_2_for_a_massless_body(tmp_path):
     text = _text().replace('[bodies.B]\ninertia = "JB"', '[bodies.B]\ninertia = 0.0')
     path = _write(tmp_path, text)

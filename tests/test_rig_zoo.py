@@ -395,6 +395,7 @@ def teardown_module():
                   f" | {r['rig']}")
 
 
+@pytest.mark.slow
 def test_stiff_rates_where_no_sliding_is_sustained(tmp_path_factory):
     """A lead screw on a torque drive under 2.5 x its axial load (a servo's n_max): no torque up to
     twice the programme's turns it, the steady-sliding guess runs off to ~1e8 rad/s, and the rate the

@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import mitigate.cli as cli
 from mitigate.runner import run
 from models.logs import read_csv
 from models.status import Status
@@ -35,17 +34,13 @@ EXPECTED = ["metrics.csv", "metrics.json", "report.md", "comparison.png", "phase
 
 
 @pytest.fixture
-def main():
-    return cli.main
-
-
-@pytest.fixture
 def tiny(tmp_path):
     p = tmp_path / "tiny.toml"
     p.write_text(TINY)
     return p
 
 
+@pytest.mark.slow
 def test_run_writes_all_outputs(main, tiny, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["run", str(tiny), "--out", str(out), "--jobs", "2"]) == 0
@@ -66,6 +61,7 @@ def test_run_writes_all_outputs(main, tiny, tmp_path, capsys):
     assert [r.split(",")[0] for r in rows] == ["PI only", "R2 brake", "supervisor"]
 
 
+@pytest.mark.slow
 def test_json_parses_and_no_overwrite_without_force(main, tiny, tmp_path, capsys):
     out = tmp_path / "o"
     assert main(["run", str(tiny), "--out", str(out), "--jobs", "1", "--json"]) == 0
@@ -81,6 +77,7 @@ def test_json_parses_and_no_overwrite_without_force(main, tiny, tmp_path, capsys
     assert main(["run", str(tiny), "--out", str(out), "--jobs", "1", "--force"]) == 0
 
 
+@pytest.mark.slow
 def test_jobs_and_the_same_numbers_in_any_process(tiny, tmp_path):
     """The runner's processes (spawn) give the same runs as this process: the scenario pickles whole."""
     one = run(tiny, jobs=1)
@@ -115,6 +112,7 @@ def test_missing_file_and_bad_jobs_exit_2(main, tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_a_diverged_run_is_reported_and_exits_1(main, tiny, tmp_path, capsys):
     """plant.max_speed = 2 rad/s < the 30 rpm programme: every run diverges; the outputs are still
     written (the samples up to the divergence) and the exit code says it did not succeed."""
@@ -130,6 +128,7 @@ def test_a_diverged_run_is_reported_and_exits_1(main, tiny, tmp_path, capsys):
     assert 1 < len(log.t) < 201 and np.max(np.abs(log["true_omega_R3"])) > 2.0
 
 
+@pytest.mark.slow
 def test_mitigate_run_as_a_subprocess(tiny, tmp_path):
     out = tmp_path / "sub"
     r = subprocess.run([sys.executable, "-m", "mitigate.cli", "run", str(tiny), "--out", str(out), "--jobs", "1",

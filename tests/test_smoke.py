@@ -19,12 +19,14 @@ def test_the_public_api_resolves():
     assert set(mitigate.CONTROLLER_KINDS) >= {"pi", "brake", "supervisor", "softspeed", "ztorque", "doskil", "nmpc"}
 
 
+@pytest.mark.slow
 def test_cli_unknown_command_is_one_line_exit_2():
     r = subprocess.run([sys.executable, "-m", "mitigate.cli", "bogus"], cwd=ROOT, capture_output=True, text=True,
                        timeout=120)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_cli_help_exits_zero():
     r = subprocess.run([sys.executable, "-m", "mitigate.cli", "--help"], cwd=ROOT, capture_output=True, text=True,
                        timeout=120)

@@ -172,6 +172,7 @@ def test_mhe_on_a_0_05_ms_motor_tracks_without_failures(tmp_path):
     assert np.max(np.abs(r.xhat[late, i] - r.x[late, j])) < 0.05 * np.max(np.abs(r.x[:, j]))
 
 
+@pytest.mark.slow
 def test_identification_on_a_0_05_ms_motor_recovers_the_friction(tmp_path):
     import warnings
 

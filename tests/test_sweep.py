@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import mitigate.cli as cli
 from mitigate import metrics as mx
 from mitigate.scenario import load_scenario
 from mitigate.sweep import (Axis, SweepStore, make_tasks, options_from_scenario, parse_axis, plan_sweep, run_chunk,
@@ -27,11 +26,6 @@ LEAD = ROOT / "scenarios" / "sweep_leadscrew.toml"
 @pytest.fixture(autouse=True)
 def _cache(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("STICKSLIP_CACHE", str(tmp_path_factory.getbasetemp() / "cc_cache"))
-
-
-@pytest.fixture
-def main():
-    return cli.main
 
 
 def _col(records, name: str) -> np.ndarray:
@@ -77,6 +71,7 @@ def test_plan_resolves_inputs_params_scales_and_mismatch():
         options_from_scenario(sc, duration=0.1, settle=0.2)
 
 
+@pytest.mark.slow
 def test_batched_chunk_equals_the_simulator_per_point():
     """Cross-method: the mapped/accumulated step gives the same trajectories as models.plant."""
     sc = load_scenario(RIG3)
@@ -95,6 +90,7 @@ def test_batched_chunk_equals_the_simulator_per_point():
         assert res[j].metrics["stuck_fraction"] == pytest.approx(mx.stuck_fraction(w, o.stuck_threshold))
 
 
+@pytest.mark.slow
 def test_compiled_backend_equals_vm():
     sc = load_scenario(LEAD)
     base = dict(duration=0.04, settle=0.02, start="rest", chunk=3, block=64)
@@ -141,6 +137,7 @@ def test_rig3_sliding_start_agrees_with_linear_stability(tmp_path):
     assert res[0].metrics["stuck_fraction"] > 0.05 and res[1].metrics["stuck_fraction"] == 0.0
 
 
+@pytest.mark.slow
 def test_cli_maps_json_and_refusal(main, tmp_path, capsys):
     out = tmp_path / "sw"
     argv = ["sweep", str(RIG3), "--vary", "omega_ref=1:6:3", "--vary", "n1=10:35:3", "--duration", "2",
@@ -169,6 +166,7 @@ def test_cli_maps_json_and_refusal(main, tmp_path, capsys):
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow
 def test_closed_loop_pi_only_equals_open_loop():
     """Cross-check: the closed loop with the 'PI only' controller (programmed set-point, N2 = 0) gives
     the same map as the open-loop batched plant; the brake changes it (how well it mitigates is
@@ -188,6 +186,7 @@ def test_closed_loop_pi_only_equals_open_loop():
         make_tasks(plan, "nope")
 
 
+@pytest.mark.slow
 def test_python_entry_point_resumes_and_sweeps_a_structured_plant(tmp_path):
     """``mitigate.sweep.sweep`` from Python: maps, files, resuming; on a scenario whose plant differs
     in structure (shaft elements) the plant's own states are simulated."""

@@ -42,6 +42,7 @@ def test_dask_cluster_matches_local(tmp_path):
     assert np.any(local.maps["rest"]["limit_cycle"] == 1)  # the grid is not trivially quiet
 
 
+@pytest.mark.slow
 def test_local_sweep_does_not_import_dask(tmp_path):
     # only the sweep command is registered (the others are migrated in other branches)
     code = ("import sys; import mitigate.cli as cli; "

@@ -67,6 +67,7 @@ def test_step1_bad_data():
         fit_step1([1, 1, 2, 2, 3, 3, 4, 4], [1] * 8, [0] * 8, r_m=0.01)
 
 
+@pytest.mark.slow
 def test_step2_limit_cycle_recovers_stiffness():
     """Step 2 on a 0.1 s stick-slip log of the EXACT lead-screw plant (Fig. 9.23 setting).
 

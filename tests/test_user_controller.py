@@ -31,6 +31,7 @@ def _on_path(monkeypatch):
     monkeypatch.syspath_prepend(str(ROOT))
 
 
+@pytest.mark.slow
 def test_the_example_runs_in_the_loop_with_metrics_and_report(tmp_path):
     sc_path = tmp_path / "mine.toml"
     sc_path.write_text(SCENARIO)

@@ -160,6 +160,7 @@ def test_a_torque_drive_has_a_torque_limit_the_plant_and_the_laws_honour(tmp_pat
         assert np.max(np.abs(cmd)) <= 0.3 + 1e-12 and np.max(cmd) == pytest.approx(0.3)   # it used the limit
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["softspeed", "ztorque"])
 def test_on_a_torque_drive_the_laws_aim_at_the_scenarios_target_speed(kind):
     """rig2's operating point says 1 rad/s; the scenario's [control] speed says 2 rad/s."""
@@ -191,6 +192,7 @@ def test_a_verdict_does_not_call_kept_stick_slip_a_job_done():
     assert done.endswith("; job done.")
 
 
+@pytest.mark.slow
 def test_the_student_rig_runs_every_law_ok_nmpc_below_pi():
     """The issue's target on our own student-style rig (the held-out one is not committed)."""
     from mitigate.runner import run
@@ -271,6 +273,7 @@ def test_the_default_ekf_reads_a_single_encoder_rig_through_its_speed_and_torque
         assert np.sqrt(np.mean(err ** 2)) < 0.05 * np.ptp(r.twists[name][late]), name
 
 
+@pytest.mark.slow
 def test_the_nmpc_suppresses_on_a_rig_measured_at_the_motor_only(tmp_path):
     """Fewer sensors: the motor's encoder and the torque sensor, the EKF's defaults; the stick-slip PI
     keeps (what stays 1.8) is suppressed with no fallback."""
@@ -285,6 +288,7 @@ def test_the_nmpc_suppresses_on_a_rig_measured_at_the_motor_only(tmp_path):
     assert by["nmpc"].metrics["controller_fallbacks"] == 0
 
 
+@pytest.mark.slow
 def test_identification_on_a_rig_read_at_the_motor_only(tmp_path):
     """The far disc's twist and speed unmeasured: the shooting nodes start from the EKF's estimates
     at the initial parameters.  From a smooth simulation they drifted out of phase with the log's
@@ -312,6 +316,7 @@ print("RESULT", res.status.value, [r.status.value for r in res.runs])
 '''
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("how", ["file", "stdin", "guarded"])
 def test_run_works_in_a_script_without_a_main_guard(tmp_path, how):
     """A script FILE whose top level calls run() used to have each spawned worker run it again

@@ -33,11 +33,11 @@ from __future__ import annotations
 import time
 import warnings
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from models.checks import choice, integer, number, prefix
+from models.checks import check_options, option, prefix
 from models.errors import ConfigError, DataError
 from models.plant import SimOptions, simulate
 from models.sensors import SensorOptions
@@ -67,28 +67,19 @@ class BootstrapOptions:
     progress : progress bar (tqdm) on stderr
     """
 
-    replicates: int = 8
-    seed: int = 1000
-    sensors: SensorOptions = field(default_factory=SensorOptions)
-    force_cutoff: float | None = 2.0
-    speed_cutoff: float | None = 5.0
-    sim_nsub: int = 10
-    max_iter: int | None = None
-    start: str = "initial"
-    workers: int = 1
-    progress: bool = False
+    replicates: int = option(8, lo=2)
+    seed: int = option(1000)
+    sensors: SensorOptions = option(SensorOptions(), table=SensorOptions, what="SensorOptions")
+    force_cutoff: float | None = option(2.0, lo=0.0, lo_open=True, unit="Hz", none=True)
+    speed_cutoff: float | None = option(5.0, lo=0.0, lo_open=True, unit="Hz", none=True)
+    sim_nsub: int = option(10, lo=1)
+    max_iter: int | None = option(None, kind="integer", lo=1, none=True)
+    start: str = option("initial", choices=("initial", "fit"))
+    workers: int = option(1, lo=1)
+    progress: bool = option(False)
 
     def __post_init__(self):
-        w = prefix("bootstrap")
-        for name, least in (("replicates", 2), ("sim_nsub", 1), ("workers", 1)):
-            integer(getattr(self, name), f"{w}.{name}", lo=least)
-        integer(self.max_iter, f"{w}.max_iter", lo=1, none=True)
-        integer(self.seed, f"{w}.seed")
-        for name in ("force_cutoff", "speed_cutoff"):
-            number(getattr(self, name), f"{w}.{name}", lo=0.0, lo_open=True, unit="Hz", none=True)
-        choice(self.start, f"{w}.start", ("initial", "fit"))
-        if not isinstance(self.sensors, SensorOptions):
-            raise ConfigError(f"{w}.sensors must be SensorOptions, got {type(self.sensors).__name__}")
+        check_options(self, prefix("bootstrap"))
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,7 @@
 """What to fit and how: :class:`IdentifyOptions` and :class:`LinearConstraint`.
 
-Both are frozen and check themselves when built; every error is one line naming the field,
+Both are frozen and check themselves when built (:class:`IdentifyOptions` declares its checks with
+:func:`models.checks.option`); every error is one line naming the field,
 ``"options.eps must be a finite number > 0 rad/s, got -1"``.  Names of parameters and channels
 are checked against the rig and the logs later, by :class:`~estimators.identify.problem.IdentificationProblem`.
 """
@@ -9,10 +10,10 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Mapping
 
-from models.checks import choice, flag, integer, names, number, prefix
+from models.checks import check_options, number, option, prefix
 from models.errors import ConfigError
 from models.sensors import SensorOptions
 
@@ -120,6 +121,34 @@ class LinearConstraint:
         return cls(tuple((n, sign * c) for n, c in terms.items()), sign * float(rhs), text.strip())
 
 
+def _distinct(free: tuple[str, ...], where: str) -> None:
+    """``free`` names at least one parameter, each once."""
+    if not free:
+        raise ConfigError(f"{where} must name at least one parameter, got none")
+    dup = sorted({n for n in free if free.count(n) > 1})
+    if dup:
+        raise ConfigError(f"{where} must not repeat names, got {', '.join(dup)} twice")
+
+
+def _constraints(v, where: str) -> tuple[LinearConstraint, ...]:
+    """One constraint or a list of them, each a :class:`LinearConstraint` or its text."""
+    out = []
+    for c in (v if not isinstance(v, (str, LinearConstraint)) else (v,)):
+        if isinstance(c, str):
+            c = LinearConstraint.parse(c, where)
+        if not isinstance(c, LinearConstraint):
+            raise ConfigError(f"{where} must hold LinearConstraint or text, got {type(c).__name__}")
+        out.append(c)
+    return tuple(out)
+
+
+def _noise_needs_gn(o: "IdentifyOptions", name) -> None:
+    """Errors in the variables are a Gauss-Newton feature."""
+    if isinstance(o.input_noise, Mapping) and o.input_noise and o.solver != "gn":
+        raise ConfigError(f"{name('input_noise')} needs solver 'gn' (errors in the variables), got solver "
+                          f"{o.solver!r}")
+
+
 @dataclass(frozen=True, kw_only=True)
 class IdentifyOptions:
     """What to fit and how.
@@ -190,99 +219,43 @@ class IdentifyOptions:
     progress : one status line per iteration on stderr
     """
 
-    free: tuple[str, ...]
-    bounds: Mapping[str, tuple[float, float]] | None = None
-    constraints: tuple = ()
-    order_friction: bool = True
-    outputs: tuple[str, ...] | None = None
-    exclude: tuple[str, ...] = ()
-    noise: Mapping[str, float] | None = None
-    sensors: SensorOptions = field(default_factory=SensorOptions)
-    eps: float | None = None
-    nsub: int | None = None
-    shoot_every: int = 10
-    speed_average: bool = True
-    use_twist: bool = True
-    encoder_zero: str = "free"
-    input_row: str = "end"
-    extra_delay: int = 0
-    detect_delay: int = 0
-    max_iter: int = 100
-    tol: float = 1e-8
-    trust_radius: float = 1.0
-    solver: str = "gn"
-    globalise: str = "auto"
-    compile: bool | None = None
-    input_cutoff: Mapping[str, float] | None = None
-    input_noise: Mapping[str, float] | str | None = "auto"
-    corr_warn: float = 0.95
-    rse_warn: float = 0.5
-    systematic: bool = False
-    systematic_iter: int = 20
-    progress: bool = False
+    free: tuple[str, ...] = option(kind="names", what="parameter names", split=True, check=_distinct)
+    bounds: Mapping[str, tuple[float, float]] | None = option(None, items=2, finite=False, increasing=True,
+                                                              by_name=True, none=True,
+                                                              what="(lower, upper) with lower < upper")
+    constraints: tuple = option((), kind="any", check=_constraints)
+    order_friction: bool = option(True)
+    outputs: tuple[str, ...] | None = option(None, kind="names", what="channel names", split=True, nonempty=True,
+                                             none=True)
+    exclude: tuple[str, ...] = option((), kind="names", what="channel names", split=True)
+    noise: Mapping[str, float] | None = option(None, lo=0.0, lo_open=True, by_name=True, none=True)
+    sensors: SensorOptions = option(SensorOptions(), table=SensorOptions, what="SensorOptions")
+    eps: float | None = option(None, lo=0.0, lo_open=True, unit="rad/s", none=True)
+    nsub: int | None = option(None, kind="integer", lo=1, none=True)
+    shoot_every: int = option(10, lo=1)
+    speed_average: bool = option(True)
+    use_twist: bool = option(True)
+    encoder_zero: str = option("free", choices=ENCODER_ZERO)
+    input_row: str = option("end", choices=INPUT_ROWS)
+    extra_delay: int = option(0, lo=0, hi=100, unit="samples")
+    detect_delay: int = option(0, lo=0, hi=10, unit="samples")
+    max_iter: int = option(100, lo=1)
+    tol: float = option(1e-8, lo=0.0, lo_open=True)
+    trust_radius: float = option(1.0, lo=0.0, lo_open=True)
+    solver: str = option("gn", choices=SOLVERS)
+    globalise: str = option("auto", choices=GLOBALISE)
+    compile: bool | None = option(None, kind="flag", none=True)
+    input_cutoff: Mapping[str, float] | None = option(None, lo=0.0, lo_open=True, unit="Hz", by_name=True, none=True)
+    input_noise: Mapping[str, float] | str | None = option("auto", lo=0.0, lo_open=True, by_name=True, none=True,
+                                                           words=("auto", "off"), what="standard deviations")
+    corr_warn: float = option(0.95, lo=0.0, lo_open=True, hi=1.0)
+    rse_warn: float = option(0.5, lo=0.0, lo_open=True)
+    systematic: bool = option(False)
+    systematic_iter: int = option(20, lo=1)
+    progress: bool = option(False)
 
     def __post_init__(self):
-        w = prefix("options")
-        free = names(self.free, f"{w}.free", what="parameter names", split=True)
-        if not free:
-            raise ConfigError(f"{w}.free must name at least one parameter, got none")
-        dup = sorted({n for n in free if free.count(n) > 1})
-        if dup:
-            raise ConfigError(f"{w}.free must not repeat names, got {', '.join(dup)} twice")
-        object.__setattr__(self, "free", free)
-        if self.outputs is not None:
-            object.__setattr__(self, "outputs", names(self.outputs, f"{w}.outputs", what="channel names", split=True,
-                                                      nonempty=True))
-        object.__setattr__(self, "exclude", names(self.exclude, f"{w}.exclude", what="channel names", split=True))
-        cons = []
-        for c in (self.constraints if not isinstance(self.constraints, (str, LinearConstraint)) else (self.constraints,)):
-            if isinstance(c, str):
-                c = LinearConstraint.parse(c, f"{w}.constraints")
-            if not isinstance(c, LinearConstraint):
-                raise ConfigError(f"{w}.constraints must hold LinearConstraint or text, got {type(c).__name__}")
-            cons.append(c)
-        object.__setattr__(self, "constraints", tuple(cons))
-        if self.bounds is not None:
-            if not isinstance(self.bounds, Mapping):
-                raise ConfigError(f"{w}.bounds must be a table {{name: (lower, upper)}}, got {self.bounds!r}")
-            for n, b in self.bounds.items():
-                ok = isinstance(b, (tuple, list)) and len(b) == 2 and all(
-                    isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v) for v in b)
-                if not ok or not b[0] < b[1]:
-                    raise ConfigError(f"{w}.bounds.{n} must be (lower, upper) with lower < upper, got {b!r}")
-        for name in ("order_friction", "speed_average", "use_twist", "systematic", "progress"):
-            flag(getattr(self, name), f"{w}.{name}")
-        if not isinstance(self.sensors, SensorOptions):
-            raise ConfigError(f"{w}.sensors must be SensorOptions, got {type(self.sensors).__name__}")
-        number(self.eps, f"{w}.eps", lo=0.0, lo_open=True, unit="rad/s", none=True)
-        integer(self.nsub, f"{w}.nsub", lo=1, none=True)
-        for name in ("shoot_every", "max_iter", "systematic_iter"):
-            integer(getattr(self, name), f"{w}.{name}", lo=1)
-        integer(self.extra_delay, f"{w}.extra_delay", lo=0, hi=100, unit="samples")
-        integer(self.detect_delay, f"{w}.detect_delay", lo=0, hi=10, unit="samples")
-        choice(self.encoder_zero, f"{w}.encoder_zero", ENCODER_ZERO)
-        choice(self.input_row, f"{w}.input_row", INPUT_ROWS)
-        number(self.tol, f"{w}.tol", lo=0.0, lo_open=True)
-        number(self.trust_radius, f"{w}.trust_radius", lo=0.0, lo_open=True)
-        choice(self.solver, f"{w}.solver", SOLVERS)
-        choice(self.globalise, f"{w}.globalise", GLOBALISE)
-        flag(self.compile, f"{w}.compile", none=True)
-        number(self.corr_warn, f"{w}.corr_warn", lo=0.0, hi=1.0, lo_open=True)
-        number(self.rse_warn, f"{w}.rse_warn", lo=0.0, lo_open=True)
-        for k, v in (self.input_cutoff or {}).items():
-            number(v, f"{w}.input_cutoff.{k}", lo=0.0, lo_open=True, unit="Hz")
-        if isinstance(self.input_noise, str):
-            if self.input_noise not in ("auto", "off"):
-                raise ConfigError(f"{w}.input_noise must be 'auto', 'off' or a table of standard deviations, "
-                                  f"got {self.input_noise!r}")
-        elif self.input_noise is not None:
-            for k, v in self.input_noise.items():
-                number(v, f"{w}.input_noise.{k}", lo=0.0, lo_open=True)
-            if self.input_noise and self.solver != "gn":
-                raise ConfigError(f"{w}.input_noise needs solver 'gn' (errors in the variables), got solver "
-                                  f"{self.solver!r}")
-        for k, v in (self.noise or {}).items():
-            number(v, f"{w}.noise.{k}", lo=0.0, lo_open=True)
+        check_options(self, prefix("options"), cross=_noise_needs_gn)
 
     def replace(self, **changes) -> "IdentifyOptions":
         """A copy with some fields changed (validated again)."""

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from models.checks import check_options, field_where, names, option, prefix
+from models.checks import check_options, option, prefix
 from models.errors import ConfigError
 
 __all__ = ["EKFOptions", "MHEOptions", "FDOptions", "ANGLES", "QP_SOLVERS", "RigScales",
@@ -25,6 +25,15 @@ ANGLES = ("zeroed", "absolute")
 QP_SOLVERS = ("ldl", "osqp")
 #: how messages name the table when the options are built directly (not from a scenario's table)
 WHERE = "estimator"
+
+
+def _augment_entries(augment: tuple[str, ...], where: str) -> None:
+    """Each extra state names its kind and its target: ``load:<contact>``, ``offset:<channel>``, ``gain:<channel>``."""
+    for a in augment:
+        kind, _, target = a.partition(":")
+        if kind not in ("load", "offset", "gain") or not target:
+            raise ConfigError(f"{where} entries must be 'load:<contact>', 'offset:<channel>' or 'gain:<channel>', "
+                              f"got {a!r}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -75,9 +84,11 @@ class EKFOptions:
     """
 
 
-    channels: tuple | None = None
+    channels: tuple | None = option(None, kind="names", what="log channels of the rig", nonempty=True, unique=True,
+                                    none=True)
     angles: str = option("zeroed", choices=ANGLES)
-    augment: tuple | None = None
+    augment: tuple | None = option(None, kind="names", what="'load:<contact>', 'offset:<channel>' or 'gain:<channel>'",
+                                   unique=True, none=True, check=_augment_entries)
     eps: float | None = option(None, lo=0.0, lo_open=True, none=True)
     nsub: int = option(4, lo=1)
     q_torque: float | None = option(None, lo=0.0, none=True)
@@ -99,18 +110,7 @@ class EKFOptions:
     observability_window: float | None = option(None, lo=0.0, lo_open=True, none=True)
 
     def __post_init__(self):
-        where = prefix(WHERE)
-        for name, what, nonempty in (("channels", "log channels of the rig", True),
-                                     ("augment", "'load:<contact>', 'offset:<channel>' or 'gain:<channel>'", False)):
-            if getattr(self, name) is not None:
-                object.__setattr__(self, name, names(getattr(self, name), field_where(name, where), what=what,
-                                                     nonempty=nonempty, unique=True))
-        for a in self.augment or ():
-            kind, _, target = a.partition(":")
-            if kind not in ("load", "offset", "gain") or not target:
-                raise ConfigError(f"{field_where('augment', where)} entries must be 'load:<contact>', "
-                                  f"'offset:<channel>' or 'gain:<channel>', got {a!r}")
-        check_options(self, where)
+        check_options(self, prefix(WHERE))
 
 
 @dataclass(frozen=True, kw_only=True)

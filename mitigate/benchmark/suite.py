@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
 
-from models.checks import read_toml
+from models.checks import options_from_mapping, read_toml
 from models.errors import ConfigError
 from mitigate.metrics import MetricOptions
 from mitigate.scenario import ControllerSpec, Scenario, parse_scenario
@@ -138,7 +138,7 @@ def load_suite(path, *, extra_controllers=(), only=None) -> Suite:
     if isinstance(deadline, bool) or not isinstance(deadline, (str, int, float)):
         raise ConfigError(f"{where}: suite.deadline must be \"period\", \"off\" or a time such as \"5 ms\", "
                           f"got {deadline!r}")
-    metrics = MetricOptions.from_mapping(data.get("metrics", {}), f"{where}: metrics")
+    metrics = options_from_mapping(MetricOptions, data.get("metrics", {}), f"{where}: metrics")
     raw = data.get("controllers")
     if not isinstance(raw, list) or not raw:
         raise ConfigError(f"{where}: controllers: list at least one [[controllers]] table")

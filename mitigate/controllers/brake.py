@@ -25,7 +25,7 @@ from typing import Mapping
 
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.tunables import Tunable
-from models.checks import check_options, field_where, option
+from models.checks import check_options, option
 from models.errors import ConfigError
 
 __all__ = ["BrakeOptions", "BrakeController", "body_speed"]
@@ -52,7 +52,7 @@ class BrakeOptions:
     use_estimate : take speeds from the state estimate when one is available
     """
 
-    input: str = ""
+    input: str = option("", what="a servo input name")
     gain_overspeed: float | None = option(None, lo=0.0, unit="N s/rad", none=True)
     gain_relative: float = option(0.0, lo=0.0, unit="N s/rad")
     deadband: float = option(0.0, lo=0.0, unit="rad/s")
@@ -61,8 +61,6 @@ class BrakeOptions:
     use_estimate: bool = option(True)
 
     def __post_init__(self):
-        if not isinstance(self.input, str):
-            raise ConfigError(f"{field_where('input')} must be a servo input name, got {self.input!r}")
         check_options(self)
 
 

@@ -29,7 +29,7 @@ from typing import Mapping
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.controllers.tuning import drive_speed_channel, first_order, np_clip, tuning_for
 from mitigate.tunables import Tunable
-from models.checks import check_options, field_where, option
+from models.checks import check_options, option
 from models.errors import ConfigError
 
 __all__ = ["DOSKILOptions", "DOSKIL"]
@@ -48,7 +48,7 @@ class DOSKILOptions:
     tau : low-pass of the measured speeds [s] (0: 1/80 of the rig's stick-slip period; rig3 29 ms)
     """
 
-    input: str = ""
+    input: str = option("", what="a servo input name")
     gain: float = option(0.0, lo=0.0, unit="N s/rad")
     gain_factor: float = option(2.0, lo=0.0, lo_open=True)
     n_min: float = option(0.0, lo=0.0, unit="N")
@@ -56,8 +56,6 @@ class DOSKILOptions:
     tau: float = option(0.0, lo=0.0, unit="s")
 
     def __post_init__(self):
-        if not isinstance(self.input, str):
-            raise ConfigError(f"{field_where('input')} must be a servo input name, got {self.input!r}")
         check_options(self)
 
 

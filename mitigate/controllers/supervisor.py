@@ -36,10 +36,18 @@ import numpy as np
 
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
 from mitigate.tunables import Tunable
-from models.checks import check_options, field_where, option
+from models.checks import check_options, option
 from models.errors import ConfigError
 
 __all__ = ["SupervisorOptions", "SpeedSupervisor", "resolve"]
+
+
+def _band_and_window(o: "SupervisorOptions", name) -> None:
+    """``off < on`` (a band) and ``min_window <= window``."""
+    if not o.off < o.on:
+        raise ConfigError(f"{name('off')} must be < on = {o.on} (a band), got {o.off}")
+    if o.min_window is not None and o.window is not None and o.min_window > o.window:
+        raise ConfigError(f"{name('min_window')} must be <= window = {o.window} s, got {o.min_window}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -71,11 +79,7 @@ class SupervisorOptions:
     min_window: float | None = option(None, lo=0.0, unit="s", none=True)
 
     def __post_init__(self):
-        check_options(self)
-        if not self.off < self.on:
-            raise ConfigError(f"{field_where('off')} must be < on = {self.on} (a band), got {self.off}")
-        if self.min_window is not None and self.window is not None and self.min_window > self.window:
-            raise ConfigError(f"{field_where('min_window')} must be <= window = {self.window} s, got {self.min_window}")
+        check_options(self, cross=_band_and_window)
 
 
 #: the defaults as ratios to the rig's stick-slip period T and programmed speed w (rig3's tuned values)

@@ -10,12 +10,11 @@ All functions take numpy arrays sampled at a constant period ``dt`` [s].
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
-from typing import Any, Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
-from models.checks import finite_number
+from models.checks import check_options, option, where_field
 from models.errors import ConfigError
 
 __all__ = ["MetricOptions", "contact_work", "solve_time_stats", "programmed_speed", "measured_stuck_speed", "rig_period",
@@ -69,6 +68,12 @@ def solve_time_stats(times: np.ndarray) -> dict[str, float]:
     return {"median": float(np.median(t)), "p95": float(np.percentile(t, 95)), "max": float(np.max(t))}
 
 
+def _straddles_one(band: tuple[float, float], where: str) -> None:
+    """A band of ratios to the programme holds the programme: ``low < 1 <= high``."""
+    if not band[0] < 1 <= band[1]:
+        raise ConfigError(f"{where} must have low < 1 <= high, got [{band[0]:g}, {band[1]:g}]")
+
+
 @dataclass(frozen=True, kw_only=True)
 class MetricOptions:
     """Settings of :func:`closed_loop_metrics`; None means "from the scenario" (every default with a
@@ -96,51 +101,22 @@ class MetricOptions:
         its programme [-] outside which a run violates the programme (the bit's speed; (0.95, 1.05))
     """
 
-    period: float | None = None
-    residual_periods: float = 3.0
-    residual_fraction: float = 0.5
-    window_periods: float = 2.0
-    moving_periods: float = 1.5
-    suppress_threshold: float = 0.1
-    stuck_speed: float | None = None
-    stuck_speed_measured: float | None = None
-    force_band: tuple = (0.8, 1.25)
-    speed_band: tuple = (0.95, 1.05)
-    where: str = "metrics"
+    period: float | None = option(None, lo=0.0, lo_open=True, unit="s", none=True)
+    residual_periods: float = option(3.0, lo=0.0, lo_open=True)
+    residual_fraction: float = option(0.5, lo=0.0, lo_open=True, hi=1.0)
+    window_periods: float = option(2.0, lo=0.0, lo_open=True)
+    moving_periods: float = option(1.5, lo=0.0, lo_open=True)
+    suppress_threshold: float = option(0.1, lo=0.0, lo_open=True)
+    stuck_speed: float | None = option(None, lo=0.0, lo_open=True, unit="rad/s", none=True)
+    stuck_speed_measured: float | None = option(None, lo=0.0, lo_open=True, unit="rad/s", none=True)
+    force_band: tuple = option((0.8, 1.25), items=2, lo=0.0, what="[low, high] (ratios to the programme)",
+                               check=_straddles_one)
+    speed_band: tuple = option((0.95, 1.05), items=2, lo=0.0, what="[low, high] (ratios to the programme)",
+                               check=_straddles_one)
+    where: str = where_field("metrics")
 
     def __post_init__(self):
-        w = self.where
-        for name in ("period", "stuck_speed", "stuck_speed_measured"):
-            v = getattr(self, name)
-            if v is not None:
-                object.__setattr__(self, name, finite_number(v, f"{w}.{name}", positive=True,
-                                                             unit="s" if name == "period" else "rad/s"))
-        for name in ("residual_periods", "window_periods", "moving_periods", "suppress_threshold"):
-            object.__setattr__(self, name, finite_number(getattr(self, name), f"{w}.{name}", positive=True))
-        f = finite_number(self.residual_fraction, f"{w}.residual_fraction", positive=True)
-        if f > 1:
-            raise ConfigError(f"{w}.residual_fraction must be in (0, 1], got {f!r}")
-        object.__setattr__(self, "residual_fraction", f)
-        for name in ("force_band", "speed_band"):
-            b = getattr(self, name)
-            if not isinstance(b, (list, tuple)) or len(b) != 2:
-                raise ConfigError(f"{w}.{name} must be [low, high] (ratios to the programme), got {b!r}")
-            lo = finite_number(b[0], f"{w}.{name}[0]", nonneg=True)
-            hi = finite_number(b[1], f"{w}.{name}[1]", positive=True)
-            if not lo < 1 <= hi:
-                raise ConfigError(f"{w}.{name} must have low < 1 <= high, got [{lo:g}, {hi:g}]")
-            object.__setattr__(self, name, (lo, hi))
-
-    @classmethod
-    def from_mapping(cls, table: Mapping[str, Any], where: str = "metrics") -> "MetricOptions":
-        """Validate a raw TOML table (a suite's ``[metrics]``); unknown keys are errors naming ``where``."""
-        if not isinstance(table, Mapping):
-            raise ConfigError(f"{where} must be a table, got {type(table).__name__}")
-        known = [f.name for f in fields(cls) if f.name != "where"]
-        bad = sorted(set(table) - set(known))
-        if bad:
-            raise ConfigError(f"{where}.{bad[0]}: unknown key; expected one of {', '.join(known)}")
-        return cls(**dict(table), where=where)
+        check_options(self)
 
 
 def rig_period(model, params) -> float:

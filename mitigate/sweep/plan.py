@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from models.checks import choice, integer, number, options_from_mapping, prefix
+from models.checks import check_options, number, option, options_from_mapping, prefix
 from models.errors import ConfigError
 
 __all__ = ["Axis", "parse_axis", "SweepOptions", "options_from_scenario", "SweepPlan", "plan_sweep", "MAX_POINTS",
@@ -73,6 +73,13 @@ def parse_axis(text: str) -> Axis:
 
 
 # ----------------------------------------------------------------------------- options
+def _settles_within(o: "SweepOptions", name) -> None:
+    """The settling time lies inside the run, and the run spans a few samples."""
+    number(o.settle, name("settle"), lo=0.0, hi=o.duration, hi_open=True, unit="s", none=True)
+    if int(round(o.duration / o.dt)) < 4:
+        raise ConfigError(f"{name('duration')} must span at least 4 samples of dt={o.dt} s, got {o.duration}")
+
+
 @dataclass(frozen=True, kw_only=True)
 class SweepOptions:
     """How each point is simulated and reduced (see module docstring for the meaning).
@@ -80,34 +87,23 @@ class SweepOptions:
     ``threshold``, ``stuck_threshold`` and ``perturbation`` carry units: None (their default) is
     resolved by :func:`options_from_scenario` from the rig (:func:`rig_defaults`)."""
 
-    start: str = "rest"
-    duration: float = 30.0
-    dt: float = 0.01
-    nsub: int = 10
-    settle: float | None = None
-    speed: str = ""
-    amplitude_of: str = ""
-    threshold: float | None = None
-    stuck_threshold: float | None = None
-    chunk: int = 50
-    block: int = 200
-    stability_points: int = 20
-    perturbation: float | None = None
-    backend: str = "compiled"
+    start: str = option("rest", choices=("rest", "sliding", "both"))
+    duration: float = option(30.0, lo=0.0, lo_open=True, unit="s")
+    dt: float = option(0.01, lo=0.0, lo_open=True, unit="s")
+    nsub: int = option(10, lo=1)
+    settle: float | None = option(None, lo=0.0, unit="s", none=True)
+    speed: str = option("", what="a state name")
+    amplitude_of: str = option("", what="a state name")
+    threshold: float | None = option(None, lo=0.0, none=True)
+    stuck_threshold: float | None = option(None, lo=0.0, none=True)
+    chunk: int = option(50, lo=1)
+    block: int = option(200, lo=1)
+    stability_points: int = option(20, lo=1)
+    perturbation: float | None = option(None, lo=0.0, none=True)
+    backend: str = option("compiled", choices=("compiled", "vm"))
 
     def __post_init__(self):
-        w = prefix("sweep")
-        choice(self.start, f"{w}.start", ("rest", "sliding", "both"))
-        for n in ("duration", "dt"):
-            number(getattr(self, n), f"{w}.{n}", lo=0.0, lo_open=True, unit="s")
-        for n in ("nsub", "chunk", "block", "stability_points"):
-            integer(getattr(self, n), f"{w}.{n}", lo=1)
-        number(self.settle, f"{w}.settle", lo=0.0, hi=self.duration, hi_open=True, unit="s", none=True)
-        for n in ("threshold", "stuck_threshold", "perturbation"):
-            number(getattr(self, n), f"{w}.{n}", lo=0.0, none=True)
-        choice(self.backend, f"{w}.backend", ("compiled", "vm"))
-        if int(round(self.duration / self.dt)) < 4:
-            raise ConfigError(f"{w}.duration must span at least 4 samples of dt={self.dt} s, got {self.duration}")
+        check_options(self, prefix("sweep"), cross=_settles_within)
 
     @property
     def n_steps(self) -> int:

@@ -25,7 +25,7 @@ import casadi as ca
 import numpy as np
 
 from models.actuators import Servo
-from models.checks import finite_number
+from models.checks import check_options, finite_number, option, prefix
 from models.codegen import FastFunction
 from models.discretise import Integration, integration
 from models.errors import ConfigError
@@ -61,25 +61,15 @@ class SimOptions:
     start : "rest" (all speeds zero, no twist) or "sliding" (steady sliding at the first input)
     """
 
-    dt: float = 0.01
-    nsub: int = 10
-    method: str = "hybrid"
-    eps: float | None = None
-    seed: int = 0
-    start: str = "rest"
+    dt: float = option(0.01, lo=0.0, lo_open=True, unit="s")
+    nsub: int = option(10, lo=1)
+    method: str = option("hybrid", choices=_METHODS)
+    eps: float | None = option(None, lo=0.0, lo_open=True, unit="rad/s", none=True)
+    seed: int = option(0)
+    start: str = option("rest", choices=("rest", "sliding"))
 
     def __post_init__(self):
-        finite_number(self.dt, "sim.dt", positive=True, unit="s")
-        if isinstance(self.nsub, bool) or not isinstance(self.nsub, int) or self.nsub < 1:
-            raise ConfigError(f"sim.nsub must be an integer >= 1, got {self.nsub!r}")
-        if self.method not in _METHODS:
-            raise ConfigError(f"sim.method must be one of {', '.join(_METHODS)}, got {self.method!r}")
-        if self.eps is not None:
-            finite_number(self.eps, "sim.eps", positive=True, unit="rad/s")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
-            raise ConfigError(f"sim.seed must be an integer, got {self.seed!r}")
-        if self.start not in ("rest", "sliding"):
-            raise ConfigError(f"sim.start must be 'rest' or 'sliding', got {self.start!r}")
+        check_options(self, prefix("sim"))
 
 
 def plant_integration(model, params: ParameterSet | None, options: SimOptions, u0=None) -> Integration:

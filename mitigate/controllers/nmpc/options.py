@@ -1,18 +1,18 @@
 """Options of the NMPC: what it may set (``inputs``), whose stick-slip it suppresses (``body``),
 its cost weights, limits and solver.
 
-Both dataclasses are frozen and keyword-only and validate themselves; everything that needs
+Both dataclasses are frozen and keyword-only and declare their checks with
+:func:`models.checks.option` (a raw scenario table becomes them through
+:func:`models.checks.options_from_mapping`); everything that needs
 the rig (does it have that input, that body?) is checked when the controller is built
 (:class:`mitigate.controllers.nmpc.controller.NMPC`), with the same one-line errors.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, fields
-from typing import Mapping
+from dataclasses import dataclass
 
-from models.checks import finite_number
+from models.checks import check_options, option, options_from_mapping, where_field
 from models.errors import ConfigError
 from mitigate.controllers.nmpc.qp import QP_SOLVERS
 
@@ -54,42 +54,30 @@ class NMPCWeights:
     doubled the settling time (benchmarks/results/nmpc.md).
     """
 
-    speed: float = 1.0
-    rel: float = 0.3
-    ref: float = 0.2
-    force: float = 0.2
-    force_linear: float = 0.01
-    d_ref: float = 0.3
-    d_force: float = 0.3
-    terminal: float = 3.0
-    where: str = "nmpc.weights"
+    speed: float = option(1.0, lo=0.0)
+    rel: float = option(0.3, lo=0.0)
+    ref: float = option(0.2, lo=0.0)
+    force: float = option(0.2, lo=0.0)
+    force_linear: float = option(0.01, lo=0.0)
+    d_ref: float = option(0.3, lo=0.0, lo_open=True, why="it keeps the QP positive definite")
+    d_force: float = option(0.3, lo=0.0, lo_open=True, why="it keeps the QP positive definite")
+    terminal: float = option(3.0, lo=0.0)
+    where: str = where_field("nmpc.weights")
 
     def __post_init__(self):
-        for name in WEIGHT_NAMES:
-            v = finite_number(getattr(self, name), f"{self.where}.{name}", nonneg=True)
-            if name in ("d_ref", "d_force") and not v > 0:
-                raise ConfigError(f"{self.where}.{name} must be > 0 (it keeps the QP positive definite), got {v!r}")
-            object.__setattr__(self, name, v)
+        check_options(self)
 
     def as_tuple(self) -> tuple[float, ...]:
         """The weights in :data:`WEIGHT_NAMES` order."""
         return tuple(getattr(self, k) for k in WEIGHT_NAMES)
 
-    @classmethod
-    def from_mapping(cls, table: Mapping, where: str) -> "NMPCWeights":
-        if not isinstance(table, Mapping):
-            raise ConfigError(f"{where} must be a table, got {type(table).__name__}")
-        bad = sorted(set(table) - set(WEIGHT_NAMES))
-        if bad:
-            raise ConfigError(f"{where}: unknown weight(s) {bad}; expected some of {list(WEIGHT_NAMES)}")
-        return cls(**dict(table), where=where)
 
-
-def _int(v, where: str, lo: int, hi: int | None = None, what: str = "") -> None:
-    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-        raise ConfigError(f"{where} must be an integer >= {lo}{what}, got {v!r}")
-    if hi is not None and v > hi:
-        raise ConfigError(f"{where} must be <= {hi} (OCP intervals; the OCP and each QP grow with it), got {v}")
+def _at_most(limit: int, why: str = ""):
+    """A :func:`models.checks.option` hook: an upper limit that is a cost, not a meaning (its own message)."""
+    def check(v, where):
+        if v > limit:
+            raise ConfigError(f"{where} must be <= {limit}{f' ({why})' if why else ''}, got {v}")
+    return check
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -147,96 +135,34 @@ class NMPCOptions:
         0: no trim
     """
 
-    horizon: int = 20
-    dt: float | None = None
-    substeps: int = 0
-    eps: float | None = None
-    inputs: str | tuple[str, ...] = "both"
-    body: str | None = None
-    speed: float | None = None
-    weights: NMPCWeights = NMPCWeights()
-    setpoint_band: float | None = None
-    setpoint_rate: float | None = None
-    solver: str = "rti"
-    compile: bool = True
-    qp_solver: str = "hpipm"
-    qp_tol: float = 1e-7
-    sqp_max_iter: int = 20
-    model_servo: bool = True
-    prepare_ahead: bool = True
-    use_load_estimate: bool = True
-    force_filter: float | None = None
-    hold_gain: float | None = None
-    calm_band: tuple[float, float] = (0.01, 0.1)
-    speed_trim: float | None = None
-    where: str = "nmpc"
+    horizon: int = option(20, lo=2, check=_at_most(MAX_HORIZON, "OCP intervals; the OCP and each QP grow with it"))
+    dt: float | None = option(None, lo=0.0, lo_open=True, unit="s", none=True)
+    substeps: int = option(0, lo=0, why="0 = automatic", check=_at_most(MAX_SUBSTEPS))
+    eps: float | None = option(None, lo=0.0, lo_open=True, unit="rad/s", none=True)
+    inputs: str | tuple[str, ...] = option("both", kind="names", words=INPUT_MODES, what="input names", nonempty=True,
+                                           unique=True)
+    body: str | None = option(None, what="a body name", nonempty=True, kind="text", none=True)
+    speed: float | None = option(None, unit="rad/s", none=True)
+    weights: NMPCWeights = option(NMPCWeights(), table=NMPCWeights, what="a table of weights")
+    setpoint_band: float | None = option(None, lo=0.0, none=True)
+    setpoint_rate: float | None = option(None, lo=0.0, lo_open=True, none=True)
+    solver: str = option("rti", choices=SOLVERS)
+    compile: bool = option(True)
+    qp_solver: str = option("hpipm", choices=QP_SOLVERS)
+    qp_tol: float = option(1e-7, lo=0.0, lo_open=True)
+    sqp_max_iter: int = option(20, lo=1)
+    model_servo: bool = option(True)
+    prepare_ahead: bool = option(True)
+    use_load_estimate: bool = option(True)
+    force_filter: float | None = option(None, lo=0.0, unit="s", none=True)
+    hold_gain: float | None = option(None, lo=0.0, lo_open=True, none=True)
+    calm_band: tuple[float, float] = option((0.01, 0.1), items=2, lo=0.0, lo_open=True, increasing=True,
+                                            what="two severities 0 < s_lo < s_hi")
+    speed_trim: float | None = option(None, lo=0.0, unit="s", none=True)
+    where: str = where_field("nmpc")
 
     def __post_init__(self):
-        w = self.where
-        _int(self.horizon, f"{w}.horizon", 2, MAX_HORIZON)
-        if self.dt is not None:
-            finite_number(self.dt, f"{w}.dt", positive=True, unit="s")
-        _int(self.substeps, f"{w}.substeps", 0, what=" (0 = automatic)")
-        if self.substeps > MAX_SUBSTEPS:
-            raise ConfigError(f"{w}.substeps must be <= {MAX_SUBSTEPS}, got {self.substeps}")
-        if self.eps is not None:
-            finite_number(self.eps, f"{w}.eps", positive=True, unit="rad/s")
-        inp = self.inputs
-        if isinstance(inp, str):
-            if inp not in INPUT_MODES:
-                raise ConfigError(f"{w}.inputs must be one of {', '.join(INPUT_MODES)} or a list of input names, "
-                                  f"got {inp!r}")
-        elif isinstance(inp, (list, tuple)):
-            if not inp or not all(isinstance(n, str) and n for n in inp) or len(set(inp)) != len(inp):
-                raise ConfigError(f"{w}.inputs must be a non-empty list of distinct input names, got {list(inp)!r}")
-            object.__setattr__(self, "inputs", tuple(inp))
-        else:
-            raise ConfigError(f"{w}.inputs must be one of {', '.join(INPUT_MODES)} or a list of input names, "
-                              f"got {inp!r}")
-        if self.body is not None and (not isinstance(self.body, str) or not self.body):
-            raise ConfigError(f"{w}.body must be a body name, got {self.body!r}")
-        if self.speed is not None:
-            finite_number(self.speed, f"{w}.speed", unit="rad/s")
-        if isinstance(self.weights, Mapping):
-            object.__setattr__(self, "weights", NMPCWeights.from_mapping(self.weights, f"{w}.weights"))
-        if not isinstance(self.weights, NMPCWeights):
-            raise ConfigError(f"{w}.weights must be a table of weights, got {type(self.weights).__name__}")
-        if self.setpoint_band is not None:
-            finite_number(self.setpoint_band, f"{w}.setpoint_band", nonneg=True)
-        if self.setpoint_rate is not None:
-            finite_number(self.setpoint_rate, f"{w}.setpoint_rate", positive=True)
-        if self.solver not in SOLVERS:
-            raise ConfigError(f"{w}.solver must be one of {', '.join(SOLVERS)}, got {self.solver!r}")
-        if self.qp_solver not in QP_SOLVERS:
-            raise ConfigError(f"{w}.qp_solver must be one of {', '.join(QP_SOLVERS)}, got {self.qp_solver!r}")
-        finite_number(self.qp_tol, f"{w}.qp_tol", positive=True)
-        _int(self.sqp_max_iter, f"{w}.sqp_max_iter", 1)
-        if self.hold_gain is not None:
-            finite_number(self.hold_gain, f"{w}.hold_gain", positive=True)
-        band = self.calm_band
-        if not (isinstance(band, (list, tuple)) and len(band) == 2
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in band)
-                and 0 < band[0] < band[1]):
-            raise ConfigError(f"{w}.calm_band must be two severities 0 < s_lo < s_hi, got {band!r}")
-        object.__setattr__(self, "calm_band", (float(band[0]), float(band[1])))
-        if self.force_filter is not None:
-            finite_number(self.force_filter, f"{w}.force_filter", nonneg=True, unit="s")
-        if self.speed_trim is not None:
-            finite_number(self.speed_trim, f"{w}.speed_trim", nonneg=True, unit="s")
-        for name in ("compile", "model_servo", "prepare_ahead", "use_load_estimate"):
-            if not isinstance(getattr(self, name), bool):
-                raise ConfigError(f"{w}.{name} must be true or false, got {getattr(self, name)!r}")
+        check_options(self)
 
-    @classmethod
-    def from_mapping(cls, options: Mapping, where: str = "nmpc") -> "NMPCOptions":
-        """Validate a raw scenario table (unknown keys are errors naming ``where``)."""
-        if not isinstance(options, Mapping):
-            raise ConfigError(f"{where} must be a table, got {type(options).__name__}")
-        known = [f.name for f in fields(cls) if f.name != "where"]
-        opts = dict(options)
-        unknown = sorted(set(opts) - set(known))
-        if unknown:
-            raise ConfigError(f"{where}: unknown NMPC option(s) {unknown}; expected some of {known}")
-        if "weights" in opts:
-            opts["weights"] = NMPCWeights.from_mapping(opts["weights"], f"{where}.weights")
-        return cls(**opts, where=where)
+    #: the controller's call site reads a raw table with this name; it is :func:`models.checks.options_from_mapping`
+    from_mapping = classmethod(options_from_mapping)

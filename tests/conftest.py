@@ -1,0 +1,46 @@
+"""Test tiers (docs/testing.md) and the fixtures several test files share.
+
+Every test carries one tier mark:
+
+- ``unit``: one module against an analytic result, a printed number or a hand computation (a
+  friction law, a log parser, the modal analysis, the option checks); no closed loop, no command;
+- ``integration``: layers together -- a closed loop, identification on a simulated log, a command
+  line, the benchmark, worker processes, packaging.
+
+and, independently, ``slow`` when it takes more than about 10 s on the 2-core development machine
+(marked in its file, beside the test).  ``python -m pytest -m "not slow"`` is the quick loop (under
+2 minutes); CI runs everything.
+
+A file is one tier unless a test in it says otherwise (``@pytest.mark.unit`` or
+``@pytest.mark.integration`` beside the test); a file not listed in :data:`UNIT_FILES` is
+``integration``.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+import mitigate.cli as cli
+
+#: the test files whose every test is a unit test (the rest are integration tests)
+UNIT_FILES = frozenset({
+    "test_checks.py", "test_coulomb_cycle.py", "test_independent_rig3.py", "test_logs.py", "test_metrics.py",
+    "test_modal.py", "test_models.py", "test_params.py", "test_plots.py", "test_readme_commands.py",
+    "test_rig_checks.py", "test_rig_files.py", "test_sensors.py", "test_status.py", "test_tdms.py",
+    "test_thesis_id.py", "test_thesis_tables.py",
+})
+TIERS = ("unit", "integration")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Give every test its file's tier unless it carries one of its own."""
+    for item in items:
+        if not any(item.get_closest_marker(t) for t in TIERS):
+            tier = "unit" if item.path.name in UNIT_FILES else "integration"
+            item.add_marker(getattr(pytest.mark, tier))
+
+
+@pytest.fixture
+def main():
+    """The command line's entry point, ``main(argv) -> exit code`` (:func:`mitigate.cli.main`)."""
+    return cli.main
