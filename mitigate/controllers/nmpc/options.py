@@ -20,6 +20,8 @@ __all__ = ["NMPCOptions", "NMPCWeights", "MAX_HORIZON", "MAX_SUBSTEPS", "INPUT_M
 
 #: OCP solvers (:func:`mitigate.controllers.nmpc.solvers.make_ocp_solver`)
 SOLVERS = ("rti", "sqp", "ipopt")
+#: implementations of the step: the compiled C core, the Python reference
+IMPLEMENTATIONS = ("c", "python")
 #: ``inputs`` keywords: every command the rig offers, its servo inputs only, its drive only
 INPUT_MODES = ("both", "pin", "motor")
 # The OCP, its build and each QP grow with the horizon.  N = 500 plans 25 s ahead at dt = 0.05 s
@@ -143,8 +145,12 @@ class NMPCOptions:
     calm_band : ``(s_lo, s_hi)``: the estimated severity over one stick-slip period below which
         the NMPC holds (``hold_gain``) and above which it suppresses (factor 1); log-linear between
     speed_trim : time constant [s] of the offset-free trim of the speed target by the objective
-        body's mean speed (:mod:`mitigate.controllers.nmpc.trim`); None: one stick-slip period;
+        body's mean speed (:mod:`mitigate.controllers.nmpc.supervision`); None: one stick-slip period;
         0: no trim
+    implementation : "c": the step as one compiled C call (csrc/ss_nmpc.c; the one that
+        ``mitigate export`` writes out; solver "rti" or "sqp" with hpipm, ``compile = true``);
+        "python": the reference implementation of the same step in Python (the IPOPT and CasADi
+        QP solvers, and ``compile = false``, always run it)
     """
 
     horizon: int = 20
@@ -169,6 +175,7 @@ class NMPCOptions:
     hold_gain: float | None = None
     calm_band: tuple[float, float] = (0.01, 0.1)
     speed_trim: float | None = None
+    implementation: str = "c"
     where: str = "nmpc"
 
     def __post_init__(self):
@@ -223,6 +230,8 @@ class NMPCOptions:
             finite_number(self.force_filter, f"{w}.force_filter", nonneg=True, unit="s")
         if self.speed_trim is not None:
             finite_number(self.speed_trim, f"{w}.speed_trim", nonneg=True, unit="s")
+        if self.implementation not in IMPLEMENTATIONS:
+            raise ConfigError(f"{w}.implementation must be one of {', '.join(IMPLEMENTATIONS)}, got {self.implementation!r}")
         for name in ("compile", "model_servo", "prepare_ahead", "use_load_estimate"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{w}.{name} must be true or false, got {getattr(self, name)!r}")
