@@ -104,7 +104,7 @@ static int fused(sse_mem* m, const double* ym, const double* mask) {
     return ss_fn_eval(f);
 }
 
-static int finite(const double* v, int n) {
+static int all_finite(const double* v, int n) {
     double s = 0.0;
     int i;
     for (i = 0; i < n; i++) s += v[i];
@@ -143,7 +143,7 @@ int sse_update(sse_mem* m, const double* y, const double* u, sse_info* info) {
     } else {
         memcpy(m->uh, u, sizeof(double) * nu);
     }
-    ok = fused(m, m->ym, m->mask) == 0 && finite(m->xn, nx) && finite(m->Pn, nx * nx);
+    ok = fused(m, m->ym, m->mask) == 0 && all_finite(m->xn, nx) && all_finite(m->Pn, nx * nx);
     if (ok) {
         memcpy(m->x, m->xn, sizeof(double) * nx);
         memcpy(m->P, m->Pn, sizeof(double) * nx * nx);
@@ -154,7 +154,7 @@ int sse_update(sse_mem* m, const double* y, const double* u, sse_info* info) {
     /* the fallback: prediction only (every mask 0); else the last estimate held */
     info->failed = 1;
     for (j = 0; j < nc; j++) { m->ym[j] = 0.0; m->mask[j] = 0.0; }
-    if (fused(m, m->ym, m->mask) == 0 && finite(m->xn, nx) && finite(m->Pn, nx * nx)) {
+    if (fused(m, m->ym, m->mask) == 0 && all_finite(m->xn, nx) && all_finite(m->Pn, nx * nx)) {
         memcpy(m->x, m->xn, sizeof(double) * nx);
         memcpy(m->P, m->Pn, sizeof(double) * nx * nx);
     } else {
