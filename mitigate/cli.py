@@ -25,7 +25,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from models.errors import QUOTE_LIMIT, ConfigError, DataError, PluginError, SolverFailure, shorten
 
-COMMANDS = ("simulate", "modal", "identify", "estimate", "run", "sweep", "benchmark", "tune")
+COMMANDS = ("simulate", "modal", "identify", "estimate", "run", "sweep", "benchmark", "tune", "export")
 
 
 class _Parser(argparse.ArgumentParser):

@@ -250,6 +250,7 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
         # overshot R1 by 80 %
         u_prev[model.inputs.index(model.drive_input)] = 0.0
     held = None
+    sampler = bool(getattr(controller, "own_estimator", False))
     status, message = Status.OK, "ok"
     last = n
     X[0] = plant.x
@@ -280,6 +281,13 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
             names = est.names
             xh.append(np.asarray(est.x, dtype=float))
             est_times[k] = est.solve_time
+            if sampler:
+                try:
+                    plugins.call(controller.sample, t, dict(y), k >= k_start, timeout=timeout, what="sample")
+                except PluginError as exc:
+                    status, message, last = Status.FAILED, f"controller failed at t = {t:.3f} s in sample: {exc}", k
+                    CMD[k], U[k] = u, (U[k - 1] if k > 0 else u)
+                    break
             if k >= k_start:
                 if (k - k_start) % every == 0:
                     try:

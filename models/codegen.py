@@ -35,7 +35,7 @@ import casadi as ca
 import numpy as np
 
 __all__ = ["cache_dir", "trusted_cache_dir", "compiler", "compile_cached", "load_compiled", "compiled_or_none",
-           "verify_library", "CtypesFunction", "FastFunction"]
+           "verify_library", "store_built", "CtypesFunction", "FastFunction"]
 
 
 def cache_dir() -> Path:
@@ -133,12 +133,24 @@ def compile_cached(functions: ca.Function | Sequence[ca.Function], opt: str = "-
             if part.exists():
                 part.unlink()
             raise RuntimeError(f"{cc} failed building {tag}: {res.stderr.strip()[:300]}")
-        os.chmod(part, 0o700)
-        side = d / f".{so.name}.sha256.{os.getpid()}.tmp"
-        side.write_text(_digest(part) + "\n")
-        os.replace(side, so.with_name(so.name + ".sha256"))     # the sidecar first: a library never lacks it
-        os.replace(part, so)
-    if not verify_library(so):     # another process replaced it meanwhile: theirs must verify too
+        store_built(part, so)
+    return so
+
+
+def store_built(part: Path, so: Path) -> Path:
+    """Move a freshly built library ``part`` to its cache name ``so`` with its sidecar hash (the
+    sidecar first: a library never lacks it), and check it.
+
+    Raises
+    ------
+    RuntimeError : another process replaced it meanwhile and theirs does not verify.
+    """
+    os.chmod(part, 0o700)
+    side = so.parent / f".{so.name}.sha256.{os.getpid()}.tmp"
+    side.write_text(_digest(part) + "\n")
+    os.replace(side, so.with_name(so.name + ".sha256"))
+    os.replace(part, so)
+    if not verify_library(so):
         raise RuntimeError(f"compiled library {so} does not match its sidecar hash after building; refusing to load it")
     return so
 

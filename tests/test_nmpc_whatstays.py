@@ -18,10 +18,11 @@ from scipy.optimize import brentq
 
 from estimators.base import Estimate
 from mitigate.controllers.base import ControlContext
+from mitigate.scenario_fields import ControlSection
 from mitigate.controllers.factory import context_for, make_controller
 from mitigate.controllers.nmpc.solvers import make_ocp_solver
 from mitigate.controllers.nmpc.defaults import sliding_is_stable
-from mitigate.controllers.nmpc.schedule import CalmSchedule
+from mitigate.controllers.nmpc.supervision import Supervisor
 from mitigate.controllers.nmpc.stage import stage_functions
 from mitigate.metrics import severity
 from models import get_model, simulate
@@ -88,13 +89,13 @@ def test_defaults_come_from_the_rig_at_both_scales():
     assert c.cfg.setpoint_band == pytest.approx(math.pi) and c.cfg.setpoint_rate == pytest.approx(20.19, rel=1e-3)
     field = get_model(str(FIELD))
     c = make_controller({"kind": "nmpc", "compile": False}, _ctx(field, [1.0e4, 97347.0]))
-    assert 6.5 < c.period < 8.0                     # the free chain's lowest mode (0.139 Hz), not the held table's
-    assert c.cfg.dt == pytest.approx(math.floor(c.period / 40 / 0.01) * 0.01)
+    assert 6.5 < c.stick_slip_period < 8.0                     # the free chain's lowest mode (0.139 Hz), not the held table's
+    assert c.cfg.dt == pytest.approx(math.floor(c.stick_slip_period / 40 / 0.01) * 0.01)
     assert c.cfg.setpoint_band == pytest.approx(1.0e4)                  # N m: the programme's torque
     assert c.cfg.eps == pytest.approx(0.016 * 5.0)                      # 1.6 % of operating_point.speed
-    assert c.cfg.setpoint_rate == pytest.approx(15 * 1.0e4 / c.period)
+    assert c.cfg.setpoint_rate == pytest.approx(15 * 1.0e4 / c.stick_slip_period)
     assert set(c.cfg.derived) == {"dt", "eps", "setpoint_band", "setpoint_rate", "force_filter", "hold_gain", "speed_trim"}
-    assert c.cfg.speed_trim == pytest.approx(c.period)                  # one stick-slip period
+    assert c.cfg.speed_trim == pytest.approx(c.stick_slip_period)                  # one stick-slip period
     given = make_controller({"kind": "nmpc", "compile": False, "dt": 0.2, "setpoint_band": 3000.0}, _ctx(field, [1.0e4, 97347.0]))
     assert given.cfg.dt == 0.2 and given.cfg.setpoint_band == 3000.0 and "dt" not in given.cfg.derived
     # the report's tuning line: the settings it runs with, in the units of its drive
@@ -197,21 +198,22 @@ def test_weight_on_bit_stays_at_the_programme_while_the_nmpc_suppresses():
 
 # ----------------------------------------------------------------------------- schedule and disturbance model
 def test_calm_schedule_holds_when_calm_and_acts_in_stick_slip():
-    s = CalmSchedule(window=1.0, dt=0.01, band=(0.01, 0.1), hold_gain=15.0)
-    assert s.current() == 1.0                                         # nothing recorded yet: act
+    s = Supervisor(period=1.0, call_period=0.01, calm_band=(0.01, 0.1), hold_gain=15.0, trim_tau=0.0, drives=True)
+    assert s.decide(3.0).weight_factor == 1.0                         # nothing recorded yet: act
     rng = np.random.default_rng(0)
     for k in range(100):
-        s.update(3.0 + 0.003 * rng.standard_normal(), 3.0)
-    assert s.current() == pytest.approx(15.0) and s.severity < 0.01   # noise only: hold
+        s.observe(0.01 * k, 3.0 + 0.003 * rng.standard_normal(), 3.0)
+    d = s.decide(3.0)
+    assert d.weight_factor == pytest.approx(15.0) and d.severity < 0.01   # noise only: hold
     for k in range(100):
-        s.update(3.0 + 3.0 * math.sin(2 * math.pi * k / 50), 3.0)
-    assert s.current() == pytest.approx(1.0)                          # stick-slip: act
+        s.observe(1 + 0.01 * k, 3.0 + 3.0 * math.sin(2 * math.pi * k / 50), 3.0)
+    assert s.decide(3.0).weight_factor == pytest.approx(1.0)          # stick-slip: act
     for k in range(100):
-        s.update(3.0 + 0.09 * math.sin(2 * math.pi * k / 50), 3.0)    # severity ~0.03, between
-    assert 1.0 < s.current() < 15.0
+        s.observe(2 + 0.01 * k, 3.0 + 0.09 * math.sin(2 * math.pi * k / 50), 3.0)    # severity ~0.03, between
+    assert 1.0 < s.decide(3.0).weight_factor < 15.0
     for k in range(100):
-        s.update(3.3, 3.0)                                            # calm but held 10 % off: act
-    assert s.current() == pytest.approx(1.0)
+        s.observe(3 + 0.01 * k, 3.3, 3.0)                             # calm but held 10 % off: act
+    assert s.decide(3.0).weight_factor == pytest.approx(1.0)
 
 
 def test_schedule_scales_the_tracking_weights_the_plan_sees():
@@ -224,13 +226,13 @@ def test_schedule_scales_the_tracking_weights_the_plan_sees():
     seen = []
     orig = c.ocp.solve
     c.ocp.solve = lambda xa0, q, *a: seen.append(q.copy()) or orig(xa0, q, *a)
-    for k in range(int(2 * c.period / 0.01)):
+    for k in range(int(2 * c.stick_slip_period / 0.01)):
         c.step(0.01 * k, {"n1": 20.0, "n2": 0.0}, Estimate(0.01 * k, x, None, m.states))
     L = c.layout
-    ref, force = c._i_ref, c._i_force
+    ref, force = c.q_index["ref"], c.q_index["force"]
     assert seen[0][ref] == pytest.approx(c.weights.ref)                       # before a window: act
     assert seen[-1][ref] == pytest.approx(c.weights.ref * c.cfg.hold_gain)
-    assert seen[-1][c._i_dref] == pytest.approx(c.weights.d_ref * c.cfg.hold_gain)
+    assert seen[-1][c.q_index["d_ref"]] == pytest.approx(c.weights.d_ref * c.cfg.hold_gain)
     assert seen[-1][force] == pytest.approx(c.weights.force * c.cfg.hold_gain ** 2)
     assert L.q_w <= ref < L.q_fc
 
@@ -294,25 +296,55 @@ def test_unknown_ocp_solver_is_a_config_error():
 
 
 # ----------------------------------------------------------------------------- offset-free speed
+def _trim(tau, call_period=0.01):
+    return Supervisor(period=1.0, call_period=call_period, calm_band=(0.1, 1.0), hold_gain=1.0, trim_tau=tau,
+                      drives=True)
+
+
+def _feed(sup, speed, n, call_period=0.01):
+    t0 = sup.state.window.count * call_period
+    for k in range(n):
+        sup.observe(t0 + k * call_period, speed(k) if callable(speed) else speed, 3.0)
+    return sup.decide(3.0).trim
+
+
 @pytest.mark.slow
 def test_speed_trim_integrates_a_calm_mean_error_only_and_is_bounded():
-    from mitigate.controllers.nmpc.trim import TRIM_DEADBAND, TRIM_LIMIT, SpeedTrim
-    tr = SpeedTrim(tau=2.0, window=1.0, dt=0.01, calm=0.1)
-    for k in range(300):                                   # stick-slip about the programme: nothing
-        tr.update(3.0 + 3.0 * math.sin(2 * math.pi * k / 70), 3.0)
-    assert tr.value == 0.0
-    for k in range(100):                                   # calm, 4 % fast: the target comes down
-        tr.update(3.12, 3.0)
-    v = tr.value
+    from mitigate.controllers.nmpc.supervision import TRIM_DEADBAND, TRIM_LIMIT
+    tr = _trim(2.0)
+    assert _feed(tr, lambda k: 3.0 + 3.0 * math.sin(2 * math.pi * k / 70), 300) == 0.0   # stick-slip: nothing
+    v = _feed(tr, 3.12, 100)                               # calm, 4 % fast: the target comes down
     assert -0.12 * 1.0 / 2.0 * 1.05 < v < 0.0              # at most bias x (time calm) / tau
-    for k in range(100000):
-        tr.update(3.12, 3.0)
-    assert tr.value == pytest.approx(-TRIM_LIMIT * 3.0)    # bounded
+    assert _feed(tr, 3.12, 100000) == pytest.approx(-TRIM_LIMIT * 3.0)    # bounded
     for tau, w in ((0.0, 3.12), (2.0, 3.0 * (1 + 0.9 * TRIM_DEADBAND)), (2.0, 0.0)):  # off; deadband; still
-        off = SpeedTrim(tau=tau, window=1.0, dt=0.01, calm=0.1)
-        for k in range(300):
-            off.update(w, 3.0)
-        assert off.value == 0.0
+        assert _feed(_trim(tau), w, 300) == 0.0
+
+
+@pytest.mark.parametrize("every", [1, 3])
+def test_supervision_spans_one_period_and_trims_at_its_rate_whatever_the_call_period(every):
+    """Issue 25: the window and the trim were sized with the DAQ period but fed once per call, so with
+    ``[control] every = k`` the window was k periods long and the trim's gain k times too small.
+    Fed at the call period, 4 s of a calm 4 % error (the window fills in its first second) moves the
+    target by (4 - 1) s x 0.12 rad/s / tau, and the stall guard waits one period, at any ``every``."""
+    cp = 0.01 * every
+    tr = _trim(2.0, cp)
+    assert tr.state.window.n * cp == pytest.approx(1.0, abs=cp)
+    v = _feed(tr, 3.12, int(round(4.0 / cp)), cp)
+    assert v == pytest.approx(-0.12 * 3.0 / 2.0, rel=0.02)
+    st = _trim(0.0, cp)
+    _feed(st, 0.0, int(round(0.5 / cp)), cp)               # stuck from t = 0
+    assert not st.stalled(0.5, 0.0, 3.0)
+    _feed(st, 0.0, int(round(0.6 / cp)), cp)
+    assert st.stalled(1.1, 0.0, 3.0) and not st.stalled(1.1, 2.0, 3.0)
+
+
+def test_the_nmpc_sizes_its_supervision_with_its_call_period():
+    """The NMPC itself, called every 3rd DAQ sample, sizes its window with the call period."""
+    m = get_model("rig3")
+    u0 = np.array([math.pi, 20.0, 0.0])
+    ctx = ControlContext(m, m.published(), 0.01, lambda t: u0, where="nmpc", control=ControlSection(every=3))
+    c = make_controller({"kind": "nmpc", "compile": False, "horizon": 5}, ctx)
+    assert c.supervisor.state.window.n * 0.03 == pytest.approx(c.stick_slip_period, abs=0.03)
 
 
 @pytest.mark.slow

@@ -21,10 +21,11 @@ trajectory (:meth:`EKF.observability`, see :mod:`estimators.online.observability
 twist is not observable every estimate says so (``Status.WARNING`` and the report's one-line
 message), and :meth:`EKF.observability_along` checks a logged trajectory.
 
-Speed: ``compile=True`` generates C for the fused step, builds it once with gcc (cached on
-disk, :func:`models.codegen.compile_cached`) and calls it through ctypes with preallocated
-numpy buffers (no CasADi call overhead); ``compile=False`` or a failed build calls the
-CasADi Function.
+Speed and one implementation: ``compile=True`` runs the whole update -- the input history, the
+masks, the first sample's speeds, the fused step, the prediction-only fallback -- as one compiled
+C call (:mod:`estimators.online.compiled`, ``csrc/ss_ekf.c``; built once with gcc, cached on disk),
+the same C that an exported controller runs (``mitigate export``); ``compile=False`` or a failed
+build runs the Python reference of the same update on the CasADi Function.
 """
 
 from __future__ import annotations
@@ -35,8 +36,8 @@ import numpy as np
 from estimators.base import Estimate, EstimatorContext, StateEstimator
 from estimators.online.model import EstimationModel, build_estimation_model
 from estimators.online.observability import MIN_GAIN, ObservabilityReport, linearisation_function, observability
+from estimators.online.compiled import CompiledEKF
 from estimators.online.options import EKFOptions, for_rig
-from models.codegen import CtypesFunction, compile_cached
 from models.errors import ConfigError, PluginError, SolverFailure
 from models.status import Status
 
@@ -250,14 +251,9 @@ class EKF(ObservabilityMixin, StateEstimator):
         self._c = None
         if options.compile:
             try:
-                so = compile_cached(self.step_fn)
-                c = CtypesFunction(so, self.step_fn)
-                c.inputs[5][:] = em.p
-                c.inputs[6][:] = em.q
-                c.inputs[7][:] = em.r
-                self._c = c
+                self._c = CompiledEKF(self)
                 self.compiled = True
-                self.compile_status = f"compiled ({so.name})"
+                self.compile_status = f"compiled ({self._c.library.name})"
             except Exception as exc:   # fall back to the CasADi call, never fail here
                 self.compile_status = f"compile failed, using CasADi: {exc}"
         self._check_observability()
@@ -304,6 +300,8 @@ class EKF(ObservabilityMixin, StateEstimator):
             self.x[j] = self.x[i] - em.delay * em.dt * rate[i]
 
     def _update_impl(self, t, y, mask, u):
+        if self._c is not None:
+            return self._update_compiled(t, y, mask, u)
         if self._uh is None:
             if self.context.x0 is None:
                 self._initial_speeds(y, mask)
@@ -323,25 +321,27 @@ class EKF(ObservabilityMixin, StateEstimator):
         return Estimate(t, x, P, self.names, status, msg, bool(mask.any()))
 
     def _filter(self, uh, y, mask):
-        """One predict + correct step: ``(x, P)``."""
+        """One predict + correct step: ``(x, P)`` (the Python reference: the CasADi Function)."""
         nx = self.em.nx
-        if self._c is not None:
-            c = self._c
-            c.inputs[0][:] = self.x
-            c.inputs[1][:] = self.P.ravel(order="F")
-            c.inputs[2][:] = uh
-            np.copyto(c.inputs[3], y)
-            c.inputs[3][~mask] = 0.0
-            c.inputs[4][:] = mask
-            c()
-            x = c.outputs[0].copy()
-            P = c.outputs[1].reshape(nx, nx, order="F").copy()
-        else:
-            xo, Po = self.step_fn(self.x, self.P.ravel(order="F"), uh, np.where(mask, y, 0.0), mask.astype(float),
-                                  self.em.p, self.em.q, self.em.r)
-            x = np.array(xo).ravel()
-            P = np.array(Po).reshape(nx, nx, order="F")
-        return x, P
+        xo, Po = self.step_fn(self.x, self.P.ravel(order="F"), uh, np.where(mask, y, 0.0), mask.astype(float),
+                              self.em.p, self.em.q, self.em.r)
+        return np.array(xo).ravel(), np.array(Po).reshape(nx, nx, order="F")
+
+    def _update_compiled(self, t, y, mask, u):
+        """The same update as one compiled C call (``csrc/ss_ekf.c``); a failed update raises
+        SolverFailure and :meth:`_fallback` returns the C core's prediction-only estimate."""
+        first = self._uh is None
+        self._push_input(u)
+        c = self._c
+        info = c.update(np.where(mask, y, np.nan), u)
+        if first:
+            self.x0_used = c.x0_used
+        self.x, self.P = c.x, c.P
+        if info.failed:
+            self._c_fallback = info.held == 0
+            raise SolverFailure("non-finite estimate")
+        status, msg = self._status(mask, self.P)
+        return Estimate(t, self.x, self.P, self.names, status, msg, bool(mask.any()))
 
     def prior(self) -> Estimate:
         """The prior mean and covariance, before the first sample (``t`` NaN, not corrected)."""
@@ -354,9 +354,14 @@ class EKF(ObservabilityMixin, StateEstimator):
             raise ConfigError(f"{self.context.where}: reset x must have {self.em.nx} entries {self.names}")
         self.x = x.copy()
         self.P = self.em.P0.copy() if P is None else np.asarray(P, float).copy()
+        if self._c is not None:
+            self._c.set(self.x, self.P)
 
     def _fallback(self, t, y, mask, u, message):
         """Prediction by the CasADi Function (no correction); keeps the filter alive."""
+        if self._c is not None and getattr(self, "_c_fallback", False):
+            self._c_fallback = False
+            return Estimate(t, self.x, self.P, self.names, Status.FALLBACK, f"{message} (prediction only)", False)
         try:
             uh = self._uh if self._uh is not None else np.tile(u, self.em.delay + 1)
             nc = len(self.channels)

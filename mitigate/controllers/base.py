@@ -272,6 +272,10 @@ class Controller(ABC):
     #: what it needs of a rig (names of :data:`NEEDS`): checked for every controller of a
     #: scenario before anything runs, all missing items listed at once
     needs: ClassVar[tuple[str, ...]] = ()
+    #: the controller estimates the state itself from every DAQ sample: the closed loop calls
+    #: ``sample(t, measurement, active)`` at every sample (``active`` from ``[control] start``)
+    #: before :meth:`step` (an exported library with its own estimator)
+    own_estimator: ClassVar[bool] = False
 
     def __init__(self, options: Any, context: ControlContext):
         self.options = options

@@ -35,6 +35,7 @@ CONTROLLER_KINDS: dict[str, str] = {
     "brake": "mitigate.controllers.brake:BrakeController",
     "supervisor": "mitigate.controllers.supervisor:SpeedSupervisor",
     "nmpc": "mitigate.controllers.nmpc:NMPC",
+    "exported": "mitigate.controllers.exported:ExportedController",
     "softspeed": "mitigate.controllers.softspeed:SoftSpeed",
     "ztorque": "mitigate.controllers.ztorque:ZTorque",
     "doskil": "mitigate.controllers.doskil:DOSKIL",

@@ -1,38 +1,31 @@
 """The NMPC controller: plans with the OCP of :mod:`mitigate.controllers.nmpc.ocp` on any rig.
 
-**Timing.**  The NMPC re-plans when at least ``dt`` (the OCP interval, default 0.05 s) has passed
-since its last plan, so with the loop calling every 10 ms DAQ sample it solves every 5th call
-and holds the first planned input in between (``Status.HOLD``; a zero-order hold over one OCP
-interval, which is what the rate limits assume).  With ``prepare_ahead`` the first held call
-after a plan shifts the plan and linearises it (RTI preparation), so a planning call only
-embeds the new state and solves one QP (feedback).  If the loop calls less often than ``dt`` it
-re-plans at every call and shifts the warm start by the elapsed intervals.
+One call (:meth:`NMPC._step_impl`) reads as its phases::
 
-**Disturbance model.**  With ``use_load_estimate``, an estimate state ``load:<contact>`` (the EKF's
-random-walk factor on a contact's friction) scales that contact body's friction in the
-prediction: the offset-free part of the design (without it, a wrong estimated twist at steady
-sliding left R1 15-19 % slow from rest).  The factor is taken while the contact body slides
-(``|w| > SLIDING_FRACTION`` of the nominal speed) and held while it sticks.
+    estimate   the plan's start: servo forces, held inputs, the rig's state, friction factors (:mod:`.start`)
+    supervise  the speed window, the calm schedule's weight factor, the speed trim (:mod:`.supervision`)
+    solve      one RTI step (or SQP / IPOPT) of the OCP from that start (:mod:`.ocp`, :mod:`.rti`)
+    guard      the first move clipped to its reachable range; the stall guard; the fallback chain
 
-**Inputs to the prediction.**  The rig's state is the first ``model.nx`` entries of
-``estimate.x`` (whose ``names`` must start with ``model.states``).  A servo's force comes from a
-replica of the rig's servo model driven by the controller's own commands, started from the
-servo's load-cell reading.  Inputs the NMPC does not set are held over the horizon: the drive at
-the programme's value; a normal force at the programme's value plus the low-passed difference
-between its load cell's reading (corrected for the cell's gain and offset) and the programme
-(time constant ``force_filter``; a missing or non-finite reading leaves the difference as it
-was).  The raw reading would pass the cell's noise to the plan: on rig3 its 0.2 N moved the
-set-point by 0.056 rad/s (std) at steady sliding with the TRUE state, and the programme's own
-steps reach the prediction at once.
+What is optimised: the objective body's speed error and the springs' relative speeds over the
+horizon (half a stick-slip period by default), against staying near the programme and moving
+gently, within the set-point's band and rate and the servos' ranges and rates (:mod:`.stage`).
+
+**Timing.**  The NMPC re-plans when at least ``dt`` (the OCP interval) has passed since its last
+plan, so with the loop calling every DAQ sample it solves every few calls and holds the first
+planned input in between (``Status.HOLD``; a zero-order hold over one OCP interval, which is
+what the rate limits assume).  With ``prepare_ahead`` the first held call after a plan shifts the
+plan and linearises it (RTI preparation), so a planning call only embeds the new state and solves
+one QP (feedback).  If the loop calls less often than ``dt`` it re-plans at every call and shifts
+the warm start by the elapsed intervals.  The supervision's window is fed at every call and sized
+with the call period (``ControlContext.period``: the DAQ period times ``[control] every``).
 
 **Failures.**  A failed or bound-violating solve: the previous plan shifted to now
 (``Status.FALLBACK``); no plan left: an empty action, i.e. the programme (``Status.FALLBACK``).
-The stall guard (:meth:`NMPC._stalled`): a plan that holds the drive below half its programme while
-the objective body has stuck for a whole stick-slip period is replaced by the programme
-(``Status.FALLBACK``, counted as a fallback).
-Every failure is counted in ``counts.failures``.  A failure is a :class:`SolverFailure` (the OCP
-solver's numerical errors are turned into one, :func:`.ocp.solver_failures`); any other exception
-is a bug and fails the run.
+The stall guard replaces a stalling plan by the programme (``Status.FALLBACK``).  Every failure is
+counted in ``counts.failures``.  A failure is a :class:`SolverFailure` (the OCP solver's
+numerical errors are turned into one, :func:`.ocp.solver_failures`); any other exception is a bug
+and fails the run.
 """
 
 from __future__ import annotations
@@ -45,24 +38,18 @@ import numpy as np
 from mitigate.controllers.base import Action, ControlContext, Controller
 from mitigate.controllers.nmpc.defaults import resolve as resolve_defaults
 from mitigate.controllers.nmpc.layout import OCPSpec
-from mitigate.controllers.nmpc.ocp import solver_failures
-from mitigate.controllers.nmpc.solvers import make_ocp_solver
+from mitigate.controllers.nmpc.compiled import FAILURES, CompiledStep
+from mitigate.controllers.nmpc.ocp import OCPResult, solver_failures
 from mitigate.controllers.nmpc.options import MAX_SUBSTEPS, WEIGHT_NAMES, NMPCOptions
-from mitigate.controllers.nmpc.schedule import CalmSchedule
-from mitigate.controllers.nmpc.trim import SpeedTrim
+from mitigate.controllers.nmpc.solvers import make_ocp_solver
+from mitigate.controllers.nmpc.start import PlanStart
+from mitigate.controllers.nmpc.supervision import Decision, Supervisor
 from mitigate.tunables import Tunable
 from models.discretise import integration
-from models.actuators import Servo
 from models.errors import ConfigError, SolverFailure
 from models.status import Status
 
 __all__ = ["NMPC", "resolve_inputs"]
-
-#: clip of the load factor taken from an estimate (a diverging estimator must not wreck the plan)
-LOAD_FACTOR_RANGE = (0.2, 5.0)
-#: a contact body slides (its load factor is taken from the estimate) above this fraction of the
-#: objective body's nominal speed
-SLIDING_FRACTION = 0.5
 
 
 def resolve_inputs(inputs, model, where: str) -> tuple[str, ...]:
@@ -92,16 +79,18 @@ class NMPC(Controller):
     ----------
     options : NMPCOptions (or a raw options table, validated with ``context.where``)
     context : ControlContext: the rig the NMPC believes, its nominal parameters, the DAQ period,
-        the programme
+        the call period, the programme
 
     Attributes
     ----------
     inputs : the inputs it sets (the drive's first); body : the objective body
     cfg : the unit-carrying settings (:class:`mitigate.controllers.nmpc.defaults.Resolved`: given
-        options, or the rig's defaults); period : the rig's stick-slip period [s]
+        options, or the rig's defaults); stick_slip_period : the rig's stick-slip period [s]
     spec : the OCPSpec; ocp : its solver (an OCPSolver); nsub : RK4 substeps per interval
-    last_result : the last OCPResult; inject_failure : test hook, ``callable(t) -> bool`` (True
-        makes the next solve fail)
+    start : the plan's start (:class:`.start.PlanStart`); supervisor : :class:`.supervision.Supervisor`
+    last_result : the last OCPResult; last_decision : the supervision's last :class:`.supervision.Decision`;
+    last_q : the OCP parameters of the last plan; inject_failure : test hook, ``callable(t) -> bool``
+        (True makes the next solve fail)
     """
 
     kind = "nmpc"
@@ -131,6 +120,7 @@ class NMPC(Controller):
         self.model = m
         self.params = m.check_params(context.params, f"{where}: params")
         self.dt_daq = float(context.dt)
+        self.call_period = float(context.period)
         self.inputs = resolve_inputs(o.inputs, m, where)
         self.body = o.body or m.objective_body
         if self.body not in m.bodies:
@@ -151,16 +141,12 @@ class NMPC(Controller):
         else:
             self._speed0 = None if o.speed is None else float(o.speed)
         acts = [m.actuator(n) for n in self.servos]
-        self._acts = acts
-        self._held = [j for j, n in enumerate(m.inputs) if n not in self.inputs]
         self._n_min = np.array([a.n_min for a in acts], float)
-        self._readers = {j: self._reader(n) for j, n in enumerate(m.inputs) if n != drive}
         # structure of the OCP; the unit-carrying settings from the options or the rig
         u0 = np.asarray(context.programme(0.0), float)
         nom0 = self._nominal(0.0, u0)
         self.cfg = cfg = resolve_defaults(o, m, self.params, self.dt_daq, nom0, float(u0[m.inputs.index(drive)]), where,
                                           u=u0)
-        self._tau_force = cfg.force_filter
         w_s = abs(nom0) if nom0 != 0 else 1.0
         taus = tuple(float(a.tau) if o.model_servo else 0.0 for a in acts)
         self.weights = weights = o.weights
@@ -177,37 +163,28 @@ class NMPC(Controller):
                             setpoint_scale=(cfg.setpoint_band if self._torque_drive else w_s) or 1.0,
                             force_scales=tuple(float(a.n_max) for a in acts), weights=weights.as_tuple())
         self.ocp = make_ocp_solver(m, self.spec, solver=o.solver, compile=o.compile, qp_solver=o.qp_solver,
-                             qp_tol=o.qp_tol, sqp_max_iter=o.sqp_max_iter)
+                                   qp_tol=o.qp_tol, sqp_max_iter=o.sqp_max_iter)
         L = self.ocp.layout
         self.layout = L
         self._q = L.q_template(self.spec, self.params.vector())
         self._rate = np.array(([cfg.setpoint_rate] if self.drives else []) + [a.rate_max for a in acts], float)
         self._lo = np.array(([0.0] if self.drives else []) + [a.n_min for a in acts], float)
         self._hi = np.array(([0.0] if self.drives else []) + [a.n_max for a in acts], float)
-        self._load_keys = {f"load:{c}": i for i, names in enumerate(m.contact_names) for c in names}
-        self.period = cfg.period
-        self.schedule = CalmSchedule(self.period, self.dt_daq, o.calm_band, cfg.hold_gain)
+        self.stick_slip_period = cfg.period
+        self.start = PlanStart(m, self.params, self.inputs, self.dt_daq, cfg.force_filter, o.use_load_estimate)
         # the trim moves the speed the drive's set-point aims at: without the drive, nothing to trim
-        self.trim = SpeedTrim(cfg.speed_trim if self.drives else 0.0, self.period, self.dt_daq, o.calm_band[0])
-        self._i_ref, self._i_force, self._i_dref = (L.q_w + WEIGHT_NAMES.index(k) for k in ("ref", "force", "d_ref"))
+        self.supervisor = Supervisor(cfg.period, self.call_period, o.calm_band, cfg.hold_gain,
+                                     cfg.speed_trim if self.drives else 0.0, self.drives)
+        #: where the weights the schedule scales sit in the OCP's parameter vector q
+        self.q_index = {k: L.q_w + WEIGHT_NAMES.index(k) for k in ("ref", "force", "d_ref")}
         self._i_speed = m.speed_index(self.body)
-        self._names_seen = None
         self.inject_failure = None
+        #: the compiled step (csrc/ss_nmpc.c) for RTI/SQP with hpipm, compiled; None: the Python reference
+        self.compiled = CompiledStep(self) if (o.implementation == "c" and o.compile and o.solver in ("rti", "sqp")
+                                               and o.qp_solver == "hpipm") else None
         self.reset()
 
     # ------------------------------------------------------------------ set-up helpers
-    def _reader(self, name: str):
-        """``(channel, offset, gain)`` of the load cell that measures input ``name``, or
-        ``(name, 0, 1)`` when the rig logs the input itself."""
-        m = self.model
-        contact = m.contact_of_input(name)
-        for s in m.sensors:
-            if s.kind == "load_cell" and contact is not None and s.target == contact.name:
-                off = float(s.offset.value(self.params)) if s.offset is not None else 0.0
-                gain = float(s.gain.value(self.params)) if s.gain is not None else None
-                return s.channels[0], off, 1.0 if gain is None else gain
-        return name, 0.0, 1.0
-
     def _integration(self, u0, nom0: float, taus):
         """The integration rule at the largest inputs the plan may use (``substeps`` fixes the count)."""
         m, cfg = self.model, self.cfg
@@ -253,8 +230,12 @@ class NMPC(Controller):
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
+        if getattr(self, "compiled", None) is not None:
+            self.compiled.reset()
+            self._message = ""
         self.ocp.reset()
-        self._servos = None       # replicas of the commanded servos
+        self.start.reset()
+        self.supervisor.reset()
         self._t_call = None       # time of the last call
         self._t_plan = None       # time of the last successful plan
         self._plan_u = None       # (N, m) commanded inputs of that plan
@@ -262,50 +243,20 @@ class NMPC(Controller):
         self._action = None       # action held between plans
         self._u_prev = None       # last commands (self.inputs order)
         self._prep_q = None       # parameters for the pending preparation phase
-        self._dev = {}            # low-passed (reading - programme) of each held measured input
-        self._fc = np.ones(len(self.model.contacts))   # friction factors of the plan
-        self.schedule.reset()
-        self.trim.reset()
-        self._t_moving = None     # last time the objective body slid (the stall guard)
         self.last_result = None
+        self.last_decision = None
+        self._last_q = None
 
-    def _measured(self, j: int, measurement, fallback: float) -> float:
-        ch, off, gain = self._readers[j]
-        v = measurement.get(ch) if measurement is not None else None
-        if v is None or not math.isfinite(v):
-            return fallback
-        return (float(v) - off) / gain
-
-    def _held_inputs(self, t: float, measurement, u_prog) -> np.ndarray:
-        """The programme with every held measured input moved by its low-passed deviation."""
-        hold = np.asarray(u_prog, float).copy()
-        dt = self.dt_daq if self._t_call is None else max(t - self._t_call, 0.0)
-        a = 1.0 - math.exp(-dt / self._tau_force) if self._tau_force > 0 else 1.0
-        for j in self._held:
-            if j in self._readers:
-                v = self._measured(j, measurement, math.nan)
-                if math.isfinite(v):
-                    d = self._dev.get(j)
-                    self._dev[j] = v - hold[j] if d is None else d + a * (v - hold[j] - d)
-                hold[j] += self._dev.get(j, 0.0)
-        return hold
-
-    def _advance_servos(self, t: float, measurement, u_prog) -> np.ndarray:
-        """Forces of the commanded servos now (replicas driven by the last commands)."""
-        m = self.model
-        if self._servos is None:
-            self._servos = [Servo(a, self.dt_daq, self._measured(m.inputs.index(n), measurement,
-                                                                 u_prog[m.inputs.index(n)]))
-                            for a, n in zip(self._acts, self.servos)]
-        elif self._t_call is not None:
-            k = int(round((t - self._t_call) / self.dt_daq))
-            j0 = 1 if self.drives else 0
-            for _ in range(max(0, k)):
-                for i, s in enumerate(self._servos):
-                    s.step(self._u_prev[j0 + i])
-        return np.array([s.force for s in self._servos])
+    @property
+    def last_q(self) -> np.ndarray | None:
+        """The OCP parameters of the last plan attempt (held inputs, target, friction factors,
+        weights after the schedule, rig parameters: :meth:`.layout.OCPLayout.set_q`)."""
+        return self.compiled.last_q() if self.compiled is not None else self._last_q
 
     def _bounds(self, u_prog):
+        """Bounds of the commanded inputs: the set-point within the programme's band (a speed
+        set-point does not reverse the rotation; a torque drive within its limit), the servos'
+        ranges."""
         lo, hi = self._lo.copy(), self._hi.copy()
         if self.drives:
             c = float(u_prog[self.layout.u_drive])
@@ -316,123 +267,107 @@ class NMPC(Controller):
                     lo[0] = max(lo[0], 0.0)
                 else:
                     hi[0] = min(hi[0], 0.0)
-            else:                        # a torque drive's limit ([drive] torque_max; inf: none)
+            else:                        # [drive] torque_max; inf: none
                 tmax = self.context.torque_max
                 lo[0], hi[0] = max(lo[0], -tmax), min(hi[0], tmax)
         return lo, hi
 
-    def _state(self, estimate):
-        """The rig's state and the friction factors from an estimate."""
-        if estimate is None or getattr(estimate, "x", None) is None:
-            raise SolverFailure("no state estimate")
-        m = self.model
-        names = tuple(getattr(estimate, "names", ()) or ())
-        if names is not self._names_seen:
-            if names and names[:m.nx] != m.states:
-                raise SolverFailure(f"the estimate's states {names[:m.nx]} are not the rig's {m.states}")
-            self._load_idx = [(names.index(k), i) for k, i in self._load_keys.items() if k in names]
-            self._names_seen = names
-        xe = np.asarray(estimate.x, float).ravel()
-        x = xe[:m.nx]
-        if x.shape != (m.nx,) or not math.isfinite(x.sum()):   # a sum is finite iff every entry is
-            raise SolverFailure("non-finite or short state estimate")
-        fc = None
-        if self.options.use_load_estimate and self._load_idx:
-            # in stick the friction is a constraint force and its level unobservable: the filter's
-            # factor drifts there (rig3 from rest: 1.0 -> 2.1 in 0.5 s), so the plan keeps the
-            # factor last seen while the contact body slid (1 before it ever slid)
-            fc = self._fc
-            slide = SLIDING_FRACTION * abs(self._nominal(self._t_call, self.context.programme(self._t_call)))
-            for k, i in self._load_idx:
-                if math.isfinite(xe[k]) and abs(x[m.contacts[i]]) > slide:
-                    fc[i] = min(max(float(xe[k]), LOAD_FACTOR_RANGE[0]), LOAD_FACTOR_RANGE[1])
-        return x, fc
-
     # ------------------------------------------------------------------ step
     def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
-        o, L = self.options, self.layout
+        if self.compiled is not None:
+            return self._step_compiled(t, measurement, estimate)
         u_prog = self.context.programme(t)
-        if self._u_prev is None:
-            m = self.model
-            # the set-point starts where the programme has held it until now
-            first = [float(u_prog[L.u_drive])] if self.drives else []
-            self._u_prev = np.array(first + [self._measured(m.inputs.index(n), measurement, u_prog[m.inputs.index(n)])
-                                             for n in self.servos], float)
-        forces = self._advance_servos(t, measurement, u_prog)
-        hold = self._held_inputs(t, measurement, u_prog)
-        self._t_call = t
+        nominal = self._nominal(t, u_prog)
+        forces, hold = self._estimate(t, measurement, u_prog)                  # estimate
         xe = getattr(estimate, "x", None)
         if xe is not None and len(xe) > self._i_speed:
-            self.schedule.update(float(xe[self._i_speed]), self._nominal(t, u_prog))
-            self.trim.update(float(xe[self._i_speed]), self._nominal(t, u_prog))
-            if self._t_moving is None or abs(float(xe[self._i_speed])) > SLIDING_FRACTION * abs(self._nominal(t, u_prog)):
-                self._t_moving = t
-        dt = self.cfg.dt
-        due = self._t_solve is None or t - self._t_solve >= dt - 0.5 * self.dt_daq
-        if not due and self._action is not None:
-            if self._prep_q is not None:
-                q, self._prep_q = self._prep_q, None
-                try:
-                    with solver_failures("preparation"):
-                        self.ocp.prepare(q)
-                except SolverFailure:   # the next plan starts afresh
-                    self.ocp.reset()
-            a = self._action
-            return Action(a.u, Status.HOLD, f"hold: {a.status.value}: {a.message}" if a.message else "hold")
-        steps = 1 if self._t_solve is None else max(1, int(round((t - self._t_solve) / dt)))
+            self.supervisor.observe(t, float(xe[self._i_speed]), nominal)      # supervise
+        if not self._due(t):
+            return self._between_plans()
+        steps = 1 if self._t_solve is None else max(1, int(round((t - self._t_solve) / self.cfg.dt)))
         self._t_solve = t
         try:
-            if self.inject_failure is not None and self.inject_failure(t):
-                raise SolverFailure("injected failure")
-            x, fc = self._state(estimate)
-            if not math.isfinite(hold.sum()):
-                raise SolverFailure("non-finite held input")
-            xa0 = np.empty(L.nxa)
-            xa0[:L.nx] = x
-            xa0[L.i_servo] = forces if o.model_servo else self._u_prev[L.j_cmd]
-            if self.drives:
-                xa0[L.i_wprev] = self._u_prev[0]
-            at_min = [float(hold[j] <= lo + 1e-9 * max(abs(lo), 1.0)) for j, lo in zip(L.u_servo, self._n_min)]
-            q = L.set_q(self._q.copy(), hold, self._nominal(t, u_prog) + self.trim.value, fc, at_min)
-            f = self.schedule.current()
-            q[self._i_ref] *= f
-            q[self._i_dref] *= f
-            q[self._i_force] *= f * f if self.drives else f   # pin only: the servo is all it has
-            if self.ocp.X is not None and not (self.ocp.prepared and steps == 1):
-                # prepare() already shifted by one interval
-                self.ocp.shift(steps - 1 if self.ocp.prepared else steps)
-            lo, hi = self._bounds(u_prog)
-            res = self.ocp.solve(xa0, q, lo, hi, self._rate)
+            decision = self.last_decision = self.supervisor.decide(nominal)
+            res, q = self._solve(estimate, forces, hold, decision, u_prog, steps)  # solve
         except SolverFailure as exc:   # the fallback chain; anything else is a bug and fails the run
             self.counts.failures += 1
             self.ocp.reset()   # never warm-start from a failed iterate
             return self._hold(self._shift_or_programme(t, u_prog, f"{type(exc).__name__}: {exc}"))
+        return self._hold(self._guard(t, res, q, u_prog))                       # guard
+
+    def _estimate(self, t: float, measurement, u_prog):
+        """The plan's start from the measurements: the servo forces now and the held inputs."""
+        first = self._u_prev is None
+        if first:   # the set-point starts where the programme has held it until now
+            self._u_prev = self.start.first_commands(measurement, u_prog)
+        elapsed = self.dt_daq if self._t_call is None else max(t - self._t_call, 0.0)
+        steps = 0 if self._t_call is None else int(round((t - self._t_call) / self.dt_daq))
+        forces = self.start.servo_forces(steps, measurement, u_prog, self._u_prev)
+        hold = self.start.held_inputs(elapsed, measurement, u_prog)
+        self._t_call = t
+        return forces, hold
+
+    def _due(self, t: float) -> bool:
+        """A plan is due when an OCP interval has passed since the last (or nothing is held)."""
+        return (self._t_solve is None or self._action is None
+                or t - self._t_solve >= self.cfg.dt - 0.5 * self.dt_daq)
+
+    def _between_plans(self) -> Action:
+        """Hold the last action; the first held call after a plan runs the RTI preparation."""
+        if self._prep_q is not None:
+            q, self._prep_q = self._prep_q, None
+            try:
+                with solver_failures("preparation"):
+                    self.ocp.prepare(q)
+            except SolverFailure:   # the next plan starts afresh
+                self.ocp.reset()
+        a = self._action
+        return Action(a.u, Status.HOLD, f"hold: {a.status.value}: {a.message}" if a.message else "hold")
+
+    def _solve(self, estimate, forces, hold, decision: Decision, u_prog, steps: int):
+        """One solve of the OCP from the estimate, with the supervision's decision."""
+        o, L = self.options, self.layout
+        if self.inject_failure is not None and self.inject_failure(self._t_call):
+            raise SolverFailure("injected failure")
+        x, fc = self.start.state(estimate, decision.nominal)
+        if not math.isfinite(hold.sum()):
+            raise SolverFailure("non-finite held input")
+        xa0 = np.empty(L.nxa)
+        xa0[:L.nx] = x
+        xa0[L.i_servo] = forces if o.model_servo else self._u_prev[L.j_cmd]
+        if self.drives:
+            xa0[L.i_wprev] = self._u_prev[0]
+        at_min = [float(hold[j] <= lo + 1e-9 * max(abs(lo), 1.0)) for j, lo in zip(L.u_servo, self._n_min)]
+        q = L.set_q(self._q.copy(), hold, decision.target, fc, at_min)
+        f, i = decision.weight_factor, self.q_index
+        q[i["ref"]] *= f
+        q[i["d_ref"]] *= f
+        q[i["force"]] *= f * f if self.drives else f   # pin only: the servo is all it has
+        if self.ocp.X is not None and not (self.ocp.prepared and steps == 1):
+            # prepare() already shifted by one interval
+            self.ocp.shift(steps - 1 if self.ocp.prepared else steps)
+        lo, hi = self._bounds(u_prog)
+        self._last_q = q
+        res = self.ocp.solve(xa0, q, lo, hi, self._rate)
+        self._xa0, self._lohi = xa0, (lo, hi)
+        return res, q
+
+    def _guard(self, t: float, res, q, u_prog) -> Action:
+        """The plan's first move within its reachable range (QP-tolerance excursions only: the
+        ranges may have been widened for reachability); the stall guard."""
         self.last_result = res
         self._plan_u, self._t_plan = res.u, t
-        if o.prepare_ahead and o.solver != "ipopt":
+        if self.options.prepare_ahead and self.options.solver != "ipopt":
             self._prep_q = q
-        # remove QP-tolerance excursions only; the ranges may have been widened for reachability
+        xa0, (lo, hi) = self._xa0, self._lohi
         u0 = np.clip(res.u[0], *self.ocp.first_range(xa0, lo, hi, self._rate, self.ocp.last_bounds))
-        if self._stalled(t, u0, u_prog):
-            return self._hold(Action({}, Status.FALLBACK,
-                                     f"stall guard: {self.body!r} has not slid for a stick-slip period "
-                                     f"({self.period:.3g} s) and the plan slowed the drive below half its programme: "
-                                     f"the programme"))
-        return self._hold(Action(dict(zip(self.inputs, map(float, u0))), Status.OK, res.message))
-
-    def _stalled(self, t: float, u0, u_prog) -> bool:
-        """The stall guard: the objective body has stuck for a whole stick-slip period while the plan
-        holds the drive below half its programme.  Within its horizon (half a period) the plan cannot
-        see the wind-up that breaks a stuck string free, and every term of its cost then favours a
-        still drive: on the suite's ``mismatch_m40`` (plant 40 % softer, heavier, smoother) the NMPC
-        set the drive to 0 and left the disc stuck to the end in 3 of 18 runs (the two-input NMPC at
-        13-19 % of its speed).  The programme winds the string up again; the plan takes over once it
-        slides."""
-        if not self.drives or self._t_moving is None:
-            return False
         j = self.model.inputs.index(self.model.drive_input)
-        return (t - self._t_moving >= self.period
-                and abs(float(u0[0])) < SLIDING_FRACTION * abs(float(u_prog[j])))
+        if self.drives and self.supervisor.stalled(t, float(u0[0]), float(u_prog[j])):
+            return Action({}, Status.FALLBACK,
+                          f"stall guard: {self.body!r} has not slid for a stick-slip period "
+                          f"({self.stick_slip_period:.3g} s) and the plan slowed the drive below half its "
+                          f"programme: the programme")
+        return Action(dict(zip(self.inputs, map(float, u0))), Status.OK, res.message)
 
     def _shift_or_programme(self, t: float, u_prog, why: str) -> Action:
         if self._plan_u is not None:
@@ -454,3 +389,60 @@ class NMPC(Controller):
             self._u_prev = np.array([u_prog[self.model.inputs.index(n)] for n in self.inputs], float)
         return a
 
+    # ------------------------------------------------------------------ the compiled step
+    def _step_compiled(self, t: float, measurement, estimate) -> Action:
+        """The same phases in one compiled call (csrc/ss_nmpc.c); the messages are written here."""
+        u_prog = self.context.programme(t)
+        target = self.context.target_speed(t) if self._torque_drive and self._speed0 is None else 0.0
+        inject = self.inject_failure is not None and bool(self.inject_failure(t))
+        info = self.compiled.step(t, measurement, estimate, u_prog, target, inject)
+        if info.planned:
+            self.last_decision = Decision(info.weight_factor, info.severity, info.nominal, info.trim, info.target)
+        if info.failure:
+            self.counts.failures += 1
+        status = Status.HOLD if info.status == 1 else Status.FALLBACK if info.status == 2 else Status.OK
+        u = {n: float(v) for n, v in zip(self.inputs, self.compiled.u)} if info.n_u else {}
+        if status is Status.HOLD:
+            held = Status.FALLBACK if info.held_status == 2 else Status.OK
+            return Action(u, Status.HOLD, f"hold: {held.value}: {self._message}" if self._message else "hold")
+        if info.failure:
+            why = self._failure_text(info, estimate)
+            self._message = (f"solver failed (SolverFailure: {why}); shifted plan [{info.shifted_index}]" if info.reason == 2
+                             else f"solver failed (SolverFailure: {why}); no plan left: the programme")
+        elif info.reason == 1:
+            self._message = (f"stall guard: {self.body!r} has not slid for a stick-slip period "
+                             f"({self.stick_slip_period:.3g} s) and the plan slowed the drive below half its programme: "
+                             f"the programme")
+        else:
+            self._message = self._solve_text(info)
+            plan = self.compiled.plan()
+            self.last_result = OCPResult(plan, np.empty((0, self.layout.nxa)), self.spec.inputs, self.layout.states,
+                                         info.cost, info.iterations, info.qp_iterations,
+                                         Status.OK if info.converged else Status.NOT_CONVERGED, self._message,
+                                         info.solve_time)
+        return Action(u, status, self._message)
+
+    def _solve_text(self, info) -> str:
+        if self.options.solver == "rti":
+            return "rti step"
+        if info.converged:
+            return f"converged in {info.iterations} Gauss-Newton iterations"
+        return f"sqp: {self.options.sqp_max_iter} iterations, last step {info.last_step:.2g}"
+
+    def _failure_text(self, info, estimate) -> str:
+        f, solver = info.failure, self.options.solver
+        if f == 4:
+            from mitigate.controllers.nmpc.qp import HPIPM_STATUS
+            st = info.fail_detail
+            what = HPIPM_STATUS[st] if 0 <= st < len(HPIPM_STATUS) else f"status {st}"
+            return f"QP (hpipm) failed: {what} after {info.qp_iterations} iterations"
+        if f == 5:
+            return f"{solver}: non-finite plan"
+        if f == 6:
+            return f"{solver}: plan violates its bounds by {info.violation:.3g}"
+        if f == 7:
+            return f"{solver}: RuntimeError: compiled function returned an error"
+        if f == 9:
+            names = tuple(getattr(estimate, "names", ()) or ())
+            return f"the estimate's states {names[:self.model.nx]} are not the rig's {self.model.states}"
+        return FAILURES.get(f, f"failure {f}")

@@ -20,6 +20,8 @@ __all__ = ["NMPCOptions", "NMPCWeights", "MAX_HORIZON", "MAX_SUBSTEPS", "INPUT_M
 
 #: OCP solvers (:func:`mitigate.controllers.nmpc.solvers.make_ocp_solver`)
 SOLVERS = ("rti", "sqp", "ipopt")
+#: implementations of the step: the compiled C core, the Python reference
+IMPLEMENTATIONS = ("c", "python")
 #: ``inputs`` keywords: every command the rig offers, its servo inputs only, its drive only
 INPUT_MODES = ("both", "pin", "motor")
 # The OCP, its build and each QP grow with the horizon.  N = 500 plans 25 s ahead at dt = 0.05 s
@@ -131,8 +133,12 @@ class NMPCOptions:
     calm_band : ``(s_lo, s_hi)``: the estimated severity over one stick-slip period below which
         the NMPC holds (``hold_gain``) and above which it suppresses (factor 1); log-linear between
     speed_trim : time constant [s] of the offset-free trim of the speed target by the objective
-        body's mean speed (:mod:`mitigate.controllers.nmpc.trim`); None: one stick-slip period;
+        body's mean speed (:mod:`mitigate.controllers.nmpc.supervision`); None: one stick-slip period;
         0: no trim
+    implementation : "c": the step as one compiled C call (csrc/ss_nmpc.c; the one that
+        ``mitigate export`` writes out; solver "rti" or "sqp" with hpipm, ``compile = true``);
+        "python": the reference implementation of the same step in Python (the IPOPT and CasADi
+        QP solvers, and ``compile = false``, always run it)
     """
 
     horizon: int = option(20, lo=2, check=_at_most(MAX_HORIZON, "OCP intervals; the OCP and each QP grow with it"))
@@ -159,6 +165,7 @@ class NMPCOptions:
     calm_band: tuple[float, float] = option((0.01, 0.1), items=2, lo=0.0, lo_open=True, increasing=True,
                                             what="two severities 0 < s_lo < s_hi")
     speed_trim: float | None = option(None, lo=0.0, unit="s", none=True)
+    implementation: str = option("c", choices=IMPLEMENTATIONS)
     where: str = where_field("nmpc")
 
     def __post_init__(self):

@@ -90,7 +90,7 @@ class StageQP:
 # ----------------------------------------------------------------------------- hpipm
 #: enum hpipm_mode: SPEED_ABS, SPEED, BALANCE, ROBUST
 _HPIPM_MODES = {"speed_abs": 0, "speed": 1, "balance": 2, "robust": 3}
-_HPIPM_STATUS = ("success", "maximum iterations", "minimum step length", "NaN in the solution",
+HPIPM_STATUS = ("success", "maximum iterations", "minimum step length", "NaN in the solution",
                  "inconsistent equality constraints")
 _LIB = None
 
@@ -243,7 +243,7 @@ class HpipmQP(StageQP):
         self.iterations = self._iter.value
         st = self._status.value
         if st != 0:
-            what = _HPIPM_STATUS[st] if 0 <= st < len(_HPIPM_STATUS) else f"status {st}"
+            what = HPIPM_STATUS[st] if 0 <= st < len(HPIPM_STATUS) else f"status {st}"
             raise SolverFailure(f"QP (hpipm) failed: {what} after {self.iterations} iterations")
         lib.d_ocp_qp_sol_get_all(*self._get_args)
 

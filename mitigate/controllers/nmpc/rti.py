@@ -79,6 +79,11 @@ class GaussNewtonSolver(OCPSolver):
                                   f"{model.cname}_nmpc_N{N}")
         self._cost = np.nan
 
+    @property
+    def evaluator(self) -> StageEvaluator:
+        """All stages' Gauss-Newton blocks as one Function (what the compiled step calls)."""
+        return self._ev
+
     # ------------------------------------------------------------------ linearisation
     def _linearise(self, q) -> None:
         """Evaluate all stages at the plan and fill the QP's dynamics and cost blocks."""
