@@ -296,6 +296,10 @@ ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* st
     if (b.n > size) return NULL;
     d_ocp_qp_ipm_ws_create(&m->dim, &m->arg, &m->ws, wmem);
     set_pointers(m);
+    /* the structure once: the bounds' indices, the servo rows, no slacks (the data are set per solve) */
+    d_ocp_qp_set_all(m->pA, m->pB, m->pb, m->pQ, m->pS, m->pR, m->pq, m->pr, m->pidxbx, m->plbx, m->pubx,
+                     m->pidxbu, m->plbu, m->pubu, m->pC, m->pD, m->plg, m->pug, m->pzero, m->pzero, m->pzero,
+                     m->pzero, m->pidxs, m->pidxs, m->pzero, m->pzero, &m->qp);
     ssn_reset(m);
     return m;
 }
@@ -486,6 +490,45 @@ static void shift(ssn_mem* m, long steps) {
     for (k = N - s; k < N; k++) memcpy(m->V + (size_t)k * nv, m->tail, sizeof(double) * nv);
 }
 
+/* the QP's matrices and gradients go to hpipm when they are made (in the preparation), so a feedback
+   call only sets the bounds (which hold the new initial state) and solves */
+static void pack_data(ssn_mem* m) {
+    const int N = m->c.N;
+    int k;
+    for (k = 0; k < N; k++) {
+        d_ocp_qp_set_A(k, m->pA[k], &m->qp);
+        d_ocp_qp_set_B(k, m->pB[k], &m->qp);
+        d_ocp_qp_set_b(k, m->pb[k], &m->qp);
+        d_ocp_qp_set_S(k, m->pS[k], &m->qp);
+        d_ocp_qp_set_R(k, m->pR[k], &m->qp);
+        d_ocp_qp_set_r(k, m->pr[k], &m->qp);
+    }
+    for (k = 0; k <= N; k++) {
+        d_ocp_qp_set_Q(k, m->pQ[k], &m->qp);
+        d_ocp_qp_set_q(k, m->pq[k], &m->qp);
+    }
+}
+
+static void pack_bounds(ssn_mem* m) {
+    const ssn_config* c = &m->c;
+    const int N = c->N;
+    int k;
+    for (k = 0; k <= N; k++) {
+        if (k == 0 || c->drives) {
+            d_ocp_qp_set_lbx(k, m->plbx[k], &m->qp);
+            d_ocp_qp_set_ubx(k, m->pubx[k], &m->qp);
+        }
+        if (k < N) {
+            d_ocp_qp_set_lbu(k, m->plbu[k], &m->qp);
+            d_ocp_qp_set_ubu(k, m->pubu[k], &m->qp);
+            if (c->ns) {
+                d_ocp_qp_set_lg(k, m->plg[k], &m->qp);
+                d_ocp_qp_set_ug(k, m->pug[k], &m->qp);
+            }
+        }
+    }
+}
+
 static int linearise(ssn_mem* m, const double* q) {
     const ssn_config* c = &m->c;
     const int N = c->N, nxa = c->nxa;
@@ -501,6 +544,7 @@ static int linearise(ssn_mem* m, const double* q) {
         for (i = 0; i < nxa; i++)
             m->b[(size_t)k * nxa + i] = m->Xn[(size_t)k * nxa + i] - m->X[(size_t)(k + 1) * nxa + i];
     m->cost = m->cstage[0] + m->cterm[0];
+    pack_data(m);
     return SSF_NONE;
 }
 
@@ -554,9 +598,7 @@ static int qp_step(ssn_mem* m, ssn_info* info) {
     for (i = 0; i < nxa; i++) { m->lbx_all[i] = m->lbx0[i]; m->ubx_all[i] = m->ubx0[i]; }
     if (c->drives)
         for (k = 1; k <= N; k++) { m->lbx_all[(size_t)k * nxa] = m->lbx[k - 1]; m->ubx_all[(size_t)k * nxa] = m->ubx[k - 1]; }
-    d_ocp_qp_set_all(m->pA, m->pB, m->pb, m->pQ, m->pS, m->pR, m->pq, m->pr, m->pidxbx, m->plbx, m->pubx,
-                     m->pidxbu, m->plbu, m->pubu, m->pC, m->pD, m->plg, m->pug, m->pzero, m->pzero, m->pzero,
-                     m->pzero, m->pidxs, m->pidxs, m->pzero, m->pzero, &m->qp);
+    pack_bounds(m);
     d_ocp_qp_ipm_solve(&m->qp, &m->sol, &m->arg, &m->ws);
     d_ocp_qp_ipm_get_status(&m->ws, &st);
     d_ocp_qp_ipm_get_iter(&m->ws, &it);
