@@ -87,7 +87,7 @@ class NMPC_INFO(ctypes.Structure):
     _fields_ = [(n, ctypes.c_int) for n in ("status", "reason", "held_status", "n_u", "planned", "prepared",
                                             "failure", "fail_detail", "shifted_index", "iterations",
                                             "qp_iterations", "converged")] + \
-               [(n, ctypes.c_double) for n in ("violation", "last_step", "cost", "solve_time", "weight_factor",
+               [(n, ctypes.c_double) for n in ("violation", "last_step", "cost", "solve_time", "step_time", "weight_factor",
                                                "severity", "nominal", "trim", "target")]
 
 
@@ -228,32 +228,31 @@ class CompiledStep:
         self.info = NMPC_INFO()
         self._p = (self.y.ctypes.data, self.xe.ctypes.data, self.u_prog.ctypes.data, self.u.ctypes.data,
                    ctypes.addressof(self.info))
-        self._names_seen, self._xe_map = None, None
+        self._names_seen, self._size_seen = None, -1
 
     def reset(self) -> None:
         self._lib.ssn_reset(self._m)
 
     def canonical(self, estimate) -> tuple[bool, bool, int]:
         """Write an estimate into the canonical buffer; ``(present, observe, flags)``."""
-        if estimate is None or getattr(estimate, "x", None) is None:
+        x = getattr(estimate, "x", None) if estimate is not None else None
+        if x is None:
             return False, False, 0
-        names = tuple(getattr(estimate, "names", ()) or ())
-        xe = np.asarray(estimate.x, float).ravel()
-        flags = 0
-        if names is not self._names_seen:
-            self._names_seen = names
+        names = getattr(estimate, "names", None) or ()
+        xe = x if isinstance(x, np.ndarray) and x.dtype == np.float64 and x.ndim == 1 else np.asarray(x, float).ravel()
+        if names is not self._names_seen or xe.size != self._size_seen:
+            names = tuple(names)
+            self._names_seen, self._size_seen = getattr(estimate, "names", None), xe.size
             self._bad = bool(names) and names[:self.nx] != self.states
-            self._xe_map = [(names.index(k), self.nx + i) for i, k in enumerate(self.load_keys) if k in names]
-        if self._bad:
-            flags |= 2
-        buf = self.xe
-        buf[:] = np.nan
-        n = min(xe.size, self.nx)
-        buf[:n] = xe[:n]
-        for src, dst in self._xe_map:
-            if src < xe.size:
-                buf[dst] = xe[src]
-        return True, xe.size > self.i_speed, flags
+            # where each canonical entry comes from (-1: NaN): the rig's states, then the load factors
+            src = [i if i < xe.size else -1 for i in range(self.nx)]
+            src += [names.index(k) if k in names and names.index(k) < xe.size else -1 for k in self.load_keys]
+            self._src = np.array([i if i >= 0 else 0 for i in src], dtype=np.intp)
+            self._missing = np.array([i < 0 for i in src], dtype=bool)
+        np.take(xe, self._src, out=self.xe)
+        if self._missing.any():
+            self.xe[self._missing] = np.nan
+        return True, xe.size > self.i_speed, 2 if self._bad else 0
 
     def step(self, t: float, measurement, estimate, u_prog, target: float, inject: bool = False) -> NMPC_INFO:
         """One call of ``ssn_step``; the action is in :attr:`u` (``nv``), what happened in the info."""

@@ -233,6 +233,7 @@ class NMPC(Controller):
         if getattr(self, "compiled", None) is not None:
             self.compiled.reset()
             self._message = ""
+            self._plan_info = None
         self.ocp.reset()
         self.start.reset()
         self.supervisor.reset()
@@ -415,12 +416,23 @@ class NMPC(Controller):
                              f"the programme")
         else:
             self._message = self._solve_text(info)
-            plan = self.compiled.plan()
-            self.last_result = OCPResult(plan, np.empty((0, self.layout.nxa)), self.spec.inputs, self.layout.states,
-                                         info.cost, info.iterations, info.qp_iterations,
-                                         Status.OK if info.converged else Status.NOT_CONVERGED, self._message,
-                                         info.solve_time)
+            self._plan_info = (info.cost, info.iterations, info.qp_iterations, bool(info.converged), info.solve_time)
         return Action(u, status, self._message)
+
+    @property
+    def last_result(self):
+        """The last OCPResult (the compiled step's plan; its ``xa`` is not kept there), or None."""
+        if self.compiled is None:
+            return self._last_result
+        if getattr(self, "_plan_info", None) is None:
+            return None
+        cost, it, qp_it, conv, st = self._plan_info
+        return OCPResult(self.compiled.plan(), np.empty((0, self.layout.nxa)), self.spec.inputs, self.layout.states,
+                         cost, it, qp_it, Status.OK if conv else Status.NOT_CONVERGED, self._solve_text_of(conv, it), st)
+
+    @last_result.setter
+    def last_result(self, value) -> None:
+        self._last_result = value
 
     def _solve_text(self, info) -> str:
         if self.options.solver == "rti":
@@ -428,6 +440,12 @@ class NMPC(Controller):
         if info.converged:
             return f"converged in {info.iterations} Gauss-Newton iterations"
         return f"sqp: {self.options.sqp_max_iter} iterations, last step {info.last_step:.2g}"
+
+    def _solve_text_of(self, converged: bool, iterations: int) -> str:
+        if self.options.solver == "rti":
+            return "rti step"
+        return f"converged in {iterations} Gauss-Newton iterations" if converged else \
+            f"sqp: {self.options.sqp_max_iter} iterations"
 
     def _failure_text(self, info, estimate) -> str:
         f, solver = info.failure, self.options.solver

@@ -29,6 +29,7 @@ struct ssn_mem {
     int started;                  /* u_prev valid (the first call has been made) */
     int has_t_call, has_t_solve, has_t_plan, has_action, prep_pending, has_plan, has_t_moving;
     double t_call, t_solve, t_plan, t_moving;
+    double t_entry;               /* clock at the entry of this call */
     double *u_prev;               /* [nv] last commands */
     double *servo;                /* [ns] servo replicas' forces */
     int servo_init;
@@ -714,6 +715,7 @@ static int emit(ssn_mem* m, int status, const double* u_prog, double* u, ssn_inf
         if (c->drives) u[0] = u_prog[c->u_drive];
         for (j = 0; j < c->ns; j++) u[(c->drives ? 1 : 0) + j] = u_prog[c->u_servo[j]];
     }
+    info->step_time = ss_clock() - m->t_entry;
     return status;
 }
 
@@ -746,6 +748,7 @@ int ssn_step(ssn_mem* m, double t, const double* y, const double* xe, int observ
     long steps;
     int k, r, due;
     memset(info, 0, sizeof(*info));
+    m->t_entry = ss_clock();
     info->weight_factor = 1.0;
     info->severity = INFINITY;
     nominal = c->has_speed0 ? c->speed0 : c->torque_drive ? target : u_prog[c->u_drive];

@@ -62,6 +62,7 @@ typedef struct {
     double last_step;    /* sqp: the last step's size */
     double cost;         /* the plan's cost at the last linearisation */
     double solve_time;   /* wall time of the solve [s] (0 when this call did not plan) */
+    double step_time;    /* wall time of this whole call [s] */
     double weight_factor, severity, nominal, trim, target;   /* the supervision's decision */
 } ssn_info;
 
