@@ -217,7 +217,7 @@ def _acados_ok(python: str, data: Path) -> str:
 
 
 def _run_acados(python: str, data: Path, qp: str, cost: str, cflags: str, out: Path) -> dict:
-    r = subprocess.run([python, str(SIDE), str(data), "--qp", qp, "--cost", cost, "--cflags", cflags, "--out", str(out)],
+    r = subprocess.run([python, str(SIDE), str(data), "--qp", qp, "--cost", cost, f"--cflags={cflags}", "--out", str(out)],
                        capture_output=True, text=True, timeout=3600)
     if r.returncode != 0:
         raise RuntimeError(f"acados side failed ({qp}, {cost}): {r.stderr.strip()[-2000:]}")
