@@ -332,9 +332,10 @@ def replay(data, solver) -> dict:
     def element(a, i, j):
         return a.ctypes.data + (i * a.shape[1] + j) * 8
 
-    def prepare(i: int) -> tuple[float, int]:
-        """Shift (as the workbench's OCPSolver.shift), parameters q_lin[i], phase 1; wall time [s]."""
-        t0 = time.perf_counter()
+    def prepare(i: int) -> tuple[float, float, int]:
+        """Shift (as the workbench's OCPSolver.shift), parameters q_lin[i], phase 1; wall and thread
+        CPU time [s], status."""
+        c0, t0 = time.thread_time(), time.perf_counter()
         for k in range(N + 1):
             d.take(k, b"x", ax + k * nxa * 8)
         for k in range(N):
@@ -350,7 +351,7 @@ def replay(data, solver) -> dict:
         for k in range(N + 1):
             d.params(k, pq, nq)
         st = d.phase(1)
-        return time.perf_counter() - t0, st
+        return time.perf_counter() - t0, time.thread_time() - c0, st
 
     def initialise(i: int) -> int:
         j = int(np.count_nonzero(init[:i]))
@@ -362,8 +363,8 @@ def replay(data, solver) -> dict:
             d.params(k, row(q_lin, i), nq)
         return d.phase(1)
 
-    def feedback(i: int) -> tuple[float, int]:
-        t0 = time.perf_counter()
+    def feedback(i: int) -> tuple[float, float, int]:
+        c0, t0 = time.thread_time(), time.perf_counter()
         x0 = row(xa0, i)
         d.bound(0, b"lbx", x0)
         d.bound(0, b"ubx", x0)
@@ -382,11 +383,11 @@ def replay(data, solver) -> dict:
                 d.bound(k, b"ug", hi)
         st = d.phase(2)
         d.take(0, b"u", au0)
-        return time.perf_counter() - t0, st
+        return time.perf_counter() - t0, time.thread_time() - c0, st
 
     # acados keeps a timer until the phase that sets it runs again: read each after its own phase
-    fb = {k: np.full(P, np.nan) for k in ("wall", "time_tot", "time_qp", "time_qp_solver_call")}
-    pr = {k: np.full(P, np.nan) for k in ("wall", "time_tot", "time_lin", "time_qp_xcond")}
+    fb = {k: np.full(P, np.nan) for k in ("wall", "cpu", "time_tot", "time_qp", "time_qp_solver_call")}
+    pr = {k: np.full(P, np.nan) for k in ("wall", "cpu", "time_tot", "time_lin", "time_qp_xcond")}
     qp_iter = np.zeros(P, dtype=int)
     status = np.zeros(P, dtype=int)
     prep_status = np.zeros(P, dtype=int)
@@ -397,9 +398,8 @@ def replay(data, solver) -> dict:
             prep_status[i] = initialise(i)
         elif not prepared[i] or i == 0:
             inline += 1
-            _, prep_status[i] = prepare(i)
-        wall, status[i] = feedback(i)
-        fb["wall"][i] = wall
+            _, _, prep_status[i] = prepare(i)
+        fb["wall"][i], fb["cpu"][i], status[i] = feedback(i)
         for k in ("time_tot", "time_qp", "time_qp_solver_call"):
             fb[k][i] = d.timer(k.encode())
         qp_iter[i] = int(np.atleast_1d(solver.get_stats("qp_iter"))[-1])
@@ -407,8 +407,7 @@ def replay(data, solver) -> dict:
         if iw >= 0:
             moves[i, 0] += xa0[i, iw]       # the applied set-point: w_prev + its change
         if i + 1 < P and prepared[i + 1] and not init[i + 1]:
-            wall, prep_status[i + 1] = prepare(i + 1)
-            pr["wall"][i + 1] = wall
+            pr["wall"][i + 1], pr["cpu"][i + 1], prep_status[i + 1] = prepare(i + 1)
             for k in ("time_tot", "time_lin", "time_qp_xcond"):
                 pr[k][i + 1] = d.timer(k.encode())
     return dict(feedback={k: v.tolist() for k, v in fb.items()}, preparation={k: v.tolist() for k, v in pr.items()},

@@ -88,38 +88,53 @@ def _nmpc(horizon: int, qp_tol=None):
 
 def _loop(m, u_prog, c, duration: float):
     """``bench_nmpc.run``'s closed loop from established stick-slip on the true state; the wall
-    times [s] of the plan calls and of the first held call after each plan."""
+    and thread CPU times [s] of the plan calls and of the first held call after each plan."""
     from bench_nmpc import DT, stick_slip_start
     from estimators.base import Estimate
     from models.plant import Plant, SimOptions
     from models.status import Status
     x0, t0 = stick_slip_start()
     plant = Plant(m, m.published(), SimOptions(seed=0), sensors=None, x0=x0, u0=u_prog)
-    plans, prep = [], []
+    plans, prep, plans_cpu, prep_cpu = [], [], [], []
     after_plan = False
     for k in range(int(round(duration / DT))):
         t = t0 + k * DT
-        a = c.step(t, plant.measure(), Estimate(t, plant.x.copy(), None, m.states))
+        meas, est = plant.measure(), Estimate(t, plant.x.copy(), None, m.states)
+        c0 = time.thread_time()
+        a = c.step(t, meas, est)
+        cpu = time.thread_time() - c0
         if a.status is not Status.HOLD:
             plans.append(a.solve_time)
+            plans_cpu.append(cpu)
             after_plan = True
         elif after_plan:
             prep.append(a.solve_time)
+            prep_cpu.append(cpu)
             after_plan = False
         u = u_prog.copy()
         for name, v in a.u.items():
             u[m.inputs.index(name)] = v
         plant.step(u)
-    return plans, prep
+    return plans, prep, plans_cpu, prep_cpu
 
 
 def time_ours(horizon: int, duration: float, qp_tol=None) -> dict:
     """Our side, timed: the controller's plan and preparation calls, and inside them the OCP
-    solver's ``solve`` (its own ``solve_time``) and ``prepare`` (wall) [s]."""
+    solver's ``solve`` (its own ``solve_time``) and ``prepare`` (wall), and inside ``solve`` the
+    QP solver's call (hpipm through ctypes, wall; if the solver has a ``qp``) [s]."""
     m, u_prog, c = _nmpc(horizon, qp_tol)
     ocp = c.ocp
     solve, prepare = ocp.solve, ocp.prepare
-    t_ocp, t_prep = [], []
+    t_ocp, t_prep, t_qp = [], [], []
+    qp = getattr(ocp, "qp", None)
+    if qp is not None:
+        qp_solve = qp.solve
+
+        def timed_qp():
+            t0 = time.perf_counter()
+            qp_solve()
+            t_qp.append(time.perf_counter() - t0)
+        qp.solve = timed_qp
 
     def timed_solve(*args):
         res = solve(*args)
@@ -131,8 +146,9 @@ def time_ours(horizon: int, duration: float, qp_tol=None) -> dict:
         prepare(q)
         t_prep.append(time.perf_counter() - t0)
     ocp.solve, ocp.prepare = timed_solve, timed_prepare
-    plans, prep = _loop(m, u_prog, c, duration)
+    plans, prep, plans_cpu, prep_cpu = _loop(m, u_prog, c, duration)
     return dict(feedback=plans[1:], preparation=prep[1:], feedback_ocp=t_ocp[1:], preparation_ocp=t_prep[1:],
+                feedback_qp=t_qp[1:], feedback_cpu=plans_cpu[1:], preparation_cpu=prep_cpu[1:],
                 failures=c.counts.failures, plans=len(plans))
 
 
@@ -246,17 +262,23 @@ def _series(kind: str, res: dict):
     """The timed series [ms] of one run: (phase, measure, samples)."""
     if kind == "ours":
         return [("feedback", "controller call (wall)", 1e3 * np.array(res["feedback"])),
+                ("feedback", "controller call (thread CPU)", 1e3 * np.array(res["feedback_cpu"])),
                 ("feedback", "OCP solve (wall)", 1e3 * np.array(res["feedback_ocp"])),
+                ("feedback", "of which the QP: hpipm by ctypes (wall)", 1e3 * np.array(res["feedback_qp"])),
                 ("preparation", "controller call (wall)", 1e3 * np.array(res["preparation"])),
+                ("preparation", "controller call (thread CPU)", 1e3 * np.array(res["preparation_cpu"])),
                 ("preparation", "OCP prepare (wall)", 1e3 * np.array(res["preparation_ocp"]))]
     fb, pr = res["feedback"], res["preparation"]
     # plan 0 is the warm-up; plan 1's preparation is the first (excluded, as ours)
     f = lambda a: 1e3 * np.array(a)[1:]                   # noqa: E731
     p = lambda a: 1e3 * np.array(a, float)[2:]            # noqa: E731
     return [("feedback", "acados time_tot (C timer)", f(fb["time_tot"])),
+            ("feedback", "of which the QP: time_qp (C timer)", f(fb["time_qp"])),
             ("feedback", "ctypes calls (wall)", f(fb["wall"])),
+            ("feedback", "ctypes calls (thread CPU)", f(fb["cpu"])),
             ("preparation", "acados time_tot (C timer)", p(pr["time_tot"])),
-            ("preparation", "ctypes calls (wall)", p(pr["wall"]))]
+            ("preparation", "ctypes calls (wall)", p(pr["wall"])),
+            ("preparation", "ctypes calls (thread CPU)", p(pr["cpu"]))]
 
 
 def _detail(res: dict) -> str:
@@ -297,6 +319,9 @@ def main(argv=None) -> int:
     ap.add_argument("--qp-tol", type=float, default=None,
                     help="the QP tolerance on both sides (default: the NMPC's default; a diagnostic)")
     ap.add_argument("--acados-python", default=DEFAULT_ACADOS_PYTHON, help="acados' interpreter")
+    ap.add_argument("--wait-load", type=float, default=None, metavar="L",
+                    help="before each round wait (up to --wait-max s) until the 1-min load average is <= L")
+    ap.add_argument("--wait-max", type=float, default=1800.0, help="longest wait for --wait-load [s]")
     ap.add_argument("--keep", default="", help="keep the recorded closed loops (.npz) in this folder")
     ap.add_argument("--out", default="", help="write the results (markdown) here")
     ap.add_argument("--worker-ours", type=int, default=None, help=argparse.SUPPRESS)
@@ -334,6 +359,11 @@ def main(argv=None) -> int:
     runs = {}                          # (kind, N) -> list of results
     agree = {}
     for r in range(args.rounds):
+        if args.wait_load is not None:
+            t_wait = time.time()
+            while os.getloadavg()[0] > args.wait_load and time.time() - t_wait < args.wait_max:
+                time.sleep(15)
+            load[-1] = os.getloadavg()
         for N in args.horizons:
             tasks = ([("ours", None)] if args.side != "acados" else []) + [("acados", v) for v in variants]
             for kind, v in (tasks if r % 2 == 0 else tasks[::-1]):
