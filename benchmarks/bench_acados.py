@@ -324,6 +324,8 @@ def main(argv=None) -> int:
     ap.add_argument("--wait-max", type=float, default=1800.0, help="longest wait for --wait-load [s]")
     ap.add_argument("--keep", default="", help="keep the recorded closed loops (.npz) in this folder")
     ap.add_argument("--out", default="", help="write the results (markdown) here")
+    ap.add_argument("--append", action="store_true",
+                    help="append to --out (a second measurement below the first, without the notes)")
     ap.add_argument("--worker-ours", type=int, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--json", default="", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -384,6 +386,9 @@ def main(argv=None) -> int:
     print(text)
     if args.out:
         from models.files import atomic_write_text
+        if args.append and os.path.exists(args.out):
+            text = Path(args.out).read_text() + "\n" + text.split("\n## What the comparison is")[0].replace(
+                "# The NMPC's RTI beside", "## Also measured: the NMPC's RTI beside", 1) + "\n"
         atomic_write_text(args.out, text, overwrite=True)
     return 0
 
