@@ -101,25 +101,23 @@ def load_sx(data, prefix: str) -> ca.Function:
 
 
 # ----------------------------------------------------------------------------- acados
-def _acados():
+def _template():
+    """``AcadosModel, AcadosOcp, AcadosOcpSolver`` from the ``acados_template`` that
+    comma-deps-acados ships inside its ``acados`` package, with acados' paths set and the
+    libraries libacados needs loaded first (the wheel's libacados has no rpath to them)."""
+    import ctypes
+
     import acados
     os.environ.setdefault("ACADOS_SOURCE_DIR", acados.DIR)
     os.environ.setdefault("TERA_PATH", acados.TERA_PATH)
     os.environ.setdefault("ACADOS_PYTHON_INTERFACE_PATH", acados.TEMPLATE_DIR)
-    import ctypes
-    for lib in ("libblasfeo.so", "libhpipm.so", "libqpOASES_e.so.3.1"):   # libacados' dependencies: no rpath
+    for lib in ("libblasfeo.so", "libhpipm.so", "libqpOASES_e.so.3.1"):
         path = Path(acados.LIB_DIR) / lib
         if path.exists():
             ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
-    from acados_template import AcadosModel, AcadosOcp, AcadosOcpSolver  # noqa: F401  (on acados' path)
-    return AcadosModel, AcadosOcp, AcadosOcpSolver
-
-
-def _import_template():
-    """``acados_template`` lives inside the ``acados`` package of comma-deps-acados."""
-    import acados
     sys.path.insert(0, str(Path(acados.__file__).parent))
-    return _acados()
+    from acados_template import AcadosModel, AcadosOcp, AcadosOcpSolver
+    return AcadosModel, AcadosOcp, AcadosOcpSolver
 
 
 def check_functions(data) -> dict[str, ca.Function]:
@@ -141,7 +139,7 @@ def check_functions(data) -> dict[str, ca.Function]:
 def formulate(data, fns, *, qp: str, cost: str, cflags: str):
     """acados' OCP: discrete dynamics F, the least-squares cost plus the linear servo term with
     the Gauss-Newton Hessian, the same boxes and general rows; SQP_RTI with hpipm."""
-    AcadosModel, AcadosOcp, _ = _import_template()
+    AcadosModel, AcadosOcp, _ = _template()
     N, dt = int(data["N"]), float(data["dt"])
     nxa, nv, nq = int(data["nxa"]), int(data["nv"]), int(data["nq"])
     x, u, p = ca.SX.sym("xa", nxa), ca.SX.sym("v", nv), ca.SX.sym("q", nq)
@@ -224,7 +222,7 @@ def data_hash(data, *options) -> str:
 def build_solver(data, fns, *, qp: str, cost: str, cflags: str, rebuild: bool = False):
     """acados' solver for ``data``, generated and compiled once (cached by content under
     ``~/.cache/stickslip/acados``); returns the solver and the build time [s] (0: cached)."""
-    _, _, AcadosOcpSolver = _import_template()
+    _, _, AcadosOcpSolver = _template()
     ocp = formulate(data, fns, qp=qp, cost=cost, cflags=cflags)
     d = CACHE / ocp.model.name
     d.mkdir(parents=True, exist_ok=True)
