@@ -334,6 +334,14 @@ def main(argv=None) -> int:
         return 0
     if args.quick:
         args.horizons, args.duration, args.rounds, args.qp, args.cost = [20], 2.0, 1, ["partial"], ["external"]
+    from mitigate.controllers.nmpc import MAX_HORIZON
+    bad = ([f"--horizons must be 1..{MAX_HORIZON}, got {h}" for h in args.horizons if not 1 <= h <= MAX_HORIZON]
+           + ([f"--duration must be >= 0.2 s (a few plans), got {args.duration:g}"] if not args.duration >= 0.2 else [])
+           + ([f"--rounds must be >= 0, got {args.rounds}"] if args.rounds < 0 else [])
+           + ([f"--qp-tol must be > 0, got {args.qp_tol:g}"] if args.qp_tol is not None and not args.qp_tol > 0 else [])
+           + (["--append needs --out"] if args.append and not args.out else []))
+    if bad:
+        ap.error(bad[0])
     import casadi as ca
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench_acados."))
     work.mkdir(parents=True, exist_ok=True)
