@@ -33,10 +33,13 @@ Timed: acados' own C timer ``time_tot`` of ``rti_phase = 2`` (feedback) and ``rt
 Agreement: acados' first move against ours at every plan, relative to the input's scale (the
 set-point's speed scale, the servo's n_max).
 
-Create acados' venv (one command; never in the workbench's venv; Python 3.12, which the wheel's
-casadi is built for)::
+Create acados' venv (one command; never in the workbench's venv; with a Python 3.12, which the
+wheel's casadi is built for: on these machines pyenv's 3.12.1)::
 
     PYENV_VERSION=3.12.1 python3.12 -m venv /work/venv-acados && /work/venv-acados/bin/pip install comma-deps-acados numpy
+
+acados generates and compiles its solver once per OCP structure and variant (about 2.5-3 min each
+on this machine), cached by content under ``~/.cache/stickslip/acados``.
 
 Examples::
 
