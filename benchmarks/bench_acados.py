@@ -75,18 +75,20 @@ DEFAULT_ACADOS_PYTHON = os.environ.get("ACADOS_PYTHON", "/work/venv-acados/bin/p
 
 
 # ----------------------------------------------------------------------------- the closed loop
-def _nmpc(horizon: int, qp_tol=None):
+def _nmpc(horizon: int, qp_tol=None, implementation: str = "c"):
     """The rig, the programme and the NMPC of the main scenario (``bench_nmpc.py``'s); the default
-    options but ``qp_tol`` if given."""
+    options but ``qp_tol`` if given.  ``implementation``: "c" (the compiled step, what is timed) or
+    "python" (the reference of the same step, whose OCP calls the recording reads; the two agree to
+    2e-15 on this loop, tests/test_nmpc.py)."""
     from bench_nmpc import DT, N1, W0
     from mitigate.controllers.base import ControlContext
     from mitigate.controllers.nmpc import NMPC, NMPCOptions
     from models import get_model
     m = get_model("rig3")
     u_prog = np.array([W0, N1, 0.0])
-    ctx = ControlContext(m, m.published(), DT, DT, lambda t: u_prog, where="bench")
+    ctx = ControlContext(m, m.published(), DT, lambda t: u_prog, where="bench")
     extra = {} if qp_tol is None else {"qp_tol": float(qp_tol)}
-    return m, u_prog, NMPC(NMPCOptions(horizon=horizon, inputs="both", **extra), ctx)
+    return m, u_prog, NMPC(NMPCOptions(horizon=horizon, inputs="both", implementation=implementation, **extra), ctx)
 
 
 def _loop(m, u_prog, c, duration: float):
@@ -98,8 +100,9 @@ def _loop(m, u_prog, c, duration: float):
     from models.status import Status
     x0, t0 = stick_slip_start()
     plant = Plant(m, m.published(), SimOptions(seed=0), sensors=None, x0=x0, u0=u_prog)
-    plans, prep, plans_cpu, prep_cpu = [], [], [], []
+    plans, prep, plans_cpu, prep_cpu, c_plans, c_prep = [], [], [], [], [], []
     after_plan = False
+    info = c.compiled.info if getattr(c, "compiled", None) is not None else None
     for k in range(int(round(duration / DT))):
         t = t0 + k * DT
         meas, est = plant.measure(), Estimate(t, plant.x.copy(), None, m.states)
@@ -109,50 +112,29 @@ def _loop(m, u_prog, c, duration: float):
         if a.status is not Status.HOLD:
             plans.append(a.solve_time)
             plans_cpu.append(cpu)
+            c_plans.append(info.step_time if info is not None else np.nan)
             after_plan = True
         elif after_plan:
             prep.append(a.solve_time)
             prep_cpu.append(cpu)
+            c_prep.append(info.step_time if info is not None else np.nan)
             after_plan = False
         u = u_prog.copy()
         for name, v in a.u.items():
             u[m.inputs.index(name)] = v
         plant.step(u)
-    return plans, prep, plans_cpu, prep_cpu
+    return plans, prep, plans_cpu, prep_cpu, c_plans, c_prep
 
 
 def time_ours(horizon: int, duration: float, qp_tol=None) -> dict:
-    """Our side, timed: the controller's plan and preparation calls, and inside them the OCP
-    solver's ``solve`` (its own ``solve_time``) and ``prepare`` (wall), and inside ``solve`` the
-    QP solver's call (hpipm through ctypes, wall; if the solver has a ``qp``) [s]."""
+    """Our side, timed: the workbench NMPC's plan (feedback) and first held (preparation) calls,
+    through Python (``Action.solve_time``, wall) and inside C (the compiled step's own
+    ``step_time``: the whole NMPC step, supervision and fallbacks included) [s]."""
     m, u_prog, c = _nmpc(horizon, qp_tol)
-    ocp = c.ocp
-    solve, prepare = ocp.solve, ocp.prepare
-    t_ocp, t_prep, t_qp = [], [], []
-    qp = getattr(ocp, "qp", None)
-    if qp is not None:
-        qp_solve = qp.solve
-
-        def timed_qp():
-            t0 = time.perf_counter()
-            qp_solve()
-            t_qp.append(time.perf_counter() - t0)
-        qp.solve = timed_qp
-
-    def timed_solve(*args):
-        res = solve(*args)
-        t_ocp.append(res.solve_time)
-        return res
-
-    def timed_prepare(q):
-        t0 = time.perf_counter()
-        prepare(q)
-        t_prep.append(time.perf_counter() - t0)
-    ocp.solve, ocp.prepare = timed_solve, timed_prepare
-    plans, prep, plans_cpu, prep_cpu = _loop(m, u_prog, c, duration)
-    return dict(feedback=plans[1:], preparation=prep[1:], feedback_ocp=t_ocp[1:], preparation_ocp=t_prep[1:],
-                feedback_qp=t_qp[1:], feedback_cpu=plans_cpu[1:], preparation_cpu=prep_cpu[1:],
-                failures=c.counts.failures, plans=len(plans))
+    plans, prep, plans_cpu, prep_cpu, c_plans, c_prep = _loop(m, u_prog, c, duration)
+    return dict(feedback=plans[1:], preparation=prep[1:], feedback_c=c_plans[1:], preparation_c=c_prep[1:],
+                feedback_cpu=plans_cpu[1:], preparation_cpu=prep_cpu[1:], failures=c.counts.failures,
+                plans=len(plans))
 
 
 def record(horizon: int, duration: float, path: Path, qp_tol=None) -> dict:
@@ -163,7 +145,7 @@ def record(horizon: int, duration: float, path: Path, qp_tol=None) -> dict:
     from mitigate.controllers.nmpc.qp import HpipmQP
     rows = {k: [] for k in ("xa0", "q_lin", "lbv", "ubv", "lbw", "ubw", "dg", "u_ours", "prepared", "init")}
     inits: list[tuple] = []
-    m, u_prog, c = _nmpc(horizon, qp_tol)
+    m, u_prog, c = _nmpc(horizon, qp_tol, implementation="python")
     ocp = c.ocp
     solve, prepare = ocp.solve, ocp.prepare
     q_prep = {}
@@ -264,13 +246,12 @@ def _agreement(data: Path, moves) -> dict:
 def _series(kind: str, res: dict):
     """The timed series [ms] of one run: (phase, measure, samples)."""
     if kind == "ours":
-        return [("feedback", "controller call (wall)", 1e3 * np.array(res["feedback"])),
-                ("feedback", "controller call (thread CPU)", 1e3 * np.array(res["feedback_cpu"])),
-                ("feedback", "OCP solve (wall)", 1e3 * np.array(res["feedback_ocp"])),
-                ("feedback", "of which the QP: hpipm by ctypes (wall)", 1e3 * np.array(res["feedback_qp"])),
-                ("preparation", "controller call (wall)", 1e3 * np.array(res["preparation"])),
-                ("preparation", "controller call (thread CPU)", 1e3 * np.array(res["preparation_cpu"])),
-                ("preparation", "OCP prepare (wall)", 1e3 * np.array(res["preparation_ocp"]))]
+        return [("feedback", "compiled NMPC step (C timer)", 1e3 * np.array(res["feedback_c"])),
+                ("feedback", "workbench controller call (wall)", 1e3 * np.array(res["feedback"])),
+                ("feedback", "workbench controller call (thread CPU)", 1e3 * np.array(res["feedback_cpu"])),
+                ("preparation", "compiled NMPC step (C timer)", 1e3 * np.array(res["preparation_c"])),
+                ("preparation", "workbench controller call (wall)", 1e3 * np.array(res["preparation"])),
+                ("preparation", "workbench controller call (thread CPU)", 1e3 * np.array(res["preparation_cpu"]))]
     fb, pr = res["feedback"], res["preparation"]
     # plan 0 is the warm-up; plan 1's preparation is the first (excluded, as ours)
     f = lambda a: 1e3 * np.array(a)[1:]                   # noqa: E731
