@@ -207,6 +207,9 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
     model = model if model is not None else _resolve_model(sc.get("model", "rig3"), path, where)
     duration = _num(sc["duration"], f"{where}: scenario.duration", positive=True, unit="s")
     dt = _num(sc.get("dt", 0.01), f"{where}: scenario.dt", positive=True, unit="s")
+    if duration < dt:
+        raise ConfigError(f"{where}: scenario.dt must be <= scenario.duration = {duration:g} s (at least one DAQ "
+                          f"sample), got {dt:g} s")
     ctrls_raw = data.get("controllers", [])
     check_size(duration, dt, max(1, len(ctrls_raw) if isinstance(ctrls_raw, list) else 1), where)
     seed = sc.get("seed", 0)

@@ -129,3 +129,20 @@ def test_bad_exports_are_one_line_refusals_and_write_nothing(tmp_path, capsys):
     assert cli_main(["export", str(MAIN), "--controller", "Nope", "--out", str(tmp_path / "y")]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("inputs", ["motor", "pin"])
+def test_every_input_set_exports_and_replays(inputs, tmp_path):
+    """The motor-only and the pin-only NMPC export too (issue 26): 25 s of the main scenario (5 s of
+    control) replay bit for bit without allocation."""
+    sc = load_scenario(MAIN)
+    ctrls = tuple(replace(c, options={**dict(c.options), "inputs": inputs}) if c.name == "NMPC" else c
+                  for c in sc.controllers)
+    res = export_controller(replace(sc, controllers=ctrls), "NMPC", tmp_path / inputs, reference=25.0,
+                            prefix=f"nmpc_{inputs}")
+    assert [p.name for p in res.interface.outputs][:1] == (["omega_ref"] if inputs == "motor" else ["n2"])
+    so = build_export(res.out)
+    code, out = _replay(so.parent / f"{res.prefix}_replay", res.out / "test" / "reference.csv")
+    assert code == 0 and out["rows"] == "2501" and out["mismatches"] == "0", out
+    assert out["allocations_after_create"] == "0" and int(out["ok"]) > 0

@@ -271,6 +271,14 @@ def test_control_start_after_the_end_is_refused(ws, capsys):
     one_line_error(capsys, "control.start must be < scenario.duration = 2 s")
 
 
+def test_a_daq_period_longer_than_the_run_is_refused_and_nothing_is_written(ws, capsys):
+    """Issue 28: dt = 0.01 s with a 0.004 s duration ran, wrote metrics and plots, and exited 1."""
+    (ws / "short.toml").write_text(tiny(duration=0.004, start=0.0))
+    assert main("run", "short.toml", "--out", "o") == 2
+    one_line_error(capsys, "scenario.dt must be <= scenario.duration = 0.004 s")
+    assert not (ws / "o").exists()
+
+
 def test_a_parameter_file_error_keeps_the_path_out_of_the_field_name(ws, capsys):
     rig = ws / "myrig.toml"
     rig.write_text((ROOT / "models/rigs/rig3.toml").read_text())
