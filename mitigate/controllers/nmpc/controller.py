@@ -162,7 +162,9 @@ class NMPC(Controller):
                             inputs=self.inputs, taus=taus, speed_scale=w_s,
                             setpoint_scale=(cfg.setpoint_band if self._torque_drive else w_s) or 1.0,
                             force_scales=tuple(float(a.n_max) for a in acts), weights=weights.as_tuple())
-        self.ocp = make_ocp_solver(m, self.spec, solver=o.solver, compile=o.compile, qp_solver=o.qp_solver,
+        use_c = o.implementation == "c" and o.compile and o.solver in ("rti", "sqp") and o.qp_solver == "hpipm"
+        # the compiled step has the stages in its own library: the Python solver's own build is not needed then
+        self.ocp = make_ocp_solver(m, self.spec, solver=o.solver, compile=o.compile and not use_c, qp_solver=o.qp_solver,
                                    qp_tol=o.qp_tol, sqp_max_iter=o.sqp_max_iter)
         L = self.ocp.layout
         self.layout = L
@@ -180,8 +182,7 @@ class NMPC(Controller):
         self._i_speed = m.speed_index(self.body)
         self.inject_failure = None
         #: the compiled step (csrc/ss_nmpc.c) for RTI/SQP with hpipm, compiled; None: the Python reference
-        self.compiled = CompiledStep(self) if (o.implementation == "c" and o.compile and o.solver in ("rti", "sqp")
-                                               and o.qp_solver == "hpipm") else None
+        self.compiled = CompiledStep(self) if use_c else None
         self.reset()
 
     # ------------------------------------------------------------------ set-up helpers
