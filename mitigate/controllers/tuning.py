@@ -227,6 +227,8 @@ class PipeTorque:
         self.dt = context.period
         self.tau, self.tau_acc = tau, tau_acc
         self.friction = None
+        #: ``(eta, Tf, Cm, eps)`` of the motor friction the torque channel includes, or None
+        self.motor = None
         if m.drive_kind == "dc_motor":
             d = m.spec.drive
             eta, Jm = d.param("ratio").value(P), d.param("Jm").value(P)
@@ -234,12 +236,20 @@ class PipeTorque:
             if sensor.definition == "electromagnetic":
                 self.J = m.inertia(d.body, P)
                 Tf, Cm, eps = d.param("Tf").value(P), d.param("Cm").value(P), d.eps_motor
+                self.motor = (eta, Tf, Cm, eps)
                 self.friction = lambda w: eta * (Tf * math.tanh(eta * w / eps) + Cm * eta * w)  # noqa: E731
             else:
                 self.J = eta * Jm
         else:
             self.J = drive_inertia(m, context.params)
         self.reset()
+
+    def c_fields(self) -> dict:
+        """Its values as fields of the laws' C configuration (:data:`mitigate.controllers.compiled.LAW_CONFIG`)."""
+        eta, Tf, Cm, eps = self.motor or (0.0, 0.0, 0.0, 0.0)
+        return dict(pipe_J=float(self.J), tau_pipe=float(self.tau), tau_acc=float(self.tau_acc),
+                    motor_friction=int(self.motor is not None), eta=float(eta), Tf=float(Tf), Cm=float(Cm),
+                    eps_motor=float(eps))
 
     def reset(self) -> None:
         self._w = None
