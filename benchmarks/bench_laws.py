@@ -26,6 +26,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import shutil
 import sys
@@ -107,7 +108,9 @@ def table(rows: list[dict], command: str, duration: float) -> str:
             f"left out.  \"C\" columns: timed inside the library by its own clock (`last_solve_time`: the clock "
             f"around `ssl_step`, the clock's own cost included; `last_step_time`: the whole step).  Workbench "
             f"columns: `Controller.step` on the same samples, timed with `time.perf_counter` (its Python included).  "
-            f"Machine: {platform.machine()}, Python {platform.python_version()}, shared with other jobs.\n\n"
+            f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, load "
+            f"average {os.getloadavg()[0]:.1f} at the end (shared with other jobs: the medians are the fair figure)."
+            f"\n\n"
             + head + body + f"{END}\n")
 
 
