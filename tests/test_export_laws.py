@@ -112,6 +112,7 @@ def test_a_laws_gains_are_runtime_parameters(exported):
         ExportedLibrary(res.out, {par: math.inf})
 
 
+@pytest.mark.slow
 def test_an_exported_law_refuses_parameters_its_core_cannot_run(tmp_path):
     """SoftSpeed's virtual drive needs an inertia: create() returns NULL for J_v = 0 (one line)."""
     res = export_controller(MAIN, "SoftSpeed", tmp_path / "ss", reference=None)
