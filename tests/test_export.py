@@ -117,8 +117,9 @@ def test_bad_exports_are_one_line_refusals_and_write_nothing(tmp_path, capsys):
     out = tmp_path / "x"
     with pytest.raises(ConfigError, match=r"controller 'Nope' is not in the scenario"):
         export_controller(MAIN, "Nope", out)
-    with pytest.raises(ConfigError, match=r"of kind 'softspeed'; export supports"):
-        export_controller(MAIN, "SoftSpeed", out)
+    with pytest.raises(ConfigError, match=r"of kind 'supervisor'; export supports nmpc, softspeed, ztorque, doskil, "
+                                          r"brake$"):
+        export_controller(MAIN, "speed supervisor", out)
     sc = load_scenario(MAIN)
     with pytest.raises(ConfigError, match=r"estimator.kind = 'mhe'; export supports the EKF"):
         export_controller(replace(sc, estimator={"kind": "mhe"}), "NMPC", out)

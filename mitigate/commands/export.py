@@ -7,9 +7,10 @@ from models.errors import ConfigError
 
 EPILOG = """\
 Writes DIR: include/<name>.h (create / step / reset / destroy; the layout of in[], out[] and the
-runtime parameters with their units), src/ (plain C: the workbench's own NMPC and EKF cores, the
-CasADi-generated rig functions, the exported defaults), vendor/ (hpipm and blasfeo as the casadi
-wheel ships them, with their BSD-2 licences), CMakeLists.txt and a Makefile, README.md (the API),
+runtime parameters with their units), src/ (plain C: the workbench's own cores -- the NMPC's or the
+law's (softspeed, ztorque, doskil, brake) -- and the EKF's, the CasADi-generated rig functions, the
+exported defaults), vendor/ (the NMPC: hpipm and blasfeo as the casadi wheel ships them, with their
+BSD-2 licences), CMakeLists.txt and a Makefile, README.md (the API),
 test/replay.c with test/reference.csv: the workbench's own run of the scenario, which the built
 library must reproduce to 1e-9 without allocating after create.  Nothing is written if the
 scenario or the controller is refused, or DIR exists (use --force).
@@ -19,6 +20,7 @@ Exit codes: 0 written (and built and replayed), 1 the build or the replay failed
 Example:
   mitigate export scenarios/stick_slip_30rpm.toml --controller NMPC --out out/nmpc_c
   mitigate export scenarios/stick_slip_30rpm.toml --controller NMPC --out out/nmpc_c --build --json
+  mitigate export scenarios/stick_slip_30rpm.toml --controller SoftSpeed --out out/softspeed_c --build
 """
 
 

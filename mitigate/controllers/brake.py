@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from typing import Mapping
 
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
+from mitigate.controllers.compiled import IMPLEMENTATIONS, compiled_action, compiled_law, law_config
 from mitigate.tunables import Tunable
 from models.checks import check_options, option
 from models.errors import ConfigError
@@ -50,6 +51,8 @@ class BrakeOptions:
     n_max : largest commanded pin force [N] (0: the servo's range)
     filter_tau : first-order low-pass time constant on the speeds [s] (0: none; default: 3 DAQ periods)
     use_estimate : take speeds from the state estimate when one is available
+    implementation : "c": the step as one compiled C call (csrc/ss_laws.c, the one ``mitigate
+        export`` writes out); "python": the reference step below
     """
 
     input: str = option("", what="a servo input name")
@@ -59,6 +62,7 @@ class BrakeOptions:
     n_max: float = option(0.0, lo=0.0, unit="N")
     filter_tau: float | None = option(None, lo=0.0, unit="s", none=True)
     use_estimate: bool = option(True)
+    implementation: str = option("c", choices=IMPLEMENTATIONS)
 
     def __post_init__(self):
         check_options(self)
@@ -125,12 +129,27 @@ class BrakeController(Controller):
             raise ConfigError(f"{context.where}: the brake needs the speeds of {self.body!r}"
                               f"{' and ' + repr(self.drive_body) if options.gain_relative > 0 else ''}, "
                               f"which rig {m.name!r} does not measure")
+        #: the compiled step (csrc/ss_laws.c); None: the Python reference
+        self.compiled, self.compile_status = compiled_law(self)
         self.reset()
+
+    def c_config(self):
+        """The law's C configuration, the channels it reads (its body's speed, the drive body's when
+        the rig measures it), the estimates it reads (the same two speeds)."""
+        m, o = self.context.model, self.options
+        drive_ch = m.speed_channel(self.drive_body) if self.drive_body else None
+        channels = (m.speed_channel(self.body),) + ((drive_ch,) if drive_ch is not None else ())
+        return (law_config("brake", n_ch=len(channels), ch_body=0, ch_drive=1 if drive_ch is not None else -1,
+                           use_estimate=int(o.use_estimate), period=self.context.period, gain=o.gain_overspeed,
+                           gain_relative=o.gain_relative, deadband=o.deadband, tau=o.filter_tau, n_max=self.n_max),
+                channels, (f"omega_{self.body}", f"omega_{self.drive_body}"))
 
     def actuated_inputs(self) -> tuple[str, ...]:
         return (self.input,)
 
     def reset(self) -> None:
+        if self.compiled is not None:
+            self.compiled.reset()
         self._w = None
         self._t = None
 
@@ -147,6 +166,8 @@ class BrakeController(Controller):
 
     def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
         o, m = self.options, self.context.model
+        if self.compiled is not None:
+            return compiled_action(self, t, measurement, estimate, self.input, self.context.target_speed(t))
         wb = body_speed(m, self.body, estimate, measurement, o.use_estimate)
         wd = body_speed(m, self.drive_body, estimate, measurement, o.use_estimate) if o.gain_relative > 0 else 0.0
         wb, wd = self._filtered(t, (wb, wd))

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import Mapping
 
 from mitigate.controllers.base import Action, Controller, ControlContext, reading
+from mitigate.controllers.compiled import IMPLEMENTATIONS, compiled_action, compiled_law, law_config
 from mitigate.controllers.tuning import drive_speed_channel, first_order, np_clip, tuning_for
 from mitigate.tunables import Tunable
 from models.checks import check_options, option
@@ -46,6 +47,8 @@ class DOSKILOptions:
     gain_factor : multiplies the derived gain [-] (2: the sweep's compromise between severity and pin wear)
     n_min, n_max : force range [N] (n_max 0: the servo's range)
     tau : low-pass of the measured speeds [s] (0: 1/80 of the rig's stick-slip period; rig3 29 ms)
+    implementation : "c": the step as one compiled C call (csrc/ss_laws.c, the one ``mitigate
+        export`` writes out); "python": the reference step below
     """
 
     input: str = option("", what="a servo input name")
@@ -54,6 +57,7 @@ class DOSKILOptions:
     n_min: float = option(0.0, lo=0.0, unit="N")
     n_max: float = option(0.0, lo=0.0, unit="N")
     tau: float = option(0.0, lo=0.0, unit="s")
+    implementation: str = option("c", choices=IMPLEMENTATIONS)
 
     def __post_init__(self):
         check_options(self)
@@ -97,15 +101,26 @@ class DOSKIL(Controller):
         a = m.actuator(self.input)
         self.n_min = max(options.n_min, a.n_min)
         self.n_max = options.n_max or a.n_max
+        #: the compiled step (csrc/ss_laws.c); None: the Python reference
+        self.compiled, self.compile_status = compiled_law(self)
         self.reset()
+
+    def c_config(self):
+        """The law's C configuration, the channels it reads, the estimates it reads (none)."""
+        return law_config("doskil", n_ch=2, ch_body=0, ch_drive=1, period=self.context.period, gain=self.gain,
+                          tau=self.tau, n_min=self.n_min, n_max=self.n_max), (self.body_ch, self.top_ch), ()
 
     def actuated_inputs(self) -> tuple[str, ...]:
         return (self.input,)
 
     def reset(self) -> None:
+        if self.compiled is not None:
+            self.compiled.reset()
         self._d = None
 
     def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
+        if self.compiled is not None:
+            return compiled_action(self, t, measurement, estimate, self.input, 0.0, self.context.scheduled(t, self.input))
         d = reading(measurement, self.body_ch) - reading(measurement, self.top_ch)
         self._d = d if self._d is None else first_order(self._d, d, self.context.period, self.tau)
         n = self.context.scheduled(t, self.input) + self.gain * self._d

@@ -76,8 +76,10 @@ class ExportedLibrary:
         for name in ("reset", "destroy"):
             getattr(lib, f"{p}_{name}").argtypes = [ctypes.c_void_p]
         self._solve = getattr(lib, f"{p}_last_solve_time")
-        self._solve.restype = ctypes.c_double
-        self._solve.argtypes = [ctypes.c_void_p]
+        self._step_time = getattr(lib, f"{p}_last_step_time")
+        for f in (self._solve, self._step_time):
+            f.restype = ctypes.c_double
+            f.argtypes = [ctypes.c_void_p]
         self._prefix = p
         self.inputs = tuple(self.manifest["inputs"])
         self.outputs = tuple(self.manifest["outputs"])
@@ -105,7 +107,13 @@ class ExportedLibrary:
 
     @property
     def last_solve_time(self) -> float:
+        """The controller's last solve [s], timed inside the library (a law: its call)."""
         return float(self._solve(self._s))
+
+    @property
+    def last_step_time(self) -> float:
+        """The last whole step [s] (the estimator's update and the controller), timed inside the library."""
+        return float(self._step_time(self._s))
 
     def __del__(self):
         s = getattr(self, "_s", None)

@@ -35,6 +35,14 @@ class DriveSetpointLaw(Controller):
     def actuated_inputs(self) -> tuple[str, ...]:
         return (self.context.model.drive_input,)
 
+    def drive_config(self, **law_fields) -> tuple[dict, tuple[str, ...]]:
+        """The C configuration's fields of the drive's loop and pipe torque (with ``law_fields``)
+        and the channels it reads (:mod:`mitigate.controllers.compiled`)."""
+        ctx = self.context
+        fields = dict(n_ch=2, ch_drive=0, ch_torque=1, torque_drive=int(self.torque_drive), period=ctx.period,
+                      Kp=self.Kp, Ki=self.Ki, torque_max=ctx.torque_max, **self.pipe.c_fields(), **law_fields)
+        return fields, (self.speed_ch, self.pipe.torque_ch)
+
     def stiff_loop(self, e: float, T_pipe: float) -> Action:
         """A torque drive's command ``Kp e + I`` for the speed error ``e`` [rad/s] within
         ``+-torque_max``; the integral starts at ``T_pipe`` [N m] and holds while the command is

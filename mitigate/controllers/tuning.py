@@ -220,8 +220,18 @@ class PipeTorque:
         self.dt = context.period
         self.tau, self.tau_acc = tau, tau_acc
         # the sensor reads T_pipe + J w' + friction(w) (models.rig.drives.Drive.pipe_torque_terms)
-        self.J, self.friction = m.drive.pipe_torque_terms(m, m.sensor_of(self.torque_ch), P)
+        sensor = m.sensor_of(self.torque_ch)
+        self.J, self.friction = m.drive.pipe_torque_terms(m, sensor, P)
+        #: ``(eta, Tf, Cm, eps)`` of the motor friction the torque channel includes, or None (the C core's form)
+        self.motor = m.drive.pipe_torque_loss(m, sensor, P)
         self.reset()
+
+    def c_fields(self) -> dict:
+        """Its values as fields of the laws' C configuration (:data:`mitigate.controllers.compiled.LAW_CONFIG`)."""
+        eta, Tf, Cm, eps = self.motor or (0.0, 0.0, 0.0, 0.0)
+        return dict(pipe_J=float(self.J), tau_pipe=float(self.tau), tau_acc=float(self.tau_acc),
+                    motor_friction=int(self.motor is not None), eta=float(eta), Tf=float(Tf), Cm=float(Cm),
+                    eps_motor=float(eps))
 
     def reset(self) -> None:
         self._w = None

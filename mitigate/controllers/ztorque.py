@@ -38,6 +38,7 @@ from typing import Mapping
 
 from models.checks import check_options, option
 from mitigate.controllers.base import Action, ControlContext, reading
+from mitigate.controllers.compiled import IMPLEMENTATIONS, compiled_action, compiled_law, law_config
 from mitigate.controllers.setpoint import DriveSetpointLaw
 from mitigate.controllers.tuning import PipeTorque, first_order, np_clip, tuning_for
 from mitigate.tunables import Tunable
@@ -62,6 +63,8 @@ class ZTorqueOptions:
     tau_lp : low-pass time constant [s] (0: 1/100 of the stick-slip period)
     band : the set-point stays within the programme +- band [rad/s] (0: the programme's speed)
     kp_factor, ki : a torque drive's stiff loop ``Kp = kp_factor Z`` [-], ``Ki`` [N m/rad] (0: ``5 J_drive``, NORCE)
+    implementation : "c": the step as one compiled C call (csrc/ss_laws.c, the one ``mitigate
+        export`` writes out); "python": the reference step below
     """
 
     z: float = option(0.35, lo=0.0)
@@ -71,6 +74,7 @@ class ZTorqueOptions:
     band: float = option(0.0, lo=0.0, unit="rad/s")
     kp_factor: float = option(50.0, lo=0.0, lo_open=True)
     ki: float = option(0.0, lo=0.0, unit="N m/rad")
+    implementation: str = option("c", choices=IMPLEMENTATIONS)
 
     def __post_init__(self):
         check_options(self)
@@ -102,7 +106,14 @@ class ZTorque(DriveSetpointLaw):
         if self.torque_drive:
             self.Kp = min(self.Kp, t.J_drive / context.period, self._kp_noise_bound(context))
         self.Ki = options.ki or 5.0 * t.J_drive
+        #: the compiled step (csrc/ss_laws.c); None: the Python reference
+        self.compiled, self.compile_status = compiled_law(self)
         self.reset()
+
+    def c_config(self):
+        """The law's C configuration, the channels it reads, the estimates it reads (none)."""
+        fields, channels = self.drive_config(gain=self.gain, tau_hp=self.tau_hp, band=self.options.band)
+        return law_config("ztorque", **fields), channels, ()
 
     def _kp_noise_bound(self, context) -> float:
         """A torque drive's ``Kp`` at which the speed channel's noise (encoder quantisation
@@ -117,12 +128,16 @@ class ZTorque(DriveSetpointLaw):
         return NOISE_TORQUE_FRACTION * T_nom / sd if T_nom > 0 and sd > 1e-9 else math.inf
 
     def reset(self) -> None:
+        if self.compiled is not None:
+            self.compiled.reset()
         self.pipe.reset()
         self._lp = None          # the slow part of the pipe torque (its high-pass is T - slow)
         self._I = None
 
     def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
         m, dt = self.context.model, self.context.period
+        if self.compiled is not None:
+            return compiled_action(self, t, measurement, estimate, m.drive_input, self.context.target_speed(t))
         T = self.pipe.update(measurement)
         self._lp = T if self._lp is None else first_order(self._lp, T, dt, self.tau_hp)
         hp = T - self._lp

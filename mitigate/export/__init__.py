@@ -6,15 +6,21 @@ scenario's estimator, a self-contained folder::
 
     include/<prefix>.h      the API: create(params) / step(t, in, out) / reset / destroy, the layout
                             of in[], out[] and params[] with names and units
-    src/                    the C cores (the workbench's own: ss_nmpc.c, ss_ekf.c, ss_common.c), the
-                            CasADi-generated functions, the glue with the exported defaults
-    vendor/                 hpipm and blasfeo as the casadi wheel ships them (mitigate.export.files)
+    src/                    the C cores (the workbench's own: ss_nmpc.c or ss_laws.c, ss_ekf.c,
+                            ss_common.c), the CasADi-generated functions, the glue with the exported
+                            defaults
+    vendor/                 hpipm and blasfeo as the casadi wheel ships them, for the NMPC
+                            (mitigate.export.files)
     test/replay.c           the workbench's logged run through the library, checked to 1e-9, with
                             allocations after create counted; test/reference.csv its data
     CMakeLists.txt, Makefile, README.md (the API), export.json (what was exported, from what)
 
-The workbench's NMPC and EKF run these very cores (``implementation = "c"``, ``compile = true``), so
-the exported controller and the benchmarked one cannot drift; the reference run checks it.
+Every kind exports through the same glue (:mod:`mitigate.export.glue`): the NMPC with any input set
+(:mod:`mitigate.export.nmpc`), SoftSpeed, Z-Torque, D-OSKIL and the brake
+(:mod:`mitigate.export.laws`) each describe their commands, channels, runtime parameters and a small
+C adapter.  The workbench's controllers and EKF run these very cores (the NMPC's and the laws'
+``implementation = "c"``, the EKF's ``compile = true``), so the exported controller and the
+benchmarked one cannot drift; the reference run checks it.
 """
 
 from __future__ import annotations
@@ -37,8 +43,8 @@ from mitigate.export.interface import Interface, c_name
 
 __all__ = ["export_controller", "ExportResult", "EXPORTABLE", "build_export"]
 
-#: controller kinds that export (the NMPC with any input set)
-EXPORTABLE = ("nmpc",)
+#: controller kinds that export (the NMPC with any input set; the industry's laws and the brake)
+EXPORTABLE = ("nmpc", "softspeed", "ztorque", "doskil", "brake")
 
 
 @dataclass(frozen=True)
@@ -108,9 +114,10 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
     ConfigError : an unknown controller, a kind that does not export, an estimator other than the
         EKF, ``out`` that exists; nothing is written then.
     """
+    from estimators.online.compiled import EKF_CONFIG, EKF_SOURCES, ekf_functions
     from mitigate.controllers.factory import context_for, make_controller
     from mitigate.export.files import cmake_lists, makefile, readme, replay_program, vendor_hpipm
-    from mitigate.export.nmpc import nmpc_functions, nmpc_glue
+    from mitigate.export.glue import glue_source
     from mitigate.scenario import Scenario, load_scenario
 
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
@@ -118,7 +125,7 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
     spec = sc.controllers[i]
     if spec.kind not in EXPORTABLE:
         raise ConfigError(f"{sc.where}: controller {controller!r} is of kind {spec.kind!r}; export supports "
-                          f"{', '.join(EXPORTABLE)} (the industry's laws are not exported yet)")
+                          f"{', '.join(EXPORTABLE)}")
     est_kind = (sc.estimator or {}).get("kind", "ekf")
     if est_kind != "ekf":
         raise ConfigError(f"{sc.where}: estimator.kind = {est_kind!r}; export supports the EKF (the MHE is not "
@@ -129,37 +136,36 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
     prefix = prefix or c_name(controller).lower()
     if not prefix.isidentifier():
         raise ConfigError(f"export: prefix must be a C identifier, got {prefix!r}")
-    ctrl = make_controller(spec, context_for(sc, i))
+    ctx = context_for(sc, i)
+    ctrl = make_controller(spec, ctx)
     if getattr(ctrl, "compiled", None) is None:
-        raise ConfigError(f"{sc.where}: controller {controller!r} does not run the compiled step (it needs solver = "
-                          f"'rti' or 'sqp', qp_solver = 'hpipm', compile = true, implementation = 'c')")
+        raise ConfigError(f"{sc.where}: controller {controller!r} does not run the compiled step (it needs "
+                          + ("solver = 'rti' or 'sqp', qp_solver = 'hpipm', compile = true, implementation = 'c')"
+                             if spec.kind == "nmpc" else "implementation = 'c' and a C compiler)"))
     ekf = _estimator(sc)
     if not getattr(ekf, "compiled", False):
         raise ConfigError(f"{sc.where}: the EKF did not compile ({getattr(ekf, 'compile_status', '')}); export needs "
                           f"a C compiler")
+    if list(ekf.em.p) != list(ctx.params.vector()):
+        raise ConfigError("export: the estimator's and the controller's rig parameters differ; export needs one set")
+    kind = _kind(spec.kind)(ctrl, ekf)
     funs = f"{prefix}_gen"
-    gen_src, gen_hdr = generate(nmpc_functions(ctrl, ekf), funs)
-    glue, hdr, itf = nmpc_glue(prefix, ctrl, ekf, sc.control.every, sc.sim.start != "sliding", funs)
-    from estimators.online.compiled import EKF_CONFIG, EKF_SOURCES
-    from mitigate.controllers.nmpc.compiled import NMPC_CONFIG, NMPC_SOURCES
+    gen_src, gen_hdr = generate(list(kind.functions) + list(ekf_functions(ekf)), funs)
+    glue, hdr, itf = glue_source(prefix, kind, sc.model, ctx.params, ekf, sc.control.every, sc.sim.start != "sliding",
+                                 funs)
     src = read_source("ss_common.h", "ss_common.c", folder=CSRC)
-    src.update(read_source("ss_nmpc.h", "ss_nmpc.c", folder=NMPC_SOURCES))
+    src.update(kind.sources)
     src.update(read_source("ss_ekf.h", "ss_ekf.c", folder=EKF_SOURCES))
-    src["ss_nmpc_config.h"] = NMPC_CONFIG.header()
     src["ss_ekf_config.h"] = EKF_CONFIG.header()
     src[f"{funs}.c"], src[f"{funs}_funs.h"] = gen_src, gen_hdr
     src[f"{prefix}.c"] = glue
     sources = sorted(n for n in src if n.endswith(".c"))
-    notes = [f"the OCP: horizon {ctrl.spec.horizon}, interval {ctrl.cfg.dt:g} s, {ctrl.nsub} RK4 substeps, friction "
-             f"regularisation {ctrl.cfg.eps:.4g} rad/s, inputs {', '.join(ctrl.inputs)}",
-             f"the supervision: stick-slip period {ctrl.stick_slip_period:.4g} s, hold gain {ctrl.cfg.hold_gain:g}, "
-             f"speed trim {ctrl.supervisor.trim_tau:.4g} s, force filter {ctrl.cfg.force_filter:.4g} s",
-             f"the EKF: its states ({', '.join(ekf.names)}), noise levels and prior, from the rig file and the "
-             f"scenario's sensors",
-             f"the DAQ period {sc.dt:g} s; the controller runs every {sc.control.every} period(s)",
-             "the cost's scales (the nominal speed, the servos' n_max at export)",
-             "changing a rig parameter changes the prediction and the estimator, not the settings derived from "
-             "it above: re-export for a rig that changed much"]
+    notes = list(kind.notes) + [
+        f"the EKF: its states ({', '.join(ekf.names)}), noise levels and prior, from the rig file and the "
+        f"scenario's sensors",
+        f"the DAQ period {sc.dt:g} s; the controller runs every {sc.control.every} period(s)",
+        "changing a rig parameter changes the estimator (and an NMPC's prediction), not the settings derived "
+        "from it above: re-export for a rig that changed much"]
     rows = 0
     with tempfile.TemporaryDirectory(prefix=".export_", dir=str(out.parent if out.parent.exists() else Path("."))) as tmp:
         d = Path(tmp) / "x"
@@ -172,12 +178,12 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
             files.append(f"src/{name}")
         (d / "include" / f"{prefix}.h").write_text(hdr)
         files.append(f"include/{prefix}.h")
-        files += [f"vendor/{f}" for f in vendor_hpipm(d / "vendor")]
-        (d / "CMakeLists.txt").write_text(cmake_lists(prefix, sources))
-        (d / "Makefile").write_text(makefile(prefix, sources))
+        if kind.qp:
+            files += [f"vendor/{f}" for f in vendor_hpipm(d / "vendor")]
+        (d / "CMakeLists.txt").write_text(cmake_lists(prefix, sources, qp=kind.qp))
+        (d / "Makefile").write_text(makefile(prefix, sources, qp=kind.qp))
         (d / "test" / "replay.c").write_text(replay_program(prefix, itf))
-        what = f"the NMPC ({', '.join(ctrl.inputs)}) with an EKF on rig {sc.model.name!r}"
-        (d / "README.md").write_text(readme(prefix, itf, what, sc.where, notes))
+        (d / "README.md").write_text(readme(prefix, itf, kind.what, sc.where, notes, qp=kind.qp))
         files += ["CMakeLists.txt", "Makefile", "test/replay.c", "README.md"]
         if reference:
             rows = _write_reference(sc, i, itf, float(reference), d / "test" / "reference.csv")
@@ -195,6 +201,15 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
     return ExportResult(Status.OK, f"exported {controller!r} as {prefix} ({len(itf.inputs)} inputs, "
                                    f"{len(itf.outputs)} outputs, {len(itf.params)} parameters) to {out}",
                         out, prefix, tuple(files), itf, rows)
+
+
+def _kind(kind: str):
+    """The function describing an exportable kind (:class:`mitigate.export.glue.KindExport`)."""
+    if kind == "nmpc":
+        from mitigate.export.nmpc import nmpc_export
+        return nmpc_export
+    from mitigate.export.laws import law_export
+    return law_export
 
 
 def _write_reference(sc, index: int, itf: Interface, seconds: float, path: Path) -> int:

@@ -1,322 +1,145 @@
-"""The exported NMPC with its EKF: the layout of its step and the C glue around the two cores.
+"""The NMPC as an exported kind: its runtime parameters and the C adapter around its core.
 
-The glue (``<prefix>.c``) holds the exported defaults (the C cores' configurations, written by
-:meth:`models.cbuild.CStruct.c_initialiser` from the workbench's own resolved controller and filter),
-applies the runtime parameters in ``create``, and runs one DAQ period per ``step`` exactly as the
-workbench's closed loop does (:func:`mitigate.closedloop.run_closed_loop`): the estimator's update
-on the inputs sent over the last sample (measured normal forces where their load cells read them),
-then, while enabled, the controller every ``[control] every`` samples, its action held in between.
+The adapter (:mod:`mitigate.export.glue`) holds the NMPC's exported defaults (the C core's
+configuration, written by :meth:`models.cbuild.CStruct.c_initialiser` from the workbench's own
+resolved controller), applies the runtime parameters (the rig's, the cost's weights, the set-point's
+band and rate, the servos' ranges and rates, a torque drive's limit) and hands the core the
+estimate in its canonical layout (the rig's states, then the load factors the estimator has).
 """
 
 from __future__ import annotations
 
-import numpy as np
-
-from estimators.online.compiled import EKF_CONFIG, ekf_config, ekf_functions
-from mitigate.controllers.nmpc.compiled import NMPC_CONFIG, channels_read, nmpc_config
+from mitigate.controllers.nmpc.compiled import NMPC_CONFIG, NMPC_SOURCES, channels_read, nmpc_config
 from mitigate.controllers.nmpc.options import WEIGHT_NAMES
-from mitigate.export.interface import Interface, Port, c_name, channel_union
-from models.errors import ConfigError
+from mitigate.export.glue import KindExport, Layout, c_array
+from mitigate.export.interface import Port
+from models.cbuild import read_source
 
-__all__ = ["nmpc_interface", "nmpc_glue", "nmpc_functions"]
-
-
-def _measured_inputs(model) -> list[int]:
-    """Inputs the estimator takes as measured (a channel of that name that no encoder writes)."""
-    return [j for j, n in enumerate(model.inputs) if n in model.measured and model.sensor_of(n) is not None
-            and model.sensor_of(n).kind != "encoder"]
+__all__ = ["nmpc_export"]
 
 
-def nmpc_functions(nmpc, ekf) -> list:
-    """Every generated function, in one file: the NMPC's stages and forward step, the EKF's."""
-    return [nmpc.ocp.evaluator.fn, nmpc.ocp.F] + ekf_functions(ekf)
-
-
-def nmpc_interface(prefix: str, nmpc, ekf) -> Interface:
-    m = nmpc.model
-    units = dict(m.output_units())
-    em = ekf.em
-    chans = channel_union(em.channels, channels_read(nmpc), [m.inputs[j] for j in _measured_inputs(m)])
-    ins = [Port(c, units.get(c, ""), doc="DAQ channel (NaN: missing)") for c in chans]
-    ins += [Port(f"programme:{n}", units.get(n, ""), doc="the programme's value now") for n in m.inputs]
-    if nmpc._torque_drive:
-        ins.append(Port("target_speed", "rad/s", doc="the objective body's target speed (torque drive)"))
-    ins.append(Port("enable", "-", doc="non-zero: the controller sets its inputs; zero: the programme does"))
-    outs = [Port(n, units.get(n, ""), doc="command") for n in nmpc.inputs]
-    outs += [Port(f"estimate:{n}", u, doc="the estimator's state") for n, u in zip(em.names, em.units)]
-    p = nmpc.params
-    names = list(m.param_names)
-    pars = [Port(f"rig:{n}", p.spec(n).unit or "", float(p[n]), doc="rig parameter") for n in names]
+def _params(nmpc) -> tuple[Port, ...]:
+    """The NMPC's runtime parameters after the rig's: weights, set-point band and rate, servos, torque limit."""
     w = nmpc.weights
-    pars += [Port(f"weight:{n}", "-", float(getattr(w, n)), doc="NMPC cost weight") for n in WEIGHT_NAMES]
+    pars = [Port(f"weight:{n}", "-", float(getattr(w, n)), doc="NMPC cost weight") for n in WEIGHT_NAMES]
     cfg = nmpc.cfg
-    sp = "N m" if nmpc._torque_drive else "rad/s"
+    drive = nmpc.model.drive
     if nmpc.drives:
-        pars.append(Port("setpoint_band", sp, cfg.setpoint_band, doc="the set-point stays within the programme +- this"))
-        pars.append(Port("setpoint_rate", sp + "/s", cfg.setpoint_rate, doc="the set-point's rate limit"))
+        pars.append(Port("setpoint_band", drive.unit, cfg.setpoint_band, doc="the set-point stays within the programme +- this"))
+        pars.append(Port("setpoint_rate", drive.rate_unit, cfg.setpoint_rate, doc="the set-point's rate limit"))
     for a, n in zip(nmpc.start.acts, nmpc.servos):
         pars += [Port(f"{n}:n_min", "N", float(a.n_min), doc="servo range"),
                  Port(f"{n}:n_max", "N", float(a.n_max), doc="servo range"),
                  Port(f"{n}:rate_max", "N/s", float(a.rate_max), doc="servo rate limit")]
-    if nmpc._torque_drive and nmpc.drives:
+    if drive.reverses and nmpc.drives:
         pars.append(Port("torque_max", "N m", float(nmpc.context.torque_max), doc="the drive's torque limit"))
-    return Interface(prefix, tuple(ins), tuple(outs), tuple(pars))
+    return tuple(pars)
 
 
-def _arr(name: str, values, typ: str = "int") -> str:
-    vals = list(values)
-    body = ", ".join(str(int(v)) if typ == "int" else repr(float(v)) for v in vals) if vals else "0"
-    return f"static const {typ} {name}[{max(len(vals), 1)}] = {{{body}}};"
+def nmpc_export(nmpc, ekf) -> KindExport:
+    """The NMPC (any input set) as an exported kind."""
+    m, L = nmpc.model, nmpc.layout
+    files = read_source("ss_nmpc.h", "ss_nmpc.c", folder=NMPC_SOURCES)
+    files["ss_nmpc_config.h"] = NMPC_CONFIG.header()
+    ctrl = nmpc
+
+    def adapter(lay: Layout) -> str:
+        par = list(lay.params)
+        servo_par = [[par.index(f"{n}:n_min"), par.index(f"{n}:n_max"), par.index(f"{n}:rate_max")] for n in ctrl.servos]
+        defs = "\n".join([
+            f"#define NX {m.nx}", f"#define NLOAD {len(ctrl.start.load_keys)}", f"#define NCN {max(len(channels_read(ctrl)), 1)}",
+            f"#define NQ {L.nq}", f"#define Q_P {L.q_p}", f"#define Q_W {L.q_w}", f"#define NW {len(WEIGHT_NAMES)}",
+            f"#define NS {max(L.ns, 1)}", f"#define NSERVO {L.ns}", f"#define DRIVES {int(ctrl.drives)}",
+            f"#define W_PAR {par.index('weight:' + WEIGHT_NAMES[0])}",
+            f"#define SB_PAR {par.index('setpoint_band') if 'setpoint_band' in par else -1}",
+            f"#define SR_PAR {par.index('setpoint_rate') if 'setpoint_rate' in par else -1}",
+            f"#define TM_PAR {par.index('torque_max') if 'torque_max' in par else -1}",
+        ])
+        tables = "\n".join([
+            c_array("nmpc_ch", [lay.inputs.index(c) for c in channels_read(ctrl)]),
+            c_array("load_src", [lay.states.index(k) if k in lay.states else -1 for k in ctrl.start.load_keys]),
+            c_array("servo_par", [x for r in servo_par for x in r]),
+            c_array("servo_lag", [float(t) if t > 0 else float(ctrl.cfg.dt) for t in ctrl.spec.taus], "double"),
+        ])
+        return _ADAPTER.format(defs=defs, tables=tables, nmpc_default=NMPC_CONFIG.c_initialiser("nmpc_default", nmpc_config(ctrl)),
+                               stage=f"{lay.funs}_{ctrl.ocp.evaluator.fn.name()}", fwd=f"{lay.funs}_{ctrl.ocp.F.name()}")
+
+    notes = (f"the OCP: horizon {nmpc.spec.horizon}, interval {nmpc.cfg.dt:g} s, {nmpc.nsub} RK4 substeps, friction "
+             f"regularisation {nmpc.cfg.eps:.4g} rad/s, inputs {', '.join(nmpc.inputs)}",
+             f"the supervision: stick-slip period {nmpc.stick_slip_period:.4g} s, hold gain {nmpc.cfg.hold_gain:g}, "
+             f"speed trim {nmpc.supervisor.trim_tau:.4g} s, force filter {nmpc.cfg.force_filter:.4g} s",
+             "the cost's scales (the nominal speed, the servos' n_max at export)")
+    return KindExport(what=f"the NMPC ({', '.join(nmpc.inputs)}) with an EKF on rig {m.name!r}",
+                      commands=tuple(nmpc.inputs), channels=channels_read(nmpc), target=True, params=_params(nmpc),
+                      functions=(nmpc.ocp.evaluator.fn, nmpc.ocp.F), sources=files, adapter=adapter, qp=True,
+                      notes=notes)
 
 
-def _strings(name: str, values) -> str:
-    body = ", ".join('"' + v.replace('"', "'") + '"' for v in values)
-    return f"static const char* const {name}[{max(len(values), 1)}] = {{{body or '0'}}};"
-
-
-def nmpc_glue(prefix: str, nmpc, ekf, every: int, start_at_rest: bool, funs: str) -> tuple[str, str, Interface]:
-    """``(<prefix>.c, <prefix>.h, interface)`` for an NMPC with its EKF."""
-    m, em = nmpc.model, ekf.em
-    if list(em.p) != list(nmpc.params.vector()):
-        raise ConfigError("export: the estimator's and the controller's rig parameters differ; export needs one set")
-    itf = nmpc_interface(prefix, nmpc, ekf)
-    P = prefix.upper()
-    ncfg, ecfg = nmpc_config(nmpc), ekf_config(ekf)
-    in_names = [p.name for p in itf.inputs]
-    ekf_ch = [in_names.index(c) for c in em.channels]
-    nmpc_ch = [in_names.index(c) for c in channels_read(nmpc)]
-    meas = _measured_inputs(m)
-    meas_in = [in_names.index(m.inputs[j]) if j in meas else -1 for j in range(m.nu)]
-    prog_in = [in_names.index(f"programme:{n}") for n in m.inputs]
-    target_in = in_names.index("target_speed") if "target_speed" in in_names else -1
-    enable_in = in_names.index("enable")
-    cmd_input = [m.inputs.index(n) for n in nmpc.inputs]
-    load_src = [em.names.index(k) if k in em.names else -1 for k in nmpc.start.load_keys]
-    L = nmpc.layout
-    n_rig_p = len(em.p)
-    # where each runtime parameter goes
-    par = [p.name for p in itf.params]
-    servo_lag = [float(t) if t > 0 else float(nmpc.cfg.dt) for t in nmpc.spec.taus]
-    servo_par = [[par.index(f"{n}:n_min"), par.index(f"{n}:n_max"), par.index(f"{n}:rate_max")] for n in nmpc.servos]
-    sb = par.index("setpoint_band") if "setpoint_band" in par else -1
-    sr = par.index("setpoint_rate") if "setpoint_rate" in par else -1
-    tm = par.index("torque_max") if "torque_max" in par else -1
-    fn_stage, fn_fwd = nmpc.ocp.evaluator.fn.name(), nmpc.ocp.F.name()
-    efns = ekf_functions(ekf)
-    fn_ekf = efns[0].name()
-    fn_ode = efns[1].name() if len(efns) > 1 else None
-    nv, nu, nxe, ns = L.nv, m.nu, em.nx, L.ns
-    defs = "\n".join([
-        f"#define NIN {len(itf.inputs)}", f"#define NOUT {len(itf.outputs)}", f"#define NPAR {len(itf.params)}",
-        f"#define NU {nu}", f"#define NV {nv}", f"#define NS {max(ns, 1)}", f"#define NSERVO {ns}",
-        f"#define NXE {nxe}", f"#define NX {m.nx}", f"#define NLOAD {len(load_src)}",
-        f"#define NCE {max(len(ekf_ch), 1)}", f"#define NCN {max(len(nmpc_ch), 1)}", f"#define NRIGP {n_rig_p}",
-        f"#define NQ {L.nq}", f"#define Q_P {L.q_p}", f"#define Q_W {L.q_w}", f"#define EVERY {int(every)}",
-        f"#define START_AT_REST {int(bool(start_at_rest))}", f"#define U_DRIVE {L.u_drive}",
-        f"#define TARGET_IN {target_in}", f"#define ENABLE_IN {enable_in}", f"#define DRIVES {int(nmpc.drives)}",
-        f"#define SB_PAR {sb}", f"#define SR_PAR {sr}", f"#define TM_PAR {tm}",
-    ])
-    tables = "\n".join([
-        _arr("ekf_ch", ekf_ch), _arr("nmpc_ch", nmpc_ch), _arr("meas_in", meas_in), _arr("prog_in", prog_in),
-        _arr("cmd_input", cmd_input), _arr("load_src", load_src), _arr("servo_par", [x for r in servo_par for x in r]),
-        _arr("servo_lag", servo_lag, "double"),
-        _arr("param_default", [p.value for p in itf.params], "double"),
-        _strings("param_names", [p.name for p in itf.params]), _strings("param_units", [p.unit for p in itf.params]),
-        _strings("in_names", in_names), _strings("in_units", [p.unit for p in itf.inputs]),
-        _strings("out_names", [p.name for p in itf.outputs]), _strings("out_units", [p.unit for p in itf.outputs]),
-    ])
-    src = _GLUE.format(P=P, p=prefix, funs=funs, defs=defs, tables=tables,
-                       nmpc_default=NMPC_CONFIG.c_initialiser("nmpc_default", ncfg),
-                       ekf_default=EKF_CONFIG.c_initialiser("ekf_default", ecfg),
-                       stage=f"{funs}_{fn_stage}", fwd=f"{funs}_{fn_fwd}", ekfstep=f"{funs}_{fn_ekf}",
-                       ode=f"&{funs}_{fn_ode}" if fn_ode else "NULL")
-    hdr = header(prefix, itf, f"NMPC ({', '.join(nmpc.inputs)}) with an EKF on rig {m.name!r}")
-    return src, hdr, itf
-
-
-def header(prefix: str, itf: Interface, what: str) -> str:
-    """The public header of an exported controller: the API and the layout of in[], out[], params[]."""
-    P = prefix.upper()
-    lines = [f"/* {prefix}: {what}.", " * Generated by `mitigate export`; the API is in README.md.", " */",
-             f"#ifndef {P}_H", f"#define {P}_H", "", "#ifdef __cplusplus", 'extern "C" {', "#endif", "",
-             "#if defined(_WIN32)", f"#define {P}_API __declspec(dllexport)", "#else",
-             f'#define {P}_API __attribute__((visibility("default")))', "#endif", "",
-             f"/* status of a step */", f"enum {{ {P}_OK = 0, {P}_HOLD = 1, {P}_FALLBACK = 2, {P}_FAILED = 3 }};", ""]
-    for title, ports in (("in[]", itf.inputs), ("out[]", itf.outputs), ("params[]", itf.params)):
-        tag = {"in[]": "IN", "out[]": "OUT", "params[]": "PAR"}[title]
-        lines.append(f"/* {title}: {len(ports)} entries */")
-        lines.append(f"#define {P}_N_{tag} {len(ports)}")
-        for i, p in enumerate(ports):
-            dflt = f", default {p.value!r}" if tag == "PAR" else ""
-            lines.append(f"#define {P}_{tag}_{c_name(p.name)} {i}   /* {p.name} [{p.unit or '-'}]{dflt}: {p.doc} */")
-        lines.append("")
-    lines += [f"typedef struct {prefix} {prefix};", "",
-              f"/* a controller with the runtime parameters params[{P}_N_PAR] (NULL: the exported defaults);",
-              " * the one allocation: NULL if it fails or a parameter is not finite */",
-              f"{P}_API {prefix}* {prefix}_create(const double* params);",
-              "/* one DAQ period at time t [s]: the estimator's update, then (while enabled) the controller;",
-              f" * returns {P}_OK, {P}_HOLD (the last plan held between OCP intervals), {P}_FALLBACK or {P}_FAILED */",
-              f"{P}_API int {prefix}_step({prefix}* s, double t, const double* in, double* out);",
-              "/* back to the state after create (estimator prior, no plan) */",
-              f"{P}_API void {prefix}_reset({prefix}* s);",
-              f"{P}_API void {prefix}_destroy({prefix}* s);",
-              "/* wall time of the last OCP solve [s] (0 before the first) and of the last step [s] */",
-              f"{P}_API double {prefix}_last_solve_time(const {prefix}* s);",
-              f"{P}_API double {prefix}_last_step_time(const {prefix}* s);",
-              "/* counts since create/reset: steps, fallbacks (estimator or controller), solver failures */",
-              f"{P}_API long {prefix}_count(const {prefix}* s, int which);   /* 0 steps, 1 fallbacks, 2 failures */",
-              "/* the layout's names and units, and the exported defaults */",
-              f"{P}_API const char* {prefix}_in_name(int i);", f"{P}_API const char* {prefix}_in_unit(int i);",
-              f"{P}_API const char* {prefix}_out_name(int i);", f"{P}_API const char* {prefix}_out_unit(int i);",
-              f"{P}_API const char* {prefix}_param_name(int i);", f"{P}_API const char* {prefix}_param_unit(int i);",
-              f"{P}_API double {prefix}_param_default(int i);", "",
-              "#ifdef __cplusplus", "}", "#endif", "#endif", ""]
-    return "\n".join(lines)
-
-
-_GLUE = r"""/* {p}: the exported controller's step (generated by `mitigate export`; see README.md). */
-#include <math.h>
-#include <stdlib.h>
-#include <string.h>
-
-#include "{p}.h"
-#include "ss_common.h"
-#include "ss_ekf.h"
-#include "ss_nmpc.h"
-#include "{funs}_funs.h"
+_ADAPTER = r"""#include "ss_nmpc.h"
 
 {defs}
 
 {nmpc_default}
-{ekf_default}
 {tables}
 
-struct {p} {{
-    ssn_mem* nmpc;
-    sse_mem* ekf;
-    int started, was_enabled, act_n, act_status;
-    long k_ctrl, n_steps, n_fallbacks, n_failures;
-    double last_solve, last_step;
-    double u_prev[NU], u_est[NU], u[NU], prog[NU], act[NV], ye[NCE], yn[NCN], xe[NX + NLOAD + 1];
-}};
+typedef ssn_mem ctl_mem;
 
-{P}_API {p}* {p}_create(const double* params) {{
-    const double* par = params ? params : param_default;
+/* the core's configuration with the runtime parameters (the arrays it points to live here) */
+typedef struct {{
+    ssn_config c;
     double q0[NQ], lo[NV], hi[NV], rate[NV], nmin[NS], nmax[NS], srate[NS], dg[NS];
-    ssn_config nc = nmpc_default;
-    sse_config ec = ekf_default;
-    size_t s1, s2, head = (sizeof(struct {p}) + 63) / 64 * 64;
-    char* block;
-    struct {p}* s;
+}} nmpc_setup;
+
+static void configure(nmpc_setup* b, const double* par) {{
     int i;
-    for (i = 0; i < NPAR; i++) if (!isfinite(par[i])) return NULL;
-    memcpy(q0, nmpc_default.q0, sizeof(q0));
-    for (i = 0; i < NRIGP; i++) q0[Q_P + i] = par[i];
-    for (i = 0; i < 8; i++) q0[Q_W + i] = par[NRIGP + i];
-    memcpy(lo, nmpc_default.lo, sizeof(lo));
-    memcpy(hi, nmpc_default.hi, sizeof(hi));
-    memcpy(rate, nmpc_default.rate, sizeof(rate));
-    if (SB_PAR >= 0) nc.setpoint_band = par[SB_PAR];
-    if (SR_PAR >= 0) rate[0] = par[SR_PAR];
-    if (TM_PAR >= 0) nc.torque_max = par[TM_PAR];
+    b->c = nmpc_default;
+    memcpy(b->q0, nmpc_default.q0, sizeof(b->q0));
+    for (i = 0; i < NRIGP; i++) b->q0[Q_P + i] = par[i];
+    for (i = 0; i < NW; i++) b->q0[Q_W + i] = par[W_PAR + i];
+    memcpy(b->lo, nmpc_default.lo, sizeof(b->lo));
+    memcpy(b->hi, nmpc_default.hi, sizeof(b->hi));
+    memcpy(b->rate, nmpc_default.rate, sizeof(b->rate));
+    if (SB_PAR >= 0) b->c.setpoint_band = par[SB_PAR];
+    if (SR_PAR >= 0) b->rate[0] = par[SR_PAR];
+    if (TM_PAR >= 0) b->c.torque_max = par[TM_PAR];
     for (i = 0; i < NSERVO; i++) {{
         int j = DRIVES + i;
-        nmin[i] = lo[j] = par[servo_par[3 * i]];
-        nmax[i] = hi[j] = par[servo_par[3 * i + 1]];
-        srate[i] = rate[j] = par[servo_par[3 * i + 2]];
-        dg[i] = srate[i] * servo_lag[i];
+        b->nmin[i] = b->lo[j] = par[servo_par[3 * i]];
+        b->nmax[i] = b->hi[j] = par[servo_par[3 * i + 1]];
+        b->srate[i] = b->rate[j] = par[servo_par[3 * i + 2]];
+        b->dg[i] = b->srate[i] * servo_lag[i];
     }}
-    nc.q0 = q0; nc.lo = lo; nc.hi = hi; nc.rate = rate;
-    if (NSERVO) {{ nc.servo_nmin = nmin; nc.servo_nmax = nmax; nc.servo_rate = srate; nc.servo_dg = dg; }}
-    ec.p = par;
-    s1 = ssn_memsize(&nc, &{stage}, &{fwd});
-    s2 = sse_memsize(&ec, &{ekfstep}, {ode});
-    if (!s1 || !s2) return NULL;
-    block = (char*)malloc(head + s1 + s2);
-    if (!block) return NULL;
-    s = (struct {p}*)block;
-    memset(s, 0, sizeof(*s));
-    s->nmpc = ssn_init(block + head, s1, &nc, &{stage}, &{fwd});
-    s->ekf = sse_init(block + head + s1, s2, &ec, &{ekfstep}, {ode});
-    if (!s->nmpc || !s->ekf) {{ free(block); return NULL; }}
-    {p}_reset(s);
-    return s;
+    b->c.q0 = b->q0; b->c.lo = b->lo; b->c.hi = b->hi; b->c.rate = b->rate;
+    if (NSERVO) {{ b->c.servo_nmin = b->nmin; b->c.servo_nmax = b->nmax; b->c.servo_rate = b->srate; b->c.servo_dg = b->dg; }}
 }}
 
-{P}_API void {p}_reset({p}* s) {{
-    ssn_reset(s->nmpc);
-    sse_reset(s->ekf);
-    s->started = s->was_enabled = 0;
-    s->act_n = -1;
-    s->act_status = {P}_OK;
-    s->k_ctrl = s->n_steps = s->n_fallbacks = s->n_failures = 0;
-    s->last_solve = s->last_step = 0.0;
+static size_t ctl_size(const double* par) {{
+    nmpc_setup b;
+    configure(&b, par);
+    return ssn_memsize(&b.c, &{stage}, &{fwd});
 }}
 
-{P}_API void {p}_destroy({p}* s) {{ free(s); }}
+static ctl_mem* ctl_init(void* mem, size_t size, const double* par) {{
+    nmpc_setup b;
+    configure(&b, par);
+    return ssn_init(mem, size, &b.c, &{stage}, &{fwd});
+}}
 
-{P}_API int {p}_step({p}* s, double t, const double* in, double* out) {{
-    double t0 = ss_clock();
-    const double* x;
-    sse_info ei;
+static void ctl_reset(ctl_mem* c) {{ ssn_reset(c); }}
+
+static void ctl_call(ctl_mem* c, double t, const double* in, const double* x, const double* prog, double* act,
+                     ctl_out* r) {{
+    double xe[NX + NLOAD + 1], yn[NCN];
     ssn_info ni;
-    int j, status = {P}_OK, enabled;
-    if (!s->started) {{   /* the inputs over the sample before the first: the programme (at rest: no drive) */
-        for (j = 0; j < NU; j++) s->u_prev[j] = in[prog_in[j]];
-        if (START_AT_REST) s->u_prev[U_DRIVE] = 0.0;
-        s->started = 1;
-    }}
-    /* the estimator: the inputs sent over the last sample, measured forces where their cells read them */
-    for (j = 0; j < NU; j++) {{
-        s->u_est[j] = s->u_prev[j];
-        if (meas_in[j] >= 0 && isfinite(in[meas_in[j]])) s->u_est[j] = in[meas_in[j]];
-    }}
-    for (j = 0; j < NCE; j++) s->ye[j] = ekf_ch[j] >= 0 ? in[ekf_ch[j]] : NAN;
-    sse_update(s->ekf, s->ye, s->u_est, &ei);
-    if (ei.status == SS_FALLBACK) status = {P}_FALLBACK;
-    if (ei.failed) s->n_failures++;
-    x = sse_x(s->ekf);
-    for (j = 0; j < NU; j++) s->u[j] = s->prog[j] = in[prog_in[j]];
-    enabled = isfinite(in[ENABLE_IN]) && in[ENABLE_IN] != 0.0;
-    if (enabled) {{
-        if (!s->was_enabled) {{ ssn_reset(s->nmpc); s->k_ctrl = 0; s->act_n = -1; }}
-        if (s->k_ctrl % EVERY == 0) {{
-            for (j = 0; j < NX; j++) s->xe[j] = x[j];
-            for (j = 0; j < NLOAD; j++) s->xe[NX + j] = load_src[j] >= 0 ? x[load_src[j]] : NAN;
-            for (j = 0; j < NCN; j++) s->yn[j] = nmpc_ch[j] >= 0 ? in[nmpc_ch[j]] : NAN;
-            ssn_step(s->nmpc, t, s->yn, s->xe, 1, s->prog, TARGET_IN >= 0 ? in[TARGET_IN] : 0.0, 0, s->act, &ni);
-            s->act_n = ni.n_u;
-            s->act_status = ni.status;
-            if (ni.planned && !ni.failure) s->last_solve = ni.solve_time;
-            if (ni.failure) s->n_failures++;
-        }}
-        s->k_ctrl++;
-        if (s->act_n > 0) for (j = 0; j < NV; j++) s->u[cmd_input[j]] = s->act[j];
-        if (s->act_status == SS_FALLBACK) status = {P}_FALLBACK;
-        else if (s->act_status == SS_HOLD && status == {P}_OK) status = {P}_HOLD;
-    }}
-    s->was_enabled = enabled;
-    for (j = 0; j < NU; j++) s->u_prev[j] = s->u[j];
-    for (j = 0; j < NV; j++) out[j] = s->u[cmd_input[j]];
-    for (j = 0; j < NXE; j++) out[NV + j] = x[j];
-    for (j = 0; j < NOUT; j++) if (!isfinite(out[j])) status = {P}_FAILED;
-    if (status == {P}_FAILED) for (j = 0; j < NV; j++) out[j] = s->prog[cmd_input[j]];
-    if (status == {P}_FALLBACK) s->n_fallbacks++;
-    s->n_steps++;
-    s->last_step = ss_clock() - t0;
-    return status;
+    int j;
+    for (j = 0; j < NX; j++) xe[j] = x[j];
+    for (j = 0; j < NLOAD; j++) xe[NX + j] = load_src[j] >= 0 ? x[load_src[j]] : NAN;
+    for (j = 0; j < NCN; j++) yn[j] = nmpc_ch[j] >= 0 ? in[nmpc_ch[j]] : NAN;
+    ssn_step(c, t, yn, xe, 1, prog, TARGET_IN >= 0 ? in[TARGET_IN] : 0.0, 0, act, &ni);
+    r->n_u = ni.n_u;
+    r->status = ni.status;
+    r->failure = ni.failure != 0;
+    r->solved = ni.planned && !ni.failure;
+    r->solve = ni.solve_time;
 }}
-
-{P}_API double {p}_last_solve_time(const {p}* s) {{ return s->last_solve; }}
-{P}_API double {p}_last_step_time(const {p}* s) {{ return s->last_step; }}
-{P}_API long {p}_count(const {p}* s, int which) {{
-    return which == 0 ? s->n_steps : which == 1 ? s->n_fallbacks : which == 2 ? s->n_failures : -1;
-}}
-{P}_API const char* {p}_in_name(int i) {{ return i >= 0 && i < NIN ? in_names[i] : NULL; }}
-{P}_API const char* {p}_in_unit(int i) {{ return i >= 0 && i < NIN ? in_units[i] : NULL; }}
-{P}_API const char* {p}_out_name(int i) {{ return i >= 0 && i < NOUT ? out_names[i] : NULL; }}
-{P}_API const char* {p}_out_unit(int i) {{ return i >= 0 && i < NOUT ? out_units[i] : NULL; }}
-{P}_API const char* {p}_param_name(int i) {{ return i >= 0 && i < NPAR ? param_names[i] : NULL; }}
-{P}_API const char* {p}_param_unit(int i) {{ return i >= 0 && i < NPAR ? param_units[i] : NULL; }}
-{P}_API double {p}_param_default(int i) {{ return i >= 0 && i < NPAR ? param_default[i] : NAN; }}
 """

@@ -237,6 +237,12 @@ class Drive:
         the torque the string loads the drive with."""
         return float(model.inertia(self.body, P)), None
 
+    def pipe_torque_loss(self, model, sensor, P):
+        """The loss in :meth:`pipe_torque_terms` as numbers ``(ratio, Tf, Cm, eps)`` of a geared
+        motor's friction ``ratio (Tf tanh(ratio w / eps) + Cm ratio w)`` (what the compiled laws
+        evaluate), or None for no loss."""
+        return None
+
     def torque_on_body(self, model, sensor, T, w, acc, P):
         """``(T_in, delivered)`` from a torque sensor's reading ``T`` (arrays over a log, gain and
         offset removed; ``w``, ``acc`` the drive body's speed and acceleration or None): the torque

@@ -194,10 +194,20 @@ class DCMotor(Drive):
         inertia neglected: 0 on rig3, whose body is the gearbox output)."""
         d = self.spec
         eta, Jm = d.param("ratio").value(P), d.param("Jm").value(P)
-        if sensor.definition == "electromagnetic":
-            Tf, Cm, eps = d.param("Tf").value(P), d.param("Cm").value(P), d.eps_motor
+        loss = self.pipe_torque_loss(model, sensor, P)
+        if loss is not None:
+            eta, Tf, Cm, eps = loss
             return model.inertia(d.body, P), lambda w: eta * (Tf * math.tanh(eta * w / eps) + Cm * eta * w)
         return eta * Jm, None
+
+    def pipe_torque_loss(self, model, sensor, P):
+        """The electromagnetic torque holds the motor's friction ``ratio (Tf tanh(ratio w / eps) + Cm
+        ratio w)``: ``(ratio, Tf, Cm, eps)``; a reaction load cell holds none (None)."""
+        if sensor.definition != "electromagnetic":
+            return None
+        d = self.spec
+        return (float(d.param("ratio").value(P)), float(d.param("Tf").value(P)), float(d.param("Cm").value(P)),
+                float(d.eps_motor))
 
     def torque_on_body(self, model, sensor, T, w, acc, P):
         if w is None:
