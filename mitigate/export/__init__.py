@@ -12,6 +12,9 @@ scenario's estimator, a self-contained folder::
     test/replay.c           the workbench's logged run through the library, checked to 1e-9, with
                             allocations after create counted; test/reference.csv its data
     CMakeLists.txt, Makefile, README.md (the API), export.json (what was exported, from what)
+    rt/driver.c             the real-time driver example against the workbench's plant over UDP
+                            (mitigate.export.driver, mitigate.export.plant_server)
+    <prefix>.fmu            with ``fmu=True``: an FMI 2.0 co-simulation FMU (mitigate.export.fmu)
 
 The workbench's NMPC and EKF run these very cores (``implementation = "c"``, ``compile = true``), so
 the exported controller and the benchmarked one cannot drift; the reference run checks it.
@@ -91,7 +94,7 @@ def _estimator(scenario):
 
 
 def export_controller(scenario, controller: str, out, *, reference: float | None = 60.0, prefix: str | None = None,
-                      force: bool = False) -> ExportResult:
+                      force: bool = False, fmu: bool = False) -> ExportResult:
     """Write the C library of ``controller`` (a ``[[controllers]]`` name) with the scenario's estimator.
 
     Parameters
@@ -102,14 +105,19 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
     reference : seconds of the scenario to run in the workbench and write as ``test/reference.csv``
         (the replay test's data; None or 0: none)
     prefix : the C names' prefix (default: from the controller's name)
+    fmu : also build ``<prefix>.fmu``, an FMI 2.0 co-simulation FMU of the library
+        (:func:`mitigate.export.fmu.write_fmu`; needs a C compiler and cmake)
 
     Raises
     ------
     ConfigError : an unknown controller, a kind that does not export, an estimator other than the
-        EKF, ``out`` that exists; nothing is written then.
+        EKF, ``out`` that exists; ``fmu`` without a C compiler and cmake; nothing is written then.
+    RuntimeError : ``fmu`` and the FMU's build failed; nothing is written then.
     """
     from mitigate.controllers.factory import context_for, make_controller
+    from mitigate.export.driver import write_driver
     from mitigate.export.files import cmake_lists, makefile, readme, replay_program, vendor_hpipm
+    from mitigate.export.fmu import fmu_tools, write_fmu
     from mitigate.export.nmpc import nmpc_functions, nmpc_glue
     from mitigate.scenario import Scenario, load_scenario
 
@@ -125,6 +133,8 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
                           f"exported yet)")
     if sc.control_deadline is not None or sc.control_latency not in (0, 0.0):
         pass   # the library runs at the DAQ rate; the real-time loop monitors its own deadlines
+    if fmu:
+        fmu_tools()
     out = Path(out)
     if out.exists() and not force:
         raise ConfigError(f"export: --out {out} exists; refusing to overwrite (use --force or another folder)")
@@ -181,6 +191,7 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
         what = f"the NMPC ({', '.join(ctrl.inputs)}) with an EKF on rig {sc.model.name!r}"
         (d / "README.md").write_text(readme(prefix, itf, what, sc.where, notes))
         files += ["CMakeLists.txt", "Makefile", "test/replay.c", "README.md"]
+        files += write_driver(d, prefix, itf, sc.dt)
         if reference:
             rows = _write_reference(sc, i, itf, float(reference), d / "test" / "reference.csv")
             files.append("test/reference.csv")
@@ -190,6 +201,8 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
                     "params": {p.name: p.value for p in itf.params}}
         (d / "export.json").write_text(json.dumps(manifest, indent=2) + "\n")
         files.append("export.json")
+        if fmu:
+            files.append(write_fmu(d, prefix, itf, sc, title=what, notes=notes))
         if out.exists():
             shutil.rmtree(out)
         out.parent.mkdir(parents=True, exist_ok=True)
