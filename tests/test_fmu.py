@@ -11,11 +11,13 @@ own per-period log.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -23,6 +25,7 @@ import pytest
 from mitigate.cli import main as cli_main
 from mitigate.export.driver import parse_summary
 from mitigate.export.fmu import unit_definition
+from mitigate.export.interface import Interface, Port
 from models.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -34,13 +37,23 @@ needs_tools = pytest.mark.skipif(shutil.which("cmake") is None or shutil.which("
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
+    """The one command: export with the FMU, build, replay, and 3 s of the real-time driver."""
     pytest.importorskip("fmpy")
-    from mitigate.export import build_export, export_controller
     out = tmp_path_factory.mktemp("fmu") / "nmpc"
-    res = export_controller(MAIN, "NMPC", out, reference=REFERENCE, fmu=True)
-    build_export(out)
+    r = subprocess.run([sys.executable, "-m", "mitigate.cli", "export", str(MAIN), "--controller", "NMPC", "--out",
+                        str(out), "--reference", str(REFERENCE), "--fmu", "--rt", "3", "--json"],
+                       capture_output=True, text=True, timeout=1800, env=_env(), cwd=str(ROOT))
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    doc = json.loads(r.stdout)
+    itf = Interface(doc["prefix"], tuple(Port(n, u) for n, u in doc["inputs"]),
+                    tuple(Port(n, u) for n, u in doc["outputs"]), tuple(Port(n, u, v) for n, u, v in doc["params"]))
+    res = SimpleNamespace(out=out, prefix=doc["prefix"], interface=itf, cli=doc)
     ref = np.loadtxt(out / "test" / "reference.csv", delimiter=",", skiprows=1)
     return res, out / f"{res.prefix}.fmu", ref
+
+
+def _env():
+    return dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
 
 
 def _inputs(res, ref, until=None):
@@ -91,6 +104,20 @@ def test_bad_rt_and_fmu_requests_are_one_line_refusals(tmp_path, capsys):
     (tmp_path / "export.json").write_text('{"rig": "rig2", "dt": 0.01, "inputs": [], "outputs": []}')
     with pytest.raises(ConfigError, match=r"exported for rig 'rig2' at 0.01 s, the scenario is rig 'rig3'"):
         PlantServer(MAIN, tmp_path)
+
+
+@pytest.mark.slow
+@needs_tools
+def test_one_command_exports_builds_replays_and_runs_the_realtime_driver(exported):
+    res, fmu, _ = exported
+    doc = res.cli
+    assert fmu.is_file() and f"{res.prefix}.fmu" in doc["files"] and "rt/driver.c" in doc["files"]
+    assert " mismatches 0 " in doc["replay"] and "allocations_after_create 0" in doc["replay"]
+    rt = doc["rt"]
+    assert rt["status"] == "ok" and rt["driver"]["periods"] == 300 and rt["plant"]["samples"] == 300
+    assert 0 <= rt["driver"]["missed"] <= 300 and rt["driver"]["step_p99_us"] >= rt["driver"]["step_median_us"] > 0
+    text = doc["rt_text"]
+    assert "deadlines: " in text and " missed (" in text and "step: median" in text and "plant: 300 samples" in text
 
 
 @pytest.mark.slow
@@ -147,10 +174,14 @@ def test_the_fmu_gives_the_library_outputs_on_the_reference_run(exported, simula
 
 @pytest.mark.slow
 @needs_tools
-def test_a_communication_step_must_be_whole_dag_periods(exported):
+def test_a_communication_step_must_be_whole_daq_periods(exported):
     """h = 1.5 DAQ periods is fmi2Error with a logged reason; h = 2 periods runs two steps."""
+    from ctypes import byref
     from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave, FMICallException
+    from fmpy.fmi1 import FMICallException
+    from fmpy.fmi2 import (FMU2Slave, calloc, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, free)
+    from fmpy.logging import addLoggerProxy
     res, fmu, ref = exported
     md = read_model_description(str(fmu))
     where = extract(str(fmu))
@@ -158,32 +189,36 @@ def test_a_communication_step_must_be_whole_dag_periods(exported):
     ins = [vr[p.name] for p in res.interface.inputs]
     outs = [vr[n] for n in _fmu_outputs(res)]
     messages = []
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: messages.append((status, msg)))
+    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    addLoggerProxy(byref(cb))
 
-    def new():
+    def new(name):
         s = FMU2Slave(guid=md.guid, unzipDirectory=where, modelIdentifier=md.coSimulation.modelIdentifier,
-                      instanceName=f"i{len(messages)}")
-        s.instantiate(loggingOn=False, logMessage=lambda *a: messages.append(a[-1]))
+                      instanceName=name)
+        s.instantiate(callbacks=cb)
         s.setupExperiment(startTime=0.0)
         s.enterInitializationMode()
         s.exitInitializationMode()
         return s
 
-    a, b = new(), new()
-    with pytest.raises(FMICallException) as info:
+    a, b = new("a"), new("b")
+    with pytest.raises(FMICallException, match=r"status 3 \(error\)"):
         a.doStep(currentCommunicationPoint=0.0, communicationStepSize=0.015)
-    assert "fmi2Error" in str(info.value)
-    assert any(b"not a whole number of DAQ periods" in m for m in messages)
-    row = ref[0, 1:1 + len(ins)]
-    a.setReal(ins, list(row))
+    assert any(st == 3 and b"not a whole number of DAQ periods" in m for st, m in messages)
+    row = list(ref[0, 1:1 + len(ins)])
+    a.setReal(ins, row)
     a.doStep(currentCommunicationPoint=0.0, communicationStepSize=0.02)
-    b.setReal(ins, list(row))
+    b.setReal(ins, row)
     b.doStep(currentCommunicationPoint=0.0, communicationStepSize=0.01)
+    one = b.getReal(outs)
     b.doStep(currentCommunicationPoint=0.01, communicationStepSize=0.01)
-    assert a.getReal(outs) == b.getReal(outs)
-    assert a.getReal(outs) != list(ref[1, 1 + len(ins):])       # two steps are not one
-    with pytest.raises(FMICallException):                        # a fixed parameter after initialisation
+    assert a.getReal(outs) == b.getReal(outs) != one         # two steps, not one
+    with pytest.raises(FMICallException):                       # a fixed parameter after initialisation
         a.setReal([vr["weight:speed"]], [2.0])
-    assert any(b"weight:speed is a fixed parameter" in m for m in messages)
+    assert any(b"weight:speed is a fixed parameter" in m for _, m in messages)
     for s in (a, b):
         s.terminate()
         s.freeInstance()
@@ -221,10 +256,9 @@ def test_the_realtime_driver_suppresses_stick_slip_against_the_plant_in_another_
     (test/reference.csv) to 1e-9."""
     res, _, ref = exported
     log, dlog = tmp_path / "plant.csv", tmp_path / "driver.csv"
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     r = subprocess.run([sys.executable, "-m", "mitigate.export.plant_server", str(MAIN), str(res.out), "--run", "24",
                         "--port", "0", "--log", str(log), "--driver-log", str(dlog)],
-                       capture_output=True, text=True, timeout=600, env=env, cwd=str(ROOT))
+                       capture_output=True, text=True, timeout=600, env=_env(), cwd=str(ROOT))
     assert r.returncode == 0, r.stdout + r.stderr
     s = parse_summary(r.stdout)
     assert s["periods"] == 2400 and s["failed"] == 0 and s["ok"] + s["hold"] + s["fallback"] == 2400

@@ -88,6 +88,8 @@ def run(args) -> int:
         emit_json(out)
     else:
         print(res.message)
+        if args.fmu:
+            print(f"FMU: {res.out / (res.prefix + '.fmu')}")
         if "library" in out:
             print(f"built {out['library']}")
         if "replay" in out:

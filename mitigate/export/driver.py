@@ -12,6 +12,7 @@ SCENARIO DIR --run SECONDS`` call it.
 
 from __future__ import annotations
 
+import socket
 import subprocess
 import threading
 from dataclasses import dataclass, field
@@ -164,6 +165,10 @@ def run_realtime(scenario, export, duration: float, *, port: int = 0, priority: 
         out, code = r.stdout + r.stderr, r.returncode
     except subprocess.TimeoutExpired:
         out, code = "", -1
+    if thread.is_alive():        # a driver that ended before its bye (refused, failed): end the plant's wait
+        from mitigate.export.plant_server import BYE, HEADER, MAGIC
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.sendto(HEADER.pack(MAGIC, BYE, 0, 0, 0), ("127.0.0.1", server.port))
     thread.join(timeout=server.timeout + 5)
     report = box.get("report")
     if report is not None and log is not None:

@@ -14,7 +14,7 @@
     binaries/linux64/<id>.so     built here from sources/ with CMake, with hpipm and blasfeo beside
                                  it (RPATH $ORIGIN)
     documentation/               index.html (what it is, the stepping rule, another platform's
-                                 build), the licences
+                                 build, the variables), the library's README.md, the licences
 
 One fmi2DoStep runs the library's step once per DAQ period: a communication step of ``n`` DAQ
 periods runs ``n`` steps with the inputs held; any other step size is fmi2Error.  The FMI 2.0
@@ -322,6 +322,17 @@ def write_fmu(folder: Path, prefix: str, itf: Interface, scenario, *, title: str
     """
     cmake = fmu_tools()
     dt, stop = float(scenario.dt), float(scenario.duration)
+    with open(folder / "README.md", "a") as f:
+        f.write(f"""
+## The FMU (`{prefix}.fmu`)
+
+An FMI 2.0 co-simulation FMU of this library (`mitigate export --fmu`): every in[] entry is an
+input, the commands are the outputs `command:<input>`, the estimate `estimate:<state>`, the runtime
+parameters are fixed parameters (set before `fmi2ExitInitializationMode`).  One `fmi2DoStep` of n
+DAQ periods runs n steps; another step size is `fmi2Error`.  `binaries/linux64/` holds the binary
+with hpipm and blasfeo beside it; `sources/` and `documentation/index.html` say how to build it for
+another platform.
+""")
     variables = fmu_variables(itf, input_starts(scenario, itf))
     files: dict[str, bytes] = {}
     src = sorted((folder / "src").iterdir()) + [folder / "include" / f"{prefix}.h"]
@@ -341,6 +352,7 @@ def write_fmu(folder: Path, prefix: str, itf: Interface, scenario, *, title: str
     files["sources/fmu_config.h"] = _config_header(prefix, guid, itf, variables, dt).encode()
     files["modelDescription.xml"] = _model_description(prefix, title, guid, variables, dt, stop, c_files).encode()
     files["documentation/index.html"] = _documentation(prefix, title, variables, dt, scenario.where, notes).encode()
+    files["documentation/README.md"] = (folder / "README.md").read_bytes()
     files["documentation/licenses/fmi2.txt"] = (FMI2_SOURCES / "fmi2" / "LICENSE.txt").read_bytes()
     for lic in sorted((folder / "vendor" / "LICENSES").glob("*.txt")):
         files[f"documentation/licenses/{lic.name}"] = lic.read_bytes()
@@ -359,17 +371,6 @@ def write_fmu(folder: Path, prefix: str, itf: Interface, scenario, *, title: str
     for lib in ("libhpipm.so", "libblasfeo.so.0"):
         files[f"binaries/linux64/{lib}"] = (folder / "vendor" / "lib" / lib).read_bytes()
     name = f"{prefix}.fmu"
-    with open(folder / "README.md", "a") as f:
-        f.write(f"""
-## The FMU (`{name}`)
-
-An FMI 2.0 co-simulation FMU of this library (`mitigate export --fmu`): every in[] entry is an
-input, the commands are the outputs `command:<input>`, the estimate `estimate:<state>`, the runtime
-parameters are fixed parameters (set before `fmi2ExitInitializationMode`).  One `fmi2DoStep` of n
-DAQ periods runs n steps; another step size is `fmi2Error`.  `binaries/linux64/` holds the binary
-with hpipm and blasfeo beside it; `sources/` and `documentation/index.html` say how to build it for
-another platform.
-""")
     with zipfile.ZipFile(folder / name, "w", zipfile.ZIP_DEFLATED) as z:
         for n in sorted(files):
             info = zipfile.ZipInfo(n, date_time=(2020, 1, 1, 0, 0, 0))

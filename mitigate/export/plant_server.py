@@ -113,7 +113,11 @@ class PlantServer:
         self.k_start = int(math.ceil(sc.control_start / sc.dt - 1e-9))
         self.timeout = float(timeout)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind((host, int(port)))
+        try:
+            self.sock.bind((host, int(port)))
+        except OSError as exc:
+            self.sock.close()
+            raise ConfigError(f"plant server: cannot listen on {host}:{port}: {exc.strerror}") from None
         self.host, self.port = self.sock.getsockname()
         self._reset()
 
@@ -202,7 +206,7 @@ class PlantServer:
                     self._error(addr, seq, status)
                     break
                 self._send(addr, SAMPLE, self.k, [self.k * sc.dt] + row)
-            elif kind == BYE and started:
+            elif kind == BYE:
                 break
         return self._report(status)
 
@@ -240,7 +244,8 @@ def main(argv=None) -> int:
     ap.add_argument("scenario", metavar="SCENARIO.toml", help="the scenario the folder was exported from")
     ap.add_argument("export", metavar="DIR", help="the folder `mitigate export` wrote")
     ap.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    ap.add_argument("--port", type=int, default=47100, help="UDP port (default 47100; 0: any free port)")
+    ap.add_argument("--port", type=int, default=None,
+                    help="UDP port (default 47100, with --run any free port; 0: any free port)")
     ap.add_argument("--log", metavar="CSV", help="write the run (t, in[], commands, true speed) here")
     ap.add_argument("--run", type=float, metavar="SECONDS",
                     help="also start the folder's driver (build/<prefix>_rt) for SECONDS of samples and print both reports")
@@ -250,11 +255,11 @@ def main(argv=None) -> int:
     try:
         if args.run is not None:
             from mitigate.export.driver import run_realtime
-            res = run_realtime(args.scenario, args.export, args.run, port=args.port, priority=args.priority,
+            res = run_realtime(args.scenario, args.export, args.run, port=args.port or 0, priority=args.priority,
                                log=args.log, driver_log=args.driver_log)
             print(res.text())
             return 0 if res.success else 1
-        server = PlantServer(args.scenario, args.export, host=args.host, port=args.port)
+        server = PlantServer(args.scenario, args.export, host=args.host, port=47100 if args.port is None else args.port)
         print(f"plant server: {server.scenario.where} on {server.host}:{server.port}; waiting for the driver",
               flush=True)
         report = server.serve()

@@ -42,7 +42,7 @@ typedef struct {
     uint32_t n, reserved;
 } head;
 
-#define MAXD (N_IN + 8)
+#define MAXD (N_IN + 160)   /* a sample, or an error's text */
 typedef struct {
     head h;
     double d[MAXD];
