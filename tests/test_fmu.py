@@ -86,6 +86,8 @@ def test_units_are_written_in_modelica_syntax_with_their_si_base_units():
     assert unit_definition("kg m^2") == ("kg.m2", {"kg": "1", "m": "2"})
     assert unit_definition("rad/s/s") == ("rad/s2", {"s": "-2", "rad": "1"})
     assert unit_definition("ohm") == ("Ohm", {"kg": "1", "m": "2", "s": "-3", "A": "-2"})
+    assert unit_definition("V/(rad/s)") == unit_definition("V s/rad") == \
+        ("V.s/rad", {"kg": "1", "m": "2", "s": "-2", "A": "-1", "rad": "-1"})
     name, attrs = unit_definition("rpm")
     assert name == "rpm" and float(attrs["factor"]) == pytest.approx(2 * np.pi / 60, rel=1e-15)
     assert unit_definition("-") is None and unit_definition("") is None
@@ -99,11 +101,13 @@ def test_bad_rt_and_fmu_requests_are_one_line_refusals(tmp_path, capsys):
     assert "--rt must be a number of seconds > 0, got 0.0" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "x").exists()
     from mitigate.export.plant_server import PlantServer
+    from mitigate.scenario import load_scenario
+    sc = load_scenario(MAIN)
     with pytest.raises(ConfigError, match=r"is not a folder written by `mitigate export`"):
-        PlantServer(MAIN, tmp_path)
+        PlantServer(sc, tmp_path)
     (tmp_path / "export.json").write_text('{"rig": "rig2", "dt": 0.01, "inputs": [], "outputs": []}')
     with pytest.raises(ConfigError, match=r"exported for rig 'rig2' at 0.01 s, the scenario is rig 'rig3'"):
-        PlantServer(MAIN, tmp_path)
+        PlantServer(sc, tmp_path)
 
 
 @pytest.mark.slow

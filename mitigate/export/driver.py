@@ -109,11 +109,11 @@ class RealtimeResult:
     def text(self) -> str:
         lines = [self.driver_text.strip()] if self.driver_text.strip() else []
         p = self.plant
-        if p is not None:
+        if p is not None and p.samples > 0:
             lines.append(f"plant: {p.samples} samples ({p.duration:g} s), control from {p.control_start:g} s; "
                          f"objective speed's severity over a stick-slip period ({p.window:.3g} s): "
                          f"{p.severity_before:.3g} before control, {p.severity_last:.3g} at the end "
-                         f"(mean {p.mean_speed_last:.4g} rad/s); {p.status}")
+                         f"(mean {p.mean_speed_last:.4g} rad/s); {p.message}")
         if not self.success:
             lines.append(f"failed: {self.message}")
         return "\n".join(lines)
@@ -145,6 +145,8 @@ def run_realtime(scenario, export, duration: float, *, port: int = 0, priority: 
 
     if not (isinstance(duration, (int, float)) and duration > 0):
         raise ConfigError(f"the real-time run's duration must be > 0 s, got {duration!r}")
+    if period is not None and not (isinstance(period, (int, float)) and period > 0):
+        raise ConfigError(f"the real-time driver's period must be > 0 s, got {period!r}")
     folder = Path(export)
     server = PlantServer(scenario, folder, port=port, timeout=max(30.0, 5 * float(period or 0)))
     prefix = json.loads((folder / "export.json").read_text())["prefix"]
@@ -177,7 +179,7 @@ def run_realtime(scenario, export, duration: float, *, port: int = 0, priority: 
     if code != 0:
         why = "timed out" if code == -1 else f"exit {code}: {(out.strip().splitlines() or [''])[-1]}"
         return RealtimeResult(Status.FAILED, f"the driver failed ({why})", parse_summary(out), out, report)
-    if report is None or report.status != "ok":
-        return RealtimeResult(Status.FAILED, f"the plant server: {report.status if report else 'no report'}",
+    if report is None or not report.success:
+        return RealtimeResult(Status.FAILED, f"the plant server: {report.message if report else 'no report'}",
                               parse_summary(out), out, report)
     return RealtimeResult(Status.OK, "ok", parse_summary(out), out, report)

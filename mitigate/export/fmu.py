@@ -67,9 +67,18 @@ def unit_definition(unit: str, where: str = "unit") -> tuple[str, dict[str, str]
     if len(dens) > 1 and "(" not in text:          # rad/s/s: everything after the first / divides
         text = f"{num}/({' '.join(dens)})"
     u = parse_unit(text, where)
+    den = "/".join(dens).strip()
+    parts = [(1, num)]
+    if den.startswith("(") and den.endswith(")") and "/" in den:      # V/(rad/s) = V s/rad
+        b, _, c = den[1:-1].partition("/")
+        parts += [(-1, b), (1, c)]
+    else:
+        parts.append((-1, den.replace("/", " ").replace("(", " ").replace(")", " ")))
     powers: dict[str, int] = {}
-    for sign, part in ((1, num), (-1, " ".join(dens).replace("(", " ").replace(")", " "))):
+    for sign, part in parts:
         for tok in part.replace("*", " ").split():
+            if tok == "1":
+                continue
             m = _TOKEN.match(tok)
             if m is None:
                 raise ConfigError(f"{where}: unit [{unit}] has no FMI name: unexpected {tok!r}")

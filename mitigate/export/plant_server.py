@@ -35,6 +35,7 @@ import numpy as np
 
 from models.errors import ConfigError
 from models.plant import Plant
+from models.status import Status
 
 __all__ = ["PlantServer", "PlantReport", "MAGIC", "HEADER", "main"]
 
@@ -50,7 +51,8 @@ class PlantReport:
 
     Attributes
     ----------
-    status : "ok", or why the run ended early (one line)
+    status : Status.OK; Status.DIVERGED (the plant left its bounds) or Status.FAILED (its step
+        raised, or the driver stopped before its bye); message : why, one line
     samples : DAQ samples the plant was stepped; duration : their span [s]
     control_start : when ``enable`` went to 1 [s]
     window : the severity window, the rig's stick-slip period [s] (:func:`mitigate.metrics.rig_period`)
@@ -61,7 +63,8 @@ class PlantReport:
         commands received; speed : (m,) the objective body's true speed [rad/s]
     """
 
-    status: str
+    status: Status
+    message: str
     samples: int
     duration: float
     control_start: float
@@ -74,9 +77,14 @@ class PlantReport:
     commands: np.ndarray
     speed: np.ndarray
 
+    @property
+    def success(self) -> bool:
+        return self.status.success
+
     def summary(self) -> dict:
-        return {k: getattr(self, k) for k in ("status", "samples", "duration", "control_start", "window",
-                                               "severity_before", "severity_last", "mean_speed_last")}
+        out = {k: getattr(self, k) for k in ("message", "samples", "duration", "control_start", "window",
+                                              "severity_before", "severity_last", "mean_speed_last")}
+        return {"status": self.status.value, **out}
 
 
 class PlantServer:
@@ -160,14 +168,15 @@ class PlantServer:
     def serve(self) -> PlantReport:
         """Answer one driver from its hello to its bye; return what the plant saw."""
         sc = self.scenario
-        status = "ok"
+        status, message = Status.OK, "ok"
         self.sock.settimeout(self.timeout)
         started = False
         while True:
             try:
                 data, addr = self.sock.recvfrom(65536)
             except socket.timeout:
-                status = f"no datagram for {self.timeout:g} s after sample {self.k}: the driver stopped"
+                status, message = Status.FAILED, f"no datagram for {self.timeout:g} s after sample {self.k}: " \
+                                                 f"the driver stopped"
                 break
             if len(data) < HEADER.size:
                 continue
@@ -196,21 +205,22 @@ class PlantServer:
                 try:
                     y = self.plant.step(u)
                 except Exception as exc:  # noqa: BLE001 - the plant's failure ends the run with its reason
-                    status = f"plant step failed at t = {(self.k + 1) * sc.dt:.3f} s: {type(exc).__name__}: {exc}"
-                    self._error(addr, seq, status)
+                    status, message = Status.FAILED, f"plant step failed at t = {(self.k + 1) * sc.dt:.3f} s: " \
+                                                     f"{type(exc).__name__}: {exc}"
+                    self._error(addr, seq, message)
                     break
                 self.k += 1
                 row = self._sample(y)
                 if not np.all(np.isfinite(self.plant.x)) or abs(self.speed[-1]) > sc.max_speed:
-                    status = f"the plant diverged at t = {self.k * sc.dt:.3f} s"
-                    self._error(addr, seq, status)
+                    status, message = Status.DIVERGED, f"the plant diverged at t = {self.k * sc.dt:.3f} s"
+                    self._error(addr, seq, message)
                     break
                 self._send(addr, SAMPLE, self.k, [self.k * sc.dt] + row)
             elif kind == BYE:
                 break
-        return self._report(status)
+        return self._report(status, message)
 
-    def _report(self, status: str) -> PlantReport:
+    def _report(self, status: Status, message: str) -> PlantReport:
         from mitigate.metrics import rig_period
         from mitigate.severity import severity
         sc = self.scenario
@@ -219,7 +229,7 @@ class PlantServer:
         nw = max(1, int(round(window / sc.dt)))
         before = w[self.k_start - nw:self.k_start + 1] if self.k_start >= nw and len(w) > self.k_start else None
         last = w[-nw - 1:]
-        return PlantReport(status, self.k, self.k * sc.dt, self.k_start * sc.dt, window,
+        return PlantReport(status, message, self.k, self.k * sc.dt, self.k_start * sc.dt, window,
                            severity(before) if before is not None else math.nan, severity(last),
                            float(np.mean(last)), np.arange(len(w)) * sc.dt, np.array(self.rows),
                            np.array(self.cmds).reshape(-1, len(self.cmd_names)), w)
@@ -267,7 +277,7 @@ def main(argv=None) -> int:
             server.write_log(args.log, report)
         server.close()
         print(json.dumps(report.summary()), flush=True)
-        return 0 if report.status == "ok" else 1
+        return 0 if report.success else 1
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
