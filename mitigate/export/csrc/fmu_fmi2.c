@@ -12,7 +12,8 @@
  *                          VR_SOLVE_TIME             the last OCP solve's wall time [s] (output)
  *                          [VR_PAR, VR_PAR + N_PAR)  params[] (fixed parameters)
  *   Integer value reference VR_STATUS                the last step's status (output)
- * and start_real[], real_names[], cmd_programme[].
+ * and start_real[], real_names[], cmd_programme[] (the in[] entry of each command's programme
+ * value, -1: none).
  */
 #include <math.h>
 #include <stdarg.h>
@@ -68,7 +69,7 @@ static int is_param(fmi2ValueReference vr) { return vr >= VR_PAR && vr < N_REAL;
 static void initial_outputs(comp* c) {
     int j;
     for (j = 0; j < N_OUT; j++) c->r[N_IN + j] = 0.0;
-    for (j = 0; j < N_CMD; j++) c->r[N_IN + j] = c->r[cmd_programme[j]];
+    for (j = 0; j < N_CMD; j++) c->r[N_IN + j] = cmd_programme[j] >= 0 ? c->r[cmd_programme[j]] : 0.0;
     c->r[VR_SOLVE_TIME] = 0.0;
     c->status = 0;
 }
