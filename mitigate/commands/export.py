@@ -14,13 +14,20 @@ BSD-2 licences), CMakeLists.txt and a Makefile, README.md (the API),
 test/replay.c with test/reference.csv: the workbench's own run of the scenario, which the built
 library must reproduce to 1e-9 without allocating after create.  Nothing is written if the
 scenario or the controller is refused, or DIR exists (use --force).
+Also rt/driver.c, a real-time driver example: the library at the DAQ period against the
+workbench's plant in another process over UDP, with missed deadlines counted.
 --build also builds DIR with CMake and runs its replay test (needs a C compiler and cmake).
-Exit codes: 0 written (and built and replayed), 1 the build or the replay failed, 2 bad input.
+--fmu also writes DIR/<name>.fmu, an FMI 2.0 co-simulation FMU of the same library (built here).
+--rt SECONDS builds, then runs the driver for SECONDS of samples against the scenario's plant and
+prints its deadline statistics and the plant's stick-slip severity (docs/export.md).
+Exit codes: 0 written (and built, replayed, run), 1 the build, the replay or the real-time run
+failed, 2 bad input.
 
 Example:
   mitigate export scenarios/stick_slip_30rpm.toml --controller NMPC --out out/nmpc_c
   mitigate export scenarios/stick_slip_30rpm.toml --controller NMPC --out out/nmpc_c --build --json
   mitigate export scenarios/stick_slip_30rpm.toml --controller SoftSpeed --out out/softspeed_c --build
+  mitigate export scenarios/stick_slip_30rpm.toml --controller NMPC --out out/nmpc_c --fmu --rt 30
 """
 
 
@@ -34,6 +41,9 @@ def register(sub) -> None:
                    help="seconds of the scenario the workbench runs for the replay test (default 60; 0: none)")
     p.add_argument("--prefix", default=None, metavar="NAME", help="prefix of the C names (default: from the controller)")
     p.add_argument("--build", action="store_true", help="build with CMake and run the replay test")
+    p.add_argument("--fmu", action="store_true", help="also build DIR/<name>.fmu, an FMI 2.0 co-simulation FMU")
+    p.add_argument("--rt", type=float, default=None, metavar="SECONDS",
+                   help="build, then run the real-time driver against the scenario's plant for SECONDS of samples")
     p.add_argument("--force", action="store_true", help="replace DIR if it exists")
     p.add_argument("--json", action="store_true", help="print a machine-readable JSON document on stdout")
     p.set_defaults(func=run)
@@ -41,16 +51,23 @@ def register(sub) -> None:
 
 def run(args) -> int:
     import subprocess
+    import sys
 
     from mitigate.export import build_export, export_controller
 
     if not (args.reference >= 0):
         raise ConfigError(f"--reference must be a number of seconds >= 0, got {args.reference}")
-    res = export_controller(args.scenario, args.controller, args.out, reference=args.reference or None,
-                            prefix=args.prefix, force=args.force)
+    if args.rt is not None and not (args.rt > 0):
+        raise ConfigError(f"--rt must be a number of seconds > 0, got {args.rt}")
+    try:
+        res = export_controller(args.scenario, args.controller, args.out, reference=args.reference or None,
+                                prefix=args.prefix, force=args.force, fmu=args.fmu)
+    except RuntimeError as exc:          # the FMU's build
+        print(f"export failed: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 1
     out = res.as_dict()
     code = 0
-    if args.build:
+    if args.build or args.rt is not None:
         try:
             so = build_export(res.out)
             out["library"] = str(so)
@@ -62,14 +79,25 @@ def run(args) -> int:
         except RuntimeError as exc:
             out["build_error"] = str(exc).splitlines()[0]
             code = 1
+    if args.rt is not None and code == 0:
+        from mitigate.export.driver import run_realtime
+        rt = run_realtime(args.scenario, res.out, args.rt)
+        out["rt"] = {"status": rt.status.value, "message": rt.message, "driver": rt.driver,
+                     "plant": rt.plant.summary() if rt.plant is not None else None}
+        out["rt_text"] = rt.text()
+        code = 0 if rt.success else 1
     if args.json:
         emit_json(out)
     else:
         print(res.message)
+        if args.fmu:
+            print(f"FMU: {res.out / (res.prefix + '.fmu')}")
         if "library" in out:
             print(f"built {out['library']}")
         if "replay" in out:
             print(f"replay: {out['replay']}")
         if "build_error" in out:
             print(f"build failed: {out['build_error']}")
+        if "rt_text" in out:
+            print(out["rt_text"])
     return code

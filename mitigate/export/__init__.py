@@ -14,6 +14,9 @@ scenario's estimator, a self-contained folder::
     test/replay.c           the workbench's logged run through the library, checked to 1e-9, with
                             allocations after create counted; test/reference.csv its data
     CMakeLists.txt, Makefile, README.md (the API), export.json (what was exported, from what)
+    rt/driver.c             the real-time driver example against the workbench's plant over UDP
+                            (mitigate.export.driver, mitigate.export.plant_server)
+    <prefix>.fmu            with ``fmu=True``: an FMI 2.0 co-simulation FMU (mitigate.export.fmu)
 
 Every kind exports through the same glue (:mod:`mitigate.export.glue`): the NMPC with any input set
 (:mod:`mitigate.export.nmpc`), SoftSpeed, Z-Torque, D-OSKIL and the brake
@@ -97,7 +100,7 @@ def _estimator(scenario):
 
 
 def export_controller(scenario, controller: str, out, *, reference: float | None = 60.0, prefix: str | None = None,
-                      force: bool = False) -> ExportResult:
+                      force: bool = False, fmu: bool = False) -> ExportResult:
     """Write the C library of ``controller`` (a ``[[controllers]]`` name) with the scenario's estimator.
 
     Parameters
@@ -108,15 +111,20 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
     reference : seconds of the scenario to run in the workbench and write as ``test/reference.csv``
         (the replay test's data; None or 0: none)
     prefix : the C names' prefix (default: from the controller's name)
+    fmu : also build ``<prefix>.fmu``, an FMI 2.0 co-simulation FMU of the library
+        (:func:`mitigate.export.fmu.write_fmu`; needs a C compiler and cmake)
 
     Raises
     ------
     ConfigError : an unknown controller, a kind that does not export, an estimator other than the
-        EKF, ``out`` that exists; nothing is written then.
+        EKF, ``out`` that exists; ``fmu`` without a C compiler and cmake; nothing is written then.
+    RuntimeError : ``fmu`` and the FMU's build failed; nothing is written then.
     """
     from estimators.online.compiled import EKF_CONFIG, EKF_SOURCES, ekf_functions
     from mitigate.controllers.factory import context_for, make_controller
+    from mitigate.export.driver import write_driver
     from mitigate.export.files import cmake_lists, makefile, readme, replay_program, vendor_hpipm
+    from mitigate.export.fmu import fmu_tools, write_fmu
     from mitigate.export.glue import glue_source
     from mitigate.scenario import Scenario, load_scenario
 
@@ -130,6 +138,8 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
     if est_kind != "ekf":
         raise ConfigError(f"{sc.where}: estimator.kind = {est_kind!r}; export supports the EKF (the MHE is not "
                           f"exported yet)")
+    if fmu:
+        fmu_tools()
     out = Path(out)
     if out.exists() and not force:
         raise ConfigError(f"export: --out {out} exists; refusing to overwrite (use --force or another folder)")
@@ -185,6 +195,7 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
         (d / "test" / "replay.c").write_text(replay_program(prefix, itf))
         (d / "README.md").write_text(readme(prefix, itf, kind.what, sc.where, notes, qp=kind.qp))
         files += ["CMakeLists.txt", "Makefile", "test/replay.c", "README.md"]
+        files += write_driver(d, prefix, itf, sc.dt)
         if reference:
             rows = _write_reference(sc, i, itf, float(reference), d / "test" / "reference.csv")
             files.append("test/reference.csv")
@@ -194,6 +205,8 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
                     "params": {p.name: p.value for p in itf.params}}
         (d / "export.json").write_text(json.dumps(manifest, indent=2) + "\n")
         files.append("export.json")
+        if fmu:
+            files.append(write_fmu(d, prefix, itf, sc, title=what, notes=notes))
         if out.exists():
             shutil.rmtree(out)
         out.parent.mkdir(parents=True, exist_ok=True)
