@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.cbuild import CSRC, CStruct, build_library, generate, read_source
+from models.cbuild import CSRC, CStruct, build_library, c_view, generate, lay_out, read_source
 from models.errors import SolverFailure
 
 __all__ = ["EKF_CONFIG", "ekf_config", "ekf_files", "CompiledEKF", "EKF_SOURCES"]
@@ -109,10 +109,6 @@ class CompiledEKF:
         lib = self._lib = ctypes.CDLL(str(so))
         self._step = ctypes.c_void_p.in_dll(lib, f"{stem}_{fns[0].name()}")
         self._ode = ctypes.c_void_p.in_dll(lib, f"{stem}_{fns[1].name()}") if len(fns) > 1 else None
-        lib.sse_memsize.restype = ctypes.c_size_t
-        lib.sse_memsize.argtypes = [ctypes.c_void_p] * 3
-        lib.sse_init.restype = ctypes.c_void_p
-        lib.sse_init.argtypes = [ctypes.c_void_p, ctypes.c_size_t] + [ctypes.c_void_p] * 3
         lib.sse_reset.argtypes = [ctypes.c_void_p]
         lib.sse_set.argtypes = [ctypes.c_void_p] * 3
         lib.sse_update.restype = ctypes.c_int
@@ -123,21 +119,15 @@ class CompiledEKF:
         self.config = ekf_config(ekf)
         self.nx, self.nc, self.nu = self.config["nx"], self.config["nc"], self.config["nu"]
         self._cfg, self._keep = EKF_CONFIG.fill(self.config)
-        st = ctypes.addressof(self._step)
         od = ctypes.addressof(self._ode) if self._ode is not None else None
-        size = lib.sse_memsize(ctypes.byref(self._cfg), st, od)
-        if size == 0:
-            raise SolverFailure("the EKF's compiled update refused its configuration")
-        self._mem = np.zeros(size + 64, dtype=np.uint8)
-        self._m = lib.sse_init(self._mem.ctypes.data, size + 64, ctypes.byref(self._cfg), st, od)
-        if not self._m:
-            raise SolverFailure("the EKF's compiled update could not lay out its memory")
+        self._mem, self._m = lay_out(lib, "sse", self._cfg, ctypes.addressof(self._step), od,
+                                     what="EKF's compiled update")
         self.y = np.zeros(max(self.nc, 1))
         self.u = np.zeros(self.nu)
         self.info = SSE_INFO()
-        self._x = np.ctypeslib.as_array((ctypes.c_double * self.nx).from_address(lib.sse_x(self._m)))
-        self._P = np.ctypeslib.as_array((ctypes.c_double * (self.nx * self.nx)).from_address(lib.sse_P(self._m)))
-        self._x0u = np.ctypeslib.as_array((ctypes.c_double * self.nx).from_address(lib.sse_x0_used(self._m)))
+        self._x = c_view(lib.sse_x(self._m), self.nx)
+        self._P = c_view(lib.sse_P(self._m), self.nx * self.nx)
+        self._x0u = c_view(lib.sse_x0_used(self._m), self.nx)
         self._args = (self._m, self.y.ctypes.data, self.u.ctypes.data, ctypes.addressof(self.info))
 
     def update(self, y, u) -> SSE_INFO:

@@ -23,14 +23,13 @@ from __future__ import annotations
 
 import ctypes
 import functools
-import math
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
 
 from mitigate.controllers.base import Action, reading
-from models.cbuild import CSRC, CStruct, build_library, read_source
+from models.cbuild import CSRC, CStruct, build_library, c_view, lay_out, read_channels, read_source
 from models.errors import SolverFailure
 
 __all__ = ["LAW_CONFIG", "LAW_IDS", "LAW_SOURCES", "IMPLEMENTATIONS", "law_config", "law_files", "law_library",
@@ -105,10 +104,6 @@ def law_library() -> ctypes.CDLL:
     """
     so = build_library("ss_laws", law_files(), ["ss_common.c", "ss_laws.c"])
     lib = ctypes.CDLL(str(so))
-    lib.ssl_memsize.restype = ctypes.c_size_t
-    lib.ssl_memsize.argtypes = [ctypes.c_void_p]
-    lib.ssl_init.restype = ctypes.c_void_p
-    lib.ssl_init.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p]
     lib.ssl_reset.argtypes = [ctypes.c_void_p]
     lib.ssl_step.restype = ctypes.c_int
     lib.ssl_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int,
@@ -149,13 +144,7 @@ class CompiledLaw:
         self.channels = tuple(channels)
         self.estimates = tuple(estimates)
         self._cfg, self._keep = LAW_CONFIG.fill(self.config)
-        size = lib.ssl_memsize(ctypes.byref(self._cfg))
-        if size == 0:
-            raise SolverFailure("the law's compiled step refused its configuration")
-        self._mem = np.zeros(size, dtype=np.uint8)
-        self._m = lib.ssl_init(self._mem.ctypes.data, size, ctypes.byref(self._cfg))
-        if not self._m:
-            raise SolverFailure("the law's compiled step could not lay out its memory")
+        self._mem, self._m = lay_out(lib, "ssl", self._cfg, what="law's compiled step")
         self.y = np.full(max(len(self.channels), 1), np.nan)
         self.e = np.full(2, np.nan)
         self.u = np.zeros(1)
@@ -169,13 +158,7 @@ class CompiledLaw:
              u_prog: float = 0.0) -> float | None:
         """One call of ``ssl_step``: the command, or None when a reading was missing (the index of
         its channel in ``info.missing``)."""
-        y = self.y
-        for i, ch in enumerate(self.channels):
-            v = measurement.get(ch) if measurement is not None else None
-            try:
-                y[i] = float(v) if v is not None else math.nan
-            except (TypeError, ValueError):
-                y[i] = math.nan
+        read_channels(measurement, self.channels, self.y)
         mask = 0
         if self.estimates and estimate is not None:
             names = estimate.names
@@ -196,7 +179,7 @@ class CompiledLaw:
         out = []
         for which in (0, 1):
             a = self._lib.ssl_virtual_drive(self._m, which)
-            out.append(np.ctypeslib.as_array((ctypes.c_double * 4).from_address(a)).reshape(2, 2).copy())
+            out.append(c_view(a, 4).reshape(2, 2).copy())
         return out[0], out[1]
 
 

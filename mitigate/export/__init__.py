@@ -206,7 +206,7 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
         (d / "export.json").write_text(json.dumps(manifest, indent=2) + "\n")
         files.append("export.json")
         if fmu:
-            files.append(write_fmu(d, prefix, itf, sc, title=what, notes=notes))
+            files.append(write_fmu(d, prefix, itf, sc, title=kind.what, notes=notes))
         if out.exists():
             shutil.rmtree(out)
         out.parent.mkdir(parents=True, exist_ok=True)

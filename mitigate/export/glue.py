@@ -153,7 +153,7 @@ def header(prefix: str, itf: Interface, what: str) -> str:
              f"#ifndef {P}_H", f"#define {P}_H", "", "#ifdef __cplusplus", 'extern "C" {', "#endif", "",
              "#if defined(_WIN32)", f"#define {P}_API __declspec(dllexport)", "#else",
              f'#define {P}_API __attribute__((visibility("default")))', "#endif", "",
-             f"/* status of a step */", f"enum {{ {P}_OK = 0, {P}_HOLD = 1, {P}_FALLBACK = 2, {P}_FAILED = 3 }};", ""]
+             "/* status of a step */", f"enum {{ {P}_OK = 0, {P}_HOLD = 1, {P}_FALLBACK = 2, {P}_FAILED = 3 }};", ""]
     for title, ports in (("in[]", itf.inputs), ("out[]", itf.outputs), ("params[]", itf.params)):
         tag = {"in[]": "IN", "out[]": "OUT", "params[]": "PAR"}[title]
         lines.append(f"/* {title}: {len(ports)} entries */")

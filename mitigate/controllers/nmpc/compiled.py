@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.cbuild import CSRC, CStruct, build_library, generate, hpipm_paths, read_source
+from models.cbuild import CSRC, CStruct, build_library, c_view, generate, hpipm_paths, lay_out, read_channels, read_source
 from models.errors import SolverFailure
 from mitigate.controllers.nmpc.start import LOAD_FACTOR_RANGE
 from mitigate.controllers.nmpc.supervision import SLIDING_FRACTION, TRIM_DEADBAND, TRIM_LIMIT
@@ -119,7 +119,6 @@ def nmpc_config(nmpc) -> dict:
     for j, (ch, o_, g) in st.readers.items():
         reader[j], off[j], gain[j] = chans.index(ch), o_, g
     acts = st.acts
-    taus = nmpc.spec.taus
     return dict(
         nx=m.nx, nu=m.nu, nxa=L.nxa, nv=L.nv, ns=ns, N=nmpc.spec.horizon, nq=L.nq, nfc=L.n_fc,
         n_load=len(st.load_keys), n_ch=len(chans),
@@ -196,10 +195,6 @@ class CompiledStep:
         fn_t = ctypes.c_void_p
         self._stages = fn_t.in_dll(lib_, f"{stem}_{ev.fn.name()}")
         self._forward = fn_t.in_dll(lib_, f"{stem}_{nmpc.ocp.F.name()}")
-        lib_.ssn_memsize.restype = ctypes.c_size_t
-        lib_.ssn_memsize.argtypes = [ctypes.c_void_p] * 3
-        lib_.ssn_init.restype = ctypes.c_void_p
-        lib_.ssn_init.argtypes = [ctypes.c_void_p, ctypes.c_size_t] + [ctypes.c_void_p] * 3
         lib_.ssn_reset.argtypes = [ctypes.c_void_p]
         lib_.ssn_step.restype = ctypes.c_int
         lib_.ssn_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int,
@@ -210,14 +205,8 @@ class CompiledStep:
         lib_.ssn_last_q.argtypes = [ctypes.c_void_p]
         self.config = nmpc_config(nmpc)
         self._cfg, self._keep = NMPC_CONFIG.fill(self.config)
-        st, fw = ctypes.addressof(self._stages), ctypes.addressof(self._forward)
-        size = lib_.ssn_memsize(ctypes.byref(self._cfg), st, fw)
-        if size == 0:
-            raise SolverFailure("the NMPC's compiled step refused its configuration")
-        self._mem = np.zeros(size + 64, dtype=np.uint8)
-        self._m = lib_.ssn_init(self._mem.ctypes.data, size + 64, ctypes.byref(self._cfg), st, fw)
-        if not self._m:
-            raise SolverFailure("the NMPC's compiled step could not lay out its memory")
+        self._mem, self._m = lay_out(lib_, "ssn", self._cfg, ctypes.addressof(self._stages),
+                                     ctypes.addressof(self._forward), what="NMPC's compiled step")
         self.nq = self.config["nq"]
         self.N = self.config["N"]
         # call buffers: bound once
@@ -256,13 +245,7 @@ class CompiledStep:
 
     def step(self, t: float, measurement, estimate, u_prog, target: float, inject: bool = False) -> NMPC_INFO:
         """One call of ``ssn_step``; the action is in :attr:`u` (``nv``), what happened in the info."""
-        y = self.y
-        for i, ch in enumerate(self.channels):
-            v = measurement.get(ch) if measurement is not None else None
-            try:
-                y[i] = float(v) if v is not None else math.nan
-            except (TypeError, ValueError):
-                y[i] = math.nan
+        read_channels(measurement, self.channels, self.y)
         present, observe, flags = self.canonical(estimate)
         self.u_prog[:] = u_prog
         p = self._p
@@ -273,9 +256,9 @@ class CompiledStep:
     def plan(self) -> np.ndarray | None:
         """The last plan's commanded inputs (N, nv), or None."""
         a = self._lib.ssn_plan(self._m)
-        return None if not a else np.ctypeslib.as_array((ctypes.c_double * (self.N * self.nv)).from_address(a)).reshape(self.N, self.nv).copy()
+        return None if not a else c_view(a, self.N * self.nv).reshape(self.N, self.nv).copy()
 
     def last_q(self) -> np.ndarray | None:
         """The OCP parameters of the last plan attempt (nq), or None."""
         a = self._lib.ssn_last_q(self._m)
-        return None if not a else np.ctypeslib.as_array((ctypes.c_double * self.nq).from_address(a)).copy()
+        return None if not a else c_view(a, self.nq).copy()
