@@ -260,7 +260,7 @@ def test_the_realtime_driver_suppresses_stick_slip_against_the_plant_in_another_
     (test/reference.csv) to 1e-9."""
     res, _, ref = exported
     log, dlog = tmp_path / "plant.csv", tmp_path / "driver.csv"
-    r = subprocess.run([sys.executable, "-m", "mitigate.export.plant_server", str(MAIN), str(res.out), "--run", "24",
+    r = subprocess.run([sys.executable, "-m", "mitigate.export.rt", str(MAIN), str(res.out), "--run", "24",
                         "--port", "0", "--log", str(log), "--driver-log", str(dlog)],
                        capture_output=True, text=True, timeout=600, env=_env(), cwd=str(ROOT))
     assert r.returncode == 0, r.stdout + r.stderr

@@ -6,7 +6,7 @@ localhost, and counts missed deadlines.
 ``mitigate/export/csrc/rt_driver.c``) and ``rt/rt_config.h`` (this export's library), and adds the
 ``<prefix>_rt`` target to the folder's CMakeLists.txt and Makefile and a section to its README.
 :func:`run_realtime` runs it here in one call: the plant server in this process, the driver as a
-child process; ``mitigate export ... --rt SECONDS`` and ``python -m mitigate.export.plant_server
+child process; ``mitigate export ... --rt SECONDS`` and ``python -m mitigate.export.rt
 SCENARIO DIR --run SECONDS`` call it.
 """
 
@@ -64,11 +64,11 @@ the count, the largest lateness, the step time's median and 99th percentile, the
 the wake-up latency.  The workbench's plant server steps the scenario's plant in lockstep with it:
 
 ```bash
-python -m mitigate.export.plant_server SCENARIO.toml . --port 47100 &   # the workbench's plant
+python -m mitigate.export.rt SCENARIO.toml . --port 47100 &   # the workbench's plant
 build/{prefix}_rt --port 47100 --duration 30                            # or ./{prefix}_rt after make
 ```
 
-or both in one command: `python -m mitigate.export.plant_server SCENARIO.toml . --run 30`.
+or both in one command: `python -m mitigate.export.rt SCENARIO.toml . --run 30`.
 Options: `--priority N` (SCHED_FIFO with locked memory, for a PREEMPT_RT kernel), `--period S`
 (a headroom test), `--log FILE` (one row per period), `--param NAME=VALUE` (a runtime parameter).
 On the rig, replace the exchange with the DAQ's read and write; the loop stays.

@@ -89,7 +89,7 @@ def _parse_drive(data, ctx: Context, body_names) -> DriveSpec:
             raise ctx.err(f"drive.{fd.name}", f"missing field (a {kind} needs {', '.join(f.name for f in cls.fields if f.required)})")
     settings = cls.parse_settings(drv, ctx)
     ctx.inputs[d_input] = cls.setpoint
-    return DriveSpec(kind, d_input, d_body, tuple(d_params), **settings)
+    return DriveSpec(kind, d_input, d_body, tuple(d_params), setpoint=cls.setpoint, **settings)
 
 
 def _parse_connections(data, ctx: Context, body_names, drive: DriveSpec) -> list[ConnectionSpec]:

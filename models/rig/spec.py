@@ -183,6 +183,9 @@ class DriveSpec:
     eps_motor: float = 0.05
     #: a torque drive's torque limit [N m] (the plant clips its input to +-torque_max; inf: none)
     torque_max: float = float("inf")
+    #: what the drive's input sets, "speed" or "torque" (the kind's ``setpoint``, filled by the parser:
+    #: the spec itself knows no registry)
+    setpoint: str = "speed"
 
     def param(self, name: str) -> Ref | None:
         return dict(self.params).get(name)
@@ -258,10 +261,7 @@ class RigSpec:
         return tuple(out)
 
     def input_kind(self, name: str) -> str:
-        if name == self.drive.input:
-            from models.rig.drives import get_drive
-            return get_drive(self.drive.kind).setpoint
-        return "force"
+        return self.drive.setpoint if name == self.drive.input else "force"
 
     def with_changes(self, **changes) -> "RigSpec":
         import dataclasses
