@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from mitigate.cliutil import add_command, emit_json
-from models.errors import ConfigError
+from mitigate.cliutil import add_command, emit_json, quantity
 
 EPILOG = """\
 Writes DIR: include/<name>.h (create / step / reset / destroy; the layout of in[], out[] and the
@@ -28,8 +27,9 @@ def register(sub) -> None:
     p.add_argument("scenario", metavar="SCENARIO.toml", help="scenario file")
     p.add_argument("--controller", required=True, metavar="NAME", help="the [[controllers]] name to export")
     p.add_argument("--out", required=True, metavar="DIR", help="the folder to write")
-    p.add_argument("--reference", type=float, default=60.0, metavar="SECONDS",
-                   help="seconds of the scenario the workbench runs for the replay test (default 60; 0: none)")
+    p.add_argument("--reference", type=quantity("time", lo=0.0), default=60.0, metavar="TIME",
+                   help="time of the scenario the workbench runs for the replay test, in s or with a unit "
+                        "(\"2 min\"; default 60 s; 0: none)")
     p.add_argument("--prefix", default=None, metavar="NAME", help="prefix of the C names (default: from the controller)")
     p.add_argument("--build", action="store_true", help="build with CMake and run the replay test")
     p.add_argument("--force", action="store_true", help="replace DIR if it exists")
@@ -42,8 +42,6 @@ def run(args) -> int:
 
     from mitigate.export import build_export, export_controller
 
-    if not (args.reference >= 0):
-        raise ConfigError(f"--reference must be a number of seconds >= 0, got {args.reference}")
     res = export_controller(args.scenario, args.controller, args.out, reference=args.reference or None,
                             prefix=args.prefix, force=args.force)
     out = res.as_dict()

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mitigate.cliutil import add_command, add_common, emit_json, format_table, savefig_atomic
+from mitigate.cliutil import add_command, add_common, emit_json, format_table, quantity, savefig_atomic
 from models.files import check_output_dir, output_set
 from models.errors import ConfigError
 from models.modal import VARIANTS, compare_measured, modes, stability_map
@@ -18,15 +18,16 @@ from models.rig import get_model, shipped_rigs
 EPILOG = """examples:
   mitigate modal                                 # rig3, all variants, published parameters (printed)
   mitigate modal --out out/                      # ... and the mode-shape and stability-map PNGs
-  mitigate modal --variant closed --load 20 --omega 3.1416 --json
+  mitigate modal --variant closed --load 20 --omega "30 rpm" --json
   mitigate modal --params fitted.toml --variant free --out out/ --force
   mitigate modal --model models/rigs/four_disc.toml --json
   mitigate modal --model disc --variant closed --load 20
 
 Variants: free = mechanical chain (thesis eq. 3-3 + shaft damping, rigid-body 0 Hz mode);
 clamped = the drive body held as well; closed = full model with the drive (DC motor + PI
-loop) and friction, linearised at steady sliding at --omega [rad/s] with the first contact's
-normal force = --load [N] (defaults: the rig file's operating point; rig3: 30 rpm, N1 = 20 N).
+loop) and friction, linearised at steady sliding at --omega with the first contact's normal force
+= --load (defaults: the rig file's operating point; rig3: 30 rpm, N1 = 20 N). Quantities are SI
+numbers or values with a unit, as in rig files: --omega "30 rpm", --load "0.8 kN".
 """
 
 
@@ -40,11 +41,12 @@ def register(subparsers) -> None:
     p.add_argument("--model", default="rig3", metavar="RIG",
                    help=f"a shipped rig ({', '.join(shipped_rigs())}) or a rig file path (default: rig3)")
     p.add_argument("--variant", default="all", choices=(*VARIANTS, "all"), help="variant (default: all)")
-    p.add_argument("--load", type=float, default=None, metavar="N",
-                   help="normal force of the first contact's input [N] at the sliding point (rig3: N1; default: the "
-                        "rig file's operating point)")
-    p.add_argument("--omega", type=float, default=None,
-                   help="sliding speed [rad/s, output side] (default: the rig file's operating point; rig3 30 rpm)")
+    p.add_argument("--load", type=quantity("force", lo=0.0), default=None, metavar="FORCE",
+                   help="normal force of the first contact's input at the sliding point, in N or with a unit "
+                        "(\"0.8 kN\"; rig3: N1; default: the rig file's operating point)")
+    p.add_argument("--omega", type=quantity("speed"), default=None, metavar="SPEED",
+                   help="sliding speed, output side, in rad/s or with a unit (\"30 rpm\"; default: the rig file's "
+                        "operating point; rig3 30 rpm)")
     p.add_argument("--no-map", action="store_true", help="skip the stability map PNG")
     add_common(p, out=False)
     p.add_argument("--out", default=None, metavar="DIR",
@@ -106,11 +108,6 @@ def run(args) -> int:
     model = get_model(args.model)
     params = load_params(args.params, model) if args.params else model.published()
     variants = list(VARIANTS) if args.variant == "all" else [args.variant]
-    for name, v in (("--load", args.load), ("--omega", args.omega)):
-        if v is not None and not math.isfinite(v):
-            raise ConfigError(f"{name} must be a finite number, got {v}")
-    if args.load is not None and args.load < 0:
-        raise ConfigError(f"--load must be >= 0 N, got {args.load}")
     out = check_output_dir(args.out) if args.out is not None else None
     loads = [n for n, k in zip(model.inputs, model.input_kinds) if k == "force"]
     do_map = out is not None and (not args.no_map) and model.drive.sets_speed and bool(loads)

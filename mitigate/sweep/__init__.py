@@ -94,7 +94,7 @@ def sweep(scenario, axes=(), *, out, controller=None, force=False, workers=None,
     axes = list(axes) or list(sc.sweep.get("vary", []))
     if not all(isinstance(a, (str, Axis)) for a in axes):
         raise ConfigError(f"axes must be 'name=start:stop:count' strings or Axis objects, got {axes!r}")
-    axes = [a if isinstance(a, Axis) else parse_axis(a) for a in axes]
+    axes = [a if isinstance(a, Axis) else parse_axis(a, axis_units(sc)) for a in axes]
     plan = plan_sweep(sc, axes, opts)
     with output_set(out, [], force=True) as w:     # the lock: no second command into this folder meanwhile
         store = SweepStore(out, plan.definition(controller), force=force)
