@@ -92,7 +92,7 @@ def register(subparsers) -> None:
     p.add_argument("--holdout", type=float, default=0.0, metavar="FRACTION",
                    help="fraction of the end of the logs kept out of the fit; the first log's is predicted with the "
                         "exact stick/slip plant (default 0)")
-    p.add_argument("--eps", type=quantity("speed", lo=0.0, lo_open=True), default=None, metavar="SPEED",
+    p.add_argument("--eps", type=quantity("speed"), default=None, metavar="SPEED",
                    help="friction regularisation, in rad/s or with a unit (\"0.05 rpm\"; default: from the rig, "
                         "0.16 %% of its nominal speed: rig3's 0.005 rad/s at 30 rpm)")
     p.add_argument("--nsub", type=int, default=None, help="RK4 substeps per sample (default: from the stiff rate)")
@@ -251,13 +251,13 @@ def _run(args) -> int:
         exclude=_names(args.exclude) or (), constraints=tuple(args.constraint),
         order_friction=not args.no_order_friction, extra_delay=args.delay, detect_delay=args.detect_delay,
         input_cutoff=_channel_values(args.input_cutoff, "--input-cutoff", "CHANNEL=FREQUENCY (e.g. n1=0.5)",
-                                     lambda _n: "rate", lo=0.0, lo_open=True) or None,
+                                     lambda _n: "rate") or None,
         input_noise=_input_noise(args.input_noise, model), systematic=args.systematic,
         progress=(not args.json) and sys.stderr.isatty())
     out = Path(args.out)
     plot = None if args.no_plot else (args.plot or str(out.with_suffix(".png")))
     check_outputs([out] + ([Path(plot)] if plot else []), args.force)
-    logs = [_read_log(p, args.tdms_map) for p in args.logs]
+    logs = [_read_log(p, args.tdms_map).with_speeds(model) for p in args.logs]    # the rig's encoders say which speeds
     guess = args.guess or ("off" if initial is not None else "auto")
     notes: tuple = ()
     if guess == "auto" and initial is not None:
@@ -294,10 +294,12 @@ def _run(args) -> int:
     if plot:
         _plot(fit, plot, args.force)
     pub = model.published()
+    # the rig file's value of each free parameter and where it comes from (a publication only if its source says so)
+    sources = {n: pub.spec(n).source for n in free if pub.spec(n).source}
     if args.json:
         payload = fit.as_dict()
         payload.update({"out": str(out), "plot": plot, "logs": list(args.logs), "guess_notes": list(notes),
-                        "published": {n: pub[n] for n in free},
+                        "rig_file": {n: pub[n] for n in free}, "rig_file_sources": sources,
                         "bootstrap": bres.as_dict() if bres is not None else None})
         emit_json(payload)
         return 0 if fit.success and (bres is None or bres.success) else 1
@@ -305,20 +307,22 @@ def _run(args) -> int:
     if bres is not None and bres.success:
         rows = [[n, e, s, b, d, r, i, pub[n], unit[n]] for n, e, s, b, d, r, i in
                 zip(fit.names, fit.estimate, fit.stderr, bres.bias, bres.sd, bres.error, fit.initial)]
-        head = ["parameter", "estimate", "std. error", "boot. bias", "boot. sd", "RMS error", "initial", "published",
+        head = ["parameter", "estimate", "std. error", "boot. bias", "boot. sd", "RMS error", "initial", "rig file",
                 "unit"]
     elif fit.syserr is None:
         off = fit.offset_error if fit.offset_error is not None else [math.nan] * len(fit.names)
         bias = fit.eps_bias if fit.eps_bias is not None else [math.nan] * len(fit.names)
         rows = [[n, e, s, b, o, t, i, pub[n], unit[n]] for n, e, s, b, o, t, i in
                 zip(fit.names, fit.estimate, fit.stderr, bias, off, fit.error, fit.initial)]
-        head = ["parameter", "estimate", "std. error", "eps bias", "enc. phase", "total error", "initial", "published",
+        head = ["parameter", "estimate", "std. error", "eps bias", "enc. phase", "total error", "initial", "rig file",
                 "unit"]
     else:
         rows = [[n, e, s, y, t, i, pub[n], unit[n]] for n, e, s, y, t, i in
                 zip(fit.names, fit.estimate, fit.stderr, fit.syserr, fit.error, fit.initial)]
-        head = ["parameter", "estimate", "std. error", "syst. error", "total error", "initial", "published", "unit"]
+        head = ["parameter", "estimate", "std. error", "syst. error", "total error", "initial", "rig file", "unit"]
     print(format_table(head, rows))
+    if sources:
+        print(f"{model.values_label}: " + "; ".join(f"{n} from {src}" for n, src in sources.items()))
     print(f"status: {fit.status.value}: {fit.message} ({fit.iterations} iterations, {fit.wall_time:.1f} s)")
     print(f"method: {fit.method}")
     print(f"friction regularisation: eps = {fit.eps:.3g} rad/s ({fit.eps_source})")

@@ -16,7 +16,7 @@ from models.rig import load_params
 from models.rig import get_model, shipped_rigs
 
 EPILOG = """examples:
-  mitigate modal                                 # rig3, all variants, published parameters (printed)
+  mitigate modal                                 # rig3, all variants, the rig file's values (printed)
   mitigate modal --out out/                      # ... and the mode-shape and stability-map PNGs
   mitigate modal --variant closed --load 20 --omega "30 rpm" --json
   mitigate modal --params fitted.toml --variant free --out out/ --force
@@ -42,7 +42,8 @@ def register(subparsers) -> None:
         description="Linearised modal analysis of a rig: mode table (model vs measured, error %), PNG of the "
                     "mode shapes and of the stability of steady sliding over (normal force, speed).",
         epilog=EPILOG)
-    p.add_argument("--params", metavar="FILE", help="parameter TOML (published or fitted); default: published")
+    p.add_argument("--params", metavar="FILE", help="parameter TOML (e.g. fitted by mitigate identify); default: "
+                                                    "the rig file's values")
     p.add_argument("--model", default="rig3", metavar="RIG",
                    help=f"a shipped rig ({', '.join(shipped_rigs())}) or a rig file path (default: rig3)")
     p.add_argument("--variant", default="all", choices=(*VARIANTS, "all"), help="variant (default: all)")
@@ -137,7 +138,7 @@ def run(args) -> int:
         emit_json(payload)
     else:
         measured = model.spec.extra.get("measured_modes_hz", ())
-        print(f"modal analysis of {model.name} ({args.params or 'published parameters'})"
+        print(f"modal analysis of {model.name} ({args.params or model.values_label})"
               + (f"; measured: {', '.join(f'{f:g}' for f in measured)} Hz" if measured else ""))
         print("\n".join(lines))
         if do_map:
@@ -152,7 +153,7 @@ def _analyse(args, model, params, variants, out, w, do_map, axis):
 
     results = [modes(model, params, v, omega=args.omega, load=args.load) for v in variants]
     measured = model.spec.extra.get("measured_modes_hz", ())
-    payload = {"model": model.name, "rig": model.key, "params": args.params or "published",
+    payload = {"model": model.name, "rig": model.key, "params": args.params or model.values_label,
                "measured_hz": list(measured), "variants": {}}
     lines = []
     for r in results:
@@ -173,7 +174,7 @@ def _analyse(args, model, params, variants, out, w, do_map, axis):
                                       [list(c) for c in cmp]))
     if w is not None:
         _plot_shapes(results, w.path(f"modal_{model.cname}.png"),
-                     f"Mode shapes of {model.name} ({args.params or 'published parameters'})")
+                     f"Mode shapes of {model.name} ({args.params or model.values_label})")
         payload["png"] = str(w.final(f"modal_{model.cname}.png"))
     if do_map:
         from models.modal import operating_point
