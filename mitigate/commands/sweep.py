@@ -65,7 +65,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from mitigate.scenario import load_scenario
-    from mitigate.sweep import (SweepStore, axis_units, connect_scheduler, options_from_scenario, parse_axis,
+    from mitigate.sweep import (SweepStore, axis_units, closed_loop_controller, connect_scheduler, options_from_scenario, parse_axis,
                                 plan_sweep, run_sweep)
     from mitigate.sweep.maps import plot_maps
 
@@ -84,11 +84,10 @@ def run(args) -> int:
         plan = plan_sweep(sc, axes, opts)
     except ConfigError as exc:
         raise ConfigError(str(exc).replace("axis ", "--vary ", 1).replace("axes:", "--vary:", 1)) from None
-    if args.controller is not None:
-        names = [c.name for c in sc.controllers]
-        if args.controller not in names:
-            raise ConfigError(f"--controller must be one of the scenario's [[controllers]] names {names}, "
-                              f"got {args.controller!r}")
+    try:
+        closed_loop_controller(plan, args.controller)      # a known entry that switches on within the runs
+    except ConfigError as exc:
+        raise ConfigError(str(exc).replace("controller must be", "--controller must be", 1)) from None
     out = check_output_dir(Path(args.out) if args.out else Path("out") / f"sweep-{file_stem(sc.name, 'scenario.name')}")
     t0 = time.perf_counter()
     model = sc.plant_model
