@@ -124,7 +124,7 @@ def register(subparsers) -> None:
                    help="also fit with 0..N extra samples of sensor delay and keep the best (reported)")
     p.add_argument("--input-cutoff", action="append", default=[], metavar="CHANNEL=FREQUENCY",
                    help="zero-phase low-pass of a noisy, slowly varying input before fitting, in Hz or with a "
-                        "unit, e.g. n1=0.5 or \"n1=500 mHz\"")
+                        "unit, e.g. n1=0.5 or \"n1=0.5 Hz\"")
     p.add_argument("--input-noise", action="append", default=[], metavar="CHANNEL=STD|auto|off",
                    help="errors in the variables: that logged input is noisy with this std, in the input's SI unit "
                         "or with a unit, e.g. n1=0.2 or \"n1=0.2 N\". Default auto: force/torque inputs whose fast "

@@ -180,9 +180,9 @@ def _analyse(args, model, params, variants, out, w, do_map, axis):
         from models.modal import operating_point
         u_op, _ = operating_point(model, params)
         w_op = float(u_op[model.inputs.index(model.drive_input)])
-        if not w_op > 0:
-            raise ConfigError(f"rig {model.name!r}: its operating point's speed is {w_op:g} rad/s; the stability map "
-                              "spans 0.15-2 times a positive one")
+        if w_op == 0:
+            raise ConfigError(f"rig {model.name!r}: its operating point's speed is 0 rad/s; the stability map spans "
+                              "0.15-2 times a non-zero one (give [rig] operating_point)")
         n1 = np.linspace(axis.lo, axis.hi, 21)
         om = np.linspace(0.15 * w_op, 2.0 * w_op, 23)   # >= 10 eps: the regularisation does not set the slope
         M = stability_map(model, params, n1, om, input=axis.input)
