@@ -44,7 +44,7 @@ def main(argv=None):
         ("modes rig3 clamped", lambda: modes(m, p, "clamped")),
         ("modes rig3 closed (CasADi Jacobian + Newton + eig)", lambda: modes(m, p, "closed")),
         ("linearise rig3 at steady sliding", lambda: linearise(m, p, [np.pi, 20.0, 0.0])),
-        (f"stability_map rig3 {n1.size} x {om.size} points", lambda: stability_map(m, p, n1, om)),
+        (f"stability_map rig3 {n1.size} x {om.size} points", lambda: stability_map(m, p, n1, om, input="n1")),
     ]
     rows = [(name, *timeit(fn, args.repeats if "map" not in name else max(1, args.repeats // 3))) for name, fn in cases]
     lines = ["| task | median [ms] | p95 [ms] |", "|---|---|---|"]

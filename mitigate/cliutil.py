@@ -9,14 +9,62 @@ import math
 import os
 import sys
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
 from models.errors import ConfigError
 
 __all__ = ["add_command", "add_common", "check_outputs", "emit_json", "format_table", "to_jsonable", "savefig_atomic",
-           "finish_figure"]
+           "finish_figure", "quantity"]
+
+#: an example of each quantity a flag takes, for its error message
+_EXAMPLES = {"speed": "30 rpm", "force": "0.8 kN", "torque": "2 kN m", "time": "250 ms", "rate": "0.5 Hz",
+             "angle": "5 deg", "length": "10 mm", "current": "500 mA", "voltage": "24 V"}
+
+
+def quantity(kind: str, *, lo: float | None = None, lo_open: bool = False) -> Callable[[str], float]:
+    """An argparse ``type=`` for a flag that takes a physical quantity of ``kind`` (a key of
+    :data:`models.units.DIMENSIONS`: ``"speed"``, ``"force"``, ``"time"``, ...): a number, taken in the
+    kind's SI unit, or a number with its unit as rig and scenario files write it (``"5 rpm"``,
+    ``"0.8 kN"``, ``"250 ms"``), converted to SI by :mod:`models.units`.
+
+    Parameters
+    ----------
+    kind : the quantity kind; lo : the smallest value allowed [SI] (None: any finite value);
+        lo_open : ``lo`` itself excluded
+
+    Returns
+    -------
+    ``parse(text) -> float`` [SI]. A value that does not parse, carries the unit of another quantity,
+    is not finite or lies below ``lo`` raises :class:`argparse.ArgumentTypeError`, which argparse
+    prints as one line naming the flag (exit 2): ``argument --omega: expected a speed (a number in
+    rad/s, or with its unit, e.g. "30 rpm"), got '5 kN' (unit [kN] does not convert to a speed ...)``.
+    Called directly (the value part of ``CHANNEL=VALUE``), the caller names its flag.
+    """
+    from models.rig.spec import SI_UNITS
+    from models.units import factor, parse_quantity
+
+    si = SI_UNITS[kind]
+    bound = "" if lo is None else f" {'>' if lo_open else '>='} {lo:g} {si}"
+    expected = (f"expected a {kind.replace('_', ' ')}{bound} (a number in {si}, or with its unit, e.g. "
+                f"\"{_EXAMPLES.get(kind, '1 ' + si)}\")")
+
+    def parse(text: str) -> float:
+        q = parse_quantity(text) if isinstance(text, str) else None
+        if q is None:
+            raise argparse.ArgumentTypeError(f"{expected}, got {text!r}")
+        try:
+            v = q[0] * factor(q[1], kind, "value") if q[1] else q[0]
+        except ConfigError as exc:
+            why = str(exc).removeprefix("value: ")
+            raise argparse.ArgumentTypeError(f"{expected}, got {text!r} ({why})") from None
+        if not math.isfinite(v) or (lo is not None and (v <= lo if lo_open else v < lo)):
+            raise argparse.ArgumentTypeError(f"{expected}, got {text!r}" + (f" ({v:g} {si})" if q[1] else ""))
+        return float(v)
+
+    parse.__name__ = kind          # what argparse calls the type in its own messages
+    return parse
 
 
 def add_command(subparsers, name: str, *, help: str, description: str, epilog: str) -> argparse.ArgumentParser:

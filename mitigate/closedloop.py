@@ -82,7 +82,10 @@ class ClosedLoopResult(Trajectory):
     estimator_times : (m,) wall time of each estimator update [s]
     controller_counts, estimator_counts : counts from the base classes
     observability : the estimator's observability report (or None)
-    units : SI unit of every measured channel and input (the rig's names, free or not)
+    drive : ``{name: (m,)}`` the plant drive's electrical and torque quantities (a DC motor's
+        ``current`` [A] and ``voltage`` [V], a torque drive's ``drive_torque`` [N m]:
+        :meth:`models.rig.drives.Drive.signals`), TRUE values of the plant
+    units : SI unit of every measured channel, input and drive quantity (the rig's names, free or not)
     status : Status.OK, or Status.DIVERGED / FAILED; message : the reason
     """
 
@@ -111,6 +114,7 @@ class ClosedLoopResult(Trajectory):
     status: Status = Status.OK
     message: str = "ok"
     units: dict = field(default_factory=dict, repr=False)
+    drive: dict = field(default_factory=dict, repr=False)
 
     def estimate(self, name: str) -> np.ndarray:
         """Estimated state trajectory by name."""
@@ -122,8 +126,10 @@ class ClosedLoopResult(Trajectory):
         return self.state(f"omega_{self.objective_body}")
 
     def to_log(self) -> Log:
-        """Measured channels, the commands sent, plus the TRUE twists and speeds as
-        ``true_twist_<spring>`` / ``true_omega_<body>`` columns (:data:`models.logs.TRUTH_PREFIX`), as a log."""
+        """Measured channels, the commands sent, plus the TRUE twists, speeds and drive quantities as
+        ``true_twist_<spring>`` / ``true_omega_<body>`` / ``true_<drive quantity>`` columns
+        (:data:`models.logs.TRUTH_PREFIX`; a DC motor's ``true_current [A]`` and ``true_voltage [V]``,
+        a torque drive's ``true_drive_torque [N m]``), as a log."""
         chans = dict(self.y)
         chans.update(self.commands)
         for n, v in self.twists.items():
@@ -132,6 +138,9 @@ class ClosedLoopResult(Trajectory):
             if n.startswith("omega_"):
                 chans[TRUTH_PREFIX + n] = self.x[:, j]
         units = {k: self.units[k] for k in chans if k in self.units}
+        for n, v in self.drive.items():
+            chans[TRUTH_PREFIX + n] = v
+            units[TRUTH_PREFIX + n] = self.units[n]
         return Log(self.t, chans, f"closed loop: {self.controller}", (), units)
 
 
@@ -368,7 +377,8 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
         estimator_counts=estimator.counts.as_dict(), controller=getattr(controller, "name", type(controller).__name__),
         model=model.name, objective_body=model.objective_body, states=pm.states, inputs=pm.inputs,
         control_start=float(k_start * dt), observability=getattr(estimator, "observability", None),
-        status=status, message=message, units={**pm.output_units(), **model.output_units()})
+        status=status, message=message, units={**pm.output_units(), **model.output_units(), **pm.drive.signal_units()},
+        drive=pm.drive.signals(pm, scenario.plant_params, X[:m], U[:m]))
 
 
 def _warnings(scenario, controller, estimator, commands, active, first_fallback) -> tuple[Status, str]:

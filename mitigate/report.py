@@ -2,7 +2,8 @@
 
 The text is generated from the measured metrics only: one verdict per controller (what stays,
 how fast, at what effort, whether the job was done, failures and fallbacks:
-:func:`mitigate.benchmark.render.verdict` on the single run), the tuning values each controller
+:func:`mitigate.benchmark.render.verdict` on the single run; the drive's peak against the rig's
+limit, and whether the run exceeded it: :func:`drive_limit_note`), the tuning values each controller
 runs with (:attr:`mitigate.runner.ControllerRun.tuning`: SoftSpeed's Z, J_v, Kp, Ki, f_t, ...),
 and the wall time of its calls against the DAQ period.  The summary table (:func:`summary_rows`,
 also the terminal table of ``mitigate run``) keeps what a reader ranks by; every other metric is
@@ -16,7 +17,7 @@ from pathlib import Path
 
 from models.files import atomic_write_text
 
-__all__ = ["write_report", "render_report", "summary_rows", "verdict_entries"]
+__all__ = ["write_report", "render_report", "summary_rows", "verdict_entries", "drive_limit_note"]
 
 
 def _fmt(v, metric=None) -> str:
@@ -70,8 +71,27 @@ def _tuning_line(r) -> str:
                      for k, v in r.tuning.items())
 
 
+def drive_limit_note(sc, metrics) -> str:
+    """The verdict's line on the drive's limit (``drive_peak_ratio``): the peak of what the rig limits
+    against that limit, and whether the run EXCEEDED it or ran at it; "" when the rig declares none."""
+    drive = sc.plant_model.drive
+    lim = drive.limit(sc.plant_params.as_dict())
+    ratio = float(metrics.get("drive_peak_ratio", math.nan))
+    if lim is None or not math.isfinite(ratio):
+        return ""
+    name, value = lim
+    unit = drive.signal_units().get(name, "")
+    peak = f"peak |{name}| {_fmt(ratio * value)} {unit}"
+    if ratio > 1 + 1e-9:
+        return f"Drive: the run EXCEEDED its drive's limit: {peak}, {ratio:.3g} x the rig's limit of {_fmt(value)} {unit}."
+    if ratio >= 1 - 1e-3:
+        return f"Drive: at its limit: {peak} (the rig's limit {_fmt(value)} {unit})."
+    return f"Drive: {peak}, {100 * ratio:.3g} % of the rig's limit of {_fmt(value)} {unit}."
+
+
 def _verdicts(sc, runs) -> list[str]:
-    """One sentence per controller, and under it the tuning values it ran with."""
+    """One sentence per controller, and under it the tuning values it ran with and, when the rig limits
+    its drive, the peak against that limit (:func:`drive_limit_note`)."""
     from mitigate.benchmark.render import verdict
     entries = verdict_entries(sc, runs)
     prog_force = any(sc.inputs[n](sc.control.start) > 0 for n in sc.model.servo_inputs)
@@ -80,6 +100,9 @@ def _verdicts(sc, runs) -> list[str]:
         L.append(f"- {verdict(entries[r.name], None, prog_force)}")
         if r.tuning:
             L.append(f"  Tuning it ran with: {_tuning_line(r)}.")
+        note = drive_limit_note(sc, r.metrics) if r.metrics else ""
+        if note:
+            L.append(f"  {note}")
     return L + [""]
 
 

@@ -25,7 +25,8 @@ Files written to ``out`` as one set (:func:`models.files.output_set`: staged, th
 place; a killed run leaves ``out`` as it was):
 
 - ``metrics.csv``, ``metrics.json``: :func:`mitigate.metrics.closed_loop_metrics` per controller;
-- ``log_<controller>.csv``: the run as a log (measured channels, commands, true twists and speeds);
+- ``log_<controller>.csv``: the run as a log (measured channels, commands, true twists and speeds, the
+  drive's current and voltage or its torque);
 - ``timeseries_<controller>.png``, ``comparison.png``, ``phase.png``, ``metrics.png``;
 - ``report.md`` linking them.
 (A run that failed before its first sample has no log and no time series.)

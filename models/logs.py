@@ -19,7 +19,9 @@ increasing, no NaN or inf, no gap (a step longer than 1.5 times the median step)
 ``name [unit]`` per column; each error is one line naming the column and the row (data rows
 count from 1; the header is line 1 of the file).  A UTF-8 byte-order mark (Excel's CSV) is
 accepted.  Nothing is silently dropped.  Where only angles are given, speeds are derived by
-central differences.
+central differences: on reading, ``omega<X>`` from ``theta<X>``; once the rig is known
+(:meth:`Log.with_speeds` with the rig: identification does so), each encoder's speed channel from
+its angle channel, whatever they are named.
 """
 
 from __future__ import annotations
@@ -187,18 +189,33 @@ class Log:
                             f"{kind} [{SI_UNITS[kind]}]")
         return col
 
-    def with_speeds(self) -> "Log":
-        """Derive missing speeds ``omega<X>`` from angles ``theta<X>`` (central differences)."""
-        chans = dict(self.channels)
-        units = dict(self.units)
-        derived = list(self.derived)
-        for ang in list(chans):
-            if ang.startswith("theta"):
-                spd = "omega" + ang[len("theta"):]
-                if spd not in chans:
-                    chans[spd] = np.gradient(chans[ang], self.t)
-                    units[spd] = "rad/s"
-                    derived.append(spd)
+    def with_speeds(self, rig=None) -> "Log":
+        """Derive missing speeds from angles (central differences).
+
+        Parameters
+        ----------
+        rig : the rig the log belongs to (:class:`models.rig.RigModel`), or None.  With it, the sensor's
+            kind decides: each encoder's speed channel is derived from that encoder's angle channel,
+            whatever the two are named (an encoder on a body gives that body's angle: ``q`` -> ``qd``),
+            and a speed derived earlier by name that no encoder of the rig writes is dropped.  Without
+            it (a log read before its rig is known), ``omega<X>`` from ``theta<X>``, by the log vocabulary.
+
+        Returns
+        -------
+        Log : the derived channels listed in ``derived``
+        """
+        chans = {k: v for k, v in self.channels.items() if rig is None or k not in self.derived}
+        units = {k: u for k, u in self.units.items() if k in chans}
+        derived = [d for d in self.derived if d in chans]
+        if rig is None:
+            pairs = [(a, "omega" + a[len("theta"):]) for a in chans if a.startswith("theta")]
+        else:
+            pairs = [(s.channels[0], s.channels[1]) for s in rig.sensors if s.kind == "encoder"]
+        for ang, spd in pairs:
+            if ang in chans and spd not in chans:
+                chans[spd] = np.gradient(chans[ang], self.t)
+                units[spd] = "rad/s"
+                derived.append(spd)
         return Log(self.t, chans, self.source, tuple(derived), units)
 
     def slice(self, t0: float, t1: float) -> "Log":

@@ -19,7 +19,8 @@ Three questions are answered here, for every rig file:
    drive's own boundary condition; the metrics' windows, the controllers' tuning rules and the
    NMPC's defaults all ask it.
 2. *Is steady sliding stable?*  :func:`sliding_stability` returns the largest real part of
-   the linearisation; :func:`stability_map` maps it over (normal force, speed).  A positive
+   the linearisation; :func:`stability_map` maps it over (normal force, speed), the force being the
+   rig's actuated input over its rated range (:func:`map_axis`).  A positive
    value means the falling friction law beats the damping and the rig falls into
    stick-slip from any small disturbance.
 3. *What linear model do controllers and observers see?*  :class:`LinearModel` carries
@@ -66,6 +67,8 @@ __all__ = [
     "compare_measured",
     "sliding_stability",
     "stability_map",
+    "MapAxis",
+    "map_axis",
     "stribeck_onset",
     "stick_slip_frequency",
     "stick_slip_period",
@@ -454,15 +457,61 @@ def sliding_stability(model, params: ParameterSet | None, u, eps: float | None =
     return bool(mr < 0.0), mr
 
 
+@dataclass(frozen=True)
+class MapAxis:
+    """The normal-force axis of a stability map: ``input`` over ``[lo, hi]`` [N], and ``source``, where
+    that input and range come from (said in the output)."""
+
+    input: str
+    lo: float
+    hi: float
+    source: str
+
+
+def map_axis(model, params: ParameterSet | None = None, input: str | None = None) -> MapAxis:
+    """The normal-force axis of a rig's stability map: its actuated input over the actuator's rating.
+
+    ``input`` (default: the first servo's, ``[actuators]``) is a normal-force input of the rig.  A
+    servo's input spans the servo's rated range ``[n_min, n_max]``; an input no servo sets (a logged
+    force, a rig without actuators) spans 0 to twice its value at the rig's operating point (the
+    largest normal force there if its own is 0), as no rating is declared.
+
+    Raises
+    ------
+    ConfigError : ``input`` is not a normal-force input, or the rig has none, or (without a servo) its
+        operating point loads no contact.
+    """
+    model = get_model(model)
+    forces = [n for n, k in zip(model.inputs, model.input_kinds) if k == "force"]
+    if input is None:
+        input = model.servo_inputs[0] if model.servo_inputs else (forces[0] if forces else None)
+    if input not in forces:
+        raise ConfigError(f"the stability map's input must be a normal-force input of rig {model.name!r} "
+                          f"({', '.join(forces) or 'none'}), got {input!r}")
+    a = model.actuator(input)
+    if a is not None:
+        return MapAxis(input, float(a.n_min), float(a.n_max), f"the rated range of actuator {a.name!r}")
+    u_op, _ = operating_point(model, _params(model, params))
+    n_op, whose = float(u_op[model.inputs.index(input)]), "its"
+    if not n_op > 0:
+        n_op, whose = max(float(u_op[model.inputs.index(n)]) for n in forces), "the largest normal force of"
+    if not n_op > 0:
+        raise ConfigError(f"rig {model.name!r} declares no actuator for {input!r} and its operating point loads no "
+                          f"contact: no range for the stability map's {input!r}")
+    return MapAxis(input, 0.0, 2.0 * n_op, f"no actuator sets it: 0 to twice {whose} operating point "
+                                           f"({n_op:g} N)")
+
+
 def stability_map(model, params: ParameterSet | None, load_values, omega_values,
-                  eps: float | None = None) -> np.ndarray:
+                  eps: float | None = None, *, input: str | None = None) -> np.ndarray:
     """Largest real part [1/s] of the sliding linearisation over (normal force, speed).
 
     Parameters
     ----------
     model : a rig with a speed-setting drive and a normal-force input
-    load_values : (a,) the first contact's normal-force input [N]
+    load_values : (a,) values of the normal-force input ``input`` [N]
     omega_values : (b,) the drive's speed [rad/s]; the other inputs as in the rig's operating point
+    input : the normal-force input on the first axis (default: :func:`map_axis`'s, the rig's actuated one)
 
     Returns
     -------
@@ -474,7 +523,11 @@ def stability_map(model, params: ParameterSet | None, load_values, omega_values,
         raise ConfigError(f"stability_map needs a rig with a speed-setting drive and a normal-force input, "
                           f"got {model.name!r} ({model.drive_kind} drive, inputs {', '.join(model.inputs)})")
     base, _ = operating_point(model, params)
-    jl = model.input_kinds.index("force")
+    if input is None:
+        input = map_axis(model, params).input
+    elif dict(zip(model.inputs, model.input_kinds)).get(input) != "force":
+        raise ConfigError(f"stability_map: input must be a normal-force input of rig {model.name!r}, got {input!r}")
+    jl = model.inputs.index(input)
     jw = model.inputs.index(model.drive_input)
     load_values = np.asarray(load_values, dtype=float).ravel()
     omega_values = np.asarray(omega_values, dtype=float).ravel()

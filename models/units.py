@@ -22,7 +22,7 @@ import re
 
 from models.errors import ConfigError
 
-__all__ = ["Unit", "parse_unit", "parse_quantity", "factor", "to_si", "DIMENSIONS", "dimension_of"]
+__all__ = ["Unit", "parse_unit", "parse_quantity", "factor", "to_si", "convert", "DIMENSIONS", "dimension_of"]
 
 _QTY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*)$")
 
@@ -207,6 +207,24 @@ def factor(unit: str, kind: str, where: str = "unit") -> float:
 def to_si(value: float, unit: str, kind: str, where: str = "unit") -> float:
     """``value`` in ``unit`` converted to SI for a quantity of ``kind``."""
     return float(value) * factor(unit, kind, where)
+
+
+def convert(value: float, unit: str, to: str, where: str = "unit") -> float:
+    """``value`` in ``unit`` expressed in the unit ``to`` (e.g. a value given in rpm, for an axis whose
+    SI unit is rad/s): ``convert(30, "rpm", "rad/s") == pi``.
+
+    Raises
+    ------
+    ConfigError : a unit that does not parse, or of another dimension than ``to``
+        (``"<where>: unit [kN] does not convert to [rad/s] (expected rad s^-1, got kg m s^-2)"``).
+    """
+    u, t = parse_unit(unit, where), parse_unit(to, where)
+    if u.dim != t.dim:
+        if t.dim == DIMENSIONS["speed"] and u.dim == _dim(s=-1) and unit.strip().lower() == "hz":
+            return float(value) * 2 * math.pi / t.factor
+        raise ConfigError(f"{where}: unit [{unit}] does not convert to [{to}] (expected {_dim_text(t.dim)}, got "
+                          f"{_dim_text(u.dim)})")
+    return float(value) * u.factor / t.factor
 
 
 def parse_quantity(text: str) -> tuple[float, str] | None:

@@ -36,6 +36,7 @@ def test_identify_writes_params_and_plot(disc_csv, tmp_path, capsys):
     doc = json.loads(capsys.readouterr().out)
     assert doc["success"] and doc["status"] == "ok" and set(doc["parameters"]) == {"k", "mu_k"}
     assert doc["condition"] > 1 and doc["weak_directions"] and doc["encoder_zero"] == [{}]
+    assert doc["rig_file"] == {"k": 1.1175, "mu_k": 0.306} and doc["rig_file_sources"]["mu_k"] == "thesis eq. 3-14"
     p = load_params(out, "disc")  # every other command accepts it
     assert p.k == pytest.approx(1.0, rel=0.03) and p.mu_k == pytest.approx(0.28, rel=0.05)
     assert p.stderr_of("k") > 0
@@ -52,7 +53,8 @@ def test_table_output(disc_csv, tmp_path, capsys):
     rc = _run(disc_csv, tmp_path / "f.toml", "--free", "k")
     assert rc == 0
     text = capsys.readouterr().out
-    assert "estimate" in text and "published" in text and "N m/rad" in text
+    assert "estimate" in text and "rig file" in text and "N m/rad" in text and "published" not in text
+    assert "the rig file's values (disc): k from thesis eq. 3-7 (k1)" in text       # the source says it is the thesis
     assert "status: ok" in text and "conditioning: condition number" in text
     assert "--bootstrap 6" in text                      # points to error bars that include the bias
     assert "errors in the variables: n1 0.2" in text     # the load-cell noise, detected
@@ -76,13 +78,15 @@ def test_rig_file_path_and_guess(disc_csv, tmp_path, capsys):
 @pytest.mark.parametrize("args, msg", [
     (["--free", "k,zz"], "unknown parameter 'zz'"),
     (["--free", "k", "--holdout", "0.95"], "--holdout must be a fraction"),
-    (["--free", "k", "--input-cutoff", "n1"], "--input-cutoff must look like CHANNEL=HZ"),
+    (["--free", "k", "--input-cutoff", "n1"], "--input-cutoff must look like CHANNEL=FREQUENCY"),
     (["--free", "k", "--input-cutoff", "n2=0.5"], "--input-cutoff n2: not an input of rig 'disc'"),
     (["--free", "k", "--input-cutoff", "n1=-1"], "--input-cutoff n1 must be > 0 Hz"),
     (["--free", "k", "--bootstrap", "1"], "--bootstrap must be an integer >= 2"),
     (["--free", "k", "--input-noise", "n1"], "--input-noise must look like CHANNEL=STD"),
     (["--free", "k", "--input-noise", "n2=0.2"], "--input-noise n2: not an input of rig 'disc'"),
-    (["--free", "k", "--input-noise", "n1=0"], "--input-noise n1: the std must be a number > 0"),
+    (["--free", "k", "--input-noise", "n1=0"], "--input-noise n1: expected a force > 0 N"),
+    (["--free", "k", "--input-noise", "n1=0.2 N m"], "--input-noise n1: expected a force > 0 N"),
+    (["--free", "k", "--input-cutoff", "n1=0.5 N"], "--input-cutoff n1: expected a rate (a number in 1/s, or with"),
     (["--free", "k", "--bootstrap", "3", "--systematic"], "--bootstrap and --systematic are alternatives"),
     (["--free", "k", "--bootstrap", "3", "--workers", "0"], "--workers must be an integer >= 1"),
     (["--free", "k", "--bootstrap", "3", "--noise-scale", "-1"], "--noise-scale must be >= 0"),

@@ -155,8 +155,10 @@ def test_modal_accepts_fitted_params_and_rejects_bad_ones(main, tmp_path, capsys
     capsys.readouterr()
     assert main(["modal", "--model", "rig9", "--out", str(tmp_path / "o4")]) == 2
     assert "model must be a shipped rig" in capsys.readouterr().err
-    assert main(["modal", "--load", "-1", "--out", str(tmp_path / "o5")]) == 2
-    assert "--load must be >= 0 N" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:         # argparse's own refusal: the flag's type says what it takes
+        main(["modal", "--load", "-1", "--out", str(tmp_path / "o5")])
+    assert exc.value.code == 2
+    assert "argument --load: expected a force >= 0 N" in capsys.readouterr().err
     assert not (tmp_path / "o4").exists() and not (tmp_path / "o5").exists()
 
 

@@ -134,7 +134,7 @@ def test_rig3_onset_agrees_with_modal_projection_estimate():
 
 def test_stability_map_grows_with_n1_and_falls_with_speed():
     p = get_model("rig3").published()
-    M = stability_map("rig3", p, [5.0, 20.0, 40.0], [1.0, 3.0, 6.0])
+    M = stability_map("rig3", p, [5.0, 20.0, 40.0], [1.0, 3.0, 6.0], input="n1")
     assert M.shape == (3, 3)
     assert np.all(np.diff(M, axis=0) > 0)
     assert np.all(np.diff(M, axis=1) < 0)

@@ -63,7 +63,8 @@ def check_option_names(model, options) -> None:
 
 
 def check_logs(model, logs, options) -> tuple[tuple[Log, ...], float]:
-    """The logs as a tuple, and their one sample period [s].
+    """The logs as a tuple (each encoder's missing speed derived from its angle:
+    :meth:`models.logs.Log.with_speeds`), and their one sample period [s].
 
     Raises
     ------
@@ -77,6 +78,8 @@ def check_logs(model, logs, options) -> tuple[tuple[Log, ...], float]:
     for lg in logs:
         if not isinstance(lg, Log):
             raise DataError(f"logs must hold models.logs.Log objects, got {type(lg).__name__}")
+    # each encoder's speed from its angle, whatever the channels are named (the rig's sensors say which)
+    logs = [lg.with_speeds(m) for lg in logs]
     dt = logs[0].dt
     for lg in logs:
         if abs(lg.dt - dt) > 1e-9 * max(1.0, dt):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import shlex
 import sys
 
-from mitigate.cliutil import add_command, add_common, emit_json, format_table
+from mitigate.cliutil import add_command, add_common, emit_json, format_table, quantity
 from models.errors import ConfigError
 
 EPILOG = """\
@@ -54,8 +54,8 @@ def register(sub) -> None:
     p.add_argument("--jobs", type=int, default=2, metavar="N", help="local worker processes (default: 2)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler (tcp://host:port) to send the runs to; default: local processes")
-    p.add_argument("--scheduler-timeout", type=float, default=10.0, metavar="S",
-                   help="seconds to wait for the Dask scheduler (default 10)")
+    p.add_argument("--scheduler-timeout", type=quantity("time", lo=0.0, lo_open=True), default=10.0, metavar="TIME",
+                   help="how long to wait for the Dask scheduler, in s or with a unit (default 10 s)")
     p.add_argument("--tuned", action="store_true", help="tune every controller per scenario first (same --budget)")
     p.add_argument("--budget", type=int, default=20, metavar="N", help="trials per controller and scenario (--tuned)")
     add_common(p, default_out="out/benchmark")

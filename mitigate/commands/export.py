@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from mitigate.cliutil import add_command, emit_json
+from mitigate.cliutil import add_command, emit_json, quantity
 from models.errors import ConfigError
 
 EPILOG = """\
@@ -37,13 +37,15 @@ def register(sub) -> None:
     p.add_argument("scenario", metavar="SCENARIO.toml", help="scenario file")
     p.add_argument("--controller", required=True, metavar="NAME", help="the [[controllers]] name to export")
     p.add_argument("--out", required=True, metavar="DIR", help="the folder to write")
-    p.add_argument("--reference", type=float, default=60.0, metavar="SECONDS",
-                   help="seconds of the scenario the workbench runs for the replay test (default 60; 0: none)")
+    p.add_argument("--reference", type=quantity("time", lo=0.0), default=60.0, metavar="TIME",
+                   help="time of the scenario the workbench runs for the replay test, in s or with a unit "
+                        "(\"2 min\"; default 60 s; 0: none)")
     p.add_argument("--prefix", default=None, metavar="NAME", help="prefix of the C names (default: from the controller)")
     p.add_argument("--build", action="store_true", help="build with CMake and run the replay test")
     p.add_argument("--fmu", action="store_true", help="also build DIR/<name>.fmu, an FMI 2.0 co-simulation FMU")
-    p.add_argument("--rt", type=float, default=None, metavar="SECONDS",
-                   help="build, then run the real-time driver against the scenario's plant for SECONDS of samples")
+    p.add_argument("--rt", type=quantity("time", lo=0.0), default=None, metavar="TIME",
+                   help="build, then run the real-time driver against the scenario's plant for TIME of samples (s or "
+                        "with a unit)")
     p.add_argument("--force", action="store_true", help="replace DIR if it exists")
     p.add_argument("--json", action="store_true", help="print a machine-readable JSON document on stdout")
     p.set_defaults(func=run)
@@ -55,8 +57,6 @@ def run(args) -> int:
 
     from mitigate.export import build_export, export_controller
 
-    if not (args.reference >= 0):
-        raise ConfigError(f"--reference must be a number of seconds >= 0, got {args.reference}")
     if args.rt is not None and not (args.rt > 0):
         raise ConfigError(f"--rt must be a number of seconds > 0, got {args.rt}")
     try:

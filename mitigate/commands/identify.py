@@ -17,13 +17,14 @@ structure misses: ...`` and exit 0.
 
 from __future__ import annotations
 
+import argparse
 import math
 import re
 import sys
 import warnings
 from pathlib import Path
 
-from mitigate.cliutil import add_command, check_outputs, emit_json, format_table
+from mitigate.cliutil import add_command, check_outputs, emit_json, format_table, quantity
 from models.errors import ConfigError, DataError
 from models.files import atomic_path
 from models.logs import read_csv
@@ -91,9 +92,9 @@ def register(subparsers) -> None:
     p.add_argument("--holdout", type=float, default=0.0, metavar="FRACTION",
                    help="fraction of the end of the logs kept out of the fit; the first log's is predicted with the "
                         "exact stick/slip plant (default 0)")
-    p.add_argument("--eps", type=float, default=None,
-                   help="friction regularisation [rad/s] (default: from the rig, 0.16 %% of its nominal speed: "
-                        "rig3's 0.005 rad/s at 30 rpm)")
+    p.add_argument("--eps", type=quantity("speed"), default=None, metavar="SPEED",
+                   help="friction regularisation, in rad/s or with a unit (\"0.05 rpm\"; default: from the rig, "
+                        "0.16 %% of its nominal speed: rig3's 0.005 rad/s at 30 rpm)")
     p.add_argument("--nsub", type=int, default=None, help="RK4 substeps per sample (default: from the stiff rate)")
     p.add_argument("--shoot-every", type=int, default=10, metavar="M",
                    help="samples per shooting interval (default 10)")
@@ -121,11 +122,13 @@ def register(subparsers) -> None:
                    help="whole samples added to every sensor's delay (the rig file's), commands not delayed")
     p.add_argument("--detect-delay", type=int, default=0, metavar="N",
                    help="also fit with 0..N extra samples of sensor delay and keep the best (reported)")
-    p.add_argument("--input-cutoff", action="append", default=[], metavar="CHANNEL=HZ",
-                   help="zero-phase low-pass of a noisy, slowly varying input before fitting, e.g. n1=0.5")
+    p.add_argument("--input-cutoff", action="append", default=[], metavar="CHANNEL=FREQUENCY",
+                   help="zero-phase low-pass of a noisy, slowly varying input before fitting, in Hz or with a "
+                        "unit, e.g. n1=0.5 or \"n1=0.5 Hz\"")
     p.add_argument("--input-noise", action="append", default=[], metavar="CHANNEL=STD|auto|off",
-                   help="errors in the variables: that logged input is noisy with this std (SI), e.g. n1=0.2. "
-                        "Default auto: force/torque inputs whose fast part is white noise; off: none")
+                   help="errors in the variables: that logged input is noisy with this std, in the input's SI unit "
+                        "or with a unit, e.g. n1=0.2 or \"n1=0.2 N\". Default auto: force/torque inputs whose fast "
+                        "part is white noise; off: none")
     p.add_argument("--systematic", action="store_true",
                    help="also refit with the regularisation halved and report |theta(eps) - theta(eps/2)|; "
                         "[stderr] then holds the TOTAL error sqrt(SE^2 + syserr^2)")
@@ -155,32 +158,33 @@ def _names(text: str | None) -> tuple[str, ...] | None:
     return tuple(s.strip() for s in text.split(",") if s.strip())
 
 
-def _channel_values(items, flag: str, form: str) -> dict[str, float]:
-    """``CHANNEL=NUMBER`` entries of ``flag``; one-line ConfigError otherwise."""
+def _channel_values(items, flag: str, form: str, kind, **bounds) -> dict[str, float]:
+    """``CHANNEL=VALUE`` entries of ``flag``, each value a quantity of ``kind(channel)`` (a number in SI
+    or with its unit: :func:`mitigate.cliutil.quantity`; None: an SI number); one-line ConfigError
+    otherwise."""
     out = {}
     for item in items:
         name, sep, val = item.partition("=")
         name = name.strip()
-        try:
-            out[name] = float(val)
-        except ValueError:
-            sep = ""
         if not sep or not name:
             raise ConfigError(f"{flag} must look like {form}, got {item!r}")
+        try:
+            out[name] = quantity(kind(name) or "dimensionless", **bounds)(val.strip())
+        except argparse.ArgumentTypeError as exc:
+            raise ConfigError(f"{flag} {name}: {exc}") from None
     return out
 
 
-def _input_noise(items):
-    """``--input-noise`` entries -> the library's ``input_noise`` ("auto", "off" or a table)."""
+def _input_noise(items, model):
+    """``--input-noise`` entries -> the library's ``input_noise`` ("auto", "off" or a table of stds in
+    each input's SI unit)."""
     mode = "auto"
     for item in items:
         if item in ("auto", "off"):
             mode = item
+    kinds = dict(zip(model.inputs, model.input_kinds))
     explicit = _channel_values([i for i in items if i not in ("auto", "off")], "--input-noise",
-                               "CHANNEL=STD, auto or off (e.g. n1=0.2)")
-    for name, std in explicit.items():
-        if not (math.isfinite(std) and std > 0):
-            raise ConfigError(f"--input-noise {name}: the std must be a number > 0, got {std!r}")
+                               "CHANNEL=STD, auto or off (e.g. n1=0.2)", kinds.get, lo=0.0, lo_open=True)
     if explicit:
         return explicit
     return mode
@@ -246,13 +250,14 @@ def _run(args) -> int:
         solver=args.solver, globalise=args.globalise, encoder_zero=args.encoder_zero, input_row=args.input_row, outputs=_names(args.outputs),
         exclude=_names(args.exclude) or (), constraints=tuple(args.constraint),
         order_friction=not args.no_order_friction, extra_delay=args.delay, detect_delay=args.detect_delay,
-        input_cutoff=_channel_values(args.input_cutoff, "--input-cutoff", "CHANNEL=HZ (e.g. n1=0.5)") or None,
-        input_noise=_input_noise(args.input_noise), systematic=args.systematic,
+        input_cutoff=_channel_values(args.input_cutoff, "--input-cutoff", "CHANNEL=FREQUENCY (e.g. n1=0.5)",
+                                     lambda _n: "rate") or None,
+        input_noise=_input_noise(args.input_noise, model), systematic=args.systematic,
         progress=(not args.json) and sys.stderr.isatty())
     out = Path(args.out)
     plot = None if args.no_plot else (args.plot or str(out.with_suffix(".png")))
     check_outputs([out] + ([Path(plot)] if plot else []), args.force)
-    logs = [_read_log(p, args.tdms_map) for p in args.logs]
+    logs = [_read_log(p, args.tdms_map).with_speeds(model) for p in args.logs]    # the rig's encoders say which speeds
     guess = args.guess or ("off" if initial is not None else "auto")
     notes: tuple = ()
     if guess == "auto" and initial is not None:
@@ -289,10 +294,12 @@ def _run(args) -> int:
     if plot:
         _plot(fit, plot, args.force)
     pub = model.published()
+    # the rig file's value of each free parameter and where it comes from (a publication only if its source says so)
+    sources = {n: pub.spec(n).source for n in free if pub.spec(n).source}
     if args.json:
         payload = fit.as_dict()
         payload.update({"out": str(out), "plot": plot, "logs": list(args.logs), "guess_notes": list(notes),
-                        "published": {n: pub[n] for n in free},
+                        "rig_file": {n: pub[n] for n in free}, "rig_file_sources": sources,
                         "bootstrap": bres.as_dict() if bres is not None else None})
         emit_json(payload)
         return 0 if fit.success and (bres is None or bres.success) else 1
@@ -300,20 +307,22 @@ def _run(args) -> int:
     if bres is not None and bres.success:
         rows = [[n, e, s, b, d, r, i, pub[n], unit[n]] for n, e, s, b, d, r, i in
                 zip(fit.names, fit.estimate, fit.stderr, bres.bias, bres.sd, bres.error, fit.initial)]
-        head = ["parameter", "estimate", "std. error", "boot. bias", "boot. sd", "RMS error", "initial", "published",
+        head = ["parameter", "estimate", "std. error", "boot. bias", "boot. sd", "RMS error", "initial", "rig file",
                 "unit"]
     elif fit.syserr is None:
         off = fit.offset_error if fit.offset_error is not None else [math.nan] * len(fit.names)
         bias = fit.eps_bias if fit.eps_bias is not None else [math.nan] * len(fit.names)
         rows = [[n, e, s, b, o, t, i, pub[n], unit[n]] for n, e, s, b, o, t, i in
                 zip(fit.names, fit.estimate, fit.stderr, bias, off, fit.error, fit.initial)]
-        head = ["parameter", "estimate", "std. error", "eps bias", "enc. phase", "total error", "initial", "published",
+        head = ["parameter", "estimate", "std. error", "eps bias", "enc. phase", "total error", "initial", "rig file",
                 "unit"]
     else:
         rows = [[n, e, s, y, t, i, pub[n], unit[n]] for n, e, s, y, t, i in
                 zip(fit.names, fit.estimate, fit.stderr, fit.syserr, fit.error, fit.initial)]
-        head = ["parameter", "estimate", "std. error", "syst. error", "total error", "initial", "published", "unit"]
+        head = ["parameter", "estimate", "std. error", "syst. error", "total error", "initial", "rig file", "unit"]
     print(format_table(head, rows))
+    if sources:
+        print(f"{model.values_label}: " + "; ".join(f"{n} from {src}" for n, src in sources.items()))
     print(f"status: {fit.status.value}: {fit.message} ({fit.iterations} iterations, {fit.wall_time:.1f} s)")
     print(f"method: {fit.method}")
     print(f"friction regularisation: eps = {fit.eps:.3g} rad/s ({fit.eps_source})")

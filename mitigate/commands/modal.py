@@ -8,25 +8,31 @@ from pathlib import Path
 
 import numpy as np
 
-from mitigate.cliutil import add_command, add_common, emit_json, format_table, savefig_atomic
+from mitigate.cliutil import add_command, add_common, emit_json, format_table, quantity, savefig_atomic
 from models.files import check_output_dir, output_set
 from models.errors import ConfigError
-from models.modal import VARIANTS, compare_measured, modes, stability_map
+from models.modal import VARIANTS, compare_measured, map_axis, modes, stability_map
 from models.rig import load_params
 from models.rig import get_model, shipped_rigs
 
 EPILOG = """examples:
-  mitigate modal                                 # rig3, all variants, published parameters (printed)
+  mitigate modal                                 # rig3, all variants, the rig file's values (printed)
   mitigate modal --out out/                      # ... and the mode-shape and stability-map PNGs
-  mitigate modal --variant closed --load 20 --omega 3.1416 --json
+  mitigate modal --variant closed --load 20 --omega "30 rpm" --json
   mitigate modal --params fitted.toml --variant free --out out/ --force
   mitigate modal --model models/rigs/four_disc.toml --json
   mitigate modal --model disc --variant closed --load 20
 
+The stability map (with --out) spans the rig's actuated normal-force input over its actuator's
+rated range (a servo's n_min..n_max; rig3: the servo pin n2, 0-40 N; --map-input for another) and
+0.15-2 times the operating speed; the output says which input and range it used, and whether
+that input changes the stability of sliding at all.
+
 Variants: free = mechanical chain (thesis eq. 3-3 + shaft damping, rigid-body 0 Hz mode);
 clamped = the drive body held as well; closed = full model with the drive (DC motor + PI
-loop) and friction, linearised at steady sliding at --omega [rad/s] with the first contact's
-normal force = --load [N] (defaults: the rig file's operating point; rig3: 30 rpm, N1 = 20 N).
+loop) and friction, linearised at steady sliding at --omega with the first contact's normal force
+= --load (defaults: the rig file's operating point; rig3: 30 rpm, N1 = 20 N). Quantities are SI
+numbers or values with a unit, as in rig files: --omega "30 rpm", --load "0.8 kN".
 """
 
 
@@ -36,16 +42,21 @@ def register(subparsers) -> None:
         description="Linearised modal analysis of a rig: mode table (model vs measured, error %), PNG of the "
                     "mode shapes and of the stability of steady sliding over (normal force, speed).",
         epilog=EPILOG)
-    p.add_argument("--params", metavar="FILE", help="parameter TOML (published or fitted); default: published")
+    p.add_argument("--params", metavar="FILE", help="parameter TOML (e.g. fitted by mitigate identify); default: "
+                                                    "the rig file's values")
     p.add_argument("--model", default="rig3", metavar="RIG",
                    help=f"a shipped rig ({', '.join(shipped_rigs())}) or a rig file path (default: rig3)")
     p.add_argument("--variant", default="all", choices=(*VARIANTS, "all"), help="variant (default: all)")
-    p.add_argument("--load", type=float, default=None, metavar="N",
-                   help="normal force of the first contact's input [N] at the sliding point (rig3: N1; default: the "
-                        "rig file's operating point)")
-    p.add_argument("--omega", type=float, default=None,
-                   help="sliding speed [rad/s, output side] (default: the rig file's operating point; rig3 30 rpm)")
+    p.add_argument("--load", type=quantity("force", lo=0.0), default=None, metavar="FORCE",
+                   help="normal force of the first contact's input at the sliding point, in N or with a unit "
+                        "(\"0.8 kN\"; rig3: N1; default: the rig file's operating point)")
+    p.add_argument("--omega", type=quantity("speed"), default=None, metavar="SPEED",
+                   help="sliding speed, output side, in rad/s or with a unit (\"30 rpm\"; default: the rig file's "
+                        "operating point; rig3 30 rpm)")
     p.add_argument("--no-map", action="store_true", help="skip the stability map PNG")
+    p.add_argument("--map-input", default=None, metavar="INPUT",
+                   help="the normal-force input on the stability map's force axis (default: the rig's actuated one, "
+                        "a servo's, over its rated range n_min..n_max)")
     add_common(p, out=False)
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write the mode-shape and stability-map PNGs into DIR (default: print only, write nothing)")
@@ -106,14 +117,15 @@ def run(args) -> int:
     model = get_model(args.model)
     params = load_params(args.params, model) if args.params else model.published()
     variants = list(VARIANTS) if args.variant == "all" else [args.variant]
-    for name, v in (("--load", args.load), ("--omega", args.omega)):
-        if v is not None and not math.isfinite(v):
-            raise ConfigError(f"{name} must be a finite number, got {v}")
-    if args.load is not None and args.load < 0:
-        raise ConfigError(f"--load must be >= 0 N, got {args.load}")
     out = check_output_dir(args.out) if args.out is not None else None
     loads = [n for n, k in zip(model.inputs, model.input_kinds) if k == "force"]
     do_map = out is not None and (not args.no_map) and model.drive.sets_speed and bool(loads)
+    axis = None
+    if do_map or args.map_input is not None:
+        try:
+            axis = map_axis(model, params, args.map_input)      # refused before anything is written
+        except ConfigError as exc:
+            raise ConfigError(str(exc).replace("the stability map's input", "--map-input", 1)) from None
     with contextlib.ExitStack() as stack:
         w = None
         if out is not None:
@@ -121,25 +133,27 @@ def run(args) -> int:
             map_png = out / f"stability_map_{model.cname}.png"
             w = stack.enter_context(output_set(out, [shapes_png.name] + ([map_png.name] if do_map else []),
                                                force=args.force))
-        payload, lines = _analyse(args, model, params, variants, out, w, do_map, loads)
+        payload, lines = _analyse(args, model, params, variants, out, w, do_map, axis)
     if args.json:
         emit_json(payload)
     else:
         measured = model.spec.extra.get("measured_modes_hz", ())
-        print(f"modal analysis of {model.name} ({args.params or 'published parameters'})"
+        print(f"modal analysis of {model.name} ({args.params or model.values_label})"
               + (f"; measured: {', '.join(f'{f:g}' for f in measured)} Hz" if measured else ""))
         print("\n".join(lines))
+        if do_map:
+            print("\n" + payload["stability_map"]["text"])
         if out is not None:
             print(f"\nwrote {payload['png']}" + (f" and {payload['stability_map']['png']}" if do_map else ""))
     return 0
 
 
-def _analyse(args, model, params, variants, out, w, do_map, loads):
+def _analyse(args, model, params, variants, out, w, do_map, axis):
     """The modes (and, with ``w``, the PNGs written into the output set): ``(payload, lines)``."""
 
     results = [modes(model, params, v, omega=args.omega, load=args.load) for v in variants]
     measured = model.spec.extra.get("measured_modes_hz", ())
-    payload = {"model": model.name, "rig": model.key, "params": args.params or "published",
+    payload = {"model": model.name, "rig": model.key, "params": args.params or model.values_label,
                "measured_hz": list(measured), "variants": {}}
     lines = []
     for r in results:
@@ -160,18 +174,32 @@ def _analyse(args, model, params, variants, out, w, do_map, loads):
                                       [list(c) for c in cmp]))
     if w is not None:
         _plot_shapes(results, w.path(f"modal_{model.cname}.png"),
-                     f"Mode shapes of {model.name} ({args.params or 'published parameters'})")
+                     f"Mode shapes of {model.name} ({args.params or model.values_label})")
         payload["png"] = str(w.final(f"modal_{model.cname}.png"))
     if do_map:
         from models.modal import operating_point
         u_op, _ = operating_point(model, params)
-        w_op = float(u_op[model.inputs.index(model.drive_input)]) or 1.0
-        n_op = float(u_op[model.inputs.index(loads[0])]) or 20.0
-        n1 = np.linspace(0.0, 2.0 * n_op, 21)
+        w_op = float(u_op[model.inputs.index(model.drive_input)])
+        if w_op == 0:
+            raise ConfigError(f"rig {model.name!r}: its operating point's speed is 0 rad/s; the stability map spans "
+                              "0.15-2 times a non-zero one (give [rig] operating_point)")
+        n1 = np.linspace(axis.lo, axis.hi, 21)
         om = np.linspace(0.15 * w_op, 2.0 * w_op, 23)   # >= 10 eps: the regularisation does not set the slope
-        M = stability_map(model, params, n1, om)
+        M = stability_map(model, params, n1, om, input=axis.input)
         name = f"stability_map_{model.cname}.png"
-        _plot_map(n1, om, M, w.path(name), f"Stability of steady sliding, {model.name}", loads[0])
-        payload["stability_map"] = {"png": str(w.final(name)), "load": loads[0], "values": n1, "omega": om,
-                                    "max_real": M}
+        _plot_map(n1, om, M, w.path(name), f"Stability of steady sliding, {model.name}", axis.input)
+        # does the input change the stability at all? A Coulomb contact's force does not: its friction does
+        # not fall with speed, so the slope, and the linearisation, do not depend on it (only the
+        # regularisation's tail does: 0.00014 1/s on a caliper bench whose map spans +-1.5 1/s)
+        spread = float(np.max(np.ptp(M, axis=0)))
+        inert = spread <= 1e-3 * float(np.max(np.abs(M)))
+        rpm = 60 / (2 * math.pi)
+        text = (f"stability map: {axis.input} over {axis.lo:g}-{axis.hi:g} N ({axis.source}) x {model.drive_input} "
+                f"over {om[0]:.4g}-{om[-1]:.4g} rad/s ({om[0] * rpm:.3g}-{om[-1] * rpm:.3g} rpm, 0.15-2 x the operating "
+                f"point); steady sliding is unstable at {int(np.sum(M > 0))} of {M.size} points"
+                + (f"; {axis.input} does not change the stability of sliding over this range (largest change of the "
+                   f"real part {spread:.2g} 1/s)" if inert else ""))
+        payload["stability_map"] = {"png": str(w.final(name)), "load": axis.input, "range": [axis.lo, axis.hi],
+                                    "range_source": axis.source, "values": n1, "omega": om, "max_real": M,
+                                    "load_changes_stability": not inert, "text": text}
     return payload, lines

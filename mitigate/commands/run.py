@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 
 from mitigate.cliutil import add_command, add_common, emit_json, format_table
@@ -11,8 +12,9 @@ EPILOG = """\
 Runs every [[controllers]] entry of the scenario against the same plant (exact stick/slip,
 its sensors and servos, parameter mismatch and [structure]), each in its own process, and
 writes to DIR: a terminal table, metrics.csv, metrics.json, log_<controller>.csv (measured
-channels, commands, true twists and speeds), timeseries_<controller>.png, comparison.png,
-phase.png, metrics.png and report.md.
+channels, commands, true twists and speeds, the drive's current and voltage or its torque),
+timeseries_<controller>.png, comparison.png, phase.png, metrics.png and report.md (whose verdict
+says when a run exceeded the drive's limit: a DC motor's i_max, a torque drive's torque_max).
 Nothing is run or written if the scenario is invalid, DIR cannot be a folder, another command is
 writing into DIR, or an output exists (use --force); the outputs are written as one set (a killed
 run leaves DIR as it was). Exit codes: 0 every run ok (or with warnings), 1 a run FAILED or diverged
@@ -36,7 +38,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from mitigate.report import summary_rows
+    from mitigate.report import drive_limit_note, summary_rows
     from mitigate.runner import run_scenario
 
     if isinstance(args.jobs, int) and args.jobs < 1:
@@ -51,5 +53,8 @@ def run(args) -> int:
         if obs is not None:
             print(f"observability: {getattr(obs, 'message', obs)}")
         print(format_table(*summary_rows(res.scenario, res.runs)))
+        for r in res.runs:           # a run at or beyond its drive's limit (NaN: the rig declares none)
+            if float(r.metrics.get("drive_peak_ratio", math.nan)) >= 1 - 1e-3:
+                print(f"{r.name}: {drive_limit_note(res.scenario, r.metrics)}")
         print(f"\n{res.message}; {res.elapsed:.1f} s; outputs in {args.out} (report: {res.files['report']})")
     return 0 if res.success else 1

@@ -7,14 +7,16 @@ from pathlib import Path
 
 from models.errors import ConfigError
 from models.files import check_output_dir, file_stem, output_set
-from mitigate.cliutil import add_command, add_common, emit_json, format_table
+from mitigate.cliutil import add_command, add_common, emit_json, format_table, quantity
 
 EPILOG = """\
 axes: --vary name=start:stop:count (count linearly spaced values, both ends included); name is
   an input of the rig (n1, omega_ref, axial_force, omega_drive: the profile becomes a constant),
   a plant parameter (k1, d1, c, K, motor_torque_offset: replaced), <param>_scale (K_scale:
   multiplies the plant value) or mismatch.<param> (replaces the mismatch factor on the nominal value).
-  Without --vary the scenario's [sweep] vary list is used.
+  start and stop are SI numbers or, for an input or a parameter, values with a unit as in rig files
+  (--vary "omega_ref=10 rpm:60 rpm:6"). Without --vary the scenario's [sweep] vary list is used.
+  --duration, --settle and --scheduler-timeout take seconds or a time with its unit ("2 min").
 
 The sweep folder (--out) holds manifest.json, chunks/*.csv (one per finished chunk,
 written atomically), results.csv and the PNG maps.  Rerunning the same command resumes
@@ -24,6 +26,7 @@ unless --force (which discards the old chunks).
 examples:
   mitigate sweep scenarios/sweep_rig3.toml --out out/sweep_rig3
   mitigate sweep scenarios/sweep_rig3.toml --vary n1=5:40:50 --vary omega_ref=1:8:50 --start both
+  mitigate sweep scenarios/sweep_rig3.toml --vary "omega_ref=10 rpm:75 rpm:20" --duration "1 min"
   mitigate sweep scenarios/sweep_leadscrew.toml --vary omega_drive=20:90:30 --vary axial_force=50:400:30
   mitigate sweep scenarios/sweep_rig3.toml --scheduler tcp://10.0.0.5:8786
 """
@@ -41,11 +44,13 @@ def register(sub) -> None:
                    help="initial state of each run (default: sweep.start of the scenario, else rest)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler (tcp://host:port) to send chunks to; default: local processes")
-    p.add_argument("--scheduler-timeout", type=float, default=10.0, metavar="S",
-                   help="seconds to wait for the Dask scheduler (default 10)")
+    p.add_argument("--scheduler-timeout", type=quantity("time", lo=0.0, lo_open=True), default=10.0, metavar="TIME",
+                   help="how long to wait for the Dask scheduler, in s or with a unit (default 10 s)")
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count)")
-    p.add_argument("--duration", type=float, default=None, help="seconds per run (default: sweep/scenario)")
-    p.add_argument("--settle", type=float, default=None, help="seconds discarded before the metrics (default: half)")
+    p.add_argument("--duration", type=quantity("time", lo=0.0, lo_open=True), default=None, metavar="TIME",
+                   help="time per run, in s or with a unit (\"2 min\"; default: sweep/scenario)")
+    p.add_argument("--settle", type=quantity("time", lo=0.0), default=None, metavar="TIME",
+                   help="time discarded before the metrics, in s or with a unit (default: half the run)")
     p.add_argument("--chunk", type=int, default=None, help="points per chunk (unit of resuming)")
     p.add_argument("--backend", choices=("compiled", "vm"), default="compiled",
                    help="compiled: plant step compiled to C once (cached); vm: CasADi virtual machine")
@@ -60,7 +65,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from mitigate.scenario import load_scenario
-    from mitigate.sweep import (SweepStore, axis_units, connect_scheduler, options_from_scenario, parse_axis,
+    from mitigate.sweep import (SweepStore, axis_units, closed_loop_controller, connect_scheduler, options_from_scenario, parse_axis,
                                 plan_sweep, run_sweep)
     from mitigate.sweep.maps import plot_maps
 
@@ -75,15 +80,14 @@ def run(args) -> int:
     if not isinstance(vary, list) or not all(isinstance(v, str) for v in vary):
         raise ConfigError(f"sweep.vary must be a list of 'name=start:stop:count' strings, got {vary!r}")
     try:
-        axes = [parse_axis(v) for v in vary]
+        axes = [parse_axis(v, axis_units(sc)) for v in vary]
         plan = plan_sweep(sc, axes, opts)
     except ConfigError as exc:
         raise ConfigError(str(exc).replace("axis ", "--vary ", 1).replace("axes:", "--vary:", 1)) from None
-    if args.controller is not None:
-        names = [c.name for c in sc.controllers]
-        if args.controller not in names:
-            raise ConfigError(f"--controller must be one of the scenario's [[controllers]] names {names}, "
-                              f"got {args.controller!r}")
+    try:
+        closed_loop_controller(plan, args.controller)      # a known entry that switches on within the runs
+    except ConfigError as exc:
+        raise ConfigError(str(exc).replace("controller must be", "--controller must be", 1)) from None
     out = check_output_dir(Path(args.out) if args.out else Path("out") / f"sweep-{file_stem(sc.name, 'scenario.name')}")
     t0 = time.perf_counter()
     model = sc.plant_model

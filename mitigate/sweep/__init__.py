@@ -55,13 +55,13 @@ The ``[sweep]`` table of a scenario sets defaults::
 """
 
 from mitigate.sweep.chunks import ChunkTask, batched_step, run_chunk, sweep_metrics
-from mitigate.sweep.execute import (SweepResult, assemble, connect_scheduler, make_tasks, run_sweep,
-                                    stability_indices, stability_subgrid)
+from mitigate.sweep.execute import (SweepResult, assemble, closed_loop_controller, connect_scheduler, make_tasks,
+                                    run_sweep, stability_indices, stability_subgrid)
 from mitigate.sweep.plan import Axis, SweepOptions, SweepPlan, options_from_scenario, parse_axis, plan_sweep
 from mitigate.sweep.store import SweepStore, definition_hash
 
 __all__ = ["Axis", "parse_axis", "SweepOptions", "options_from_scenario", "SweepPlan", "plan_sweep", "sweep_metrics",
-           "ChunkTask", "batched_step", "run_chunk", "make_tasks", "run_sweep", "assemble", "SweepResult",
+           "ChunkTask", "batched_step", "run_chunk", "make_tasks", "closed_loop_controller", "run_sweep", "assemble", "SweepResult",
            "connect_scheduler", "stability_indices", "stability_subgrid", "SweepStore", "definition_hash", "sweep"]
 
 
@@ -94,8 +94,9 @@ def sweep(scenario, axes=(), *, out, controller=None, force=False, workers=None,
     axes = list(axes) or list(sc.sweep.get("vary", []))
     if not all(isinstance(a, (str, Axis)) for a in axes):
         raise ConfigError(f"axes must be 'name=start:stop:count' strings or Axis objects, got {axes!r}")
-    axes = [a if isinstance(a, Axis) else parse_axis(a) for a in axes]
+    axes = [a if isinstance(a, Axis) else parse_axis(a, axis_units(sc)) for a in axes]
     plan = plan_sweep(sc, axes, opts)
+    closed_loop_controller(plan, controller)          # refused before anything is written
     with output_set(out, [], force=True) as w:     # the lock: no second command into this folder meanwhile
         store = SweepStore(out, plan.definition(controller), force=force)
         res = run_sweep(plan, store, workers=workers, scheduler=scheduler, controller=controller, progress=progress,

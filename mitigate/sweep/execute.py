@@ -17,23 +17,38 @@ from mitigate.sweep.chunks import ChunkTask, run_chunk, sweep_metrics
 from mitigate.sweep.plan import Axis, SweepPlan
 from mitigate.sweep.store import SweepStore
 
-__all__ = ["make_tasks", "run_sweep", "assemble", "SweepResult", "connect_scheduler", "stability_subgrid",
+__all__ = ["make_tasks", "closed_loop_controller", "run_sweep", "assemble", "SweepResult", "connect_scheduler", "stability_subgrid",
            "stability_indices"]
+
+
+def closed_loop_controller(plan: SweepPlan, name: str | None):
+    """``(scenario, controller index, run duration [s])`` of a closed-loop sweep's ``[[controllers]]``
+    entry ``name`` (None for an open-loop sweep): checked before anything is written.
+
+    Raises
+    ------
+    ConfigError : no entry of that name, or runs that end before the controller switches on
+        (``control.start`` at or after ``sweep.duration``: it would never act)
+    """
+    if name is None:
+        return None
+    sc, o = plan.scenario, plan.options
+    names = [c.name for c in sc.controllers]
+    if name not in names:
+        raise ConfigError(f"controller must be one of the scenario's [[controllers]] names {names}, got {name!r}")
+    if sc.control.start >= o.duration:
+        raise ConfigError(f"{sc.where}: sweep.duration must be > control.start = {sc.control.start:g} s for a "
+                          f"closed-loop sweep (the controller would never act), got {o.duration:g} s")
+    return sc, names.index(name), o.duration
 
 
 def make_tasks(plan: SweepPlan, controller: str | None = None) -> list[ChunkTask]:
     """All chunks of a plan, for each start mode; keys like ``rest_00003``.
 
-    ``controller``: name of a ``[[controllers]]`` entry for closed-loop points.
+    ``controller``: name of a ``[[controllers]]`` entry for closed-loop points (:func:`closed_loop_controller`).
     """
     o = plan.options
-    if controller is not None:
-        sc = plan.scenario
-        names = [c.name for c in sc.controllers]
-        if controller not in names:
-            raise ConfigError(f"controller must be one of the scenario's [[controllers]] names {names}, "
-                              f"got {controller!r}")
-        controller = (sc, names.index(controller), o.duration)
+    controller = closed_loop_controller(plan, controller)
     model = plan.scenario.plant_model
     # the integration rule at the scenario's plant parameters (one decision for the whole grid)
     qs = plant_integration(model, plan.scenario.plant_params, SimOptions(dt=o.dt, nsub=o.nsub)).quasi_static

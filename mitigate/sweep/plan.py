@@ -9,12 +9,13 @@ import hashlib
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
 from models.checks import check_options, number, option, options_from_mapping, prefix
 from models.errors import ConfigError
+from models.units import convert, parse_quantity
 
 __all__ = ["Axis", "parse_axis", "SweepOptions", "options_from_scenario", "SweepPlan", "plan_sweep", "MAX_POINTS",
            "rig_defaults", "REFERENCE_DEFAULTS"]
@@ -45,8 +46,12 @@ class Axis:
         return f"{self.name}={self.start:g}:{self.stop:g}:{self.count}"
 
 
-def parse_axis(text: str) -> Axis:
-    """Parse ``name=start:stop:count`` (e.g. ``n1=5:40:50``)."""
+def parse_axis(text: str, units: Mapping[str, str] | None = None) -> Axis:
+    """Parse ``name=start:stop:count`` (e.g. ``n1=5:40:50``, ``omega_ref=10 rpm:60 rpm:6``).
+
+    ``start`` and ``stop`` are numbers in the axis's SI unit, or values with a unit as rig and
+    scenario files write them, converted to ``units[name]`` (its SI unit: :func:`mitigate.sweep.axis_units`;
+    an axis whose unit is not known there takes numbers only)."""
     if not isinstance(text, str) or "=" not in text:
         raise ConfigError(f"axis must be name=start:stop:count (e.g. n1=5:40:50), got {text!r}")
     name, rng = text.split("=", 1)
@@ -54,10 +59,7 @@ def parse_axis(text: str) -> Axis:
     parts = rng.split(":")
     if not name or len(parts) != 3:
         raise ConfigError(f"axis must be name=start:stop:count (e.g. n1=5:40:50), got {text!r}")
-    try:
-        start, stop = float(parts[0]), float(parts[1])
-    except ValueError:
-        raise ConfigError(f"axis {name}: start and stop must be numbers, got {parts[0]!r}, {parts[1]!r}") from None
+    start, stop = (_axis_value(p, name, units) for p in parts[:2])
     try:
         count = int(parts[2])
     except ValueError:
@@ -70,6 +72,25 @@ def parse_axis(text: str) -> Axis:
         raise ConfigError(f"axis {name}: count must be <= {MAX_POINTS:,} (the most points a sweep may have), "
                           f"got {count:,}")
     return Axis(name, start, stop, count)
+
+
+def _axis_value(text: str, name: str, units: Mapping[str, str] | None) -> float:
+    """One end of an axis: a number [SI], or a value with its unit converted to the axis's SI unit."""
+    q = parse_quantity(text)
+    if q is None:
+        try:
+            return float(text)          # inf, nan: refused as not finite below
+        except ValueError:
+            pass
+        raise ConfigError(f"axis {name}: start and stop must be numbers (or values with a unit, e.g. \"30 rpm\"), "
+                          f"got {text.strip()!r}")
+    if not q[1]:
+        return q[0]
+    si = (units or {}).get(name)
+    if si is None:
+        raise ConfigError(f"axis {name}: {text.strip()!r} has a unit, but {name!r} is not an input or parameter "
+                          f"whose unit is known here; give a number in SI")
+    return convert(q[0], q[1], si, f"axis {name}")
 
 
 # ----------------------------------------------------------------------------- options

@@ -220,8 +220,15 @@ class RigModel(RigOutputs):
         return ParameterSet(self.key, specs, {p.name: p.value for p in self.spec.parameters})
 
     def published(self) -> ParameterSet:
-        """The parameter set as the rig file gives it."""
+        """The parameter set as the rig file gives it (each value's provenance in its ``source``)."""
         return self._published
+
+    @property
+    def values_label(self) -> str:
+        """How outputs name :meth:`published`: ``"the rig file's values (<rig name>)"``.  They are the
+        user's own design values unless a parameter's ``source`` cites a publication (rig3's "thesis
+        Table 3.1"): outputs that list parameters show that source, never "published" for all."""
+        return f"the rig file's values ({self.name})"
 
     def check_params(self, params: ParameterSet, what: str = "params") -> ParameterSet:
         """``params`` if it belongs to this rig (same names), else a one-line ConfigError."""

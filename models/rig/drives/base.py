@@ -18,6 +18,9 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Mapping
 
+import casadi as ca
+import numpy as np
+
 from models.errors import ConfigError
 from models.rig.spec import NODE_DRIVE, SI_UNITS, DriveSpec, Ref
 
@@ -250,7 +253,46 @@ class Drive:
         reading gives it (else None).  ``(None, None)`` when it cannot be told."""
         return T, None
 
-    # ------------------------------------------------------------------ limits and energy
+    # ------------------------------------------------------------------ along a run: signals, limits and energy
+    def signals(self, model, params, X, U) -> dict[str, np.ndarray]:
+        """The drive's electrical and torque quantities along a trajectory, what a bench's drive reports
+        beside the sensors: ``{name: (n,) array}`` in the units of :meth:`signal_units`.
+
+        The default is the torque the drive applies to its body, ``drive_torque`` [N m] (a torque
+        drive's applied input; none for a prescribed speed, whose torque the model does not know).
+
+        Parameters
+        ----------
+        model : the rig the trajectory belongs to; params : its parameter set
+        X : (n, nx) states; U : (n, nu) applied inputs (order ``model.inputs``)
+        """
+        if not self.on_body:
+            return {}
+        x, u = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu)
+        un = {name: u[j] for j, name in enumerate(model.inputs)}
+        f = ca.Function("drive_torque", [x, u], [self.torque(model, x, un, params.as_dict())])
+        return {"drive_torque": _mapped(f, X, U)}
+
+    def signal_units(self) -> dict[str, str]:
+        """The SI unit of every name :meth:`signals` gives."""
+        return {"drive_torque": "N m"} if self.on_body else {}
+
+    def limit(self, P) -> tuple[str, float] | None:
+        """``(signal, limit)``: which of :meth:`signals` the rig limits and its limit in that signal's
+        unit (default: ``drive_torque`` and :meth:`torque_limit`), or None when the rig declares no
+        limit (``P``: parameter values by name)."""
+        lim = self.torque_limit(P)
+        return ("drive_torque", lim) if self.on_body and math.isfinite(lim) else None
+
+    def peak_ratio(self, model, params, X, U) -> float:
+        """The peak of the limited signal's magnitude along a trajectory over its limit [-]
+        (:meth:`limit`; above 1: the run exceeded the drive's limit), NaN when the rig declares none."""
+        lim = self.limit(params.as_dict())
+        if lim is None or not len(X):
+            return math.nan
+        s = np.abs(self.signals(model, params, X, U)[lim[0]])
+        return float(np.max(s[np.isfinite(s)], initial=0.0)) / lim[1]
+
     def torque_limit(self, P=None) -> float:
         """The largest torque the drive can apply [N m] (inf: none)."""
         return math.inf
@@ -263,6 +305,14 @@ class Drive:
         """The power the drive draws along a trajectory [W] ((n,) array, ``X`` (n, nx), ``U`` (n, nu)),
         or None when the model does not know it (a prescribed speed)."""
         return None
+
+
+def _mapped(f, X, U) -> np.ndarray:
+    """``f(x, u)`` (a scalar CasADi Function) over the rows of ``X`` (n, nx) and ``U`` (n, nu): (n,)."""
+    X, U = np.asarray(X, float), np.asarray(U, float)
+    if not X.shape[0]:
+        return np.zeros(0)
+    return np.asarray(f.map(X.shape[0])(X.T, U.T), float).ravel()
 
 
 #: the registered drive kinds by name

@@ -219,13 +219,32 @@ class DCMotor(Drive):
                               + float(d.param("Cm").value(P)) * eta * w), None
         return T + eta * (eta - 1) * Jm * acc, T - eta * Jm * acc
 
-    # ------------------------------------------------------------------ limits and energy
+    # ------------------------------------------------------------------ along a run: signals, limits and energy
+    def signals(self, model, params, X, U) -> dict[str, np.ndarray]:
+        """The armature ``current`` [A] (the state) and ``voltage`` [V] (the PI loop's, limited by the
+        supply and the current limit: :meth:`motor_voltage`)."""
+        X, U = np.asarray(X, float), np.asarray(U, float)
+        i = X[:, self.state_index(model, "current")]
+        if not X.shape[0]:
+            return {"current": i, "voltage": np.zeros(0)}
+        f = model.meas_vector(["voltage"])
+        V = np.array(f.map(X.shape[0])(X.T, U.T, np.asarray(params.vector(), float)), float).ravel()
+        return {"current": i, "voltage": V}
+
+    def signal_units(self) -> dict[str, str]:
+        return {"current": "A", "voltage": "V"}
+
+    def limit(self, P) -> tuple[str, float] | None:
+        """The armature current and ``i_max`` (None without one: a supply voltage ``v_max`` alone
+        bounds the voltage the loop asks for, never more than the supply gives)."""
+        lim = self.current_limit(P)
+        return ("current", lim) if math.isfinite(lim) else None
+
     def current_limit(self, P) -> float:
         cur = self.spec.param("i_max")
         return float(cur.value(P)) if cur is not None else math.nan
 
     def power(self, model, params, X, U):
         """``V i``: the limited armature voltage times the current."""
-        f = model.meas_vector(["voltage"])
-        V = np.array(f.map(X.shape[0])(X.T, U.T, np.asarray(params.vector(), float))).ravel()
-        return V * X[:, model.nx - 2]
+        s = self.signals(model, params, X, U)
+        return s["voltage"] * s["current"]
