@@ -13,7 +13,8 @@ import time
 import numpy as np
 
 from models import get_model
-from models.modal import linearise, modes, stability_map
+from models.modal import linearise, modes
+from models.stability import stability_map
 
 
 def timeit(fn, repeats):

@@ -12,7 +12,8 @@ The Python API::
 from models.errors import ConfigError, DataError, PluginError, SolverFailure
 from models.friction import FrictionLaw, LAWS, Param, get_law, register
 from models.logs import Log, read_csv
-from models.modal import LinearModel, ModalResult, linearise, modes, sliding_stability, stability_map
+from models.modal import LinearModel, ModalResult, linearise, modes
+from models.stability import sliding_stability, stability_map
 from models.params import ParameterSet
 from models.plant import Plant, SimOptions, SimResult, simulate
 from models.rig import RigModel, get_model, load_params, load_rig, published, shipped_rigs

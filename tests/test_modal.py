@@ -19,9 +19,8 @@ from hypothesis import given, settings, strategies as st
 from models import get_model
 from models.errors import ConfigError
 from models.status import Status
-from models.modal import (
-    chain_matrices, compare_measured, linearise, modes, sliding_stability, stability_map, stribeck_onset,
-)
+from models.modal import chain_matrices, compare_measured, linearise, modes
+from models.stability import sliding_stability, stability_map, stribeck_onset
 
 
 def test_free_chain_has_rigid_body_mode_and_documented_frequencies():

@@ -2,7 +2,7 @@
 
 Before, ``mitigate modal`` mapped the first contact's input over 0-40 N: on a user's bench that was a
 Coulomb caliper rated to 800 N, whose force has no effect on the stability of sliding.  Now the axis
-is a servo's input over ``[n_min, n_max]`` (:func:`models.modal.map_axis`), the output says which input
+is a servo's input over ``[n_min, n_max]`` (:func:`models.stability.map_axis`), the output says which input
 and range, and whether that input changes the stability at all.
 """
 
@@ -17,7 +17,7 @@ import pytest
 
 from models import get_model
 from models.errors import ConfigError
-from models.modal import map_axis, stability_map, stribeck_onset
+from models.stability import map_axis, stability_map, stribeck_onset
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -125,7 +125,7 @@ def test_leadscrew_threshold_and_speed_trend(tmp_path):
 
 def test_rig3_sliding_start_agrees_with_linear_stability(tmp_path):
     """From (kicked) steady sliding, a linearly unstable point develops stick-slip, a stable one does not."""
-    from models.modal import sliding_stability
+    from models.stability import sliding_stability
     sc = load_scenario(RIG3)
     o = options_from_scenario(sc, duration=20.0, settle=10.0, start="sliding", backend="vm", chunk=2)
     plan = plan_sweep(sc, [parse_axis("omega_ref=1:6:2"), parse_axis("n1=35:35:1")], o)

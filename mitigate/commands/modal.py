@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import contextlib
 import math
-from pathlib import Path
 
 import numpy as np
 
 from mitigate.cliutil import add_command, add_common, emit_json, format_table, quantity, savefig_atomic
 from models.files import check_output_dir, output_set
 from models.errors import ConfigError
-from models.modal import VARIANTS, compare_measured, map_axis, modes, stability_map
+from models.modal import VARIANTS, compare_measured, modes
+from models.stability import map_axis, stability_map
 from models.rig import load_params
 from models.rig import get_model, shipped_rigs
 

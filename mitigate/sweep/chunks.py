@@ -169,7 +169,7 @@ def run_chunk(task: ChunkTask) -> list[RunRecord] | dict[str, np.ndarray]:
 
 
 def _run_chunk_stability(task: ChunkTask) -> dict[str, np.ndarray]:
-    from models.modal import sliding_stability
+    from models.stability import sliding_stability
     model = task.model
     out = np.full(len(task.indices), np.nan)
     for j in range(len(task.indices)):

@@ -148,12 +148,12 @@ def resolve(options, model, params, dt_daq: float, nominal_speed: float, setpoin
 
 def sliding_is_stable(model, params, u, nominal_speed: float) -> bool | None:
     """Whether steady sliding of the rig at inputs ``u`` is linearly stable
-    (:func:`models.modal.sliding_stability`); on a torque drive at the equilibrium with the
+    (:func:`models.stability.sliding_stability`); on a torque drive at the equilibrium with the
     objective body at ``nominal_speed`` (a torque may sustain several; the programme's is the one
     at the nominal speed).  None when it cannot be decided (no equilibrium found)."""
     import numpy as np
 
-    from models.modal import sliding_stability
+    from models.stability import sliding_stability
     try:
         x_op, u = None, np.asarray(u, float)
         if not model.drive.sets_speed:
