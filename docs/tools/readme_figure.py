@@ -41,8 +41,8 @@ def main(argv=None) -> int:
         ax.plot(log.t, log[f"true_omega_{body}"], color=colour, lw=0.9, label=label)
     # PI only sends the programme itself; the NMPC's log holds its own set-point
     ax.plot(logs[0].t, logs[0]["omega_ref"], color="k", lw=0.8, ls="--", label="programme (30 rpm)")
-    ax.axvline(sc.control_start, color="0.5", lw=0.8)
-    ax.annotate("control on", (sc.control_start, 0.0), xytext=(4, 2), textcoords="offset points",
+    ax.axvline(sc.control.start, color="0.5", lw=0.8)
+    ax.annotate("control on", (sc.control.start, 0.0), xytext=(4, 2), textcoords="offset points",
                 color="0.3", fontsize=8)
     ax.set_xlabel("time [s]")
     ax.set_ylabel(f"speed of disc {body} [rad/s]")

@@ -308,7 +308,7 @@ def input_starts(scenario, itf: Interface) -> dict[str, float]:
     u0 = sc.programme(0.0)
     out = {f"programme:{n}": float(u0[j]) for j, n in enumerate(sc.model.inputs)}
     if any(p.name == "target_speed" for p in itf.inputs):
-        out["target_speed"] = float(sc.control_speed(0.0)) if sc.control_speed is not None else sc.model.nominal_speed()
+        out["target_speed"] = float(sc.control.speed(0.0)) if sc.control.speed is not None else sc.model.nominal_speed()
     return out
 
 

@@ -116,7 +116,7 @@ class PlantServer:
         if bad:
             raise ConfigError(f"plant server: the export commands {bad}, which rig {sc.model.name!r} does not have")
         self._cmd_index = [sc.model.inputs.index(n) for n in self.cmd_names]
-        self.k_start = int(math.ceil(sc.control_start / sc.dt - 1e-9))
+        self.k_start = int(math.ceil(sc.control.start / sc.dt - 1e-9))
         self.timeout = float(timeout)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -145,7 +145,7 @@ class PlantServer:
             if name.startswith("programme:"):
                 row.append(float(prog[sc.model.inputs.index(name.partition(":")[2])]))
             elif name == "target_speed":
-                row.append(float(sc.control_speed(t)) if sc.control_speed is not None else sc.model.nominal_speed())
+                row.append(float(sc.control.speed(t)) if sc.control.speed is not None else sc.model.nominal_speed())
             elif name == "enable":
                 row.append(1.0 if self.k >= self.k_start else 0.0)
             else:
