@@ -260,7 +260,7 @@ def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8
                 # decrease margin; and the gaps stay below GAP_OK
                 model = a * gdw + 0.5 * a * a * jdw2
                 return (ft - f <= model - 1e-4 * a * abs(gdw) + 1e-10 * f + 1e-12
-                        and float(np.max(np.abs(gt))) < GAP_OK), ft
+                        and (float(np.max(np.abs(gt))) if gt.size else 0.0) < GAP_OK), ft
             pt = ft + nu_pen * float(np.sum(np.abs(gt)))
             return pt <= phi0 + 1e-4 * a * min(dphi, 0.0), pt
 
