@@ -214,7 +214,7 @@ def _plot(fit, path, force: bool):
         plt.close(fig)
 
 
-def _holdout_line(v, units) -> str:
+def holdout_line(v, units) -> str:
     """The hold-out's line: NRMSE where the measured signal moves beyond its noise (else the RMS error in
     noise levels), and the stick-slip period only where the measured segment sticks and slips."""
     parts = []
@@ -360,7 +360,7 @@ def _run(args) -> int:
     for line in notes:
         print(f"guess: {line}")
     if fit.validation is not None:
-        print(_holdout_line(fit.validation, {c.name: c.unit for c in fit.problem.channels}))
+        print(holdout_line(fit.validation, {c.name: c.unit for c in fit.problem.channels}))
     if bres is not None:
         print(f"bootstrap: {bres.status.value}: {bres.message} ({bres.wall_time:.1f} s)"
               + ("" if bres.success else "; [stderr] keeps the Gauss-Newton standard errors"))
