@@ -70,10 +70,10 @@ class Case:
     holdout: float = 0.0
     speed_up: float = 1.0
 
-    def log(self, seed: int = 3, duration: float = 60.0):
+    def log(self, seed: int = 3, duration: float = 60.0, sensors=None):
         """A log of the exact plant from rest at the operating point (sensor noise seeded by ``seed``);
         with ``speed_up`` the drive's set-point steps to that multiple of it for the last third (the
-        user rig: stick-slip, then steady sliding)."""
+        user rig: stick-slip, then steady sliding); ``sensors``: :class:`models.sensors.SensorOptions`."""
         u, _ = operating_point(self.model, self.truth)
         if self.speed_up != 1.0:
             j = self.model.inputs.index(self.model.drive_input)
@@ -84,7 +84,7 @@ class Case:
                 if t >= t1:
                     v[j] *= self.speed_up
                 return v
-        return simulate(self.model, self.truth, u, duration, SimOptions(seed=seed)).to_log()
+        return simulate(self.model, self.truth, u, duration, SimOptions(seed=seed), sensors=sensors).to_log()
 
 
 def free_parameters(model) -> tuple[str, ...]:

@@ -152,7 +152,7 @@ def choose(direct, cont, why: str, consistent=None):
         parts.append(part)
     method = f"{pick.method} ({why}; kept {label}: " + ", ".join(parts) + ")"
     attempts, seen = [], set()
-    for _, f, end in ends:
+    for _, f, end in sorted(ends, key=lambda e: e[0] != "the direct fit"):        # in the order they ran
         for a in end.attempts:
             if id(a) not in seen:
                 seen.add(id(a))

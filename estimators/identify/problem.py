@@ -424,10 +424,10 @@ class IdentificationProblem:
         return choose(fit, self.fit_once(None, continuation=True), why, self.consistent)
 
     def consistent(self, fit: FitResult) -> FitResult:
-        """``fit``, or where its continuity gaps stayed open (its parameters belong to no trajectory of
-        the model) its continuation by single shooting (:func:`~estimators.identify.single.refine`)."""
-        if closed(fit) or fit.status is Status.FAILED:
-            return fit
+        """``fit``, or where its solver stopped with the continuity gaps open (its parameters belong to no
+        trajectory of the model) its continuation by single shooting (:func:`~estimators.identify.single.refine`)."""
+        if closed(fit) or fit.status is Status.FAILED or fit.reason == "max_iter":
+            return fit              # (a fit cut short by its iteration limit stays not converged: the budget is the user's)
         refined = refine(self, fit, fit.message.split(". Try:")[0])
         return fit if refined is None else refined
 
