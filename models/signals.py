@@ -237,9 +237,9 @@ def _none(kind: str, why: str) -> SlipEvents:
 def _speed_slips(x, dt: float, floor: float) -> tuple[np.ndarray, str]:
     a = x * (1.0 if np.mean(x) >= 0 else -1.0)
     peak = float(np.percentile(a, 99))
-    if peak <= 10 * floor:
+    if peak <= 4 * floor:
         return np.zeros(0), "no speed above the noise"
-    lo, hi = max(0.1 * peak, 3 * floor), 0.4 * peak
+    lo, hi = min(max(0.1 * peak, 2 * floor), 0.3 * peak), 0.5 * peak
     slips, rest = [], None
     for k in range(a.size):
         if a[k] <= lo:
@@ -296,9 +296,10 @@ def slip_events(x, dt: float, kind: str = "speed", *, noise: float | None = None
     7.41 s on a paper-on-paper slider, issue 28): each slip is found here where it happens.
 
     - ``kind = "speed"``: a sliding body's speed.  A slip is a burst from rest: the speed rises above
-      0.4 of its 99th percentile after having been at rest (below 0.1 of it, and below 3 noise
-      levels); its onset is the last sample at rest.  A body that never comes to rest (steady
-      sliding, an oscillation about a sliding speed) has none.
+      half its 99th percentile after having been at rest (below 0.1 of it or 2 noise levels, at most
+      0.3 of it); its onset is the last sample at rest.  A body that never comes to rest (steady
+      sliding, an oscillation about a sliding speed) has none, nor a record whose 99th percentile
+      is within 4 noise levels.
     - ``kind = "force"``: a spring's force, twist or a shaft's torque.  A slip is a sharp drop of a
       slow build-up (the fast edges' sign is read from the record: a spring loaded backwards rises):
       a falling run of the record of at least a quarter of the largest drops (95th percentile) and
@@ -333,7 +334,8 @@ def slip_events(x, dt: float, kind: str = "speed", *, noise: float | None = None
     if raw.size < 8 or not np.all(np.isfinite(raw)):
         return _none(kind, "too short" if raw.size < 8 else "non-finite samples")
     xs = moving_average(raw, smooth)
-    floor = max(noise if noise is not None else _noise_level(raw) / math.sqrt(max(smooth, 1)), _resolution(raw) / 2)
+    # the noise level after the moving average (white noise: / sqrt(smooth)), at least half a quantisation step
+    floor = max((noise if noise is not None else _noise_level(raw)) / math.sqrt(max(smooth, 1)), _resolution(raw) / 2)
     times, why = (_speed_slips if kind == "speed" else _force_slips)(xs, float(dt), floor)
     if times.size < 2:
         return SlipEvents(times, float("nan"), np.zeros(0), kind, why or "fewer than two slips")
