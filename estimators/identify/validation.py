@@ -8,9 +8,10 @@ offsets and gains) with the fitted parameters.  Encoder speeds are compared as s
 zero subtracted, other channels as read.
 
 Per channel: the RMS error in the sensor's noise levels (meaningful on any segment) and, where the
-measured signal moves well beyond its noise (its span at least :data:`RESOLVED_SPAN` noise levels),
+measured signal moves well beyond its noise,
 the NRMSE (RMS error over that span; on a steady-sliding segment the span is the noise itself and
-an NRMSE of 46.6 % meant nothing).  The stick-slip period and amplitude of one channel are compared
+an NRMSE of 46.6 % meant nothing).  Moving well beyond its noise: a standard deviation of at least
+:data:`RESOLVED_STD` noise levels.  The stick-slip period and amplitude of one channel are compared
 too: the sliding body's speed (slips are bursts from rest), else a twist or torque (slips are sharp
 drops), else the first speed, each found as slip events (:func:`models.signals.slip_events`; a
 spectrum's peak misreads an irregular sawtooth).  A segment without slips (steady sliding) states
@@ -27,10 +28,11 @@ from models.errors import DataError
 from models.plant import SimOptions, step_function
 from models.signals import moving_average, slip_events
 
-__all__ = ["Validation", "validate", "period_channel", "RESOLVED_SPAN"]
+__all__ = ["Validation", "validate", "period_channel", "RESOLVED_STD"]
 
-#: a measured channel whose span (max - min) is below this many noise levels gets no NRMSE
-RESOLVED_SPAN = 10.0
+#: a measured channel whose standard deviation is below this many noise levels gets no NRMSE (its
+#: variation is then mostly the sensor's noise, which an NRMSE would measure instead of the model)
+RESOLVED_STD = 3.0
 
 
 @dataclass(frozen=True)
@@ -40,8 +42,8 @@ class Validation:
     Attributes
     ----------
     t : (n,) times [s]; measured, simulated : ``{channel: (n,)}``
-    nrmse : per channel RMS error / span of the measured signal; NaN where that span is within
-        :data:`RESOLVED_SPAN` noise levels (a steady segment: the NRMSE would measure the noise)
+    nrmse : per channel RMS error / span of the measured signal; NaN where its standard deviation is
+        within :data:`RESOLVED_STD` noise levels (a steady segment: the NRMSE would measure the noise)
     rms : per channel RMS error in the channel's noise levels
     period_measured, period_simulated [s], period_error (relative): median time between slips
         (:func:`models.signals.slip_events`); NaN where there are fewer than two slips
@@ -154,7 +156,8 @@ def validate(problem, fit, nsub: int = 10) -> Validation:
         sig = float(problem.noise.get(k, 0.0))
         span = float(np.ptp(meas[k]))
         rms[k] = err / sig if sig > 0 else float("nan")
-        nrmse[k] = err / span if span > max(RESOLVED_SPAN * sig, 0.0) and span > 0 else float("nan")
+        moves = float(np.std(meas[k])) > RESOLVED_STD * sig
+        nrmse[k] = err / span if moves and span > 0 else float("nan")
     key, kind = period_channel(model, chans)
     sig = float(problem.noise.get(key, 0.0)) or None
     em = slip_events(meas[key], dt, kind, noise=sig)
