@@ -119,6 +119,10 @@ class _Fit:
     attempts: tuple = ()
 
     @property
+    def success(self):
+        return self.reason in ("small_step", "no_predicted_decrease", "no_further_decrease")
+
+    @property
     def structure(self):
         return dataclasses.make_dataclass("S", [("max_gap", float)])(self.gap)
 
@@ -140,6 +144,10 @@ def test_the_lower_consistent_cost_is_kept():
     assert "refined by single shooting to 2.5e+04" in kept.method and kept.iterations == 25
     kept = choose(_Fit(2.0e4, 0.45, "line_search"), _Fit(2.989e4, 0.0), "why", ss(3.2e4))
     assert kept.cost == 2.989e4 and "kept the continuation" in kept.method
+    # the same cost, one converged: the converged one (a continuation that stalled 0.004 below a
+    # converged direct fit had made the fit "not converged")
+    kept = choose(_Fit(3321.3893, 0.0), _Fit(3321.3857, 0.0, "stalled"), "why")
+    assert kept.reason == "small_step" and "kept the direct fit" in kept.method
     # one whose gapped cost already exceeds a consistent one is not refined
     refined.clear()
     kept = choose(_Fit(3.5e4, 0.45, "line_search"), _Fit(2.989e4, 0.0), "why", ss(1.0))

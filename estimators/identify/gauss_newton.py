@@ -226,10 +226,10 @@ def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8
             reason = "no_further_decrease"
             break
         gaps.append(gmax)
-        # stalled with gaps open: over the last 5 iterations the cost moved by less than 0.1 % and the
-        # largest gap shrank by less than a tenth (a gap across a kink of the model, a DC motor's
+        # stalled with gaps open (ten times GAP_OK): over the last 5 iterations the cost moved by less than
+        # 0.1 % and the largest gap shrank by less than a tenth (a gap across a kink of the model, a DC motor's
         # voltage limit, that no step closes): not converged; the caller may continue by single shooting
-        if len(costs) > 5 and abs(costs[-6] - f) < 1e-3 * abs(f) and gmax > 0.9 * gaps[-6]:
+        if gmax >= 10 * GAP_OK and len(costs) > 5 and abs(costs[-6] - f) < 1e-3 * abs(f) and gmax > 0.9 * gaps[-6]:
             reason = "stalled"
             break
         # step length limits: the feasible region of the inequalities, the trust radius
