@@ -39,7 +39,7 @@ from zoo_rigs import cases  # noqa: E402
 from estimators.identify import IdentifyOptions, identify  # noqa: E402
 from models.sensors import SensorOptions  # noqa: E402
 
-RIGS = ("lab_speed_drive", "example_2", "user_pin_rig")
+RIGS = ("lab_speed_drive", "dc_motor_LR_5ms", "user_pin_rig")
 Z95 = 1.959964
 CSV = bi.RESULTS.with_name("identify_coverage.csv")
 
