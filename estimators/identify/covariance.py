@@ -9,9 +9,12 @@ Bartlett weights ``w_l = 1 - l / (L + 1)`` up to ``L`` lags (Newey-West).  For w
 stated noise this is ``(J^T J)^-1`` restricted to the border, as before; residuals that are larger
 than the noise or correlated in time (an encoder's quantisation error is constant while its body is
 stuck; a regularised model creeps through a stick) widen the errors of the parameters they move,
-and only those.  The previous estimate, ``s^2 tau (J^T J)^-1`` with the residual variance ``s^2`` and
+and only those.  An angle difference taken as the twist (``encoder_zero = "untwisted"``) enters
+without its mean over each log: that constant is the encoders' power-on phase, ``offset_error``'s.
+The previous estimate, ``s^2 tau (J^T J)^-1`` with the residual variance ``s^2`` and
 the largest integrated autocorrelation time ``tau`` over the channels, widened every parameter alike
-(1.4-2 times too wide on the coverage study's zoo rigs, ``benchmarks/identify_coverage.py``); ``s^2``
+(on 50 logs of a zoo rig, ``benchmarks/identify_coverage.py``, the RMS of error over stated error
+was 0.5-0.9: too wide); ``s^2``
 (over the degrees of freedom: residuals minus parameters, encoder zeros and nodes, plus the gap
 equations) and ``tau`` are still reported.
 
@@ -112,7 +115,7 @@ def direction_text(names, v, floor: float = 0.1) -> tuple[str, dict]:
     return " ".join(parts), {names[i]: float(v[i]) for i in order}
 
 
-def sandwich(prob, Jr, r, Z_b, tau: float) -> np.ndarray:
+def sandwich(prob, Jr, r, Z_b, tau: float, demean=()) -> np.ndarray:
     """Newey-West covariance (scaled units) of the border variables (module docstring).
 
     Parameters
@@ -122,11 +125,22 @@ def sandwich(prob, Jr, r, Z_b, tau: float) -> np.ndarray:
     Z_b : (nw, nb) the solution's response to each border variable, ``K^-1 E``
     tau : integrated autocorrelation time of the residuals: the lags run to ``L = max(10, 5 tau)``
         (at most a quarter of the samples)
+    demean : channels whose residual's mean over each log is left out: angle differences taken as the
+        twists, whose constant part is the encoders' phase at power-on, which ``offset_error`` counts
+        (the coverage study: counted twice, the errors of the stiffnesses were twice too wide)
     """
     nb = Z_b.shape[1]
     U = np.asarray(Jr @ Z_b)                              # (n_res, nb)
-    s = U * r[:, None]
     n_y = prob.Nint * prob.M * prob.ny
+    if len(demean):
+        r = r.copy()
+        R = r[:n_y].reshape(prob.Nint, prob.M, prob.ny)
+        cuts = np.r_[0, np.flatnonzero(np.diff(prob.starts) > 1) + 1, prob.Nint]      # logs' intervals
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            for j in demean:
+                R[a:b, :, j] -= R[a:b, :, j].mean()
+        r[:n_y] = R.ravel()
+    s = U * r[:, None]
     g = s[:n_y].reshape(prob.Nint * prob.M, prob.ny, nb).sum(axis=1)      # per sample, channels summed
     T = g.shape[0]
     L = int(min(max(10, math.ceil(5 * tau)), T // 4))
@@ -203,7 +217,8 @@ def uncertainty(prob, w, r, Jr, A, names, *, rse_warn: float = 0.5, offsets=()) 
     for j in range(prob.ny):
         tau = max(tau, autocorrelation_time(res[:, :, j].ravel()))
     scale_b = np.r_[prob.th_scale, prob.z_scale]
-    cov_b = sandwich(prob, Jr, r, Z_b, tau) if Z_b is not None else sigma2 * tau * C
+    cov_b = sandwich(prob, Jr, r, Z_b, tau, demean=[j for j, _ in offsets]) if Z_b is not None \
+        else sigma2 * tau * C
     cov_b = 0.5 * (cov_b + cov_b.T) * np.outer(scale_b, scale_b)
     cov = cov_b[:nf, :nf]
     var = np.diag(cov)
