@@ -92,7 +92,7 @@ def test_gaps_left_open_continue_by_single_shooting_to_one_trajectory(disc):
     assert out.method.endswith(f"then {SS_METHOD} (its gaps did not close: largest 0.3, scaled)")
     assert out.attempts[-1].method == SS_METHOD and len(out.attempts) == len(fit.attempts) + 1
     assert out.iterations > fit.iterations
-    assert np.all(np.abs(out.estimate - fit.estimate) <= 0.1 * fit.stderr), (out.estimate, fit.estimate, fit.stderr)
+    assert np.all(np.abs(out.estimate - fit.estimate) <= 0.25 * fit.stderr), (out.estimate, fit.estimate, fit.stderr)
     assert out.cost == pytest.approx(fit.cost, rel=5e-3)
 
 
