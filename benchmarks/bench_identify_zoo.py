@@ -4,6 +4,7 @@ Run from the repository root::
 
     PYTHONPATH=. python benchmarks/bench_identify_zoo.py            # 4 corners + 6 examples + the user rig
     PYTHONPATH=. python benchmarks/bench_identify_zoo.py --quick    # CI: 2 corners, 20 s logs, prints only
+    PYTHONPATH=. python benchmarks/bench_identify_zoo.py --profile user_pin_rig   # where the time goes
     PYTHONPATH=. python benchmarks/bench_identify_zoo.py --help
 
 Cases (``benchmarks/zoo_rigs.py``): the zoo's four CI corners and its first derandomised rigs of up
@@ -75,6 +76,8 @@ def main(argv=None) -> int:
     ap.add_argument("--only", nargs="*", default=None, metavar="CASE", help="run these cases only")
     ap.add_argument("--out", type=Path, default=None, help=f"results file (default {bi.RESULTS.relative_to(bi.ROOT)})")
     ap.add_argument("--no-write", action="store_true", help="print the section only")
+    ap.add_argument("--profile", metavar="CASE", default=None,
+                    help="profile the timed fit of one case (cProfile, 30 entries by cumulative time); writes nothing")
     args = ap.parse_args(argv)
     duration = args.duration or (20.0 if args.quick else 60.0)
     if not duration > 2.0:
@@ -85,6 +88,19 @@ def main(argv=None) -> int:
         todo = [c for c in todo if c.name in ("lab_speed_drive", "field_torque_drive", "user_pin_rig")]
     if args.only:
         todo = [c for c in todo if c.name in args.only]
+    if args.profile:
+        import cProfile
+        import pstats
+        todo = [c for c in cases(args.examples) if c.name == args.profile]
+        if not todo:
+            ap.error(f"--profile: no case {args.profile!r}")
+        prof = cProfile.Profile()
+        prof.enable()
+        r = run_case(todo[0], duration)
+        prof.disable()
+        print({k: v for k, v in r.items() if k != "fit"})
+        pstats.Stats(prof).sort_stats("cumulative").print_stats(30)
+        return 0
     cmd = "benchmarks/bench_identify_zoo.py" + (" --quick" if args.quick else "") + \
         (f" --duration {duration:g}" if args.duration else "")
     lines = ["## Speed on any rig: the rig zoo and a user's rig", "",
