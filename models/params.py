@@ -259,8 +259,14 @@ class ParameterSet:
             stderr.append((key, float(s)))
         return ParameterSet(self.model, self._specs, vals, fit_bounds=bounds, stderr=stderr, where=where)
 
-    def to_toml_string(self, note: str = "") -> str:
-        lines = [f'model = "{self.model}"', ""]
+    def to_toml_string(self, note: str = "", base: str | os.PathLike | None = None) -> str:
+        """The set as TOML; ``base``: the folder the file goes to, which a rig file's path is written
+        relative to (a parameter file that names its rig by an absolute path breaks when the folder
+        moves; :func:`models.rig.load_params` takes a relative path from the parameter file's folder)."""
+        model = self.model
+        if base is not None and model.endswith(".toml") and os.path.isabs(model):
+            model = Path(os.path.relpath(model, Path(base).resolve())).as_posix()
+        lines = [f'model = "{model}"', ""]
         if note:
             lines = [f"# {line}" for line in note.splitlines()] + [""] + lines
         lines.append("[params]")
@@ -276,7 +282,7 @@ class ParameterSet:
         """Write the set as TOML, atomically; refuses to replace a file unless ``overwrite``."""
         from models.files import atomic_write_text
 
-        return atomic_write_text(path, self.to_toml_string(note), overwrite=overwrite)
+        return atomic_write_text(path, self.to_toml_string(note, base=Path(path).parent), overwrite=overwrite)
 
 
 def _rebuild(model, specs, values, fit_bounds, stderr):

@@ -46,10 +46,14 @@ class SensorOptions:
     ----------
     noise_scale : multiplies every noise level (e.g. 3 for "triple noise")
     quantise : count whole encoder ticks (False: ideal angles)
+    encoder_phase : each incremental encoder (zeroed at power-on) stands at a random phase within a
+        tick at power-on, drawn from the noise generator (a real encoder's; False: every encoder at a
+        tick boundary, so a log's quantisation errors repeat whatever the seed)
     """
 
     noise_scale: float = option(1.0, lo=0.0)
     quantise: bool = option(True)
+    encoder_phase: bool = option(False)
 
     def __post_init__(self):
         check_options(self, prefix("sensors"))
@@ -122,6 +126,7 @@ class Sensors:
 
     def reset(self) -> None:
         self._zero: dict[str, float] = {}
+        self._phase: dict[str, float] = {}
         self._prev: dict[str, float] = {}
         self._prev_true: dict[str, float] = {}
         self._queues: dict[str, deque] = {}
@@ -150,7 +155,10 @@ class Sensors:
                     # ~1e-13 rad of round-off must not flip a tick at a boundary
                     val = self._prev[ang]
                 else:
-                    raw = float(quantise(true, step)) if o.quantise else true
+                    if ang not in self._phase:
+                        self._phase[ang] = float(self.rng.uniform(0.0, step)) \
+                            if o.encoder_phase and o.quantise and s.zero == "power_on" else 0.0
+                    raw = float(quantise(true + self._phase[ang], step)) if o.quantise else true
                     if ang not in self._zero:
                         self._zero[ang] = raw if s.zero == "power_on" else 0.0
                     val = raw - self._zero[ang]

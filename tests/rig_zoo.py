@@ -45,6 +45,16 @@ class ZooRig:
                 f"sensors {', '.join(self.sensors)}")
 
 
+#: CI's corners of the zoo (tests/test_rig_zoo.py; the benchmarks draw them too), one rig each (derandomised): a lab rig on a DC motor with the fastest
+#: electrical time constant, a field-scale string on a torque drive, a micro rig on a speed drive
+CORNERS = {
+    "lab_dc_motor_LR_0.05ms": dict(drives=("dc_motor",), log_scale=(-3.0, -2.0), log_tau_e=(math.log10(5e-5),) * 2),
+    "field_torque_drive": dict(drives=("torque",), log_scale=(2.5, 3.0)),
+    "lab_speed_drive": dict(drives=("speed",), log_scale=(-3.0, -1.0)),
+    "dc_motor_LR_5ms": dict(drives=("dc_motor",), log_scale=(-1.0, 1.0), log_tau_e=(math.log10(5e-3),) * 2),
+}
+
+
 def _q(v: float) -> str:
     return repr(float(v))
 

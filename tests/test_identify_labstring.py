@@ -101,6 +101,31 @@ def test_1dof_fit_of_the_lab_string_ends_with_a_usable_best_fit(cli_fit, log):
 
 
 @pytest.mark.slow
+def test_the_fitted_set_names_the_rig_file_relative_to_itself(cli_fit):
+    _, _, out = cli_fit
+    line = out.read_text().splitlines()[[ln.startswith("model = ") for ln in out.read_text().splitlines()].index(True)]
+    assert not Path(line.split('"')[1]).is_absolute() and line.endswith('lab_string_1dof.toml"')
+
+
+@pytest.mark.slow
+def test_speeds_only_1dof_fit_exits_0_and_predicts_the_held_out_period(log, tmp_path, capsys):
+    """Issue 28 item 2: the lab log with its speeds and the weight on bit only (no angles, so no twist),
+    the user's 1-DOF rig file, the README's basic command: exit 0, converged or the best fit within
+    the model, the held-out half's stick-slip period (slip events of the bit's speed) within 15 %."""
+    f = tmp_path / "speeds.csv"
+    Log(log.t, {k: log[k] for k in ("omega_top", "omega_bit", "wob")}, "lab speeds",
+        units={"omega_top": "rad/s", "omega_bit": "rad/s", "wob": "N"}).write_csv(f)
+    rc = cli.main(["identify", str(f), "--model", str(RIG), "--free", ",".join(FREE), "--holdout", "0.5",
+                   "--out", str(tmp_path / "fit.toml"), "--no-plot", "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert rc == 0 and doc["success"], doc["message"]
+    assert doc["status"] in (Status.OK.value, Status.WARNING.value)
+    v = doc["validation"]
+    assert v["channel"] == "omega_bit" and v["kind"] == "speed" and v["slips_measured"] >= 4
+    assert abs(v["period_error"]) <= 0.15, v
+
+
+@pytest.mark.slow
 def test_direct_gauss_newton_converges_where_it_ended_with_gaps(log):
     """The direct fit alone (no continuation): before the KKT solves were refined against the
     exact KKT matrix, gaps of delta * lambda (1e-12 x 1.6e8) stayed at the nodes of stuck

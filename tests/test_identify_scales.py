@@ -78,7 +78,7 @@ def test_field_scale_torque_drive_fit_is_not_confidently_wrong(field):
     k0, se = fit.estimate[0], fit.error[0]
     assert fit.success and abs(k0 - p.k0) <= max(4 * se, 0.06 * p.k0), (k0, se, fit.status)
     # a trajectory: every node follows from the previous one to far below the encoders' resolution
-    sh = fit.problem._shooting()
+    sh = fit.problem.shooting()
     zs = [z for zl in fit.encoder_zero for z in zl.values()]
     w = np.concatenate([fit.estimate / sh.th_scale, np.asarray(zs, float)]
                        + [(n / sh.x_scale).ravel() for n in fit.states]

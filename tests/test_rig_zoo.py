@@ -36,7 +36,7 @@ import pytest
 import scipy.linalg
 from hypothesis import HealthCheck, Phase, find, given, seed, settings
 
-from rig_zoo import zoo_rigs
+from rig_zoo import CORNERS, zoo_rigs
 from estimators.identify import IdentifyOptions, identify
 from mitigate.controllers.base import NEEDS, sees_string  # noqa: F401 - NEEDS: the vocabulary the refusals use
 from mitigate.controllers.factory import CONTROLLER_KINDS, context_for, controller_class
@@ -287,14 +287,6 @@ def identification(m):
                                              for n, v, se in zip(fit.names, fit.estimate, fit.error))
 
 
-#: CI's corners of the zoo, one rig each (derandomised): a lab rig on a DC motor with the fastest
-#: electrical time constant, a field-scale string on a torque drive, a micro rig on a speed drive
-CORNERS = {
-    "lab_dc_motor_LR_0.05ms": dict(drives=("dc_motor",), log_scale=(-3.0, -2.0), log_tau_e=(math.log10(5e-5),) * 2),
-    "field_torque_drive": dict(drives=("torque",), log_scale=(2.5, 3.0)),
-    "lab_speed_drive": dict(drives=("speed",), log_scale=(-3.0, -1.0)),
-    "dc_motor_LR_5ms": dict(drives=("dc_motor",), log_scale=(-1.0, 1.0), log_tau_e=(math.log10(5e-3),) * 2),
-}
 
 
 #: corners where the zoo found the identification confidently wrong (status OK, the truth many

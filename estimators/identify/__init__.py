@@ -20,7 +20,9 @@ Modules (one concept each):
 - :mod:`~estimators.identify.problem`: :class:`IdentificationProblem` (``.solve()``, ``.refit()``)
 - :mod:`~estimators.identify.gauss_newton`, :mod:`~estimators.identify.ipopt`: the solvers
 - :mod:`~estimators.identify.continuation`: the globalisation (a continuation in eps when the direct
-  fit fails or its structure misses)
+  fit fails or its structure misses; the lower consistent cost kept)
+- :mod:`~estimators.identify.single`: single shooting (simulation error), where the gaps do not close
+- :mod:`~estimators.identify.assemble`: a solver's end made into a :class:`FitResult`
 - :mod:`~estimators.identify.diagnostics`: what the structure misses (the residual's slow part,
   spectrum and whiteness; the continuity gaps)
 - :mod:`~estimators.identify.covariance`: standard errors, correlations, conditioning, weak directions

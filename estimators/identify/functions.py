@@ -1,7 +1,8 @@
 """The numerical pieces an identification problem is built from, cached on the rig model.
 
 - :func:`shooting_functions`: the per-sample sensitivity and value Functions of a problem
-  (:func:`~estimators.identify.shooting.sample_function`), compiled where asked;
+  (:func:`~estimators.identify.shooting.sample_function`), compiled where asked; beyond
+  :data:`FOLD_ABOVE` substeps as a loop over one substep (:func:`folded_sample_function`);
 - :class:`StiffRate`: the regularised model's stiffest rate as a function of the parameters,
   which sets RK4's substeps and guards the fit's trial steps.
 """
@@ -16,7 +17,12 @@ from estimators.identify.shooting import compiled_or_none, sample_function
 from models.discretise import rate_jacobian
 from models.params import ParameterSet
 
-__all__ = ["shooting_functions", "StiffRate"]
+__all__ = ["shooting_functions", "folded_sample_function", "StiffRate", "FOLD_ABOVE"]
+
+#: more RK4 substeps than this: the sample function loops over one substep instead of unrolling them.
+#: Unrolled, the sensitivities' expression grows with the substeps: 22 substeps of a 2-body rig took
+#: gcc minutes, 80 of another 7.5 GB of memory; a loop's C code does not grow
+FOLD_ABOVE = 4
 
 
 def shooting_functions(model, integ, channels, avg, free_idx, input_jac: bool, compile_: bool):
@@ -28,8 +34,12 @@ def shooting_functions(model, integ, channels, avg, free_idx, input_jac: bool, c
     cache = model._fcache
     if key not in cache:
         h = output_function(model, channels)
-        S = sample_function(model, nsub, h, avg, free_idx, input_jac=input_jac, quasi_static=qs)
-        Sv = sample_function(model, nsub, h, avg, free_idx, values_only=True, quasi_static=qs)
+        if nsub > FOLD_ABOVE:
+            S = folded_sample_function(model, nsub, h, avg, free_idx, input_jac=input_jac, quasi_static=qs)
+            Sv = folded_sample_function(model, nsub, h, avg, free_idx, values_only=True, quasi_static=qs)
+        else:
+            S = sample_function(model, nsub, h, avg, free_idx, input_jac=input_jac, quasi_static=qs)
+            Sv = sample_function(model, nsub, h, avg, free_idx, values_only=True, quasi_static=qs)
         S_run, Sv_run = S, Sv
         if compile_:
             S_run = compiled_or_none(S) or S
@@ -37,6 +47,81 @@ def shooting_functions(model, integ, channels, avg, free_idx, input_jac: bool, c
                 Sv_run = compiled_or_none(Sv) or Sv
         cache[key] = (S_run, Sv_run, Sv, S_run is not S)
     return cache[key]
+
+
+def folded_sample_function(model, nsub: int, h: ca.Function, avg, free_idx, *, values_only: bool = False,
+                           input_jac: bool = False, quasi_static: bool = False) -> ca.Function:
+    """:func:`~estimators.identify.shooting.sample_function` with ``nsub`` substeps, built as a loop
+    (``Function.fold``) over ONE substep's sample function and its sensitivities, chained by the
+    chain rule: the same numbers, C code that does not grow with the substeps.
+
+    One substep (``sample_function(model, 1, ...)`` over ``dt / nsub``) returns its end state, its
+    outputs (averaged ones as the mean over the substep, the others at its end) and their Jacobians
+    with respect to its start state (``A1``, ``C1``), the free parameters (``B1``, ``D1``) and the
+    inputs (``E1``, ``F1``).  Over the substeps ``j``, with ``X_j = dx_j / dx_0`` (``B_j``, ``E_j``
+    likewise for the parameters and inputs)::
+
+        X_{j+1} = A1 X_j,   B_{j+1} = A1 B_j + B1,   E_{j+1} = A1 E_j + E1
+        C_j = C1 X_j,       D_j = C1 B_j + D1,       F_j = C1 E_j + F1
+
+    and an averaged output, its C, D and F are the means over the substeps, the others the last.
+    Same signature and outputs as the unrolled function.
+    """
+    S1 = sample_function(model, 1, h, avg, free_idx, values_only=values_only, input_jac=input_jac,
+                         quasi_static=quasi_static)
+    nx, nu, nt, ny = model.nx, model.nu, len(free_idx), len(avg)
+    mask = ca.DM([1.0 if a else 0.0 for a in avg])
+    blocks = [("x", nx, 1), ("ys", ny, 1), ("yl", ny, 1)]
+    if not values_only:
+        blocks += [("X", nx, nx), ("B", nx, nt), ("Cs", ny, nx), ("Cl", ny, nx), ("Ds", ny, nt), ("Dl", ny, nt)]
+        if input_jac:
+            blocks += [("E", nx, nu), ("Fs", ny, nu), ("Fl", ny, nu)]
+    sizes = [r * c for _, r, c in blocks]
+    z = ca.SX.sym("z", sum(sizes))
+    u, th, p = ca.SX.sym("u", nu), ca.SX.sym("th", nt), ca.SX.sym("p", model.n_p)
+    hs, eps = ca.SX.sym("h"), ca.SX.sym("eps")
+    parts, k = {}, 0
+    for (name, r, c), n in zip(blocks, sizes):
+        parts[name] = ca.reshape(z[k:k + n], r, c)
+        k += n
+    out = S1(parts["x"], u, th, p, hs, eps)
+    nxt = dict(x=out[0], ys=parts["ys"] + out[1], yl=out[1])
+    if not values_only:
+        A1, B1, C1, D1 = out[2:6]
+        Cj, Dj = ca.mtimes(C1, parts["X"]), ca.mtimes(C1, parts["B"]) + D1
+        nxt.update(X=ca.mtimes(A1, parts["X"]), B=ca.mtimes(A1, parts["B"]) + B1, Cs=parts["Cs"] + Cj, Cl=Cj,
+                   Ds=parts["Ds"] + Dj, Dl=Dj)
+        if input_jac:
+            E1, F1 = out[6:8]
+            Fj = ca.mtimes(C1, parts["E"]) + F1
+            nxt.update(E=ca.mtimes(A1, parts["E"]) + E1, Fs=parts["Fs"] + Fj, Fl=Fj)
+    G = ca.Function(f"{S1.name()}_step", [z, u, th, p, hs, eps],
+                    [ca.vertcat(*[ca.vec(nxt[name]) for name, _, _ in blocks])])
+    Gf = G.fold(nsub)
+    xs, us, ths, ps = ca.MX.sym("x", nx), ca.MX.sym("u", nu), ca.MX.sym("th", nt), ca.MX.sym("p", model.n_p)
+    dt, es = ca.MX.sym("dt"), ca.MX.sym("eps")
+    init = {"x": xs, "X": ca.MX.eye(nx)}
+    z0 = ca.vertcat(*[ca.vec(init[name]) if name in init else ca.MX.zeros(r * c, 1) for name, r, c in blocks])
+    zN = Gf(z0, ca.repmat(us, 1, nsub), ca.repmat(ths, 1, nsub), ca.repmat(ps, 1, nsub),
+            ca.repmat(dt / nsub, 1, nsub), ca.repmat(es, 1, nsub))
+    res, k = {}, 0
+    for (name, r, c), n in zip(blocks, sizes):
+        res[name] = ca.reshape(zN[k:k + n], r, c)
+        k += n
+
+    def mean_or_last(s, l_):
+        return ca.mtimes(ca.diag(mask), s) / nsub + ca.mtimes(ca.diag(1 - mask), l_)
+
+    outs = [res["x"], mean_or_last(res["ys"], res["yl"])]
+    names = ["x_next", "y"]
+    if not values_only:
+        outs += [res["X"], res["B"], mean_or_last(res["Cs"], res["Cl"]), mean_or_last(res["Ds"], res["Dl"])]
+        names += ["A", "B", "C", "D"]
+        if input_jac:
+            outs += [res["E"], mean_or_last(res["Fs"], res["Fl"])]
+            names += ["E", "F"]
+    name = S1.name().replace("_n1", f"_n{nsub}fold", 1)
+    return ca.Function(name, [xs, us, ths, ps, dt, es], outs, ["x", "u", "th", "p", "dt", "eps"], names)
 
 
 class StiffRate:

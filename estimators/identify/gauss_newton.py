@@ -38,7 +38,8 @@ Robustness on real logs (Levenberg-Marquardt / trust region):
 
 The solver reports WHY it stopped (:class:`GNResult.reason`): ``"small_step"``,
 ``"no_predicted_decrease"``, ``"no_further_decrease"`` (all converged), ``"max_iter"``,
-``"line_search"`` or ``"singular"``.
+``"line_search"``, ``"stalled"`` (gaps open, cost and gaps no longer moving over five iterations)
+or ``"singular"``.
 """
 
 from __future__ import annotations
@@ -186,7 +187,7 @@ def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8
     radius = float(trust_radius)
     active = [i for i in range(G.shape[0]) if G[i] @ w[:nb] >= h[i] - 1e-10 * max(1.0, abs(h[i]))]
     reason = "max_iter"
-    costs = []
+    costs, gaps = [], []
     best = None         # (cost, w) of the lowest-cost iterate whose gaps are below GAP_OK
     diag = ()
     it = 0
@@ -224,6 +225,13 @@ def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8
         if gmax < GAP_OK and len(costs) > 5 and costs[-6] - f < 1e-3 * s2:
             reason = "no_further_decrease"
             break
+        gaps.append(gmax)
+        # stalled with gaps open (ten times GAP_OK): over the last 5 iterations the cost moved by less than
+        # 0.1 % and the largest gap shrank by less than a tenth (a gap across a kink of the model, a DC motor's
+        # voltage limit, that no step closes): not converged; the caller may continue by single shooting
+        if gmax >= 10 * GAP_OK and len(costs) > 5 and abs(costs[-6] - f) < 1e-3 * abs(f) and gmax > 0.9 * gaps[-6]:
+            reason = "stalled"
+            break
         # step length limits: the feasible region of the inequalities, the trust radius
         t_max = 1.0
         if G.shape[0]:
@@ -260,7 +268,7 @@ def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8
                 # decrease margin; and the gaps stay below GAP_OK
                 model = a * gdw + 0.5 * a * a * jdw2
                 return (ft - f <= model - 1e-4 * a * abs(gdw) + 1e-10 * f + 1e-12
-                        and float(np.max(np.abs(gt))) < GAP_OK), ft
+                        and (float(np.max(np.abs(gt))) if gt.size else 0.0) < GAP_OK), ft
             pt = ft + nu_pen * float(np.sum(np.abs(gt)))
             return pt <= phi0 + 1e-4 * a * min(dphi, 0.0), pt
 

@@ -31,7 +31,6 @@ from __future__ import annotations
 import math
 import sys
 import time
-import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -41,11 +40,10 @@ from models.params import ParameterSet
 from models.rig import RigModel, get_model
 from models.status import Status
 from models.discretise import MAX_SUBSTEPS, integration
-from estimators.identify.covariance import uncertainty
-from estimators.identify.continuation import (GN_METHOD, attempt, choose, continuation_method, solve_continuation,
-                                              wants_continuation)
-from estimators.identify.data import align_logs, check_logs, check_option_names, nrmse, split_by_log
-from estimators.identify.diagnostics import diagnose, gap_locator
+from estimators.identify.assemble import fit_result
+from estimators.identify.continuation import (GN_METHOD, attempt, choose, closed, continuation_method,
+                                              solve_continuation, wants_continuation)
+from estimators.identify.data import align_logs, check_logs, check_option_names
 from estimators.identify.functions import StiffRate, shooting_functions
 from estimators.identify.gauss_newton import solve_gn
 from estimators.identify.guess import initial_guess
@@ -53,11 +51,11 @@ from estimators.identify.ipopt import solve_ipopt
 from estimators.identify.noise import detect_input_noise, input_noise_hints, output_noise
 from estimators.identify.options import EPS_RIG3, IdentifyOptions, default_eps
 from estimators.identify.outputs import input_delays, plan_channels
-from estimators.identify.result import (FitResult, IdentifiabilityWarning, convergence_message, fit_status,
-                                        identifiability_warnings, level_twist_warning)
+from estimators.identify.result import FitResult
 from estimators.identify.shooting import ShootingProblem
-from estimators.identify.start import (constraint_rows, constraints, feasible, free_bounds, initial_nodes,
-                                      scaled_constraints, state_scales)
+from estimators.identify.single import refine
+from estimators.identify.start import (constraint_rows, constraints, free_bounds, initial_nodes, scaled_constraints,
+                                      state_scales)
 from estimators.identify.systematic import systematic_error
 from estimators.identify.validation import validate
 
@@ -138,7 +136,7 @@ class IdentificationProblem:
         self.free_idx = [m.param_names.index(n) for n in o.free]
         self.theta0, self.lo, self.hi = free_bounds(m, initial, o, guessed=self.given_initial is None)
         self.constraints = constraints(m, o)
-        Gp, hp = self._constraint_rows()
+        Gp, hp = self.constraint_rows()
         if Gp.shape[0] and self.given_initial is None and np.any(Gp @ self.theta0 - hp > 1e-9 * np.maximum(1.0, np.abs(hp))):
             # the data-derived guess breaks a constraint: start from the rig file's values instead
             self.guess_notes = ("guess not used: it breaks a constraint; started from the rig file's values",)
@@ -180,6 +178,8 @@ class IdentificationProblem:
         self._stiff = None
         self._h_lambda0 = None
         self._sh = None
+        #: what the start could not do (the start-up estimator's failure), reported with the fit
+        self.start_notes: tuple[str, ...] = ()
 
     # ------------------------------------------------------------------ pickling, derived problems
     def __reduce__(self):
@@ -207,12 +207,13 @@ class IdentificationProblem:
         return self.derive(logs=logs, initial=initial, holdout=holdout, **changes).solve(warm)
 
     # ------------------------------------------------------------------ constraints
-    def _constraint_rows(self):
+    def constraint_rows(self):
         """``G theta <= h`` for the non-bound constraints (fixed parameters moved to the right-hand side)."""
         return constraint_rows(self.constraints, self.free, self.initial)
 
     # ------------------------------------------------------------------ the numerical problem
-    def _shooting(self) -> ShootingProblem:
+    def shooting(self) -> ShootingProblem:
+        """The multiple-shooting problem (built once: compiled functions, start, scales)."""
         if self._sh is not None:
             return self._sh
         m, o = self.model, self.options
@@ -222,6 +223,8 @@ class IdentificationProblem:
         use_c = o.compile if o.compile is not None else (o.solver == "gn")
         S_run, Sv_run, Sv, self.compiled = shooting_functions(m, self.integration, self.channels, avg, self.free_idx, bool(eiv), use_c)
         self._S_val = Sv
+        #: one sample's values-only function (compiled where the fit is), for single shooting
+        self.values_function = Sv_run
         Ub, Yb, starts, zmap = [], [], [], []
         node_off = 0
         nz = 0
@@ -246,7 +249,7 @@ class IdentificationProblem:
         sig = np.array([self.noise[c.name] for c in self.channels])
         if self._alternative is not None:
             self._choose_start(Sv_run, U, Y, sig, np.concatenate(starts), np.concatenate(zmap), nz)
-        init_nodes, z0 = self._initial_nodes(Sv_run)
+        init_nodes, z0, self.start_notes = self._initial_nodes(Sv_run)
         self.x_scale = state_scales(m, self.channels, init_nodes)
         th0 = self.theta0
         ths = np.where(np.abs(th0) > 0, np.abs(th0), np.maximum(self.hi - self.lo, 1e-6) * 0.1)
@@ -268,7 +271,7 @@ class IdentificationProblem:
         """``0.5 |r|^2`` of the current initial set's predictions over one shooting interval from
         the data-initialised nodes (how well it predicts the log)."""
         m = self.model
-        nodes, z0 = self._initial_nodes(Sv)
+        nodes, z0, _ = self._initial_nodes(Sv)
         sh = ShootingProblem(Sv, m.nx, m.n_p, self.initial.vector(), self.free_idx, np.ones(len(self.free)),
                              np.ones(m.nx), U, Y, 1.0 / sig, starts, self.dt, self.options.eps, zmap=zmap,
                              z_scale=np.ones(nz), S_val=Sv)
@@ -283,7 +286,7 @@ class IdentificationProblem:
         c_guess = self._one_interval_cost(Sv, U, Y, sig, starts, zmap, nz)
         alt = self._alternative
         theta_a = np.clip(alt.vector(self.free), self.lo, self.hi)
-        Gp, hp = self._constraint_rows()
+        Gp, hp = self.constraint_rows()
         self.initial, self.theta0 = alt, theta_a
         c_alt = self._one_interval_cost(Sv, U, Y, sig, starts, zmap, nz) \
             if not Gp.shape[0] or np.all(Gp @ theta_a <= hp + 1e-12) else float("inf")
@@ -303,8 +306,10 @@ class IdentificationProblem:
         return initial_nodes(self.model, self.channels, self.data, self.initial, self.theta0, self.options, self.dt,
                              S_val)
 
-    def _start(self, warm: FitResult | None):
-        sh = self._shooting()
+    def decision_vector(self, warm: FitResult | None) -> np.ndarray:
+        """The scaled decision vector of the shooting problem at the start (``warm``: None), or at
+        ``warm``'s parameters, node states, encoder zeros and input corrections where they fit."""
+        sh = self.shooting()
         theta = self.theta0.copy()
         nodes = [n.copy() for n in self._init_nodes]
         z = self._z0.copy()
@@ -326,10 +331,10 @@ class IdentificationProblem:
                             + [(deltas / sh.d_scale if sh.ne else deltas).ravel()])
         return w0
 
-    def _scaled_constraints(self):
+    def scaled_constraints(self):
         """All inequalities, bounds included, on the scaled border variables: ``G w[:nb] <= h``."""
-        return scaled_constraints(self._shooting(), self.free, self.lo, self.hi, self.constraints,
-                                  *self._constraint_rows())
+        return scaled_constraints(self.shooting(), self.free, self.lo, self.hi, self.constraints,
+                                  *self.constraint_rows())
 
     # ------------------------------------------------------------------ solving
     def solve(self, warm: FitResult | None = None) -> FitResult:
@@ -375,7 +380,7 @@ class IdentificationProblem:
         p[self.free_idx] = theta
         return self._stiff(p)
 
-    def _rk4_stable(self, w) -> bool:
+    def rk4_stable(self, w) -> bool:
         """RK4 with ``nsub`` substeps stays usable for the trial parameters: ``h |lambda|max`` at the
         stiffest point at most 4.5 (the substeps are chosen for 3.5; a disc fit blew up at 5.5, its
         Jacobians reaching 1e16), or 1.25 times its value at the start where that is already higher
@@ -383,7 +388,7 @@ class IdentificationProblem:
         which the fit crosses in no time)."""
         if self._h_lambda0 is None:
             self._h_lambda0 = self.stiff_rate(self.theta0) * self.dt / self.nsub
-        theta = np.asarray(w[:len(self.free)], float) * self._shooting().th_scale
+        theta = np.asarray(w[:len(self.free)], float) * self.shooting().th_scale
         return self.stiff_rate(theta) * self.dt / self.nsub <= max(4.5, 1.25 * self._h_lambda0)
 
     def _finish(self, fit: FitResult) -> FitResult:
@@ -411,19 +416,29 @@ class IdentificationProblem:
 
     def _globalise(self, fit: FitResult, warm: FitResult | None) -> FitResult:
         """``fit`` (direct), or the better of it and a cold refit along a continuation in eps
-        (:mod:`~estimators.identify.continuation`)."""
+        (:mod:`~estimators.identify.continuation`); made consistent (:meth:`consistent`)."""
         o = self.options
         why = wants_continuation(fit, o.globalise if o.solver == "gn" else "off", warm is not None)
-        return fit if why is None else choose(fit, self.fit_once(None, continuation=True), why)
+        if why is None:
+            return self.consistent(fit)
+        return choose(fit, self.fit_once(None, continuation=True), why, self.consistent)
+
+    def consistent(self, fit: FitResult) -> FitResult:
+        """``fit``, or where its solver stopped with the continuity gaps open (its parameters belong to no
+        trajectory of the model) its continuation by single shooting (:func:`~estimators.identify.single.refine`)."""
+        if closed(fit) or fit.status is Status.FAILED or fit.reason == "max_iter":
+            return fit              # (a fit cut short by its iteration limit stays not converged: the budget is the user's)
+        refined = refine(self, fit, fit.message.split(". Try:")[0])
+        return fit if refined is None else refined
 
     def fit_once(self, warm: FitResult | None, continuation: bool = False) -> FitResult:
         """One solve (no delay search, no substep raise, no systematic refit): the direct fit, or with
         ``continuation`` the cold continuation in eps, warm-started from ``warm``."""
         t_start = time.perf_counter()
         m, o = self.model, self.options
-        sh = self._shooting()
-        w0 = self._start(warm)
-        G, h, labels = self._scaled_constraints()
+        sh = self.shooting()
+        w0 = self.decision_vector(warm)
+        G, h, _ = self.scaled_constraints()
         label = f"identify {m.name}"
 
         def _progress(it, f, gmax, step):
@@ -432,77 +447,20 @@ class IdentificationProblem:
 
         if o.solver == "gn":
             gn = dict(max_iter=o.max_iter, tol=o.tol, trust_radius=o.trust_radius,
-                      callback=_progress if o.progress else None, admissible=self._rk4_stable)
+                      callback=_progress if o.progress else None, admissible=self.rk4_stable)
             if continuation:
                 res, _ = solve_continuation(sh, w0, G, h, o.eps, **gn)
                 method = continuation_method(o.eps)
             else:
                 res, method = solve_gn(sh, w0, G, h, **gn), GN_METHOD
-            costs = res.costs
         else:
             res = solve_ipopt(sh, self._S_val, w0, G, h, max_iter=o.max_iter, tol=o.tol, progress=o.progress,
                               label=label)
-            costs = ()
             method = "IPOPT (Gauss-Newton Hessian, MUMPS)"
-        attempts = (attempt(method, res, t_start),)
         if o.progress and o.solver == "gn":
             sys.stderr.write("\n")
-        w = res.w
-        if not np.all(np.isfinite(w)):
+        if not np.all(np.isfinite(res.w)):
             raise SolverFailure(f"identify {m.name}: the solver returned non-finite values ({res.reason})")
-        r, g, Jr, A, Ypred = sh.evaluate(w)
-        theta, z, nodes = sh.split(w)
-        theta = feasible(theta, self.lo, self.hi, *self._constraint_rows())
-        offs = [(j, self.noise[c.name]) for j, c in enumerate(self.channels) if c.kind == "twist" and not c.zero]
-        unc = uncertainty(sh, w, r, Jr, A, self.free, rse_warn=o.rse_warn, offsets=offs)
-        se, corr = unc.stderr, unc.corr
-        tol_b = 1e-6 * sh.th_scale
-        at_bound = tuple(n for i, n in enumerate(self.free)
-                         if (theta[i] - self.lo[i]) <= tol_b[i] or (self.hi[i] - theta[i]) <= tol_b[i])
-        slack = h - G @ w[:sh.nb] if G.shape[0] else np.zeros(0)
-        active = tuple(lab[1] for lab, s, hi in zip(labels, slack, h)
-                       if lab[0] == "constraint" and s <= 1e-8 * max(1.0, abs(float(hi))))
-        # ---- warnings
         nf = len(self.free)
-        zero_names = [""] * sh.nz
-        for li, zi in enumerate(self.zero_index):
-            for ch, j in zi.items():
-                zero_names[j] = ch + (f" (log {li + 1})" if len(self.zero_index) > 1 else "")
-        warns = list(self.hints) + identifiability_warnings(self.free, theta, se, corr, unc, at_bound, active, o,
-                                                            zero_names) \
-            + level_twist_warning(self.model, self.free, self.channels)
-        for msg in warns:
-            warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
-        message = convergence_message(res.reason, res.success, iterations=res.iterations, max_iter=o.max_iter,
-                                      costs=costs, at_bound=at_bound, max_gap=res.max_gap,
-                                      condition=unc.condition, weak=unc.weak, solver=o.solver,
-                                      shoot_every=o.shoot_every, eps=o.eps, n_free=nf)
-        # ---- fitted set and trajectories
-        fitted = self.initial.with_vector(self.free, theta).with_meta(
-            stderr=tuple((n, float(s)) for n, s in zip(self.free, se) if np.isfinite(s)))
-        dlt = sh.deltas(w) if sh.ne else np.zeros((sh.Nint, 0))
-        M = o.shoot_every
-        names = [c.name for c in self.channels]
-        sig = np.array([self.noise[c] for c in names])
-        Yp = Ypred.reshape(-1, len(names))
-        Ym = sh.Ymeas.reshape(-1, len(names))
-        t_l, meas_l, sim_l, res_l, states, zeros, corr_l = split_by_log(self.data, self.zero_index, M, names, sig,
-                                                                        Ym, Yp, nodes, z, dlt)
-        structure = diagnose(res_l, meas_l, self.dt, sigma2=unc.sigma2, gaps=g,
-                             gap_locator=gap_locator([d.nint for d in self.data], [d.t for d in self.data], M,
-                                                     m.states))
-        status, message = fit_status(res.reason, res.success, message, warned=bool(warns), structure=structure,
-                                     history=getattr(res, "history", ()), cost=0.5 * float(r @ r),
-                                     stalled=attempts[0].stalled)
-        return FitResult(
-            problem=self, model=m.name, names=tuple(self.free), estimate=theta, stderr=se,
-            initial=np.array(self.theta0 if warm is None else w0[:nf] * sh.th_scale), corr=corr, cov=unc.cov,
-            params=fitted, t=tuple(t_l), measured=tuple(meas_l), simulated=tuple(sim_l), residuals=tuple(res_l),
-            nrmse=nrmse(names, Ym, Yp), sigma2=unc.sigma2, tau=unc.tau, cost=0.5 * float(r @ r), nsub=self.nsub,
-            noise=dict(self.noise), noise_source=dict(self.noise_source), states=tuple(states),
-            encoder_zero=tuple(zeros), input_corrections=tuple(corr_l), status=status, message=message, reason=res.reason,
-            iterations=res.iterations, wall_time=time.perf_counter() - t_start, warnings=tuple(warns),
-            at_bound=at_bound, active_constraints=active, condition=unc.condition, weak_directions=unc.weak,
-            input_noise=dict(self.input_noise), delay=o.extra_delay, guess_notes=self.guess_notes, method=method,
-            attempts=attempts, structure=structure, eps=o.eps, eps_source=self.eps_source, eps_bias=unc.eps_bias,
-            offset_error=unc.offset_error if offs else None, zero_corr=unc.zero_corr)
+        return fit_result(self, sh, res.w, res, method=method, attempts=(attempt(method, res, t_start),),
+                          initial=self.theta0 if warm is None else w0[:nf] * sh.th_scale, t_start=t_start)

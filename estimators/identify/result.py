@@ -10,9 +10,12 @@ A fit whose residual shows that the model's structure misses something in the da
 residual frequency, gaps left at the nodes) is the best fit the model allows, not a model that
 explains the log: its status is WARNING and its message starts with ``"best fit within the model
 (...); structure misses: ..."``.  So is a fit whose solver stopped without meeting its tolerance
-(a failed line search) where the cost would fall by less than 0.1 % more and the structure
-misses, and a fit stopped at its iteration limit whose cost fell by less than 0.1 % over the last
-five iterations.  Every other unconverged fit is NOT_CONVERGED, with advice.
+(a failed line search) where the cost would fall by less than 0.1 % more, the structure misses
+and the continuity gaps are closed.  A fit whose gaps stayed open is continued by single shooting
+(:mod:`~estimators.identify.single`): its parameters then belong to one trajectory, and when that
+refinement converges it is the best fit within the model (its message says how the multiple-shooting
+fit had ended).  Every other unconverged fit is NOT_CONVERGED, with advice; a fit stopped at its
+iteration limit is never OK or WARNING.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import numpy as np
 
 from models.params import ParameterSet
 from models.status import Outcome, Status
+from estimators.identify.gauss_newton import GAP_OK
 
 __all__ = ["FitResult", "IdentifiabilityWarning", "convergence_message", "fit_status", "identifiability_warnings",
            "level_twist_warning", "BEST_FIT"]
@@ -42,6 +46,7 @@ _WHY = {
     "no_further_decrease": "converged (no further decrease)",
     "max_iter": "stopped at the iteration limit",
     "line_search": "the line search failed: no step along the Gauss-Newton direction reduced the cost",
+    "stalled": "stalled: over five iterations neither the cost nor the largest continuity gap moved",
     "singular": "the KKT matrix was singular: the information matrix is singular (parameters not identifiable)",
     "non_finite_start": "the model gave non-finite values at the initial guess",
 }
@@ -75,7 +80,7 @@ def convergence_message(reason: str, success: bool, *, iterations: int, max_iter
     if max_gap > 1e-4:
         why += f"; continuity gaps remain (largest {max_gap:.2g}, scaled)"
         hints.append(f"a shorter shooting interval (shoot_every {max(1, shoot_every // 2)}, CLI --shoot-every)")
-    if reason in ("line_search", "non_finite_start", "max_iter"):
+    if reason in ("line_search", "non_finite_start", "max_iter", "stalled"):
         hints.append("a better initial guess (initial=None derives one from the data; CLI --params or --guess auto)")
         hints.append(f"a larger regularisation (eps {2 * eps:g}, CLI --eps) or more substeps (--nsub)")
         if reason == "line_search":
@@ -87,11 +92,14 @@ def convergence_message(reason: str, success: bool, *, iterations: int, max_iter
     return why + ". Try: " + "; ".join(dict.fromkeys(hints)) + "."
 
 
-def identifiability_warnings(free, theta, se, corr, unc, at_bound, active, options, zero_names=()) -> list[str]:
+def identifiability_warnings(free, theta, se, corr, unc, at_bound, active, options, zero_names=(), *,
+                             torque: bool = False) -> list[str]:
     """What the data do not determine: a missing or large relative standard error, a strong
     correlation (also with an encoder zero, the twist at power-on: ``zero_names`` name them in
     ``unc.zero_corr``'s column order), a weak direction of the information matrix, an estimate at
-    its bound, an active constraint (thresholds ``options.rse_warn`` and ``options.corr_warn``)."""
+    its bound, an active constraint (thresholds ``options.rse_warn`` and ``options.corr_warn``).
+    ``torque``: a torque channel is compared (then a torque sensor is not advised, nor the
+    untwisted start: the measured torque sets the twist's level where the log excites it)."""
     o = options
     warns = []
     for i, n in enumerate(free):
@@ -111,10 +119,16 @@ def identifiability_warnings(free, theta, se, corr, unc, at_bound, active, optio
         for j, zname in enumerate(zero_names):
             c = zc[i, j] if j < zc.shape[1] else np.nan
             if zname and np.isfinite(c) and abs(c) > o.corr_warn:
-                warns.append(f"{free[i]} and the encoder zero of {zname} (the twist at power-on) are correlated "
-                             f"(corr = {c:+.3f}): poorly identifiable separately; a torque sensor, a varying normal "
-                             f"force or reversals tell a friction level from that twist, and encoder_zero "
-                             f"'untwisted' (CLI --encoder-zero untwisted) fixes it if the rig was untwisted at power-on")
+                head = (f"{free[i]} and the encoder zero of {zname} (the twist at power-on) are correlated "
+                        f"(corr = {c:+.3f}): poorly identifiable separately; ")
+                if torque:
+                    warns.append(head + "the compared torque does not tell them apart on this log: a log that "
+                                        "loads the string through a wider range of torques (a varying normal "
+                                        "force, reversals) does")
+                else:
+                    warns.append(head + "a torque sensor, a varying normal force or reversals tell a friction "
+                                        "level from that twist, and encoder_zero 'untwisted' (CLI --encoder-zero "
+                                        "untwisted) fixes it if the rig was untwisted at power-on")
     warned = {n for n, s, v in zip(free, se, theta) if not np.isfinite(s) or abs(v) > 0 and s / abs(v) > o.rse_warn}
     for d in unc.weak:
         if d.rel_stderr > o.rse_warn and (len(d.coefficients) > 1 or not set(d.coefficients) <= warned):
@@ -157,7 +171,7 @@ def level_twist_warning(model, free, channels) -> list[str]:
 
 
 def fit_status(reason: str, success: bool, message: str, *, warned: bool, structure=None, history=(),
-               cost: float = float("nan"), stalled: bool = False):
+               cost: float = float("nan"), refined: str = ""):
     """``(Status, message)`` of a fit (see the module docstring).
 
     Parameters
@@ -168,21 +182,29 @@ def fit_status(reason: str, success: bool, message: str, *, warned: bool, struct
     structure : :class:`~estimators.identify.diagnostics.StructureDiagnostics` or None
     history : the solver's diagnostics at a failed line search (``(("predicted_decrease", x), ...)``)
     cost : ``0.5 |r|^2`` at the end
-    stalled : at the iteration limit, the cost fell by less than 0.1 % over the last five iterations
+    refined : "" for a multiple-shooting fit; for a single-shooting refinement
+        (:mod:`~estimators.identify.single`) how the multiple-shooting fit before it had ended
     """
     misses = tuple(structure.misses) if structure is not None else ()
+    gaps_open = structure is not None and structure.max_gap >= GAP_OK
+    pred = dict(history).get("predicted_decrease", float("inf"))
+    why = message.split(". Try:")[0]
+    stationary = reason == "line_search" and np.isfinite(cost) and 0 <= pred <= 1e-3 * cost
+    if refined:
+        how = f"the multiple-shooting fit ended: {refined}; continued by single shooting (simulation error)"
+        if success or stationary:
+            end = why if success else f"the solver stopped: {why}; the cost would fall by less than 0.1 % more"
+            if misses:
+                return Status.WARNING, f"{BEST_FIT} ({how}: {end}); structure misses: " + "; ".join(misses)
+            return (Status.WARNING if warned else Status.OK), f"{end} ({how})"
+        return Status.NOT_CONVERGED, f"{message} ({how})"
     if success:
         if misses:
             return Status.WARNING, f"{BEST_FIT} ({message}); structure misses: " + "; ".join(misses)
         return (Status.WARNING if warned else Status.OK), message
-    pred = dict(history).get("predicted_decrease", float("inf"))
-    why = message.split(". Try:")[0]
-    if misses and reason == "line_search" and np.isfinite(cost) and 0 <= pred <= 1e-3 * cost:
+    if misses and stationary and not gaps_open:
         return Status.WARNING, (f"{BEST_FIT} (the solver stopped: {why}; the cost would fall by less than 0.1 % "
                                 f"more); structure misses: " + "; ".join(misses))
-    if misses and reason == "max_iter" and stalled:
-        return Status.WARNING, (f"{BEST_FIT} (the solver stopped: {why}; the cost fell by less than 0.1 % over "
-                                f"its last five iterations); structure misses: " + "; ".join(misses))
     return Status.NOT_CONVERGED, message
 
 
@@ -341,9 +363,5 @@ class FitResult(Outcome):
             "eps_source": self.eps_source,
             "attempts": [a.as_dict() for a in self.attempts],
             "structure": None if self.structure is None else self.structure.as_dict(),
-            "validation": None if v is None else {
-                "nrmse": dict(v.nrmse), "period_measured": v.period_measured, "period_simulated": v.period_simulated,
-                "period_error": v.period_error, "amplitude_measured": v.amplitude_measured,
-                "amplitude_simulated": v.amplitude_simulated, "amplitude_error": v.amplitude_error,
-                "method": v.method},
+            "validation": None if v is None else v.as_dict(),
         }

@@ -190,9 +190,9 @@ class ShootingProblem:
         self.base_d = self.nb + nx * self.n_nodes
         self.nw = self.base_d + self.Nint * self.ne
         self.dt, self.eps = float(dt), float(eps)
-        self.F = S.map(self.Nint, "thread", threads) if threads > 1 else S.map(self.Nint)
+        self.F = codegen.BufferedFunction(S.map(self.Nint, "thread", threads) if threads > 1 else S.map(self.Nint))
         Sv = S_val if S_val is not None else S
-        self.Fv = Sv.map(self.Nint, "thread", threads) if threads > 1 else Sv.map(self.Nint)
+        self.Fv = codegen.BufferedFunction(Sv.map(self.Nint, "thread", threads) if threads > 1 else Sv.map(self.Nint))
         self._build_patterns()
 
     # ------------------------------------------------------------------ structure

@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from estimators.identify.options import LinearConstraint
-from models.errors import ConfigError, DataError
+from models.errors import ConfigError, DataError, SolverFailure
 from models.friction import get_law
 from models.signals import moving_average
 
@@ -214,7 +214,8 @@ def initial_nodes(model, channels, data, initial, theta0, options, dt, S_val):
 
     Returns
     -------
-    nodes : one (nint + 1, nx) array per log; z0 : (n_zeros,) encoder zeros
+    nodes : one (nint + 1, nx) array per log; z0 : (n_zeros,) encoder zeros; notes : what the
+        start-up estimator could not do, one line per log where it failed (the simulation was used)
     """
     m, o = model, options
     M = o.shoot_every
@@ -222,8 +223,8 @@ def initial_nodes(model, channels, data, initial, theta0, options, dt, S_val):
     P0 = m.unpack(p0)
     chan_names = [c.name for c in channels]
     speed_of, twist_of = measured_states(m, channels)
-    nodes_all, z0 = [], []
-    for d in data:
+    nodes_all, z0, notes = [], [], []
+    for li, d in enumerate(data):
         n_used = d.nint * M + 1
         Um = np.array(m.input_from_measured([d.U[:, j] for j in range(m.nu)], P0), float).T.reshape(d.n, m.nu)
         try:
@@ -249,7 +250,11 @@ def initial_nodes(model, channels, data, initial, theta0, options, dt, S_val):
         row0 = 1 if o.input_row == "end" else 0
         x = xs.copy() if abs(Um[row0, m.drive_speed_index()] if m.drive_speed_index() is not None else 1.0) > 0 \
             else np.zeros(m.nx)
-        tracked = filtered_states(m, d, initial, set(known), chan_names)
+        tracked, why = filtered_states(m, d, initial, set(known), chan_names)
+        if why:
+            notes.append(f"start-up estimator{f' (log {li + 1})' if len(data) > 1 else ''}: {why}; the unmeasured "
+                         f"states' starting nodes come from a simulation with the initial parameters instead, "
+                         f"which drifts out of phase with the log's stick-slip")
         nodes = np.empty((d.nint + 1, m.nx))
         for k in range(d.nint + 1):
             if tracked is not None:
@@ -266,12 +271,13 @@ def initial_nodes(model, channels, data, initial, theta0, options, dt, S_val):
                     xn = np.array(S_val(xn, Uk, theta0, p0, dt, o.eps)[0]).ravel()
                 x = xn if np.all(np.isfinite(xn)) and np.max(np.abs(xn)) < 1e6 else nodes[k].copy()
         nodes_all.append(nodes)
-    return nodes_all, np.array(z0)
+    return nodes_all, np.array(z0), tuple(notes)
 
 
 def filtered_states(model, d, initial, measured: set, channels=()):
-    """The rig's states along log ``d`` from the default EKF at the initial parameters
-    (:func:`estimators.online.replay.estimate_log`), or None.
+    """``(states, why)``: the rig's states along log ``d`` from the default EKF at the initial parameters
+    (:func:`estimators.online.replay.estimate_log`), or None and why not ("" where the EKF is not
+    meant to run: no unmeasured state, or no torque known).
 
     Used where the log leaves a twist or a body's speed unmeasured (a rig read at the drive only):
     a smooth simulation from the initial parameters then drifts out of phase with the log's
@@ -287,21 +293,26 @@ def filtered_states(model, d, initial, measured: set, channels=()):
     its encoder's speed: mu1 -0.12 +- 0.03 from the EKF's nodes, 0.11 +- 0.64 from the
     simulation's, truth 0.3, at the same cost).  None then, when every twist and speed is
     measured, or when the EKF cannot be built on these channels or does not end ok (the
-    simulation is used)."""
+    simulation is used; ``why`` says which, and the fit reports it)."""
     mech = [i for i, s in enumerate(model.states) if s.startswith(("twist_", "omega_"))]
     if all(i in measured for i in mech):
-        return None
+        return None, ""
     if model.drive.sets_speed and not any(getattr(model.sensor_of(c), "kind", None) == "torque"
                                           for c in channels):
-        return None
+        return None, ""
     from estimators.online.replay import estimate_log
     try:
-        est = estimate_log(d.log, {"kind": "ekf", "compile": False, "augment": []}, model, initial)
-    except (ConfigError, DataError):
-        return None
+        # compiled on long logs (a 60 s log: 8.5 s of Python steps against 0.5 s compiled, once gcc has built
+        # the step, ~10 s, cached); no observability checks: only the states are wanted here
+        est = estimate_log(d.log, {"kind": "ekf", "compile": len(d.log.t) > 2000, "augment": [],
+                                   "check_observability": False}, model, initial, observability=False)
+    except (ConfigError, DataError, SolverFailure) as exc:
+        return None, f"the EKF could not run ({exc})"
     x = est.x[:, :model.nx]
-    if not np.all(np.isfinite(x[1:])) or est.counts.get("failures", 0):
-        return None
+    if not np.all(np.isfinite(x[1:])):
+        return None, "the EKF's estimate is not finite"
+    if est.counts.get("failures", 0):
+        return None, f"the EKF failed at {est.counts['failures']} sample(s)"
     x = x.copy()
     x[0] = x[1]                                              # row 0 is the prior
-    return x
+    return x, ""

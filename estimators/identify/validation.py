@@ -5,10 +5,17 @@ the end of the training segment, the exact plant (:func:`models.plant.step_funct
 ``method = "hybrid"``) is driven by the logged inputs (corrected through the fitted load-cell
 offsets and gains) with the fitted parameters.  Encoder speeds are compared as sample means
 (differences of the plant's angles, like the DAQ's), angle differences with the fitted encoder
-zero subtracted, other channels as read.  The stick-slip period and amplitude of the first compared
-speed are compared too: the period from the signal's autocorrelation (:func:`cycle_period`; a
-hold-out of a few cycles resolves it to a few per cent, where the spectrum's resolution, one over
-the segment's length, would not), else its dominant frequency (:func:`models.signals.period`).
+zero subtracted, other channels as read.
+
+Per channel: the RMS error in the sensor's noise levels (meaningful on any segment) and, where the
+measured signal moves well beyond its noise,
+the NRMSE (RMS error over that span; on a steady-sliding segment the span is the noise itself and
+an NRMSE of 46.6 % meant nothing).  Moving well beyond its noise: a standard deviation of at least
+:data:`RESOLVED_STD` noise levels.  The stick-slip period and amplitude of one channel are compared
+too: the sliding body's speed (slips are bursts from rest), else a twist or torque (slips are sharp
+drops), else the first speed, each found as slip events (:func:`models.signals.slip_events`; a
+spectrum's peak misreads an irregular sawtooth).  A segment without slips (steady sliding) states
+no period: ``period_measured`` is NaN and ``period_note`` says why.
 """
 
 from __future__ import annotations
@@ -19,51 +26,13 @@ import numpy as np
 
 from models.errors import DataError
 from models.plant import SimOptions, step_function
-from models.signals import moving_average, period
+from models.signals import moving_average, slip_events
 
-__all__ = ["Validation", "validate", "cycle_period"]
+__all__ = ["Validation", "validate", "period_channel", "RESOLVED_STD"]
 
-
-def cycle_period(x, dt: float) -> float:
-    """Period [s] of the dominant oscillation of ``x``: the first strong maximum of its
-    autocorrelation after the first zero crossing, refined by a parabola through the three lags
-    around it; NaN when ``x`` does not oscillate within 80 % of its length.
-
-    Parameters
-    ----------
-    x : (n,) samples; dt : sample period [s]
-    """
-    x = np.asarray(x, float)
-    n = x.size
-    if n < 8:
-        return float("nan")
-    x = moving_average(x - x.mean(), 3)
-    if not np.any(x):
-        return float("nan")
-    f = np.fft.rfft(x, 2 * n)
-    ac = np.fft.irfft(f * np.conj(f))[:n]
-    ac = ac / ac[0]
-    neg = np.flatnonzero(ac < 0)
-    if neg.size == 0:
-        return float("nan")
-    lo, hi = int(neg[0]), int(0.8 * n)
-    if hi <= lo + 2:
-        return float("nan")
-    seg = ac[lo:hi]
-    top = float(np.max(seg))
-    if top <= 0:
-        return float("nan")
-    k = None
-    for i in range(1, seg.size - 1):
-        if seg[i] >= seg[i - 1] and seg[i] >= seg[i + 1] and seg[i] >= 0.5 * top:
-            k = lo + i
-            break
-    if k is None:
-        return float("nan")
-    a, b, c = ac[k - 1], ac[k], ac[k + 1]
-    den = a - 2 * b + c
-    shift = 0.5 * (a - c) / den if den < 0 else 0.0
-    return float((k + shift) * dt)
+#: a measured channel whose standard deviation is below this many noise levels gets no NRMSE (its
+#: variation is then mostly the sensor's noise, which an NRMSE would measure instead of the model)
+RESOLVED_STD = 3.0
 
 
 @dataclass(frozen=True)
@@ -73,10 +42,16 @@ class Validation:
     Attributes
     ----------
     t : (n,) times [s]; measured, simulated : ``{channel: (n,)}``
-    nrmse : per channel RMS error / range of the measured signal
-    period_measured, period_simulated [s], period_error (relative)
-    amplitude_measured, amplitude_simulated [rad/s], amplitude_error (relative)
-    channel : the speed channel the period and amplitude refer to
+    nrmse : per channel RMS error / span of the measured signal; NaN where its standard deviation is
+        within :data:`RESOLVED_STD` noise levels (a steady segment: the NRMSE would measure the noise)
+    rms : per channel RMS error in the channel's noise levels
+    period_measured, period_simulated [s], period_error (relative): median time between slips
+        (:func:`models.signals.slip_events`); NaN where there are fewer than two slips
+    amplitude_measured, amplitude_simulated [channel unit], amplitude_error (relative): half the
+        peak-to-peak of ``channel`` (NaN without stick-slip in the measured segment)
+    channel : the channel the period and amplitude refer to; kind : "speed" or "force"
+    slips_measured, slips_simulated : slips found in the segment
+    period_note : why there is no measured period ("" when there is one), e.g. steady sliding
     method : "hybrid" (the exact stick/slip plant)
     """
 
@@ -84,6 +59,7 @@ class Validation:
     measured: dict = field(repr=False)
     simulated: dict = field(repr=False)
     nrmse: dict = field(default_factory=dict)
+    rms: dict = field(default_factory=dict)
     period_measured: float = float("nan")
     period_simulated: float = float("nan")
     period_error: float = float("nan")
@@ -91,7 +67,39 @@ class Validation:
     amplitude_simulated: float = float("nan")
     amplitude_error: float = float("nan")
     channel: str = ""
+    kind: str = "speed"
+    slips_measured: int = 0
+    slips_simulated: int = 0
+    period_note: str = ""
     method: str = "hybrid"
+
+    @property
+    def stick_slip(self) -> bool:
+        """The measured segment sticks and slips (has a period)."""
+        return bool(np.isfinite(self.period_measured))
+
+    def as_dict(self) -> dict:
+        return {"nrmse": dict(self.nrmse), "rms": dict(self.rms), "period_measured": self.period_measured,
+                "period_simulated": self.period_simulated, "period_error": self.period_error,
+                "amplitude_measured": self.amplitude_measured, "amplitude_simulated": self.amplitude_simulated,
+                "amplitude_error": self.amplitude_error, "channel": self.channel, "kind": self.kind,
+                "slips_measured": self.slips_measured, "slips_simulated": self.slips_simulated,
+                "period_note": self.period_note, "method": self.method}
+
+
+def period_channel(model, channels) -> tuple[str, str]:
+    """``(channel, kind)`` whose slips give the stick-slip period: the sliding (objective) body's speed,
+    else another contact body's, else a twist or torque channel, else the first speed channel."""
+    speeds = {c.name for c in channels if c.kind == "speed" or (c.kind == "value" and c.unit == "rad/s")}
+    for body in (model.objective_body,) + tuple(model.contact_bodies):
+        ch = model.speed_channel(body) if body else None
+        if ch in speeds:
+            return ch, "speed"
+    for c in channels:
+        if c.kind == "twist" or getattr(model.sensor_of(c.name), "kind", None) == "torque":
+            return c.name, "force"
+    first = [c.name for c in channels if c.name in speeds]
+    return (first[0], "speed") if first else (channels[0].name, "force")
 
 
 def validate(problem, fit, nsub: int = 10) -> Validation:
@@ -142,17 +150,25 @@ def validate(problem, fit, nsub: int = 10) -> Validation:
     t = d.t[k0 + 1:n]
     meas = {c.name: d.Y[k0 + 1:n, j] for j, c in enumerate(chans)}
     sims = {k: np.array(v) for k, v in sims.items()}
-    nrmse = {}
+    nrmse, rms = {}, {}
     for k in meas:
+        err = float(np.sqrt(np.mean((meas[k] - sims[k]) ** 2)))
+        sig = float(problem.noise.get(k, 0.0))
         span = float(np.ptp(meas[k]))
-        nrmse[k] = float(np.sqrt(np.mean((meas[k] - sims[k]) ** 2)) / span) if span > 0 else float("nan")
-    speeds = [c.name for c in chans if c.kind in ("speed", "value") and c.unit == "rad/s"]
-    key = speeds[0] if speeds else chans[0].name
-    Pm, Ps = cycle_period(meas[key], dt), cycle_period(sims[key], dt)
-    if not (np.isfinite(Pm) and np.isfinite(Ps)):
-        Pm, Ps = period(meas[key], dt), period(sims[key], dt)
-    Am, As = 0.5 * float(np.ptp(moving_average(meas[key], 3))), 0.5 * float(np.ptp(sims[key]))
-    return Validation(t=t, measured=meas, simulated=sims, nrmse=nrmse, period_measured=Pm, period_simulated=Ps,
-                      period_error=(Ps - Pm) / Pm if Pm > 0 else float("nan"), amplitude_measured=Am,
-                      amplitude_simulated=As, amplitude_error=(As - Am) / Am if Am > 0 else float("nan"),
-                      channel=key)
+        rms[k] = err / sig if sig > 0 else float("nan")
+        moves = float(np.std(meas[k])) > RESOLVED_STD * sig
+        nrmse[k] = err / span if moves and span > 0 else float("nan")
+    key, kind = period_channel(model, chans)
+    sig = float(problem.noise.get(key, 0.0)) or None
+    em = slip_events(meas[key], dt, kind, noise=sig)
+    es = slip_events(sims[key], dt, kind)
+    Pm, Ps = em.period, es.period
+    if em.cycles:
+        Am, As = 0.5 * float(np.ptp(moving_average(meas[key], 3))), 0.5 * float(np.ptp(sims[key]))
+    else:
+        Am = As = float("nan")
+    return Validation(t=t, measured=meas, simulated=sims, nrmse=nrmse, rms=rms, period_measured=Pm,
+                      period_simulated=Ps, period_error=(Ps - Pm) / Pm if Pm > 0 else float("nan"),
+                      amplitude_measured=Am, amplitude_simulated=As,
+                      amplitude_error=(As - Am) / Am if Am > 0 else float("nan"), channel=key, kind=kind,
+                      slips_measured=int(em.times.size), slips_simulated=int(es.times.size), period_note=em.why)

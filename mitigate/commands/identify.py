@@ -218,6 +218,27 @@ def _plot(fit, path, force: bool):
         plt.close(fig)
 
 
+def holdout_line(v, units) -> str:
+    """The hold-out's line: NRMSE where the measured signal moves beyond its noise (else the RMS error in
+    noise levels), and the stick-slip period only where the measured segment sticks and slips."""
+    parts = []
+    for k, e in v.rms.items():
+        nr = v.nrmse.get(k, math.nan)
+        parts.append(f"{k} {100 * nr:.1f} %" if math.isfinite(nr) else f"{k} {e:.2g} noise levels RMS (steady)")
+    line = "hold-out (exact plant): NRMSE " + ", ".join(parts)
+    if v.stick_slip:
+        pred = (f"{v.period_simulated:.3g} s predicted ({v.slips_simulated} slips)" if math.isfinite(v.period_simulated)
+                else "none predicted (the prediction does not stick-slip)")
+        line += (f"; stick-slip period {v.period_measured:.3g} s measured ({v.slips_measured} slips) vs {pred}; "
+                 f"amplitude {v.amplitude_measured:.3g} vs {v.amplitude_simulated:.3g} {units.get(v.channel, '')} "
+                 f"({v.channel})")
+    else:
+        line += f"; no stick-slip period: the held-out {v.channel} shows none ({v.period_note})"
+        if math.isfinite(v.period_simulated):
+            line += f", the prediction sticks and slips every {v.period_simulated:.3g} s"
+    return line
+
+
 def run(args) -> int:
     try:
         return _run(args)
@@ -348,10 +369,7 @@ def _run(args) -> int:
     for line in notes:
         print(f"guess: {line}")
     if fit.validation is not None:
-        v = fit.validation
-        print("hold-out (exact plant): NRMSE " + ", ".join(f"{k} {100 * x:.1f} %" for k, x in v.nrmse.items())
-              + f"; stick-slip period {v.period_measured:.3g} s measured vs {v.period_simulated:.3g} s; "
-              f"amplitude {v.amplitude_measured:.3g} vs {v.amplitude_simulated:.3g} rad/s ({v.channel})")
+        print(holdout_line(fit.validation, {c.name: c.unit for c in fit.problem.channels}))
     if bres is not None:
         print(f"bootstrap: {bres.status.value}: {bres.message} ({bres.wall_time:.1f} s)"
               + ("" if bres.success else "; [stderr] keeps the Gauss-Newton standard errors"))
