@@ -26,6 +26,23 @@ gain by the kinetic level.
 
 after which a rig file may say ``law = "my_law"`` with ``mu_k`` and ``c_v`` in the contact.
 
+**Laws with state.**  A law may carry internal states (LuGre's bristle deflection, rate-and-state's
+contact age): it declares them (:class:`LawState`: name, quantity kind, description) and gives one
+function of the SIGNED sliding speed ``v`` [rad/s] and its states ``z`` (a list) that returns the
+friction torque resisting ``v`` [N m] and the states' derivatives::
+
+    def my_dynamic_law(v, z, scale, *, sigma0, mu_c):
+        zdot = v - sigma0 * smooth_abs(v, 1e-9) * z[0] / mu_c
+        return scale * sigma0 * z[0], [zdot]
+
+    register(FrictionLaw("my_dynamic_law", my_steady_law, params,
+                         states=(LawState("z", "angle", "bristle deflection"),), dynamics=my_dynamic_law))
+
+``magnitude`` is then the law at steady sliding (the states settled), which every memoryless view
+uses (static limits, steady sliding guesses, data-derived starting values, D-OSKIL's level).  The
+rig model appends each contact's states to its state vector (``<state>_<contact>``, after the body
+speeds), and the plant, the estimators, identification and the NMPC integrate them with the rest.
+
 The exact stick/slip plant (:mod:`models.plant`) uses the law as it is: a body at rest
 stays stuck while the torque on it lies within the law's value at zero speed.  Optimisers
 use a regularised version (:meth:`FrictionLaw.smooth`): ``tanh(v/eps)`` times the law at
@@ -43,6 +60,10 @@ Laws shipped
 ``leadscrew``    seed 002 eqs. (9.7), (9.31), (9.33): the lead-screw thread friction with
                  the lead angle, which is not symmetric in the sliding direction and changes
                  the effective inertia
+``lugre``        Canudas de Wit, Olsson, Astrom & Lischinsky, IEEE TAC 40(3) 1995: bristle
+                 deflection ``z``, presliding hysteresis, a smooth model of stick (state)
+``rate_state``   Dieterich-Ruina with the ageing law (Ruina 1983; the arcsinh form of Rice,
+                 Lapusta & Ranjith 2001), the state as ``psi = ln(v0 theta / Dc)`` (state)
 """
 
 from __future__ import annotations
@@ -57,6 +78,8 @@ from models.errors import ConfigError
 
 __all__ = [
     "Param",
+    "LawState",
+    "level_kind",
     "ROLES",
     "LINEAR_ROLES",
     "FrictionLaw",
@@ -67,6 +90,10 @@ __all__ = [
     "stribeck",
     "vahid_araghi",
     "bit_rock",
+    "lugre",
+    "lugre_steady",
+    "rate_state",
+    "rate_state_steady",
     "smooth_sign",
     "smooth_abs",
 ]
@@ -95,6 +122,14 @@ def _abs(x):
 
 def _sign(x):
     return ca.sign(x) if _sym(x) else np.sign(x)
+
+
+def _log(x):
+    return ca.log(x) if _sym(x) else np.log(x)
+
+
+def _asinh(x):
+    return ca.asinh(x) if _sym(x) else np.arcsinh(x)
 
 
 def smooth_sign(v, eps):
@@ -140,6 +175,59 @@ def bit_rock(v_abs, scale, *, mu_sb, mu_cb, v_b, c_b):
     radius.
     """
     return c_b * v_abs + scale * (mu_cb + (mu_sb - mu_cb) * _exp(-v_abs / v_b))
+
+
+#: the width [rad/s] below which LuGre's |v| is rounded (its kink at 0 would stall Newton's method in the
+#: implicit integrators; 1e-9 rad/s is far below any speed a log resolves)
+LUGRE_ABS = 1e-9
+
+
+def lugre_steady(v_abs, scale, *, sigma0, sigma1, sigma2, mu_c, mu_s, v_s):
+    """LuGre at steady sliding: ``N r [mu_c + (mu_s - mu_c) exp(-(|w|/v_s)^2)] + sigma2 |w|`` [N m]
+    (Canudas de Wit et al. 1995, eq. 3 with ``dz/dt = 0``)."""
+    return scale * (mu_c + (mu_s - mu_c) * _exp(-(v_abs / v_s) ** 2)) + sigma2 * v_abs
+
+
+def lugre(v, z, scale, *, sigma0, sigma1, sigma2, mu_c, mu_s, v_s):
+    """LuGre (Canudas de Wit, Olsson, Astrom, Lischinsky, IEEE TAC 40(3) 1995, eqs. 1-4).
+
+    ``dz/dt = w - sigma0 |w| z / g(w)``, ``g(w) = mu_c + (mu_s - mu_c) exp(-(w/v_s)^2)``, friction
+    ``N r (sigma0 z + sigma1 dz/dt) + sigma2 w`` resisting ``w``.  ``z`` is the bristles' mean
+    deflection [rad] (at the contact's radius ``r``: ``r z`` metres); the levels ``mu_c``, ``mu_s``
+    and the bristle stiffness and damping ``sigma0`` [1/rad], ``sigma1`` [s/rad] are scaled by
+    ``N r`` as every level of the registry, the viscous ``sigma2`` [N m s/rad] is not.  With
+    ``N r = 1 N m`` and ``r = 1 m`` the paper's numbers apply as printed (``sigma0 = 1e5 N/m``,
+    ``F_c = 1 N``, ...).  ``|w|`` is rounded below :data:`LUGRE_ABS`.
+    """
+    g = mu_c + (mu_s - mu_c) * _exp(-(v / v_s) ** 2)
+    zdot = v - sigma0 * smooth_abs(v, LUGRE_ABS) * z[0] / g
+    return scale * (sigma0 * z[0] + sigma1 * zdot) + sigma2 * v, [zdot]
+
+
+def rate_state_steady(v_abs, scale, *, mu0, a, b, v0, d_c):
+    """Rate-and-state at steady sliding: ``N r [mu0 + (a - b) ln(1 + |w|/v0)]`` [N m].
+
+    The exact steady state is ``mu0 + (a - b) ln(|w|/v0)`` (Ruina 1983), which has no limit at rest;
+    this memoryless view (static limits, starting values) uses ``ln(1 + |w|/v0)``, equal to it
+    within ``v0/|w|`` above the reference speed and ``mu0`` at rest.  The dynamic law
+    (:func:`rate_state`) is exact.
+    """
+    return scale * (mu0 + (a - b) * _log(1 + v_abs / v0))
+
+
+def rate_state(v, z, scale, *, mu0, a, b, v0, d_c):
+    """Dieterich-Ruina rate-and-state friction with the ageing law, regularised at rest.
+
+    ``mu = a asinh(w/(2 v0) exp((mu0 + b psi)/a))`` (Rice, Lapusta & Ranjith, JMPS 49, 2001, eq. 9:
+    equal to ``mu0 + a ln(w/v0) + b psi`` once ``w >> v0 exp(-(mu0 + b psi)/a)``, and odd in ``w``),
+    ``psi = ln(v0 theta / d_c)`` the state in log form (``theta`` the contact's age [s]),
+    ``dtheta/dt = 1 - |w| theta / d_c`` (ageing law, Ruina 1983), i.e.
+    ``dpsi/dt = (v0 exp(-psi) - |w|) / d_c``.  Friction ``N r mu`` resisting ``w``; ``v0`` [rad/s] the
+    reference speed, ``d_c`` [rad] the characteristic slip (a distance ``r d_c`` at the contact).
+    """
+    psi = z[0]
+    mu = a * _asinh(v / (2 * v0) * _exp((mu0 + b * psi) / a))
+    return scale * mu, [(v0 * _exp(-psi) - smooth_abs(v, 1e-3 * v0)) / d_c]
 
 
 def _leadscrew_xi(mu_signed, lam):
@@ -221,6 +309,30 @@ class Param:
 
 
 @dataclass(frozen=True)
+class LawState:
+    """An internal state of a friction law: its name (the rig names it ``<name>_<contact>``), its
+    quantity kind (:data:`models.units.DIMENSIONS`) and a description."""
+
+    name: str
+    kind: str
+    doc: str = ""
+
+
+#: parameter kinds whose unit depends on whether the contact has a normal force and a radius: a
+#: level is a coefficient with them and a torque without (and likewise per speed, per angle)
+_LEVEL_KINDS = {"level": ("dimensionless", "torque"), "level_slowness": ("slowness", "damping"),
+                "level_per_angle": ("per_angle", "stiffness")}
+
+
+def level_kind(kind: str, has_normal: bool) -> str:
+    """The quantity kind of a law parameter of ``kind`` in a contact with (or without) a normal force
+    and radius: ``"level"`` is dimensionless with them and a torque without, ``"level_slowness"`` s/rad
+    or N m s/rad, ``"level_per_angle"`` 1/rad or N m/rad; other kinds are themselves."""
+    pair = _LEVEL_KINDS.get(kind)
+    return kind if pair is None else pair[0 if has_normal else 1]
+
+
+@dataclass(frozen=True)
 class FrictionLaw:
     """One registered law.
 
@@ -235,6 +347,10 @@ class FrictionLaw:
     inertia : optional ``h(v_abs, s, N, r, **params)``: inertia the contact adds [kg m^2]
     smooth_fn : optional own regularisation ``(v, N, r, eps, **params) -> signed torque``
     smoothing_param : the parameter that sets the law's own regularisation (shown to users)
+    states : the law's internal states (:class:`LawState`), empty for a memoryless law
+    dynamics : with ``states``: ``d(v, z, scale, **params) -> (friction, zdot)``, the friction torque
+        [N m] resisting the SIGNED speed ``v`` [rad/s] and the states' derivatives (a list), ``z`` the
+        states (a list); ``magnitude`` is then the law at steady sliding
     """
 
     name: str
@@ -247,6 +363,23 @@ class FrictionLaw:
     smooth_fn: Callable[..., Any] | None = None
     smoothing_param: str = ""
     extras: dict = field(default_factory=dict, compare=False)
+    states: tuple[LawState, ...] = ()
+    dynamics: Callable[..., Any] | None = None
+
+    @property
+    def stateful(self) -> bool:
+        """True when the law has internal states (its friction depends on their history)."""
+        return bool(self.states)
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return tuple(q.name for q in self.states)
+
+    def dynamic_torque(self, v, z, N, r, P: dict):
+        """``(torque, zdot)``: the signed friction torque ON the body at signed speed ``v`` with states
+        ``z`` (it resists ``v``), and the states' derivatives (a list)."""
+        F, zdot = self.dynamics(v, list(z), N * r, **P)
+        return -F, list(zdot)
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -319,6 +452,11 @@ def register(law: FrictionLaw) -> FrictionLaw:
         raise ConfigError(f"friction law {law.name!r} is already registered")
     if law.magnitude is None and law.directional is None:
         raise ConfigError(f"friction law {law.name!r} needs a magnitude or a directional function")
+    if bool(law.states) != (law.dynamics is not None):
+        raise ConfigError(f"friction law {law.name!r}: states and dynamics go together (a law with states "
+                          f"gives dynamics(v, z, scale, **params) -> (friction, zdot))")
+    if law.states and law.directional is not None:
+        raise ConfigError(f"friction law {law.name!r}: a law with states must be symmetric (no directional function)")
     LAWS[law.name] = law
     return law
 
@@ -367,3 +505,22 @@ register(FrictionLaw("bit_rock", bit_rock,
 register(FrictionLaw("leadscrew", None, _LS_PARAMS, doc="lead-screw thread friction (direction-dependent)",
                      reference="seed 002 eqs. (9.7), (9.31), (9.33)", directional=leadscrew_torque,
                      inertia=leadscrew_inertia, smooth_fn=leadscrew_smooth, smoothing_param="r1"))
+
+register(FrictionLaw("lugre", lugre_steady,
+                     (Param("sigma0", "level_per_angle", "bristle stiffness", 0.0),
+                      Param("sigma1", "level_slowness", "bristle damping", 0.0),
+                      Param("sigma2", "damping", "viscous coefficient [N m s/rad]", 0.0, role="viscous"),
+                      Param("mu_c", "level", "Coulomb level", 0.0, role="kinetic"),
+                      Param("mu_s", "level", "static level", 0.0, role="static"),
+                      Param("v_s", "speed", "Stribeck speed", 0.0, role="decay_speed")),
+                     doc="LuGre: bristle deflection with presliding hysteresis and a Stribeck curve",
+                     reference="Canudas de Wit, Olsson, Astrom & Lischinsky, IEEE TAC 40(3) 1995",
+                     states=(LawState("z", "angle", "mean bristle deflection"),), dynamics=lugre))
+register(FrictionLaw("rate_state", rate_state_steady,
+                     (Param("mu0", "level", "friction level at the reference speed", 0.0, role="kinetic"),
+                      Param("a", "level", "direct effect", 0.0), Param("b", "level", "evolution effect", 0.0),
+                      Param("v0", "speed", "reference speed", 0.0), Param("d_c", "angle", "characteristic slip", 0.0)),
+                     doc="Dieterich-Ruina rate-and-state friction, ageing law (arcsinh-regularised at rest)",
+                     reference="Ruina, JGR 88 (1983); Rice, Lapusta & Ranjith, JMPS 49 (2001)",
+                     states=(LawState("psi", "dimensionless", "log contact age, ln(v0 theta / d_c)"),),
+                     dynamics=rate_state))

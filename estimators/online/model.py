@@ -215,7 +215,7 @@ def rig_rhs(model: RigModel, x, u, P: dict, eps: float, factors: dict):
     Identical to ``model.ode(eps)`` when every factor is 1 (tests check it); a factor scales
     its contact's friction torque, not the inertia a contact may add.
     """
-    Tc = [model.contact_friction(i, x[idx], u, P, eps, factors=factors) for i, idx in enumerate(model.contacts)]
+    Tc = [model.contact_friction(i, x[idx], u, P, eps, factors=factors, x=x) for i, idx in enumerate(model.contacts)]
     s = [fr.smooth_sign(x[idx], eps) for idx in model.contacts]
     return ca.vertcat(*model.dynamics(x, u, P, Tc, s))
 

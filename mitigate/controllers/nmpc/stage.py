@@ -51,7 +51,7 @@ def prediction_rhs(model, eps: float) -> ca.Function:
     x, u, p = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu), ca.SX.sym("p", model.n_p)
     fc = ca.SX.sym("fc", len(model.contacts))
     P = model.unpack(p)
-    Tc = [fc[i] * model.contact_friction(i, x[idx], u, P, eps) for i, idx in enumerate(model.contacts)]
+    Tc = [fc[i] * model.contact_friction(i, x[idx], u, P, eps, x=x) for i, idx in enumerate(model.contacts)]
     s = [fr.smooth_sign(x[idx], eps) for idx in model.contacts]
     xdot = ca.vertcat(*model.dynamics(x, u, P, Tc, s))
     return ca.Function(f"{model.cname}_nmpc_rhs", [x, u, p, fc], [xdot], ["x", "u", "p", "fc"], ["xdot"])
