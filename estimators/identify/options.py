@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Mapping
 
 from models.checks import choice, flag, integer, names, number, prefix
+from models.discretise import METHODS
 from models.errors import ConfigError
 from models.sensors import SensorOptions
 
@@ -142,11 +143,14 @@ class IdentifyOptions:
     eps : friction regularisation of the fitted model [rad/s]; None: from the rig,
         :func:`default_eps` (rig3's 0.005 rad/s at its 30 rpm, i.e. 0.16 % of the rig's nominal
         speed); the fit states the value used (``fit.eps``).  The regularised model creeps where
-        the plant sticks; the bias this puts on friction and damping shrinks with eps, at the
-        price of more substeps
-    nsub : RK4 substeps per sample; None: from the integration rule
-        (:func:`models.discretise.integration`: ``h |lambda|max <= 2.5`` over the contacts at rest
-        and sliding, a fast motor's current quasi-static)
+        the plant sticks; the bias this puts on friction and damping shrinks with eps (a small eps
+        costs no refusal: where RK4 would need too many substeps the implicit step takes over)
+    nsub : substeps per sample; None: from the integration rule
+        (:func:`models.discretise.integration`: RK4 with ``h |lambda|max <= 2.5`` over the contacts at
+        rest and sliding, a fast motor's current quasi-static, or the L-stable implicit step where RK4
+        would need many more substeps than it, as at a small eps: never refused for stiffness).
+        Given, it is RK4's (or, with ``integrator = "sdirk2"``, the implicit step's)
+    integrator : "auto" (the rule's choice), "rk4" or "sdirk2" (:data:`models.discretise.METHODS`)
     shoot_every : samples per shooting interval
     speed_average : compare encoder speeds as means over the sample (the DAQ's backward
         differences of counted angles)
@@ -198,6 +202,7 @@ class IdentifyOptions:
     sensors: SensorOptions = field(default_factory=SensorOptions)
     eps: float | None = None
     nsub: int | None = None
+    integrator: str = "auto"
     shoot_every: int = 10
     speed_average: bool = True
     use_twist: bool = True
@@ -254,6 +259,7 @@ class IdentifyOptions:
             raise ConfigError(f"{w}.sensors must be SensorOptions, got {type(self.sensors).__name__}")
         number(self.eps, f"{w}.eps", lo=0.0, lo_open=True, unit="rad/s", none=True)
         integer(self.nsub, f"{w}.nsub", lo=1, none=True)
+        choice(self.integrator, f"{w}.integrator", ("auto",) + METHODS)
         for name in ("shoot_every", "max_iter", "systematic_iter"):
             integer(getattr(self, name), f"{w}.{name}", lo=1)
         integer(self.extra_delay, f"{w}.extra_delay", lo=0, hi=100, unit="samples")

@@ -296,7 +296,7 @@ def filtered_states(model, d, initial, measured: set, channels=()):
         return None
     from estimators.online.replay import estimate_log
     try:
-        est = estimate_log(d.log, {"kind": "ekf", "compile": False, "augment": []}, model, initial)
+        est = estimate_log(d.log, {"kind": "ekf", "compile": False, "augment": []}, model, initial, along=False)
     except (ConfigError, DataError):
         return None
     x = est.x[:, :model.nx]
