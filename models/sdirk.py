@@ -26,13 +26,18 @@ the friction's Jacobian is that of a constant (``tanh`` saturated), the first it
 to the other side, and the iterates chatter between the two branches.  Each stage therefore starts
 from a **predictor** built like the exact stick/slip step (Moreau's time stepping): for every
 contact body ``j`` with a memoryless law, the speed it would reach without friction,
-``a = v_j + gamma h f_j(v_j = 0)`` (the regularised friction vanishes at rest), and the most the
-friction can take off it, ``b = gamma h max(|f_j(0) - f_j(+-20 eps)|, |f_j(0) - f_j(a)|)``, give
-``v_j0 = sign(a) max(0, |a| - b)``: zero where the contact sticks, the kinetic solution where it
-slides.  That start lies between rest and the stage's solution, on the side where ``r(v) = v - a +
-gamma h T(v)/J`` is concave, from which Newton's iterates approach the root monotonically (as long as
-the substep resolves any negative slope of the law, ``gamma h |dT/dv| / J < 1``, which the
-integration rule ensures: then the stage equation has exactly one root).
+``a = v_j + gamma h f_j(v_j = 0)`` (the regularised friction vanishes at rest), and what the
+friction takes off it at its peak over the band's edge, ``b = gamma h max_c |f_j(0) - f_j(+-c eps)|``
+(c = 1, 2, 4, ... 32), and at the speed ``a``, ``b_a``: where ``|a| <= b`` the contact sticks and
+the start is rest (left of the root, where ``r(v) = v - a + gamma h T(v)/J`` is concave: Newton's
+iterates climb to the root monotonically); else it slides and the start is the kinetic speed
+``sign(a) max(v_peak, |a| - b_a)``, beyond the peak (a start at rest would crawl through the band's
+steep part for many iterations; a slide mistaken for a stick or the reverse makes the iterates
+cycle between the branches).  Newton's iterates are safeguarded by a bracket of the contact's speed
+(rest and the friction-free speed ``a``, narrowed by the residual's sign at each iterate): a step
+that leaves it cuts the bracket instead (at rest, or at its ends' geometric mean), which ends the two-branch cycles a predictor on the wrong side of a
+breakaway starts (a free speed within 1e-10 of the friction's peak).  The stage equation has exactly one root as long as the substep resolves any
+negative slope of the law, ``gamma h |dT/dv| / J < 1``, which the integration rule ensures.
 
 The step is checked against scipy's Radau at tight tolerances and against the exact stick/slip
 plant, with its measured convergence order, in ``tests/test_implicit.py``.
@@ -50,9 +55,9 @@ __all__ = ["GAMMA", "NEWTON_ITER", "sdirk2"]
 GAMMA = 1.0 - 1.0 / math.sqrt(2.0)
 #: Newton iterations per stage (enough from the predictor for h lambda up to ~1e5 at rest,
 #: ``tests/test_implicit.py`` checks the residual along stick-slip runs)
-NEWTON_ITER = 10
-#: the predictor's "just beyond the regularisation band" speed, in units of the band
-_BEYOND = 20.0
+NEWTON_ITER = 12
+#: speeds (in units of the band) at which the predictor looks for the regularised law's peak
+_PEAK = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
 
 
 def _symbolic(x) -> bool:
@@ -62,6 +67,16 @@ def _symbolic(x) -> bool:
 def _with(x, j: int, value):
     """``x`` with entry ``j`` replaced by ``value`` (a column expression)."""
     return ca.vertcat(x[:j], value, x[j + 1:])
+
+
+def _split(lo, hi, band):
+    """Where a bracket of a contact's speed is cut: at rest if it holds rest, else at the geometric mean
+    of its ends (a stage's speed spans decades, from a creep far inside the band to a slide: halving in
+    the logarithm finds it in a few cuts where halving the interval takes tens)."""
+    floor = 1e-3 * band
+    pos = ca.sqrt(ca.fmax(lo, floor) * ca.fmax(hi, floor))
+    neg = -ca.sqrt(ca.fmax(-hi, floor) * ca.fmax(-lo, floor))
+    return ca.if_else(lo >= 0, pos, ca.if_else(hi <= 0, neg, 0))
 
 
 def sdirk2(f, x, u, p, h, *, stiff=(), band=None, newton: int = NEWTON_ITER, quad=None, residual: bool = False):
@@ -96,15 +111,27 @@ def sdirk2(f, x, u, p, h, *, stiff=(), band=None, newton: int = NEWTON_ITER, qua
 
     def newton_stage(base, xk):
         z = base + gh * f_at(xk)
+        bracket = {}
         if stiff:
             guess = {}
             for j in stiff:
                 f0 = f_at(_with(xk, j, 0))[j]
                 a = base[j] + gh * f0
                 sa = ca.if_else(a >= 0, 1, -1)
-                b_near = sa * gh * (f0 - f_at(_with(xk, j, sa * _BEYOND * band))[j])
+                # the most the friction can take off: its peak over the band's edge (the regularised law
+                # rises through the band and may fall beyond it), at the speed of that peak
+                b_peak, v_peak = -ca.inf, 0
+                for c in _PEAK:
+                    b = sa * gh * (f0 - f_at(_with(xk, j, sa * c * band))[j])
+                    v_peak = ca.if_else(b > b_peak, c * band, v_peak)
+                    b_peak = ca.fmax(b_peak, b)
                 b_far = sa * gh * (f0 - f_at(_with(xk, j, a))[j])
-                guess[j] = sa * ca.fmax(0, sa * a - ca.fmax(b_near, b_far))
+                # stick (the peak holds it): rest; slide: the kinetic guess, at least the peak's speed
+                guess[j] = ca.if_else(sa * a <= b_peak, 0, sa * ca.fmax(v_peak, sa * a - b_far))
+                # the stage's speed lies between rest and the friction-free speed (r(0) = -a, r(a) = the
+                # friction's impulse, of the sign of a), widened for the other states' small coupling
+                pad = 0.1 * ca.fabs(a) + 10 * band
+                bracket[j] = [ca.fmin(0, a) - pad, ca.fmax(0, a) + pad]
             xg = xk
             for j, v in guess.items():
                 xg = _with(xg, j, v)
@@ -112,9 +139,33 @@ def sdirk2(f, x, u, p, h, *, stiff=(), band=None, newton: int = NEWTON_ITER, qua
             for j, v in guess.items():
                 z = _with(z, j, v)
         eye = kind.eye(n)
+        js = list(bracket)
+        cols = kind.zeros(n, len(js))
+        for k, j in enumerate(js):
+            cols[j, k] = 1
         for _ in range(int(newton)):
             fv, jv = ca.substitute([fz, jz], [zs], [z])
-            z = z - ca.solve(eye - gh * jv, z - base - gh * fv)
+            r = z - base - gh * fv
+            if not js:
+                z = z - ca.solve(eye - gh * jv, r)
+                continue
+            sol = ca.solve(eye - gh * jv, ca.horzcat(-r, cols))
+            step, w = sol[:, 0], sol[:, 1:]
+            want = []
+            for k, j in enumerate(js):
+                # safeguard: the residual's sign moves the bracket; a Newton step that leaves it bisects
+                lo, hi = bracket[j]
+                lo = ca.if_else(r[j] < 0, ca.fmax(lo, z[j]), lo)
+                hi = ca.if_else(r[j] > 0, ca.fmin(hi, z[j]), hi)
+                bracket[j] = [lo, hi]
+                zj = z[j] + step[j]
+                tol = 1e-9 * ca.fabs(z[j]) + 1e-6 * band       # a converged step may round past its bracket
+                want.append(ca.if_else(ca.logic_and(zj >= lo - tol, zj <= hi + tol), zj, _split(lo, hi, band)) - z[j])
+            # the other states follow the replaced speeds through the same linearisation: the step
+            # plus a combination of M^-1 e_j (rows j relax, every other row keeps its Newton equation)
+            ws = ca.vertcat(*[w[j, :] for j in js])
+            mu = ca.solve(ws, ca.vertcat(*want) - ca.vertcat(*[step[j] for j in js]))
+            z = z + step + ca.mtimes(w, mu)
         return z
 
     if stiff and band is None:
