@@ -96,6 +96,7 @@ class Integration:
     stiff: tuple = ()
     band: float = 0.0
     newton: int = NEWTON_ITER
+    bracket: tuple = ()
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -120,7 +121,8 @@ class Integration:
     @property
     def key(self) -> tuple:
         """What a compiled step depends on (cache keys)."""
-        return (self.method, self.nsub, self.quasi_static, tuple(self.stiff), self.newton if self.implicit else 0)
+        return (self.method, self.nsub, self.quasi_static, tuple(self.stiff), tuple(self.bracket),
+                self.newton if self.implicit else 0)
 
     def advance(self, f, x, u, p, fast_value=None, *, quad=None, dt=None, band=None, residual: bool = False):
         """``x`` after one step of ``xdot = f(x, u, p)`` (symbolic or numeric), input held.
@@ -174,8 +176,8 @@ class Integration:
         band = self.band if band is None else band
         q, res = 0, 0
         for _ in range(self.nsub):
-            out = sdirk2(f, x, u, p, dt / self.nsub, stiff=self.stiff, band=band, newton=self.newton, quad=quad,
-                         residual=True)
+            out = sdirk2(f, x, u, p, dt / self.nsub, stiff=self.stiff, band=band, bracket=self.bracket,
+                         newton=self.newton, quad=quad, residual=True)
             x, res = out[0], ca.fmax(res, out[-1])
             if quad is not None:
                 q = q + out[1]
@@ -318,8 +320,13 @@ def unstable_rate(model, params, u, *, eps: float | None, speed: float | None = 
     if speed is None:
         speed = max(abs(float(u[model.inputs.index(model.drive_input)])), 1.0) if model.drive_kind != "torque" \
             else max(abs(float(model.nominal_speed())), 1.0)
-    speeds = [speed * 10.0 ** -k for k in range(8) if speed * 10.0 ** -k >= 10 * e] or [speed]
-    speeds = sorted(set(speeds + [10 * e, 100 * e]))
+    # a regularised consumer: down to just beyond its band; the exact plant (a law with states, whose
+    # own speed scale may be anything): eight decades
+    floor = 10 * e if eps is not None else speed * 1e-8
+    speeds = [speed * 10.0 ** -k for k in range(9) if speed * 10.0 ** -k >= floor] or [speed]
+    if eps is not None:
+        speeds += [10 * e, 100 * e]
+    speeds = sorted(set(speeds))
     osc = grow = 0.0
     nc = min(len(model.contacts), 4)
     for w in speeds:
@@ -355,7 +362,8 @@ def integration(model, params, dt: float, *, u=None, eps: float | None = None, s
     u : (nu,) its largest inputs (default: the rig's nominal operating point)
     eps : its friction regularisation [rad/s]; None for the exact stick/slip plant
     speed : sliding speed [rad/s] of the sliding points (default: the drive's, >= 1 rad/s)
-    min_nsub : substeps at least (a consumer's accuracy floor, e.g. the plant's ``nsub``)
+    min_nsub : RK4 substeps at least (a consumer's accuracy floor, e.g. the plant's ``nsub``; the
+        implicit step's substep follows from the rates it must resolve)
     nsub : substeps fixed by the consumer's options (identification's ``nsub``, the NMPC's
         ``substeps``): the rule then only decides whether the current is quasi-static, for that
         substep, and says so
@@ -416,16 +424,19 @@ def integration(model, params, dt: float, *, u=None, eps: float | None = None, s
         if not (math.isfinite(osc) and math.isfinite(grow)):
             raise ConfigError(f"{where}: the model of rig {model.name!r} has non-finite rates at its operating point "
                               f"(check its parameters)")
-        n_imp = int(nsub) if nsub is not None else max(int(min_nsub), int(math.ceil(dt * lam_i / RHO_IMPLICIT - 1e-9)),
+        # (``min_nsub`` is RK4's accuracy floor, an event's resolution in the exact plant: not the
+        # implicit step's, whose substep follows from the rates it must resolve)
+        n_imp = int(nsub) if nsub is not None else max(int(math.ceil(dt * lam_i / RHO_IMPLICIT - 1e-9)),
                                                        int(math.ceil(dt * GAMMA * grow / UNSTABLE_MAX - 1e-9)), 1)
         if method == "sdirk2" or n > IMPLICIT_RATIO * n_imp or (max_nsub is not None and n > max_nsub):
             stiff = tuple(idx for i, idx in enumerate(model.contacts) if i not in model.stateful_contacts) \
                 if eps is not None else ()
+            brk = tuple(model.contacts[i] for i in model.stateful_contacts if model.rest_free(i))
             note = (f"implicit SDIRK2 (L-stable, order 2, {NEWTON_ITER} Newton iterations a stage), {n_imp} substep(s) "
                     f"of {_ms(dt / n_imp)}: explicit RK4 would need {n_full} (fastest rate {lam_full:.3g} 1/s); the "
                     f"substep resolves oscillations up to {lam_i:.3g} rad/s and a friction fall of {grow:.3g} 1/s")
             return Integration(float(dt), n_imp, None, float(max(lam_i, grow)), float(tau_e), note, "sdirk2", stiff,
-                               float(eps) if eps is not None else 0.0)
+                               float(eps) if eps is not None else 0.0, bracket=brk)
     if max_nsub is not None and n > max_nsub:
         raise ConfigError(f"{where}: rig {model.name!r} needs {n} RK4 substeps per {dt:g} s step (fastest rate "
                           f"{lam:.3g} 1/s); more than {max_nsub}: shorten the step or check the rig's stiffness")

@@ -351,6 +351,8 @@ class FrictionLaw:
     dynamics : with ``states``: ``d(v, z, scale, **params) -> (friction, zdot)``, the friction torque
         [N m] resisting the SIGNED speed ``v`` [rad/s] and the states' derivatives (a list), ``z`` the
         states (a list); ``magnitude`` is then the law at steady sliding
+    rest_free : with ``states``: the friction vanishes at zero speed whatever the states (rate-and-state's
+        arcsinh form), so an implicit step may bracket the speed by rest and the friction-free speed
     """
 
     name: str
@@ -365,6 +367,7 @@ class FrictionLaw:
     extras: dict = field(default_factory=dict, compare=False)
     states: tuple[LawState, ...] = ()
     dynamics: Callable[..., Any] | None = None
+    rest_free: bool = False
 
     @property
     def stateful(self) -> bool:
@@ -523,4 +526,4 @@ register(FrictionLaw("rate_state", rate_state_steady,
                      doc="Dieterich-Ruina rate-and-state friction, ageing law (arcsinh-regularised at rest)",
                      reference="Ruina, JGR 88 (1983); Rice, Lapusta & Ranjith, JMPS 49 (2001)",
                      states=(LawState("psi", "dimensionless", "log contact age, ln(v0 theta / d_c)"),),
-                     dynamics=rate_state))
+                     dynamics=rate_state, rest_free=True))

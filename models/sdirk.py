@@ -69,17 +69,18 @@ def _with(x, j: int, value):
     return ca.vertcat(x[:j], value, x[j + 1:])
 
 
-def _split(lo, hi, band):
+def _split(lo, hi, floor):
     """Where a bracket of a contact's speed is cut: at rest if it holds rest, else at the geometric mean
-    of its ends (a stage's speed spans decades, from a creep far inside the band to a slide: halving in
-    the logarithm finds it in a few cuts where halving the interval takes tens)."""
-    floor = 1e-3 * band
+    of its ends, neither taken below ``floor`` (a stage's speed spans decades, from a creep far inside
+    the band to a slide: halving in the logarithm finds it in a few cuts where halving the interval
+    takes tens)."""
     pos = ca.sqrt(ca.fmax(lo, floor) * ca.fmax(hi, floor))
     neg = -ca.sqrt(ca.fmax(-hi, floor) * ca.fmax(-lo, floor))
     return ca.if_else(lo >= 0, pos, ca.if_else(hi <= 0, neg, 0))
 
 
-def sdirk2(f, x, u, p, h, *, stiff=(), band=None, newton: int = NEWTON_ITER, quad=None, residual: bool = False):
+def sdirk2(f, x, u, p, h, *, stiff=(), band=None, bracket=(), newton: int = NEWTON_ITER, quad=None,
+           residual: bool = False):
     """One SDIRK2 step of ``xdot = f(x, u, p)`` over ``h`` (symbolic), input held.
 
     Parameters
@@ -90,6 +91,9 @@ def sdirk2(f, x, u, p, h, *, stiff=(), band=None, newton: int = NEWTON_ITER, qua
     stiff : indices of state entries that are contact speeds with a memoryless (sign-like) friction
         law: the predictor's Moreau start is used for them (module docstring)
     band : the width [rad/s] of those laws' regularisation (eps); required with ``stiff``
+    bracket : indices of further contact speeds whose friction vanishes at rest whatever the law's
+        states (rate-and-state's arcsinh form): no predictor, but their Newton iterates are kept
+        between rest and the friction-free speed as ``stiff`` ones are
     newton : Newton iterations per stage
     quad : optional callable ``(x, u, p) -> g``: also return ``int g dt`` over the step by the method's
         quadrature (``h ((1 - gamma) g(Z1) + gamma g(Z2))``)
@@ -111,7 +115,15 @@ def sdirk2(f, x, u, p, h, *, stiff=(), band=None, newton: int = NEWTON_ITER, qua
 
     def newton_stage(base, xk):
         z = base + gh * f_at(xk)
-        bracket = {}
+        brackets, floors, logs = {}, {}, set(bracket)
+        for j in bracket:
+            # start from the friction-free speed: the far end of the bracket, from which Newton's iterates
+            # on the (logarithmic in the speed, convex in its logarithm) residual descend monotonically
+            a = base[j] + gh * f_at(_with(xk, j, 0))[j]
+            pad = 0.1 * ca.fabs(a)
+            brackets[j] = [ca.fmin(0, a) - pad, ca.fmax(0, a) + pad]
+            floors[j] = 1e-12 * ca.fabs(a) + 1e-300
+            z = _with(z, j, a)
         if stiff:
             guess = {}
             for j in stiff:
@@ -131,7 +143,8 @@ def sdirk2(f, x, u, p, h, *, stiff=(), band=None, newton: int = NEWTON_ITER, qua
                 # the stage's speed lies between rest and the friction-free speed (r(0) = -a, r(a) = the
                 # friction's impulse, of the sign of a), widened for the other states' small coupling
                 pad = 0.1 * ca.fabs(a) + 10 * band
-                bracket[j] = [ca.fmin(0, a) - pad, ca.fmax(0, a) + pad]
+                brackets[j] = [ca.fmin(0, a) - pad, ca.fmax(0, a) + pad]
+                floors[j] = 1e-3 * band
             xg = xk
             for j, v in guess.items():
                 xg = _with(xg, j, v)
@@ -139,7 +152,7 @@ def sdirk2(f, x, u, p, h, *, stiff=(), band=None, newton: int = NEWTON_ITER, qua
             for j, v in guess.items():
                 z = _with(z, j, v)
         eye = kind.eye(n)
-        js = list(bracket)
+        js = list(brackets)
         cols = kind.zeros(n, len(js))
         for k, j in enumerate(js):
             cols[j, k] = 1
@@ -154,13 +167,20 @@ def sdirk2(f, x, u, p, h, *, stiff=(), band=None, newton: int = NEWTON_ITER, qua
             want = []
             for k, j in enumerate(js):
                 # safeguard: the residual's sign moves the bracket; a Newton step that leaves it bisects
-                lo, hi = bracket[j]
+                lo, hi = brackets[j]
                 lo = ca.if_else(r[j] < 0, ca.fmax(lo, z[j]), lo)
                 hi = ca.if_else(r[j] > 0, ca.fmin(hi, z[j]), hi)
-                bracket[j] = [lo, hi]
+                brackets[j] = [lo, hi]
                 zj = z[j] + step[j]
-                tol = 1e-9 * ca.fabs(z[j]) + 1e-6 * band       # a converged step may round past its bracket
-                want.append(ca.if_else(ca.logic_and(zj >= lo - tol, zj <= hi + tol), zj, _split(lo, hi, band)) - z[j])
+                if j in logs:
+                    # a law logarithmic in the speed (rate-and-state): Newton's correction applied to
+                    # asinh(v / floor), i.e. multiplicatively where |v| >> floor; in the speed itself it
+                    # overshoots from above (the log is concave) and crawls from below (tens of iterations)
+                    nu = floors[j]
+                    zj = nu * ca.sinh(ca.asinh(z[j] / nu) + step[j] / ca.sqrt(z[j] ** 2 + nu ** 2))
+                tol = 1e-9 * ca.fabs(z[j]) + 1e-3 * floors[j]   # a converged step may round past its bracket
+                want.append(ca.if_else(ca.logic_and(zj >= lo - tol, zj <= hi + tol), zj,
+                                       _split(lo, hi, floors[j])) - z[j])
             # the other states follow the replaced speeds through the same linearisation: the step
             # plus a combination of M^-1 e_j (rows j relax, every other row keeps its Newton equation)
             ws = ca.vertcat(*[w[j, :] for j in js])

@@ -373,6 +373,8 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
     if options.q_stick > 0:
         un = u_at(0)
         for i, jdx in enumerate(model.contacts):
+            if i in model.stateful_contacts:
+                continue        # a law with states models stick itself (presliding, creep): no unknown torque
             Ts = 0
             for cname in model.contact_names[i]:
                 tp, tm = model.law(cname).static_limits(*model.contact_args(cname, P, un))
@@ -390,7 +392,7 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
 
     # ---- covariances, prior, bounds
     q = _process_variances(model, names, P_num, dt, options)
-    x0v, P0 = _prior(model, names, idx, P_num, options, x0, where)
+    x0v, P0 = _prior(model, names, idx, P_num, options, x0, where, _friction_state_std(model, params))
     lb, ub = _bounds(names)
     return EstimationModel(model, params, dt, names, state_units(model, names), nxr, chans, tuple(meas), D, F, h,
                            to_internal, np.array(dep_rows, bool).reshape(len(meas), len(chans)), q, stick, float(options.eps), r, x0v, P0, lb,
@@ -417,7 +419,8 @@ def _process_variances(model: RigModel, names, P_num: dict, dt: float, o) -> np.
                 v = (o.q_torque * dt / J) ** 2 if J > 0 else o.q_torque ** 2
             elif n == "current":
                 v = o.q_current ** 2
-            else:           # pi_integral: integrates known signals exactly
+            else:           # pi_integral: integrates known signals exactly; a friction law's state: its
+                            # uncertainty comes from the speed's through the law's dynamics
                 v = 0.0
         elif kind == "load":
             v = o.q_load ** 2 * dt
@@ -431,7 +434,25 @@ def _process_variances(model: RigModel, names, P_num: dict, dt: float, o) -> np.
     return np.array(out)
 
 
-def _prior(model: RigModel, names, idx, P_num, o, x0, where):
+def _friction_state_std(model: RigModel, params) -> dict:
+    """Prior standard deviation of each friction-law state: its size at steady sliding at the rig's
+    operating point (LuGre's bristle deflection g(w)/sigma0; at least 1 for a dimensionless state such
+    as rate-and-state's log age), since the state at power-on is not known."""
+    if not model.friction_states:
+        return {}
+    from models.rig.steady import nominal_operating_point
+    try:
+        xs = np.asarray(model.sliding_guess(nominal_operating_point(model, params)[0], params), float)
+    except Exception:  # noqa: BLE001 - a rest state of zeros then
+        xs = np.zeros(model.nx)
+    out = {}
+    for j in model.friction_states:
+        v = abs(float(xs[j])) if np.isfinite(xs[j]) else 0.0
+        out[model.states[j]] = max(v, 1.0) if model.state_units[j] == "-" else (v if v > 0 else 1e-3)
+    return out
+
+
+def _prior(model: RigModel, names, idx, P_num, o, x0, where, friction_std=None):
     nx, nxr = len(names), model.nx
     x = np.zeros(nx)
     for n in names:
@@ -467,6 +488,8 @@ def _prior(model: RigModel, names, idx, P_num, o, x0, where):
             s = o.p0_load
         elif kind == "offset":
             s = o.p0_offset
+        elif base in (friction_std or {}):
+            s = friction_std[base]
         else:
             s = o.p0_gain
         std.append(s)

@@ -426,6 +426,11 @@ class RigModel(RigOutputs):
             T = T + (factors[c.name] * Tk if factors and c.name in factors else Tk)
         return T
 
+    def rest_free(self, i: int) -> bool:
+        """True when contact body ``i``'s friction vanishes at zero speed whatever its laws' states (a
+        memoryless regularised law, rate-and-state's arcsinh form; not LuGre's bristles)."""
+        return all(not self._laws[c.name].stateful or self._laws[c.name].rest_free for c in self._contact_groups[i])
+
     def friction_state_rates(self, x, u, P) -> list:
         """Derivatives of the friction laws' states (in ``friction_states`` order) at the state ``x``."""
         un = self._named_inputs(u)
