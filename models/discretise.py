@@ -26,8 +26,9 @@ how, from the rig's own rates, and :meth:`Integration.advance` does it:
   method unrolled in the graph) where explicit RK4 would need many more substeps than the rates that
   matter: the regularised friction near rest (``N r mu / (eps J)``, 5.8e7 1/s on a 30 g slider at
   eps = 6.7e-8 m/s) and a law with states (LuGre's bristles, rate-and-state's age) are damped in
-  one step whatever ``h lambda``.  Its substep resolves the rig's rates at steady sliding
-  (``h |lambda| <= `` :data:`RHO_IMPLICIT`) and any rate at which the friction falls with speed
+  one step whatever ``h lambda``.  Its substep resolves the rig's oscillations (``h |Im lambda| <= ``
+  :data:`RHO_IMPLICIT`; a regularised consumer only up to its Nyquist rate ``pi/dt``, what its step can
+  see) and any rate at which the friction falls with speed
   (a positive eigenvalue: ``gamma h lambda+ <= `` :data:`UNSTABLE_MAX`, which also keeps each
   stage's equation with one root); it is chosen when RK4 would need more than
   :data:`IMPLICIT_RATIO` times its substeps (an implicit substep costs about that many RK4 ones).
@@ -420,7 +421,10 @@ def integration(model, params, dt: float, *, u=None, eps: float | None = None, s
     smooth = eps is not None or (model.contacts and len(model.stateful_contacts) == len(model.contacts))
     if method == "sdirk2" or (method is None and nsub is None and smooth and n > 1):
         osc, grow = unstable_rate(model, params, u, eps=eps, speed=speed)
-        lam_i = max(osc, extra)
+        # a regularised consumer (an estimator, a fit, a prediction) sees the rig at its step: it resolves
+        # oscillations up to its Nyquist rate pi/dt and leaves faster ones (LuGre's presliding ringing at
+        # 1e2-1e3 rad/s) to the implicit step's damping; the plant resolves every one
+        lam_i = max(min(osc, math.pi / dt) if eps is not None else osc, extra)
         if not (math.isfinite(osc) and math.isfinite(grow)):
             raise ConfigError(f"{where}: the model of rig {model.name!r} has non-finite rates at its operating point "
                               f"(check its parameters)")

@@ -204,6 +204,18 @@ def lugre(v, z, scale, *, sigma0, sigma1, sigma2, mu_c, mu_s, v_s):
     return scale * (sigma0 * z[0] + sigma1 * zdot) + sigma2 * v, [zdot]
 
 
+def lugre_states(v, scale, *, sigma0, sigma1, sigma2, mu_c, mu_s, v_s):
+    """LuGre's bristle deflection at steady sliding, ``sign(w) g(w) / sigma0`` [rad]."""
+    return [_sign(v) * (mu_c + (mu_s - mu_c) * _exp(-(v / v_s) ** 2)) / sigma0]
+
+
+def rate_state_states(v, scale, *, mu0, a, b, v0, d_c):
+    """Rate-and-state's state at steady sliding, ``psi = ln(v0 / |w|)`` (the contact's age ``d_c/|w|``);
+    at rest (no steady state: the contact ages for ever) that of ``|w| = v0``."""
+    av = _abs(v)
+    return [_log(v0 / (av + 1e-300)) * (av > 0) if not _sym(v) else ca.if_else(av > 0, ca.log(v0 / av), 0)]
+
+
 def rate_state_steady(v_abs, scale, *, mu0, a, b, v0, d_c):
     """Rate-and-state at steady sliding: ``N r [mu0 + (a - b) ln(1 + |w|/v0)]`` [N m].
 
@@ -222,12 +234,12 @@ def rate_state(v, z, scale, *, mu0, a, b, v0, d_c):
     equal to ``mu0 + a ln(w/v0) + b psi`` once ``w >> v0 exp(-(mu0 + b psi)/a)``, and odd in ``w``),
     ``psi = ln(v0 theta / d_c)`` the state in log form (``theta`` the contact's age [s]),
     ``dtheta/dt = 1 - |w| theta / d_c`` (ageing law, Ruina 1983), i.e.
-    ``dpsi/dt = (v0 exp(-psi) - |w|) / d_c``.  Friction ``N r mu`` resisting ``w``; ``v0`` [rad/s] the
+    ``dpsi/dt = (v0 exp(-psi) - |w|) / d_c`` (``|w|`` rounded below ``1e-6 v0``).  Friction ``N r mu`` resisting ``w``; ``v0`` [rad/s] the
     reference speed, ``d_c`` [rad] the characteristic slip (a distance ``r d_c`` at the contact).
     """
     psi = z[0]
     mu = a * _asinh(v / (2 * v0) * _exp((mu0 + b * psi) / a))
-    return scale * mu, [(v0 * _exp(-psi) - smooth_abs(v, 1e-3 * v0)) / d_c]
+    return scale * mu, [(v0 * _exp(-psi) - smooth_abs(v, 1e-6 * v0)) / d_c]
 
 
 def _leadscrew_xi(mu_signed, lam):
@@ -353,6 +365,8 @@ class FrictionLaw:
         states (a list); ``magnitude`` is then the law at steady sliding
     rest_free : with ``states``: the friction vanishes at zero speed whatever the states (rate-and-state's
         arcsinh form), so an implicit step may bracket the speed by rest and the friction-free speed
+    steady : with ``states``: optional ``s(v, scale, **params) -> z`` (a list), the states at steady
+        sliding at the signed speed ``v`` (starting values of steady-sliding solves; else zeros)
     """
 
     name: str
@@ -368,6 +382,7 @@ class FrictionLaw:
     states: tuple[LawState, ...] = ()
     dynamics: Callable[..., Any] | None = None
     rest_free: bool = False
+    steady: Callable[..., Any] | None = None
 
     @property
     def stateful(self) -> bool:
@@ -518,7 +533,8 @@ register(FrictionLaw("lugre", lugre_steady,
                       Param("v_s", "speed", "Stribeck speed", 0.0, role="decay_speed")),
                      doc="LuGre: bristle deflection with presliding hysteresis and a Stribeck curve",
                      reference="Canudas de Wit, Olsson, Astrom & Lischinsky, IEEE TAC 40(3) 1995",
-                     states=(LawState("z", "angle", "mean bristle deflection"),), dynamics=lugre))
+                     states=(LawState("z", "angle", "mean bristle deflection"),), dynamics=lugre,
+                     steady=lugre_states))
 register(FrictionLaw("rate_state", rate_state_steady,
                      (Param("mu0", "level", "friction level at the reference speed", 0.0, role="kinetic"),
                       Param("a", "level", "direct effect", 0.0), Param("b", "level", "evolution effect", 0.0),
@@ -526,4 +542,4 @@ register(FrictionLaw("rate_state", rate_state_steady,
                      doc="Dieterich-Ruina rate-and-state friction, ageing law (arcsinh-regularised at rest)",
                      reference="Ruina, JGR 88 (1983); Rice, Lapusta & Ranjith, JMPS 49 (2001)",
                      states=(LawState("psi", "dimensionless", "log contact age, ln(v0 theta / d_c)"),),
-                     dynamics=rate_state, rest_free=True))
+                     dynamics=rate_state, rest_free=True, steady=rate_state_states))

@@ -426,6 +426,22 @@ class RigModel(RigOutputs):
             T = T + (factors[c.name] * Tk if factors and c.name in factors else Tk)
         return T
 
+    def friction_state_guess(self, speed: float, u, P) -> dict:
+        """``{state index: value}``: each law-with-state's states at steady sliding at ``speed`` [rad/s]
+        (its ``steady`` function; 0 where a law gives none), numeric."""
+        un = self._named_inputs(u)
+        out = {}
+        for c in self.spec.contacts:
+            law = self._laws[c.name]
+            if c.name not in self._fstate:
+                continue
+            N, r, LP = self.contact_args(c, P, un)
+            vals = law.steady(speed, N * r, **LP) if law.steady is not None else [0.0] * len(law.states)
+            for j, v in zip(self._fstate[c.name], vals):
+                v = float(v)
+                out[j] = v if np.isfinite(v) else 0.0
+        return out
+
     def rest_free(self, i: int) -> bool:
         """True when contact body ``i``'s friction vanishes at zero speed whatever its laws' states (a
         memoryless regularised law, rate-and-state's arcsinh form; not LuGre's bristles)."""
