@@ -30,8 +30,9 @@ how, from the rig's own rates, and :meth:`Integration.advance` does it:
   :data:`RHO_IMPLICIT`; a regularised consumer only up to its Nyquist rate ``pi/dt``, what its step can
   see) and any rate at which the friction falls with speed
   (a positive eigenvalue: ``gamma h lambda+ <= `` :data:`UNSTABLE_MAX`, which also keeps each
-  stage's equation with one root); it is chosen when RK4 would need more than
-  :data:`IMPLICIT_RATIO` times its substeps (an implicit substep costs about that many RK4 ones).
+  stage's equation with one root); it is chosen when it costs fewer operations than RK4 with the
+  substeps RK4 would need (CasADi's node counts of one substep of each, with its state Jacobian:
+  an implicit substep costs 20-40 RK4 ones).
   No substep count is ever refused for a regularised consumer: the implicit step takes over.
 
 Measured (``benchmarks/bench_stiff_drive.py``: a two-disc rig with a small gear motor,
@@ -43,6 +44,7 @@ substep".
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -51,9 +53,9 @@ import numpy as np
 
 from models.errors import ConfigError
 from models.rig.steady import nominal_operating_point
-from models.sdirk import GAMMA, NEWTON_ITER, sdirk2
+from models.sdirk import GAMMA, NEWTON_ITER, NEWTON_SMOOTH, sdirk2
 
-__all__ = ["RHO", "QS_FACTOR", "MAX_SUBSTEPS", "METHODS", "RHO_IMPLICIT", "UNSTABLE_MAX", "IMPLICIT_RATIO",
+__all__ = ["RHO", "QS_FACTOR", "MAX_SUBSTEPS", "METHODS", "RHO_IMPLICIT", "UNSTABLE_MAX",
            "Integration", "integration", "rk4", "rk4_function", "stiff_rates", "unstable_rate", "rate_jacobian"]
 
 #: the integration methods: explicit RK4 with substeps, or the L-stable SDIRK2 (:mod:`models.sdirk`)
@@ -62,8 +64,6 @@ METHODS = ("rk4", "sdirk2")
 RHO_IMPLICIT = 1.0
 #: ... and ``GAMMA h lambda+ <= UNSTABLE_MAX`` over the positive rates (a friction that falls with speed)
 UNSTABLE_MAX = 0.5
-#: the implicit step is chosen when RK4 would need more than this many times its substeps
-IMPLICIT_RATIO = 25
 
 #: RK4 substeps keep ``h |lambda|max`` at most this
 RHO = 2.5
@@ -96,7 +96,7 @@ class Integration:
     method: str = "rk4"
     stiff: tuple = ()
     band: float = 0.0
-    newton: int = NEWTON_ITER
+    newton: int | None = None
     bracket: tuple = ()
 
     def __post_init__(self):
@@ -120,10 +120,19 @@ class Integration:
         return self.method != "rk4"
 
     @property
+    def iterations(self) -> int:
+        """Newton iterations per implicit stage: ``newton``, else :data:`models.sdirk.NEWTON_ITER` where a
+        contact's friction switches sign through a band or is logarithmic in the speed (``stiff``,
+        ``bracket``), :data:`models.sdirk.NEWTON_SMOOTH` where every law is smooth (LuGre)."""
+        if self.newton is not None:
+            return int(self.newton)
+        return NEWTON_ITER if (self.stiff or self.bracket) else NEWTON_SMOOTH
+
+    @property
     def key(self) -> tuple:
         """What a compiled step depends on (cache keys)."""
         return (self.method, self.nsub, self.quasi_static, tuple(self.stiff), tuple(self.bracket),
-                self.newton if self.implicit else 0)
+                self.iterations if self.implicit else 0)
 
     def advance(self, f, x, u, p, fast_value=None, *, quad=None, dt=None, band=None, residual: bool = False):
         """``x`` after one step of ``xdot = f(x, u, p)`` (symbolic or numeric), input held.
@@ -178,7 +187,7 @@ class Integration:
         q, res = 0, 0
         for _ in range(self.nsub):
             out = sdirk2(f, x, u, p, dt / self.nsub, stiff=self.stiff, band=band, bracket=self.bracket,
-                         newton=self.newton, quad=quad, residual=True)
+                         newton=self.iterations, quad=quad, residual=True)
             x, res = out[0], ca.fmax(res, out[-1])
             if quad is not None:
                 q = q + out[1]
@@ -347,6 +356,22 @@ def unstable_rate(model, params, u, *, eps: float | None, speed: float | None = 
     return osc, grow
 
 
+def _substep_cost(model, eps, imp: "Integration") -> tuple[int, int]:
+    """Operations (CasADi SX nodes) of one RK4 substep and one implicit substep of the regularised
+    model, with their state Jacobians (what the estimators, identification and the NMPC evaluate)."""
+    key = ("substep_cost", eps, imp.key)
+    cache = model._fcache
+    if key not in cache:
+        f = model.ode(model.eps_default if eps is None else eps)
+        x, u, p = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu), ca.SX.sym("p", model.n_p)
+        out = []
+        for step in (rk4(lambda a, b, c: f(a, b, c), x, u, p, 1.0, 1),
+                     dataclasses.replace(imp, dt=1.0, nsub=1).advance(lambda a, b, c: f(a, b, c), x, u, p)):
+            out.append(ca.Function("cost", [x, u, p], [step, ca.jacobian(step, x)]).n_nodes())
+        cache[key] = tuple(out)
+    return cache[key]
+
+
 def _ms(t: float) -> str:
     return f"{t * 1e3:.3g} ms"
 
@@ -432,15 +457,18 @@ def integration(model, params, dt: float, *, u=None, eps: float | None = None, s
         # implicit step's, whose substep follows from the rates it must resolve)
         n_imp = int(nsub) if nsub is not None else max(int(math.ceil(dt * lam_i / RHO_IMPLICIT - 1e-9)),
                                                        int(math.ceil(dt * GAMMA * grow / UNSTABLE_MAX - 1e-9)), 1)
-        if method == "sdirk2" or n > IMPLICIT_RATIO * n_imp or (max_nsub is not None and n > max_nsub):
-            stiff = tuple(idx for i, idx in enumerate(model.contacts) if i not in model.stateful_contacts) \
-                if eps is not None else ()
-            brk = tuple(model.contacts[i] for i in model.stateful_contacts if model.rest_free(i))
-            note = (f"implicit SDIRK2 (L-stable, order 2, {NEWTON_ITER} Newton iterations a stage), {n_imp} substep(s) "
-                    f"of {_ms(dt / n_imp)}: explicit RK4 would need {n_full} (fastest rate {lam_full:.3g} 1/s); the "
-                    f"substep resolves oscillations up to {lam_i:.3g} rad/s and a friction fall of {grow:.3g} 1/s")
-            return Integration(float(dt), n_imp, None, float(max(lam_i, grow)), float(tau_e), note, "sdirk2", stiff,
-                               float(eps) if eps is not None else 0.0, bracket=brk)
+        stiff = tuple(idx for i, idx in enumerate(model.contacts) if i not in model.stateful_contacts) \
+            if eps is not None else ()
+        brk = tuple(model.contacts[i] for i in model.stateful_contacts if model.rest_free(i))
+        imp = Integration(float(dt), n_imp, None, float(max(lam_i, grow)), float(tau_e), "", "sdirk2", stiff,
+                          float(eps) if eps is not None else 0.0, bracket=brk)
+        cost_rk4, cost_imp = _substep_cost(model, eps, imp)
+        if method == "sdirk2" or n * cost_rk4 > n_imp * cost_imp or (max_nsub is not None and n > max_nsub):
+            note = (f"implicit SDIRK2 (L-stable, order 2, {imp.iterations} Newton iterations a stage), {n_imp} "
+                    f"substep(s) of {_ms(dt / n_imp)}: explicit RK4 would need {n_full} (fastest rate {lam_full:.3g} "
+                    f"1/s, {n * cost_rk4 / max(n_imp * cost_imp, 1):.3g} times the operations); the substep resolves "
+                    f"oscillations up to {lam_i:.3g} rad/s and a friction fall of {grow:.3g} 1/s")
+            return dataclasses.replace(imp, note=note)
     if max_nsub is not None and n > max_nsub:
         raise ConfigError(f"{where}: rig {model.name!r} needs {n} RK4 substeps per {dt:g} s step (fastest rate "
                           f"{lam:.3g} 1/s); more than {max_nsub}: shorten the step or check the rig's stiffness")

@@ -49,13 +49,16 @@ import math
 
 import casadi as ca
 
-__all__ = ["GAMMA", "NEWTON_ITER", "sdirk2"]
+__all__ = ["GAMMA", "NEWTON_ITER", "NEWTON_SMOOTH", "sdirk2"]
 
 #: the SDIRK2 diagonal coefficient (L-stable, stiffly accurate, order 2)
 GAMMA = 1.0 - 1.0 / math.sqrt(2.0)
-#: Newton iterations per stage (enough from the predictor for h lambda up to ~1e5 at rest,
-#: ``tests/test_implicit.py`` checks the residual along stick-slip runs)
+#: Newton iterations per stage where a contact's friction switches sign through a regularisation band
+#: or is logarithmic in the speed (the predictor and the bracket take up to ~10 near a breakaway at
+#: h lambda ~ 1e4-1e5; ``tests/test_implicit.py`` checks the residual along stick-slip runs)
 NEWTON_ITER = 12
+#: ... and where every law is smooth in the speed (LuGre: converged to round-off in 3)
+NEWTON_SMOOTH = 4
 #: speeds (in units of the band) at which the predictor looks for the regularised law's peak
 _PEAK = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
 

@@ -245,3 +245,22 @@ def test_rate_state_spring_slider_against_an_independent_simulation(rs_model):
         else:
             assert np.max(np.abs(v[late] - VD)) < 0.05 * VD
             assert np.max(np.abs(F - F_ind)) < 1e-3 * SN
+
+
+@pytest.mark.slow
+def test_nmpc_with_the_ekf_suppresses_lugre_stick_slip():
+    """Closed loop on the LuGre paper's rig (the plant integrates the law's state; the EKF estimates
+    it; the NMPC predicts with it, commanding the drive's speed): PI (the constant programme) keeps
+    the stick-slip, the NMPC with the EKF ends it (measured: sss_final 1.52 against 0.00; stuck 52 %
+    against 11 % of the whole run, control from t = 20 s)."""
+    from mitigate import make_scenario, run
+
+    m = get_model(RIGS / "lugre_1995.toml")
+    sc = make_scenario(name="lugre", model=m, duration=60.0, inputs={"v_drive": V},
+                       controllers=["pi", {"name": "NMPC", "kind": "nmpc"}], estimator="ekf", control_start=20.0)
+    assert any("implicit SDIRK2" in msg for msg in sc.messages)
+    res = run(sc, jobs=1)
+    pi, nmpc = res.run("pi"), res.run("NMPC")
+    assert pi.status.success and nmpc.status.success
+    assert pi.metrics["sss_final"] > 1.0
+    assert nmpc.metrics["sss_final"] < 0.05 * pi.metrics["sss_final"]
