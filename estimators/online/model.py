@@ -392,7 +392,7 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
 
     # ---- covariances, prior, bounds
     q = _process_variances(model, names, P_num, dt, options)
-    x0v, P0 = _prior(model, names, idx, P_num, options, x0, where, _friction_state_std(model, params))
+    x0v, P0 = _prior(model, names, idx, P_num, options, x0, where, model.friction_state_scale(params))
     lb, ub = _bounds(names)
     return EstimationModel(model, params, dt, names, state_units(model, names), nxr, chans, tuple(meas), D, F, h,
                            to_internal, np.array(dep_rows, bool).reshape(len(meas), len(chans)), q, stick, float(options.eps), r, x0v, P0, lb,
@@ -432,24 +432,6 @@ def _process_variances(model: RigModel, names, P_num: dict, dt: float, o) -> np.
             v = 0.0
         out.append(max(v, FLOOR))
     return np.array(out)
-
-
-def _friction_state_std(model: RigModel, params) -> dict:
-    """Prior standard deviation of each friction-law state: its size at steady sliding at the rig's
-    operating point (LuGre's bristle deflection g(w)/sigma0; at least 1 for a dimensionless state such
-    as rate-and-state's log age), since the state at power-on is not known."""
-    if not model.friction_states:
-        return {}
-    from models.rig.steady import nominal_operating_point
-    try:
-        xs = np.asarray(model.sliding_guess(nominal_operating_point(model, params)[0], params), float)
-    except Exception:  # noqa: BLE001 - a rest state of zeros then
-        xs = np.zeros(model.nx)
-    out = {}
-    for j in model.friction_states:
-        v = abs(float(xs[j])) if np.isfinite(xs[j]) else 0.0
-        out[model.states[j]] = max(v, 1.0) if model.state_units[j] == "-" else (v if v > 0 else 1e-3)
-    return out
 
 
 def _prior(model: RigModel, names, idx, P_num, o, x0, where, friction_std=None):

@@ -45,6 +45,7 @@ from models import friction as fr
 from models.errors import ConfigError
 from models.params import ParameterSet, Spec
 from models.rig import steady
+from models.rig.friction_states import FrictionStates
 from models.rig.outputs import RigOutputs
 from models.rig.spec import NODE_DRIVE, NODE_GROUND, RigSpec, SI_UNITS
 
@@ -62,7 +63,7 @@ def _dead_zone(phi, half):
     return phi - min(max(phi, -half), half)
 
 
-class RigModel(RigOutputs):
+class RigModel(RigOutputs, FrictionStates):
     """A rig built from a :class:`models.rig.spec.RigSpec` (see module docstring).
 
     Attributes
@@ -390,16 +391,6 @@ class RigModel(RigOutputs):
         LP = {k: ref.value(P, un) for k, ref in c.params}
         return N, r, LP
 
-    @property
-    def friction_states(self) -> tuple[int, ...]:
-        """Indices of the friction laws' own states in the state vector (empty for memoryless laws)."""
-        return tuple(j for idx in self._fstate.values() for j in idx)
-
-    def friction_state_index(self, contact: str) -> tuple[int, ...]:
-        """Indices of contact ``contact``'s law states in the state vector (empty if memoryless)."""
-        self.contact(contact)
-        return self._fstate.get(contact, ())
-
     def contact_friction(self, i: int, v, u, P, eps: float | None = None, *, s=None, factors=None, x=None):
         """Friction torque on contact body ``i`` [N m], the sum over its contacts.
 
@@ -425,39 +416,6 @@ class RigModel(RigOutputs):
                 Tk = law.smooth(v, N, r, LP, eps) if eps is not None else law.torque(v, s, N, r, LP)
             T = T + (factors[c.name] * Tk if factors and c.name in factors else Tk)
         return T
-
-    def friction_state_guess(self, speed: float, u, P) -> dict:
-        """``{state index: value}``: each law-with-state's states at steady sliding at ``speed`` [rad/s]
-        (its ``steady`` function; 0 where a law gives none), numeric."""
-        un = self._named_inputs(u)
-        out = {}
-        for c in self.spec.contacts:
-            law = self._laws[c.name]
-            if c.name not in self._fstate:
-                continue
-            N, r, LP = self.contact_args(c, P, un)
-            vals = law.steady(speed, N * r, **LP) if law.steady is not None else [0.0] * len(law.states)
-            for j, v in zip(self._fstate[c.name], vals):
-                v = float(v)
-                out[j] = v if np.isfinite(v) else 0.0
-        return out
-
-    def rest_free(self, i: int) -> bool:
-        """True when contact body ``i``'s friction vanishes at zero speed whatever its laws' states (a
-        memoryless regularised law, rate-and-state's arcsinh form; not LuGre's bristles)."""
-        return all(not self._laws[c.name].stateful or self._laws[c.name].rest_free for c in self._contact_groups[i])
-
-    def friction_state_rates(self, x, u, P) -> list:
-        """Derivatives of the friction laws' states (in ``friction_states`` order) at the state ``x``."""
-        un = self._named_inputs(u)
-        out = []
-        for i, g in enumerate(self._contact_groups):
-            v = x[self.contacts[i]]
-            for c in g:
-                if c.name in self._fstate:
-                    N, r, LP = self.contact_args(c, P, un)
-                    out.extend(self._laws[c.name].dynamic_torque(v, [x[j] for j in self._fstate[c.name]], N, r, LP)[1])
-        return out
 
     def dynamics(self, x, u, P, Tc, s):
         """State derivative (list) for contact torques ``Tc`` and sliding directions ``s`` per contact body."""
