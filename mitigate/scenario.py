@@ -319,7 +319,7 @@ def parse_scenario(data: Mapping[str, Any], path: str = "", *, model: RigModel |
     # the plant states how it integrates when the rule changes what the scenario asked for
     # (more substeps for a stiff rig, the current of a fast motor quasi-static)
     integ = plant_integration(plant_model, plant_params, sim, u0)
-    if integ.nsub != sim.nsub or integ.quasi_static:
+    if integ.nsub != sim.nsub or integ.quasi_static or integ.implicit:
         notes.append(f"plant: {integ.note}" + (f" (plant.nsub = {sim.nsub} asked)" if integ.nsub != sim.nsub else ""))
         sim = dataclasses.replace(sim, nsub=integ.nsub)
     return Scenario(name=name.strip(), model=model, model_params=nominal, plant_model=plant_model,

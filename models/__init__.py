@@ -10,7 +10,7 @@ The Python API::
 """
 
 from models.errors import ConfigError, DataError, PluginError, SolverFailure
-from models.friction import FrictionLaw, LAWS, Param, get_law, register
+from models.friction import FrictionLaw, LAWS, LawState, Param, get_law, register
 from models.logs import Log, read_csv
 from models.modal import LinearModel, ModalResult, linearise, modes
 from models.stability import sliding_stability, stability_map
@@ -24,7 +24,7 @@ __all__ = [
     "ConfigError", "DataError", "PluginError", "SolverFailure", "Status",
     "RigModel", "get_model", "load_rig", "shipped_rigs",
     "ParameterSet", "load_params", "published",
-    "FrictionLaw", "LAWS", "Param", "get_law", "register",
+    "FrictionLaw", "LAWS", "LawState", "Param", "get_law", "register",
     "Log", "read_csv",
     "LinearModel", "ModalResult", "linearise", "modes", "sliding_stability", "stability_map",
     "Plant", "SimOptions", "SimResult", "simulate", "SensorOptions",

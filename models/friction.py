@@ -3,8 +3,8 @@
 A friction *contact* of a rig file (``[contacts.<name>]``) names a law from :data:`LAWS`
 and gives its parameters.  A law is one Python function of the sliding speed
 ``v_abs >= 0`` [rad/s] that returns the *magnitude* of the friction torque [N m]; it must
-work on floats, numpy arrays and CasADi ``SX``/``MX`` alike (use the helpers below, or
-``casadi`` functions, which accept floats too).  Its argument ``scale`` is the contact's
+work on floats, numpy arrays and CasADi ``SX``/``MX`` alike (use the helpers ``fexp``, ``flog``,
+``fasinh``, ``fabs``, ``fsign``, :func:`smooth_abs`, :func:`smooth_sign`).  Its argument ``scale`` is the contact's
 normal force times its radius, ``N r`` [N m] (1 when the contact gives neither, in which
 case the law's "level" parameters are torques in N m instead of coefficients).
 
@@ -26,6 +26,23 @@ gain by the kinetic level.
 
 after which a rig file may say ``law = "my_law"`` with ``mu_k`` and ``c_v`` in the contact.
 
+**Laws with state.**  A law may carry internal states (LuGre's bristle deflection, rate-and-state's
+contact age): it declares them (:class:`LawState`: name, quantity kind, description) and gives one
+function of the SIGNED sliding speed ``v`` [rad/s] and its states ``z`` (a list) that returns the
+friction torque resisting ``v`` [N m] and the states' derivatives::
+
+    def my_dynamic_law(v, z, scale, *, sigma0, mu_c):
+        zdot = v - sigma0 * smooth_abs(v, 1e-9) * z[0] / mu_c
+        return scale * sigma0 * z[0], [zdot]
+
+    register(FrictionLaw("my_dynamic_law", my_steady_law, params,
+                         states=(LawState("z", "angle", "bristle deflection"),), dynamics=my_dynamic_law))
+
+``magnitude`` is then the law at steady sliding (the states settled), which every memoryless view
+uses (static limits, steady sliding guesses, data-derived starting values, D-OSKIL's level).  The
+rig model appends each contact's states to its state vector (``<state>_<contact>``, after the body
+speeds), and the plant, the estimators, identification and the NMPC integrate them with the rest.
+
 The exact stick/slip plant (:mod:`models.plant`) uses the law as it is: a body at rest
 stays stuck while the torque on it lies within the law's value at zero speed.  Optimisers
 use a regularised version (:meth:`FrictionLaw.smooth`): ``tanh(v/eps)`` times the law at
@@ -43,6 +60,10 @@ Laws shipped
 ``leadscrew``    seed 002 eqs. (9.7), (9.31), (9.33): the lead-screw thread friction with
                  the lead angle, which is not symmetric in the sliding direction and changes
                  the effective inertia
+``lugre``        Canudas de Wit, Olsson, Astrom & Lischinsky, IEEE TAC 40(3) 1995: bristle
+                 deflection ``z``, presliding hysteresis, a smooth model of stick (state)
+``rate_state``   Dieterich-Ruina with the ageing law (Ruina 1983; the arcsinh form of Rice,
+                 Lapusta & Ranjith 2001), the state as ``psi = ln(v0 theta / Dc)`` (state)
 """
 
 from __future__ import annotations
@@ -57,6 +78,8 @@ from models.errors import ConfigError
 
 __all__ = [
     "Param",
+    "LawState",
+    "level_kind",
     "ROLES",
     "LINEAR_ROLES",
     "FrictionLaw",
@@ -69,16 +92,47 @@ __all__ = [
     "bit_rock",
     "smooth_sign",
     "smooth_abs",
+    "is_symbolic",
+    "fexp",
+    "flog",
+    "fasinh",
+    "fabs",
+    "fsign",
 ]
 
 
 # ----------------------------------------------------------------------------- math helpers
-def _sym(x) -> bool:
+def is_symbolic(x) -> bool:
+    """True for a CasADi expression (SX, MX, DM)."""
     return isinstance(x, (ca.SX, ca.MX, ca.DM))
 
 
-def _exp(x):
-    return ca.exp(x) if _sym(x) else np.exp(x)
+def fexp(x):
+    """``exp`` of a float, a numpy array or a CasADi expression (law functions take all three)."""
+    return ca.exp(x) if is_symbolic(x) else np.exp(x)
+
+
+def flog(x):
+    """``log`` of a float, a numpy array or a CasADi expression."""
+    return ca.log(x) if is_symbolic(x) else np.log(x)
+
+
+def fasinh(x):
+    """``asinh`` of a float, a numpy array or a CasADi expression."""
+    return ca.asinh(x) if is_symbolic(x) else np.arcsinh(x)
+
+
+def fabs(x):
+    """``|x|`` of a float, a numpy array or a CasADi expression."""
+    return ca.fabs(x) if is_symbolic(x) else np.abs(x)
+
+
+def fsign(x):
+    """``sign`` of a float, a numpy array or a CasADi expression."""
+    return ca.sign(x) if is_symbolic(x) else np.sign(x)
+
+
+_sym, _exp, _abs, _sign = is_symbolic, fexp, fabs, fsign
 
 
 def _tanh(x):
@@ -87,14 +141,6 @@ def _tanh(x):
 
 def _sqrt(x):
     return ca.sqrt(x) if _sym(x) else np.sqrt(x)
-
-
-def _abs(x):
-    return ca.fabs(x) if _sym(x) else np.abs(x)
-
-
-def _sign(x):
-    return ca.sign(x) if _sym(x) else np.sign(x)
 
 
 def smooth_sign(v, eps):
@@ -221,6 +267,30 @@ class Param:
 
 
 @dataclass(frozen=True)
+class LawState:
+    """An internal state of a friction law: its name (the rig names it ``<name>_<contact>``), its
+    quantity kind (:data:`models.units.DIMENSIONS`) and a description."""
+
+    name: str
+    kind: str
+    doc: str = ""
+
+
+#: parameter kinds whose unit depends on whether the contact has a normal force and a radius: a
+#: level is a coefficient with them and a torque without (and likewise per speed, per angle)
+_LEVEL_KINDS = {"level": ("dimensionless", "torque"), "level_slowness": ("slowness", "damping"),
+                "level_per_angle": ("per_angle", "stiffness")}
+
+
+def level_kind(kind: str, has_normal: bool) -> str:
+    """The quantity kind of a law parameter of ``kind`` in a contact with (or without) a normal force
+    and radius: ``"level"`` is dimensionless with them and a torque without, ``"level_slowness"`` s/rad
+    or N m s/rad, ``"level_per_angle"`` 1/rad or N m/rad; other kinds are themselves."""
+    pair = _LEVEL_KINDS.get(kind)
+    return kind if pair is None else pair[0 if has_normal else 1]
+
+
+@dataclass(frozen=True)
 class FrictionLaw:
     """One registered law.
 
@@ -235,6 +305,14 @@ class FrictionLaw:
     inertia : optional ``h(v_abs, s, N, r, **params)``: inertia the contact adds [kg m^2]
     smooth_fn : optional own regularisation ``(v, N, r, eps, **params) -> signed torque``
     smoothing_param : the parameter that sets the law's own regularisation (shown to users)
+    states : the law's internal states (:class:`LawState`), empty for a memoryless law
+    dynamics : with ``states``: ``d(v, z, scale, **params) -> (friction, zdot)``, the friction torque
+        [N m] resisting the SIGNED speed ``v`` [rad/s] and the states' derivatives (a list), ``z`` the
+        states (a list); ``magnitude`` is then the law at steady sliding
+    rest_free : with ``states``: the friction vanishes at zero speed whatever the states (rate-and-state's
+        arcsinh form), so an implicit step may bracket the speed by rest and the friction-free speed
+    steady : with ``states``: optional ``s(v, scale, **params) -> z`` (a list), the states at steady
+        sliding at the signed speed ``v`` (starting values of steady-sliding solves; else zeros)
     """
 
     name: str
@@ -247,6 +325,25 @@ class FrictionLaw:
     smooth_fn: Callable[..., Any] | None = None
     smoothing_param: str = ""
     extras: dict = field(default_factory=dict, compare=False)
+    states: tuple[LawState, ...] = ()
+    dynamics: Callable[..., Any] | None = None
+    rest_free: bool = False
+    steady: Callable[..., Any] | None = None
+
+    @property
+    def stateful(self) -> bool:
+        """True when the law has internal states (its friction depends on their history)."""
+        return bool(self.states)
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return tuple(q.name for q in self.states)
+
+    def dynamic_torque(self, v, z, N, r, P: dict):
+        """``(torque, zdot)``: the signed friction torque ON the body at signed speed ``v`` with states
+        ``z`` (it resists ``v``), and the states' derivatives (a list)."""
+        F, zdot = self.dynamics(v, list(z), N * r, **P)
+        return -F, list(zdot)
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -319,6 +416,11 @@ def register(law: FrictionLaw) -> FrictionLaw:
         raise ConfigError(f"friction law {law.name!r} is already registered")
     if law.magnitude is None and law.directional is None:
         raise ConfigError(f"friction law {law.name!r} needs a magnitude or a directional function")
+    if bool(law.states) != (law.dynamics is not None):
+        raise ConfigError(f"friction law {law.name!r}: states and dynamics go together (a law with states "
+                          f"gives dynamics(v, z, scale, **params) -> (friction, zdot))")
+    if law.states and law.directional is not None:
+        raise ConfigError(f"friction law {law.name!r}: a law with states must be symmetric (no directional function)")
     LAWS[law.name] = law
     return law
 
@@ -367,3 +469,6 @@ register(FrictionLaw("bit_rock", bit_rock,
 register(FrictionLaw("leadscrew", None, _LS_PARAMS, doc="lead-screw thread friction (direction-dependent)",
                      reference="seed 002 eqs. (9.7), (9.31), (9.33)", directional=leadscrew_torque,
                      inertia=leadscrew_inertia, smooth_fn=leadscrew_smooth, smoothing_param="r1"))
+
+# the laws with state (LuGre, rate-and-state) live in their own module and register themselves
+from models import friction_state as _friction_state  # noqa: E402,F401

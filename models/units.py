@@ -86,6 +86,7 @@ DIMENSIONS: dict[str, tuple] = {
     "torque_rate": _dim(kg=1, m=2, s=-3),
     "viscous_torque": _dim(kg=1, m=2, s=-1, rad=-1),           # = damping
     "dimensionless": _dim(),
+    "per_angle": _dim(rad=-1),                                 # 1/rad (a friction level per bristle deflection)
 }
 
 

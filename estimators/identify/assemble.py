@@ -102,4 +102,5 @@ def fit_result(problem, sh, w, res, *, method: str, attempts: tuple, initial, t_
         active_constraints=active, condition=unc.condition, weak_directions=unc.weak,
         input_noise=dict(problem.input_noise), delay=o.extra_delay, guess_notes=problem.guess_notes, method=method,
         attempts=attempts, structure=structure, eps=o.eps, eps_source=problem.eps_source, eps_bias=unc.eps_bias,
-        offset_error=unc.offset_error if offs else None, zero_corr=unc.zero_corr)
+        offset_error=unc.offset_error if offs else None, zero_corr=unc.zero_corr,
+        integration=problem.integration.note)

@@ -9,12 +9,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import casadi as ca
 import numpy as np
 
 from estimators.identify.outputs import output_function
 from estimators.identify.shooting import compiled_or_none, sample_function
-from models.discretise import rate_jacobian
+from models.discretise import Integration, rate_jacobian
 from models.params import ParameterSet
 
 __all__ = ["shooting_functions", "folded_sample_function", "StiffRate", "FOLD_ABOVE"]
@@ -28,18 +30,17 @@ FOLD_ABOVE = 4
 def shooting_functions(model, integ, channels, avg, free_idx, input_jac: bool, compile_: bool):
     """(sensitivity function to run, values function to run, values function uncompiled, compiled?), cached on
     the model object (never by ``id``: a freed rig's id is reused by the next one)."""
-    nsub, qs = integ.nsub, integ.quasi_static
-    key = ("identify", nsub, qs, tuple((c.name, c.kind) for c in channels), tuple(avg), tuple(free_idx),
+    key = ("identify", integ.key, tuple((c.name, c.kind) for c in channels), tuple(avg), tuple(free_idx),
            input_jac, compile_)
     cache = model._fcache
     if key not in cache:
         h = output_function(model, channels)
-        if nsub > FOLD_ABOVE:
-            S = folded_sample_function(model, nsub, h, avg, free_idx, input_jac=input_jac, quasi_static=qs)
-            Sv = folded_sample_function(model, nsub, h, avg, free_idx, values_only=True, quasi_static=qs)
+        if integ.nsub > FOLD_ABOVE:
+            S = folded_sample_function(model, integ, h, avg, free_idx, input_jac=input_jac)
+            Sv = folded_sample_function(model, integ, h, avg, free_idx, values_only=True)
         else:
-            S = sample_function(model, nsub, h, avg, free_idx, input_jac=input_jac, quasi_static=qs)
-            Sv = sample_function(model, nsub, h, avg, free_idx, values_only=True, quasi_static=qs)
+            S = sample_function(model, integ, h, avg, free_idx, input_jac=input_jac)
+            Sv = sample_function(model, integ, h, avg, free_idx, values_only=True)
         S_run, Sv_run = S, Sv
         if compile_:
             S_run = compiled_or_none(S) or S
@@ -49,9 +50,10 @@ def shooting_functions(model, integ, channels, avg, free_idx, input_jac: bool, c
     return cache[key]
 
 
-def folded_sample_function(model, nsub: int, h: ca.Function, avg, free_idx, *, values_only: bool = False,
-                           input_jac: bool = False, quasi_static: bool = False) -> ca.Function:
-    """:func:`~estimators.identify.shooting.sample_function` with ``nsub`` substeps, built as a loop
+def folded_sample_function(model, integ, h: ca.Function, avg, free_idx, *, values_only: bool = False,
+                           input_jac: bool = False) -> ca.Function:
+    """:func:`~estimators.identify.shooting.sample_function` with ``integ.nsub`` substeps (RK4 or the
+    implicit step: ``integ``, a :class:`models.discretise.Integration` or an int, RK4 substeps), built as a loop
     (``Function.fold``) over ONE substep's sample function and its sensitivities, chained by the
     chain rule: the same numbers, C code that does not grow with the substeps.
 
@@ -67,8 +69,11 @@ def folded_sample_function(model, nsub: int, h: ca.Function, avg, free_idx, *, v
     and an averaged output, its C, D and F are the means over the substeps, the others the last.
     Same signature and outputs as the unrolled function.
     """
-    S1 = sample_function(model, 1, h, avg, free_idx, values_only=values_only, input_jac=input_jac,
-                         quasi_static=quasi_static)
+    if isinstance(integ, int):
+        integ = Integration(1.0, integ)
+    nsub = integ.nsub
+    S1 = sample_function(model, dataclasses.replace(integ, nsub=1), h, avg, free_idx, values_only=values_only,
+                         input_jac=input_jac)
     nx, nu, nt, ny = model.nx, model.nu, len(free_idx), len(avg)
     mask = ca.DM([1.0 if a else 0.0 for a in avg])
     blocks = [("x", nx, 1), ("ys", ny, 1), ("yl", ny, 1)]
@@ -120,14 +125,16 @@ def folded_sample_function(model, nsub: int, h: ca.Function, avg, free_idx, *, v
         if input_jac:
             outs += [res["E"], mean_or_last(res["Fs"], res["Fl"])]
             names += ["E", "F"]
-    name = S1.name().replace("_n1", f"_n{nsub}fold", 1)
+    name = S1.name().replace("_n1", f"_n{nsub}fold", 1).replace("_i1", f"_i{nsub}fold", 1)
     return ca.Function(name, [xs, us, ths, ps, dt, es], outs, ["x", "u", "th", "p", "dt", "eps"], names)
 
 
 class StiffRate:
     """The largest eigenvalue magnitude [1/s] of the regularised model's Jacobian at zero contact
     speed (its stiffest point), as a function of the parameter vector, for inputs ``u`` (with a
-    quasi-static current when the integration treats it so)."""
+    quasi-static current when the integration treats it so); :meth:`growth`: the largest positive
+    rate with the contacts sliding just beyond the regularisation band (10 eps), where a friction
+    that falls with speed falls fastest (what the implicit step must resolve)."""
 
     def __init__(self, model, params: ParameterSet, u, eps: float, reduced: bool = False):
         J = rate_jacobian(model, eps, reduced)
@@ -137,13 +144,27 @@ class StiffRate:
         except Exception:  # noqa: BLE001 - any finite point will do
             x0 = np.zeros(model.nx)
         x0 = np.where(np.isfinite(x0), x0, 0.0)
+        x1 = x0.copy()
         for idx in model.contacts:
             x0[idx] = 0.0
-        self.x0 = x0
+            x1[idx] = 10.0 * eps
+        self.x0, self.x1 = x0, x1
+
+    def _eig(self, x, p):
+        J = np.array(self._J(x, np.asarray(p, float)))
+        if not np.all(np.isfinite(J)):
+            return None
+        return np.linalg.eigvals(J)
 
     def __call__(self, p) -> float:
-        J = np.array(self._J(self.x0, np.asarray(p, float)))
-        if not np.all(np.isfinite(J)):
+        lam = self._eig(self.x0, p)
+        if lam is None:
             return float("inf")
-        lam = np.linalg.eigvals(J)
         return float(np.max(np.abs(lam))) if lam.size else 0.0
+
+    def growth(self, p) -> float:
+        """The largest positive real eigenvalue [1/s] at the contacts sliding at 10 eps (0 if none)."""
+        lam = self._eig(self.x1, p)
+        if lam is None:
+            return float("inf")
+        return max(float(np.max(lam.real)), 0.0) if lam.size else 0.0

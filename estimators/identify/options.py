@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Mapping
 
 from models.checks import check_options, number, option, prefix
+from models.discretise import METHODS
 from models.errors import ConfigError
 from models.sensors import SensorOptions
 
@@ -173,11 +174,14 @@ class IdentifyOptions:
     eps : friction regularisation of the fitted model [rad/s]; None: from the rig,
         :func:`default_eps` (rig3's 0.005 rad/s at its 30 rpm, i.e. 0.16 % of the rig's nominal
         speed); the fit states the value used (``fit.eps``).  The regularised model creeps where
-        the plant sticks; the bias this puts on friction and damping shrinks with eps, at the
-        price of more substeps
-    nsub : RK4 substeps per sample; None: from the integration rule
-        (:func:`models.discretise.integration`: ``h |lambda|max <= 2.5`` over the contacts at rest
-        and sliding, a fast motor's current quasi-static)
+        the plant sticks; the bias this puts on friction and damping shrinks with eps (a small eps
+        costs no refusal: where RK4 would need too many substeps the implicit step takes over)
+    nsub : substeps per sample; None: from the integration rule
+        (:func:`models.discretise.integration`: RK4 with ``h |lambda|max <= 2.5`` over the contacts at
+        rest and sliding, a fast motor's current quasi-static, or the L-stable implicit step where RK4
+        would need many more substeps than it, as at a small eps: never refused for stiffness).
+        Given, it is RK4's (or, with ``integrator = "sdirk2"``, the implicit step's)
+    integrator : "auto" (the rule's choice), "rk4" or "sdirk2" (:data:`models.discretise.METHODS`)
     shoot_every : samples per shooting interval
     speed_average : compare encoder speeds as means over the sample (the DAQ's backward
         differences of counted angles)
@@ -232,6 +236,7 @@ class IdentifyOptions:
     sensors: SensorOptions = option(SensorOptions(), table=SensorOptions, what="SensorOptions")
     eps: float | None = option(None, lo=0.0, lo_open=True, unit="rad/s", none=True)
     nsub: int | None = option(None, kind="integer", lo=1, none=True)
+    integrator: str = option("auto", choices=("auto",) + METHODS)
     shoot_every: int = option(10, lo=1)
     speed_average: bool = option(True)
     use_twist: bool = option(True)

@@ -40,6 +40,7 @@ from models.params import ParameterSet
 from models.rig import RigModel, get_model
 from models.status import Status
 from models.discretise import MAX_SUBSTEPS, integration
+from models.sdirk import GAMMA
 from estimators.identify.assemble import fit_result
 from estimators.identify.continuation import (GN_METHOD, attempt, choose, closed, continuation_method,
                                               solve_continuation, wants_continuation)
@@ -128,7 +129,7 @@ class IdentificationProblem:
             initial = g.params
             self.guess_notes = g.notes
             if g.values:
-                self._alternative = m.published()   # compared with the guess in _shooting()
+                self._alternative = m.published()   # compared with the guess in shooting()
         else:
             m.check_params(initial, "initial")
         self.initial = initial
@@ -173,7 +174,9 @@ class IdentificationProblem:
         self._umax = np.array(m.input_from_measured(list(umax), m.unpack(initial.vector())), float).ravel()
         #: how a sample is integrated (:func:`models.discretise.integration`; ``nsub`` a floor)
         self.integration = integration(m, initial, self.dt, u=self._umax, eps=o.eps, nsub=o.nsub,
-                                       max_nsub=None if o.nsub is not None else MAX_SUBSTEPS, where="options.nsub")
+                                       max_nsub=None if o.nsub is not None else MAX_SUBSTEPS,
+                                       where="options.nsub" if o.nsub is not None else "identification",
+                                       method=None if o.integrator == "auto" else o.integrator)
         self.nsub = self.integration.nsub
         self._stiff = None
         self._h_lambda0 = None
@@ -355,30 +358,34 @@ class IdentificationProblem:
             for _ in range(2):
                 # refit only where RK4 leaves the range the fits were measured unchanged in
                 # (h |lambda| <= 3.5) by more than a margin (4.0): a 9 -> 10 substep refit of every
-                # rig3 fit doubled its time for nothing
-                if self.stiff_rate(fit.estimate) * self.dt / prob.nsub <= max(4.0, 1.25 * (self._h_lambda0 or 0.0)):
+                # rig3 fit doubled its time for nothing; the implicit step: where the fitted friction
+                # falls faster with speed than its substeps resolve
+                implicit = prob.integration.implicit
+                if not implicit and self.stiff_rate(fit.estimate) * self.dt / prob.nsub <= \
+                        max(4.0, 1.25 * (self._h_lambda0 or 0.0)):
                     break
                 need = integration(self.model, fit.params, self.dt, u=self._umax, eps=self.options.eps,
-                                   where="options.nsub").nsub
+                                   where="identification", method=prob.integration.method if implicit else None).nsub
                 if need <= prob.nsub:
                     break
                 old = prob.nsub
-                prob = prob.derive(nsub=need)
+                prob = prob.derive(nsub=need, integrator=prob.integration.method)
                 fit = prob.fit_once(fit)
                 fit = replace(fit, initial=first.initial, guess_notes=first.guess_notes,
-                              warnings=fit.warnings + (f"RK4 substeps raised from {old} to {need} for the fitted "
+                              warnings=fit.warnings + (f"substeps raised from {old} to {need} for the fitted "
                                                        f"parameters (stiffer than the initial ones) and refitted",))
             return prob._finish(prob._globalise(fit, warm))
         return self._finish(self._globalise(fit, warm))
 
     def stiff_rate(self, theta) -> float:
         """The model's stiffest rate [1/s] with the free parameters at ``theta`` (largest logged inputs)."""
+        return self._stiff_rate()(self._p_of(theta))
+
+    def _stiff_rate(self) -> StiffRate:
         if self._stiff is None:
             self._stiff = StiffRate(self.model, self.initial, self._umax, self.options.eps,
                                     self.integration.quasi_static)
-        p = self.initial.vector()
-        p[self.free_idx] = theta
-        return self._stiff(p)
+        return self._stiff
 
     def rk4_stable(self, w) -> bool:
         """RK4 with ``nsub`` substeps stays usable for the trial parameters: ``h |lambda|max`` at the
@@ -386,10 +393,19 @@ class IdentificationProblem:
         Jacobians reaching 1e16), or 1.25 times its value at the start where that is already higher
         (the lead screw's regularised law has a positive 1e7 1/s eigenvalue right at zero speed,
         which the fit crosses in no time)."""
+        theta = np.asarray(w[:len(self.free)], float) * self.shooting().th_scale
+        if self.integration.implicit:
+            # the implicit step damps any stable rate; it must resolve a friction that falls with speed
+            # (a positive rate: one root per stage), with the same margin as RK4's 3.5 -> 4.5
+            return self._stiff_rate().growth(self._p_of(theta)) * GAMMA * self.dt / self.nsub <= 1.0
         if self._h_lambda0 is None:
             self._h_lambda0 = self.stiff_rate(self.theta0) * self.dt / self.nsub
-        theta = np.asarray(w[:len(self.free)], float) * self.shooting().th_scale
         return self.stiff_rate(theta) * self.dt / self.nsub <= max(4.5, 1.25 * self._h_lambda0)
+
+    def _p_of(self, theta):
+        p = self.initial.vector()
+        p[self.free_idx] = theta
+        return p
 
     def _finish(self, fit: FitResult) -> FitResult:
         if self.options.systematic and fit.status is not Status.FAILED:

@@ -227,7 +227,7 @@ class FitResult(Outcome):
     sigma2 : residual variance per degree of freedom (1 if the noise levels are right)
     tau : integrated autocorrelation time of the residuals (inflates the covariance)
     cost : ``0.5 |weighted residuals|^2`` at the solution
-    nsub : RK4 substeps; noise : ``{channel: std}`` used; noise_source : where each came from
+    nsub : substeps per sample (RK4 or implicit, :attr:`integration`); noise : ``{channel: std}`` used; noise_source : where each came from
     states : per log: (n_nodes, nx) fitted node states
     encoder_zero : per log ``{angle difference: fitted twist at power-on [rad]}`` (empty when
         ``encoder_zero = "untwisted"``)
@@ -258,6 +258,8 @@ class FitResult(Outcome):
         part of :attr:`error`
     zero_corr : (n_free, n_zeros) correlations of the parameters with the encoder zeros (order of
         ``encoder_zero``'s entries)
+    integration : how a sample of the fitted model was integrated, in words (RK4 with its substeps, or
+        the implicit SDIRK2 step and why: :attr:`models.discretise.Integration.note`)
     """
 
     problem: Any = field(repr=False)
@@ -307,6 +309,7 @@ class FitResult(Outcome):
     eps_bias: np.ndarray | None = None
     offset_error: np.ndarray | None = None
     zero_corr: np.ndarray | None = None
+    integration: str = ""
 
     @property
     def error(self) -> np.ndarray:
@@ -340,6 +343,7 @@ class FitResult(Outcome):
             "tau": self.tau,
             "cost": self.cost,
             "nsub": self.nsub,
+            "integration": self.integration,
             "noise": dict(self.noise),
             "status": self.status.value,
             "success": self.success,

@@ -1,7 +1,8 @@
 """The multiple-shooting residuals and continuity gaps of a fit, with their sparse Jacobians.
 
-- :func:`sample_function`: ONE DAQ sample of the regularised model (RK4 with ``nsub``
-  substeps, zero-order-hold input, speeds averaged over the sample by quadrature) with its
+- :func:`sample_function`: ONE DAQ sample of the regularised model (the integration rule's
+  method: RK4 with ``nsub`` substeps or the L-stable implicit step, zero-order-hold input, speeds
+  averaged over the sample by the method's quadrature) with its
   forward sensitivities: ``S(x, u, p, dt, eps) -> (x_next, y, A, B, C, D[, E, F])``,
   ``A = dx_next/dx``, ``B = dx_next/dp``, ``C = dy/dx``, ``D = dy/dp``, ``E = dx_next/du``,
   ``F = dy/du``.  ``u`` holds the LOGGED inputs: the function corrects them through the rig's
@@ -34,20 +35,24 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from models import codegen
+from models.discretise import Integration
 
 __all__ = ["sample_function", "compiled_or_none", "ShootingProblem", "KKTFactor"]
 
 _COMPILED: dict = {}
 
 
-def sample_function(model, nsub: int, h: ca.Function, avg, free_idx=None, *, values_only: bool = False,
-                    input_jac: bool = False, quasi_static: bool = False) -> ca.Function:
+def sample_function(model, integ, h: ca.Function, avg, free_idx=None, *, values_only: bool = False,
+                    input_jac: bool = False) -> ca.Function:
     """One sample with sensitivities (see the module docstring).
 
     Parameters
     ----------
     model : the rig
-    nsub : RK4 substeps per sample
+    integ : how a sample is integrated (:class:`models.discretise.Integration`: RK4 with ``nsub``
+        substeps, a DC motor's current quasi-static, or the L-stable implicit step); its ``dt`` and
+        ``band`` are replaced by the function's inputs ``dt`` and ``eps``; an int: RK4 with that
+        many substeps
     h : ``y = h(x, u, p)`` (:func:`estimators.identify.outputs.output_function`), ``u`` the model inputs
     avg : per output, True if it is returned as its mean over the sample
     free_idx : indices of the free parameters: the function takes them as a separate input
@@ -55,13 +60,13 @@ def sample_function(model, nsub: int, h: ca.Function, avg, free_idx=None, *, val
         (``B = dx_next/dth``, ``D = dy/dth``); None: all parameters free
     values_only : only ``(x_next, y)``
     input_jac : also ``E``, ``F`` (errors in the variables)
-    quasi_static : a DC motor's current at its quasi-static value at every RK4 stage and at the end
-        (:func:`models.discretise.integration` decides)
 
     Returns
     -------
     ``S(x, u, th, p, dt, eps)``
     """
+    if isinstance(integ, int):
+        integ = Integration(1.0, integ)              # RK4 with that many substeps
     free_idx = list(range(model.n_p)) if free_idx is None else [int(i) for i in free_idx]
     x = ca.SX.sym("x", model.nx)
     u = ca.SX.sym("u", model.nu)
@@ -74,39 +79,32 @@ def sample_function(model, nsub: int, h: ca.Function, avg, free_idx=None, *, val
         parts[i] = th[k]
     pe = ca.vertcat(*parts)
     um = ca.vertcat(*model.input_from_measured([u[i] for i in range(model.nu)], model.unpack(pe)))
-    xq = x
-    if quasi_static:
-        jq = model.current_index
-        xq = ca.vertcat(x[:jq], model.quasi_static_current(x, um, model.unpack(pe)), x[jq + 1:])
-    rhs = ca.vertcat(*model.smooth_rhs(xq, um, pe, eps))
-    if quasi_static:
-        rhs[jq] = 0
-    yexpr = h(xq, um, pe)
     idx_avg = [i for i, a in enumerate(avg) if a]
-    q_rhs = ca.vertcat(*[yexpr[i] for i in idx_avg]) if idx_avg else ca.SX(0, 1)
-    fa = ca.Function("fa", [x, u, th, p, eps], [ca.vertcat(rhs, q_rhs)])
-    nx = model.nx
-    hs = dt / nsub
-    xa = ca.vertcat(x, ca.SX.zeros(len(idx_avg)))
-    for _ in range(nsub):
-        k1 = fa(xa[:nx], u, th, p, eps)
-        k2 = fa(xa[:nx] + hs / 2 * k1[:nx], u, th, p, eps)
-        k3 = fa(xa[:nx] + hs / 2 * k2[:nx], u, th, p, eps)
-        k4 = fa(xa[:nx] + hs * k3[:nx], u, th, p, eps)
-        xa = xa + hs / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    xn = ca.Function("proj", [x, u, th, p], [xq])(xa[:nx], u, th, p) if quasi_static else xa[:nx]
+
+    def rhs(xx, uu, pp):
+        return ca.vertcat(*model.smooth_rhs(xx, um, pe, eps))
+
+    def quad(xx, uu, pp):
+        y_ = h(xx, um, pe)
+        return ca.vertcat(*[y_[i] for i in idx_avg]) if idx_avg else ca.SX(0, 1)
+
+    def fast_value(xx, uu, pp):
+        return model.quasi_static_current(xx, um, model.unpack(pe))
+
+    xn, q = integ.advance(rhs, x, u, p, fast_value, quad=quad, dt=dt, band=eps)
     yend = h(xn, um, pe)
     ys, jq = [], 0
     for i, a in enumerate(avg):
         if a:
-            ys.append(xa[nx + jq] / dt)
+            ys.append(q[jq] / dt)
             jq += 1
         else:
             ys.append(yend[i])
     y = ca.vertcat(*ys)
     import hashlib
     ftag = hashlib.sha1(",".join(map(str, free_idx)).encode()).hexdigest()[:8]
-    tag = f"{model.cname}_id_n{nsub}{'q' if quasi_static else ''}_y{len(avg)}_f{ftag}"
+    itag = {"rk4": "n", "sdirk2": "i"}[integ.method]
+    tag = f"{model.cname}_id_{itag}{integ.nsub}{'q' if integ.quasi_static else ''}_y{len(avg)}_f{ftag}"
     args, argn = [x, u, th, p, dt, eps], ["x", "u", "th", "p", "dt", "eps"]
     if values_only:
         return ca.Function(f"{tag}_val", args, [xn, y], argn, ["x_next", "y"])
@@ -115,6 +113,7 @@ def sample_function(model, nsub: int, h: ca.Function, avg, free_idx=None, *, val
     wrt = ca.vertcat(x, th, u) if input_jac else ca.vertcat(x, th)
     Jall = ca.jacobian(ca.vertcat(xn, y), wrt)
     nt, ny_ = len(free_idx), y.numel()
+    nx = model.nx
     A_, B_ = Jall[:nx, :nx], Jall[:nx, nx:nx + nt]
     C_, D_ = Jall[nx:nx + ny_, :nx], Jall[nx:nx + ny_, nx:nx + nt]
     outs = [xn, y, ca.densify(A_), ca.densify(B_), ca.densify(C_), ca.densify(D_)]

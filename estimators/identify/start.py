@@ -6,10 +6,11 @@
 - :func:`constraints` / :func:`constraint_rows`: ``kinetic <= static`` per contact whose law
   declares both levels (both free) plus the options', as ``G theta <= h``, and with the bounds on
   the solver's scaled variables (:func:`scaled_constraints`);
-- :func:`initial_nodes`: the shooting nodes' states from the data (measured speeds and twists)
-  and, for the rest, the EKF's estimates where a twist or speed is unmeasured and a torque is
-  known (:func:`filtered_states`), else a smooth simulation; and the encoder zeros' starting
-  values; :func:`state_scales`: the states' scales, which the continuity gaps are judged in.
+- :func:`initial_nodes`: the shooting nodes' states from the data (measured speeds and twists, and
+  what a torque sensor on a spring measures: :func:`derived_states`) and, for the rest, the EKF's
+  estimates where a twist or speed is unmeasured and a torque is known (:func:`filtered_states`),
+  else a smooth simulation; and the encoder zeros' starting values; :func:`state_scales`: the
+  states' scales, which the continuity gaps are judged in.
 """
 
 from __future__ import annotations
@@ -21,13 +22,19 @@ import numpy as np
 from estimators.identify.options import LinearConstraint
 from models.errors import ConfigError, DataError, SolverFailure
 from models.friction import get_law
+from models.rig.spec import NODE_DRIVE, NODE_GROUND
 from models.signals import moving_average
 
 __all__ = ["law_bounds", "free_bounds", "constraints", "constraint_rows", "scaled_constraints", "feasible",
-           "initial_nodes", "filtered_states", "measured_states", "state_scales", "UNMEASURED_CAP"]
+           "initial_nodes", "filtered_states", "measured_states", "derived_states", "state_scales", "UNMEASURED_CAP",
+           "SMOOTH_SAMPLES"]
 
 #: an unmeasured speed or twist is scaled by at most this many times the largest measured one of its kind
 UNMEASURED_CAP = 10.0
+#: the window [samples] of the Savitzky-Golay fit (degree 2) that smooths a spring's torque into its twist
+#: and differentiates it into a speed (:func:`derived_states`), after a median of :data:`SPIKE_SAMPLES`
+SMOOTH_SAMPLES = 21
+SPIKE_SAMPLES = 9
 
 
 def law_bounds(model) -> tuple[dict, dict]:
@@ -208,6 +215,67 @@ def state_scales(model, channels, nodes) -> np.ndarray:
     return np.maximum(scale, 1e-3 * np.max(scale))
 
 
+def derived_states(model, channels, d, P, known: dict) -> dict:
+    """``{state index: (n,) values}`` that the compared channels give through the rig's springs where
+    nothing measures them directly (``known``: the measured ones, never replaced).
+
+    A torque sensor on a spring without backlash reads ``k phi + d dw`` (gain and offset applied): its
+    reading, cleared of impulsive spikes (a running median) and smoothed (Savitzky-Golay, degree 2,
+    :data:`SMOOTH_SAMPLES`), over ``k`` is the twist (the damper's share neglected: a start); the
+    twist's derivative then gives the speed of the spring's far end where the near end's is known (a
+    speed drive's input, the ground, a measured or derived speed): ``w_b = w_a - phi'``.  A derived
+    speed below three times its own noise (the reading's, estimated from the log as the median absolute
+    deviation of the reading about its smoothed value, through the derivative filter) is what the log cannot
+    tell from rest, and set to 0: a stuck body starts stuck.  Where a friction bench logs only its
+    spring's force (a slider pulled through a spring), the nodes then follow the data; from a
+    simulation at the starting values they drifted out of phase with the stick-slip at once and the fit
+    never recovered (a paper-on-paper slider: cost 1.0e7 from the simulation, 1.5e5 from the data).
+    """
+    from scipy.signal import medfilt, savgol_filter
+
+    n = d.Y.shape[0]
+    w = min(SMOOTH_SAMPLES, n - (1 - n % 2))
+    if w < 5:
+        return {}
+    out: dict = {}
+    springs = {c.name: (j, c) for j, c in enumerate(cc for cc in model.spec.connections if cc.stiffness is not None)}
+    speeds: dict = {}                       # node -> (n,) speed known: measured, the drive's, the ground's
+    for b in model.bodies:
+        if model.speed_index(b) in known:
+            speeds[b] = np.asarray(known[model.speed_index(b)], float)
+    if model.drive_kind == "speed":
+        speeds[NODE_DRIVE] = np.asarray(d.U[:, model.inputs.index(model.drive_input)], float)
+    speeds[NODE_GROUND] = np.zeros(n)
+    dt = float(np.median(np.diff(d.t))) if len(d.t) > 1 else 1.0
+    derived = []
+    for jc, ch in enumerate(channels):
+        s = model.sensor_of(ch.name)
+        if ch.kind != "value" or s is None or s.kind != "torque" or s.target not in springs:
+            continue
+        j, conn = springs[s.target]
+        if j in known or conn.backlash is not None:
+            continue
+        k = float(conn.stiffness.value(P))
+        if not (np.isfinite(k) and k > 0):
+            continue
+        y = (np.asarray(d.Y[:, jc], float) - float(s.offset.value(P))) / float(s.gain.value(P))
+        ym = medfilt(y, SPIKE_SAMPLES)
+        out[j] = savgol_filter(ym, w, 2) / k
+        rate = savgol_filter(ym, w, 2, deriv=1, delta=dt) / k
+        resid = y - savgol_filter(ym, w, 2)
+        sigma = 1.4826 * float(np.median(np.abs(resid - np.median(resid))))
+        coef = np.linalg.norm(savgol_filter(np.eye(w)[w // 2], w, 2, deriv=1, delta=dt, mode="constant")) / k
+        derived.append((conn, rate, 3.0 * sigma * coef))
+    for _ in range(len(derived)):                # along chains of springs, one link a pass
+        for conn, rate, floor in derived:
+            for near, far, sign in ((conn.a, conn.b, -1.0), (conn.b, conn.a, 1.0)):
+                if near in speeds and far not in speeds and far in model.bodies:
+                    v = speeds[near] + sign * rate
+                    speeds[far] = np.where(np.abs(v) < floor, 0.0, v)
+                    out[model.speed_index(far)] = speeds[far]
+    return {i: v for i, v in out.items() if i not in known}
+
+
 def initial_nodes(model, channels, data, initial, theta0, options, dt, S_val):
     """Node states from the data (measured speeds and twists) and a smooth simulation with the
     initial parameters for the unmeasured states; the encoder zeros' starting values.
@@ -247,6 +315,8 @@ def initial_nodes(model, channels, data, initial, theta0, options, dt, S_val):
                 known[idx] = (known[idx] - float(s.offset.value(P0))) / float(s.gain.value(P0))
         for idx, (j, sgn) in twist_of.items():
             known[idx] = sgn * (moving_average(d.Y[:, j], 3) + zlog.get(j, 0.0))
+        for idx, v in derived_states(m, channels, d, P0, known).items():
+            known.setdefault(idx, v)
         row0 = 1 if o.input_row == "end" else 0
         x = xs.copy() if abs(Um[row0, m.drive_speed_index()] if m.drive_speed_index() is not None else 1.0) > 0 \
             else np.zeros(m.nx)

@@ -215,7 +215,7 @@ def rig_rhs(model: RigModel, x, u, P: dict, eps: float, factors: dict):
     Identical to ``model.ode(eps)`` when every factor is 1 (tests check it); a factor scales
     its contact's friction torque, not the inertia a contact may add.
     """
-    Tc = [model.contact_friction(i, x[idx], u, P, eps, factors=factors) for i, idx in enumerate(model.contacts)]
+    Tc = [model.contact_friction(i, x[idx], u, P, eps, factors=factors, x=x) for i, idx in enumerate(model.contacts)]
     s = [fr.smooth_sign(x[idx], eps) for idx in model.contacts]
     return ca.vertcat(*model.dynamics(x, u, P, Tc, s))
 
@@ -373,6 +373,8 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
     if options.q_stick > 0:
         un = u_at(0)
         for i, jdx in enumerate(model.contacts):
+            if i in model.stateful_contacts:
+                continue        # a law with states models stick itself (presliding, creep): no unknown torque
             Ts = 0
             for cname in model.contact_names[i]:
                 tp, tm = model.law(cname).static_limits(*model.contact_args(cname, P, un))
@@ -390,7 +392,7 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
 
     # ---- covariances, prior, bounds
     q = _process_variances(model, names, P_num, dt, options)
-    x0v, P0 = _prior(model, names, idx, P_num, options, x0, where)
+    x0v, P0 = _prior(model, names, idx, P_num, options, x0, where, model.friction_state_scale(params))
     lb, ub = _bounds(names)
     return EstimationModel(model, params, dt, names, state_units(model, names), nxr, chans, tuple(meas), D, F, h,
                            to_internal, np.array(dep_rows, bool).reshape(len(meas), len(chans)), q, stick, float(options.eps), r, x0v, P0, lb,
@@ -431,7 +433,7 @@ def _process_variances(model: RigModel, names, P_num: dict, dt: float, o) -> np.
     return np.array(out)
 
 
-def _prior(model: RigModel, names, idx, P_num, o, x0, where):
+def _prior(model: RigModel, names, idx, P_num, o, x0, where, friction_std=None):
     nx, nxr = len(names), model.nx
     x = np.zeros(nx)
     for n in names:
@@ -466,6 +468,8 @@ def _prior(model: RigModel, names, idx, P_num, o, x0, where):
             s = o.p0_load
         elif kind == "offset":
             s = o.p0_offset
+        elif base in (friction_std or {}):
+            s = friction_std[base]
         else:
             s = o.p0_gain
         std.append(s)

@@ -95,7 +95,9 @@ def register(subparsers) -> None:
     p.add_argument("--eps", type=quantity("speed"), default=None, metavar="SPEED",
                    help="friction regularisation, in rad/s or with a unit (\"0.05 rpm\"; default: from the rig, "
                         "0.16 %% of its nominal speed: rig3's 0.005 rad/s at 30 rpm)")
-    p.add_argument("--nsub", type=int, default=None, help="RK4 substeps per sample (default: from the stiff rate)")
+    p.add_argument("--nsub", type=int, default=None,
+                   help="RK4 substeps per sample (default: the integration rule: RK4 with substeps from the stiff rate, or "
+                        "an implicit step where RK4 would need too many)")
     p.add_argument("--shoot-every", type=int, default=10, metavar="M",
                    help="samples per shooting interval (default 10)")
     p.add_argument("--max-iter", type=int, default=100, metavar="N", help="iteration limit (default 100)")
@@ -347,6 +349,7 @@ def _run(args) -> int:
     print(f"status: {fit.status.value}: {fit.message} ({fit.iterations} iterations, {fit.wall_time:.1f} s)")
     print(f"method: {fit.method}")
     print(f"friction regularisation: eps = {fit.eps:.3g} rad/s ({fit.eps_source})")
+    print(f"integration: {fit.integration}")
     print("NRMSE: " + ", ".join(f"{k} {100 * v:.1f} %" for k, v in fit.nrmse.items()))
     if fit.structure is not None:
         st = fit.structure

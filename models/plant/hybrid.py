@@ -16,6 +16,13 @@ rest (speed set to exactly 0).  Stick and slip switching times are thus resolved
 substep; there is no creep at all.  The test against the exact Coulomb cycle (period and
 peak speed within 1 %) is in ``tests/test_coulomb_cycle.py``.
 
+A contact body whose friction law has states (LuGre, rate-and-state) has no such modes: the law is
+itself a smooth model of stick (LuGre's presliding bristles, rate-and-state's creep at a speed that
+falls exponentially with the contact's age), so the body is integrated with its law like any other
+state, never held.  A rig whose contacts all have such laws needs no event logic at all, and the
+simulator steps it with the integration rule's method (:mod:`models.discretise`: an L-stable
+implicit method where the law is stiff) instead of this stepper.
+
 The whole sample (``nsub`` substeps) is one SX ``casadi.Function`` built with
 ``if_else``, so it can be evaluated per DAQ sample, compiled, or mapped over thousands
 of parameter points for sweeps.
@@ -47,6 +54,11 @@ def _substep(model, x, th, u, P, h, quasi_static: bool = False):
     stuck, s = [], []
     for i, idx in enumerate(model.contacts):
         v = x[idx]
+        if i in model.stateful_contacts:
+            # a law with states is its own smooth model of stick: never held, its direction the speed's
+            stuck.append(ca.SX(0))
+            s.append(ca.if_else(v >= 0, 1, -1))
+            continue
         J = model.contact_inertia(i, x, u, P, 1.0)
         T_ext = J * xd0[idx]
         T_plus = model.contact_friction(i, ca.SX(0), u, P, s=1.0)    # static limit opposing +motion (<= 0)
@@ -59,7 +71,8 @@ def _substep(model, x, th, u, P, h, quasi_static: bool = False):
 
     def rhs(xx):
         xx = project(xx)
-        Tc = [model.contact_friction(i, ca.fmax(s[i] * xx[idx], 0), u, P, s=s[i])
+        Tc = [model.contact_friction(i, xx[idx], u, P, s=1.0, x=xx) if i in model.stateful_contacts
+              else model.contact_friction(i, ca.fmax(s[i] * xx[idx], 0), u, P, s=s[i])
               for i, idx in enumerate(model.contacts)]
         xd = model.dynamics(xx, u, P, Tc, s)
         xd = [ca.if_else(stuck[model.contacts.index(j)], 0, xd[j]) if j in model.contacts else xd[j]
@@ -77,7 +90,8 @@ def _substep(model, x, th, u, P, h, quasi_static: bool = False):
     # a slipping body whose speed changed sign comes to rest (exactly zero)
     parts = [xn[j] for j in range(model.nx)]
     for i, idx in enumerate(model.contacts):
-        parts[idx] = ca.if_else(ca.logic_or(stuck[i], s[i] * xn[idx] <= 0), 0, xn[idx])
+        if i not in model.stateful_contacts:
+            parts[idx] = ca.if_else(ca.logic_or(stuck[i], s[i] * xn[idx] <= 0), 0, xn[idx])
     return project(ca.vertcat(*parts)), thn
 
 

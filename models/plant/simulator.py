@@ -55,7 +55,9 @@ class SimOptions:
         The integration rule (:func:`models.discretise.integration`) raises it for a stiff rig, and
         treats a DC motor's current quasi-statically when its L/R is far below the substep
         (:func:`plant_integration`; the plant's ``integration`` says what it did)
-    method : "hybrid" (exact stick/slip, default), "smooth" (regularised RK4) or "cvodes"
+    method : "hybrid" (exact stick/slip, default; a rig whose laws all have states is integrated
+        smoothly, by the rule's method), "smooth" (the regularised model, by the rule's method: RK4 or
+        the implicit step) or "cvodes"
     eps : regularisation [rad/s] for "smooth"/"cvodes" (model default if None)
     seed : seed of the sensor-noise generator
     start : "rest" (all speeds zero, no twist) or "sliding" (steady sliding at the first input)
@@ -75,7 +77,11 @@ class SimOptions:
 def plant_integration(model, params: ParameterSet | None, options: SimOptions, u0=None) -> Integration:
     """How the plant advances one sample: :func:`models.discretise.integration` for the exact
     stick/slip plant (``eps=None``; "smooth"/"cvodes": the regularised model), at least
-    ``options.nsub`` substeps, at the first input ``u0`` (default: the rig's operating point)."""
+    ``options.nsub`` substeps, at the first input ``u0`` (default: the rig's operating point).
+
+    A rig whose contacts all have laws with states (LuGre, rate-and-state: smooth models of stick
+    themselves, :mod:`models.plant.hybrid`) needs no event logic: where they are stiff, the rule
+    gives the implicit step and the plant integrates the model with it (``integration.note`` says so)."""
     model = get_model(model)
     params = model.published() if params is None else params
     eps = None if options.method == "hybrid" else (model.eps_default if options.eps is None else options.eps)
@@ -93,11 +99,11 @@ def step_function(model, options: SimOptions, integ: Integration | None = None) 
     model = get_model(model)
     if integ is None:
         integ = plant_integration(model, None, options)
-    key = ("plant_step", options.method, options.dt, integ.nsub, integ.quasi_static, options.eps)
+    key = ("plant_step", options.method, options.dt, integ.key, options.eps)
     cache = model._fcache
     if key in cache:
         return cache[key]
-    if options.method == "hybrid":
+    if options.method == "hybrid" and not integ.implicit:
         F = hybrid_step_function(model, options.dt, integ.nsub, quasi_static=integ.quasi_static)
     else:
         f = model.ode(options.eps)
@@ -108,7 +114,7 @@ def step_function(model, options: SimOptions, integ: Integration | None = None) 
         P = model.unpack(p)
         xa = ca.vertcat(x, th)
         rhs = ca.vertcat(f(x, u, p), model.ref_rate(x, u, P))
-        if options.method == "smooth":
+        if options.method != "cvodes":          # "smooth", or a hybrid plant whose laws all have states
             fa = ca.Function("fa", [xa, u, p], [rhs])
             xn = integ.advance(lambda a, b, c: fa(a, b, c), xa, u, p,
                                lambda a, b, c: model.quasi_static_current(a, b, model.unpack(c)))

@@ -47,6 +47,7 @@ from models.errors import ConfigError
 from models.params import ParameterSet, Spec
 from models.rig import steady
 from models.rig.drives import drive_of
+from models.rig.friction_states import FrictionStates
 from models.rig.outputs import RigOutputs
 from models.rig.spec import NODE_DRIVE, NODE_GROUND, RigSpec, SI_UNITS
 
@@ -64,7 +65,7 @@ def _dead_zone(phi, half):
     return phi - min(max(phi, -half), half)
 
 
-class RigModel(RigOutputs):
+class RigModel(RigOutputs, FrictionStates):
     """A rig built from a :class:`models.rig.spec.RigSpec` (see module docstring).
 
     Attributes
@@ -93,8 +94,21 @@ class RigModel(RigOutputs):
         self.drive_body = spec.drive.body
         twist = tuple(f"twist_{c.name}" for c in self._springs)
         speeds = tuple(f"omega_{b}" for b in self._bodies)
-        self.states = twist + speeds + tuple(s.name for s in self.drive.states)
-        self.state_units = ("rad",) * len(twist) + ("rad/s",) * len(speeds) + tuple(s.unit for s in self.drive.states)
+        # a friction law's own states (LuGre's bristles, rate-and-state's contact age), after the speeds
+        # and before the drive's states
+        laws = {c.name: fr.get_law(c.law) for c in spec.contacts}
+        fstates, funits, self._fstate = [], [], {}
+        for c in spec.contacts:
+            idx = []
+            for q in laws[c.name].states:
+                idx.append(len(twist) + len(speeds) + len(fstates))
+                fstates.append(f"{q.name}_{c.name}")
+                funits.append(SI_UNITS[q.kind])
+            if idx:
+                self._fstate[c.name] = tuple(idx)
+        self.states = twist + speeds + tuple(fstates) + tuple(s.name for s in self.drive.states)
+        self.state_units = ("rad",) * len(twist) + ("rad/s",) * len(speeds) + tuple(funits) \
+            + tuple(s.unit for s in self.drive.states)
         self.inputs = spec.inputs
         self.input_units = tuple(SI_UNITS[spec.input_kind(n)] for n in self.inputs)
         self.input_kinds = tuple(spec.input_kind(n) for n in self.inputs)
@@ -109,7 +123,17 @@ class RigModel(RigOutputs):
         self._contact_groups = tuple(tuple(groups[b]) for b in self.contact_bodies)
         self.contact_names = tuple(tuple(c.name for c in g) for g in self._contact_groups)
         self.contacts = tuple(self._speed_index[b] for b in self.contact_bodies)
-        self._laws = {c.name: fr.get_law(c.law) for c in spec.contacts}
+        self._laws = laws
+        for b, g in zip(self.contact_bodies, self._contact_groups):
+            kinds = {laws[c.name].stateful for c in g}
+            if len(kinds) > 1:
+                raise ConfigError(f"{spec.name}: body {b!r} has contacts with and without friction states "
+                                  f"({', '.join(f'{c.name}: {c.law}' for c in g)}); a body's contacts must all be "
+                                  f"laws with state or all memoryless")
+        #: contact bodies (indices into ``contacts``) whose laws have states: smooth models of stick
+        #: themselves (presliding, creep), never held at rest by the exact plant
+        self.stateful_contacts = tuple(i for i, g in enumerate(self._contact_groups)
+                                       if any(laws[c.name].stateful for c in g))
         self._ang_path = self._angle_paths()
         self.sensors = spec.sensors
         chans = []
@@ -338,12 +362,14 @@ class RigModel(RigOutputs):
         LP = {k: ref.value(P, un) for k, ref in c.params}
         return N, r, LP
 
-    def contact_friction(self, i: int, v, u, P, eps: float | None = None, *, s=None, factors=None):
+    def contact_friction(self, i: int, v, u, P, eps: float | None = None, *, s=None, factors=None, x=None):
         """Friction torque on contact body ``i`` [N m], the sum over its contacts.
 
         With ``eps`` the law's regularised torque at the signed speed ``v``
         (:meth:`models.friction.FrictionLaw.smooth`); without, the exact law sliding in direction
-        ``s`` (+1/-1) at the speed ``v >= 0``.  ``factors`` ({contact name: factor}) scale single
+        ``s`` (+1/-1) at the speed ``v >= 0``.  A law with states takes them from the state ``x``
+        (required then) and gives its dynamic torque at the signed speed (``v``, or ``s v``
+        without ``eps``), whatever ``eps``.  ``factors`` ({contact name: factor}) scale single
         contacts' torques (estimators' friction-level states).
         """
         un = self._named_inputs(u)
@@ -351,7 +377,14 @@ class RigModel(RigOutputs):
         for c in self._contact_groups[i]:
             N, r, LP = self.contact_args(c, P, un)
             law = self._laws[c.name]
-            Tk = law.smooth(v, N, r, LP, eps) if eps is not None else law.torque(v, s, N, r, LP)
+            if law.stateful:
+                if x is None:
+                    raise ConfigError(f"{self.name}: contact {c.name!r} (law {law.name!r}) has friction states; "
+                                      f"contact_friction needs the state x")
+                Tk = law.dynamic_torque(v if eps is not None else s * v, [x[j] for j in self._fstate[c.name]],
+                                        N, r, LP)[0]
+            else:
+                Tk = law.smooth(v, N, r, LP, eps) if eps is not None else law.torque(v, s, N, r, LP)
             T = T + (factors[c.name] * Tk if factors and c.name in factors else Tk)
         return T
 
@@ -379,6 +412,8 @@ class RigModel(RigOutputs):
                 i = self.contact_bodies.index(b)
                 J = J + self._added_inertia(i, x, un, P, s[i])
             out.append(torque[b] / J)
+        if self._fstate:
+            out.extend(self.friction_state_rates(x, un, P))
         out.extend(d.rates(self, x, un, P))
         return out
 
@@ -408,7 +443,7 @@ class RigModel(RigOutputs):
 
     def smooth_rhs(self, x, u, p, eps):
         P = self.unpack(p)
-        Tc = [self.contact_friction(i, x[idx], u, P, eps) for i, idx in enumerate(self.contacts)]
+        Tc = [self.contact_friction(i, x[idx], u, P, eps, x=x) for i, idx in enumerate(self.contacts)]
         s = [fr.smooth_sign(x[idx], eps) for idx in self.contacts]
         return self.dynamics(x, u, P, Tc, s)
 

@@ -48,7 +48,7 @@ class RigOutputs:
     def acceleration(self, x, u, P, body: str, eps: float | None = None):
         """``omega_<body>'`` of the regularised model (contact friction smoothed with ``eps``)."""
         eps = self.eps_default if eps is None else eps
-        Tc = [self.contact_friction(i, x[idx], u, P, eps) for i, idx in enumerate(self.contacts)]
+        Tc = [self.contact_friction(i, x[idx], u, P, eps, x=x) for i, idx in enumerate(self.contacts)]
         s = [fr.smooth_sign(x[idx], eps) for idx in self.contacts]
         return self.dynamics(x, u, P, Tc, s)[self._speed_index[body]]
 
@@ -85,6 +85,8 @@ class RigOutputs:
             out[f"twist_{c.name}"] = x[j]
         for b in self._bodies:
             out[f"omega_{b}"] = x[self._speed_index[b]]
+        for j in self.friction_states:
+            out[self.states[j]] = x[j]
         out.update(self.drive.outputs(self, x, un, P))
         return out
 

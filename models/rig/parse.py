@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from models.errors import ConfigError
-from models.friction import get_law
+from models.friction import get_law, level_kind
 from models.rig.checks import check_massless, check_rates, check_values, reference_node
 from models.rig.fields import (Context, check_keys, check_name, entries, number, parse_parameters, table,
                                value_ref)
@@ -140,11 +140,7 @@ def _parse_contacts(data, ctx: Context, body_names, where: str) -> list[ContactS
         for p in law.params:
             if p.name not in c:
                 raise ctx.err(f"{f}.{p.name}", f"missing field (law {law.name!r} needs {', '.join(law.param_names)})")
-            pk = p.kind
-            if pk == "level":
-                pk = "dimensionless" if has_n else "torque"
-            elif pk == "level_slowness":
-                pk = "slowness" if has_n else "damping"
+            pk = level_kind(p.kind, has_n)
             lp.append((p.name, value_ref(c[p.name], pk, f"{f}.{p.name}", ctx)))
         contacts.append(ContactSpec(cname, c["body"], law.name, normal, radius, tuple(lp)))
     return contacts

@@ -83,6 +83,7 @@ SI_UNITS: dict[str, str] = {
     "rate": "1/s", "slowness": "s/rad", "current": "A", "voltage": "V", "resistance": "ohm", "inductance": "H",
     "torque_constant": "N m/A", "voltage_constant": "V s/rad", "pi_kp": "V s/rad", "pi_ki": "V/rad",
     "force_rate": "N/s", "torque_rate": "N m/s", "viscous_torque": "N m s/rad", "dimensionless": "-",
+    "per_angle": "1/rad",
 }
 
 SENSOR_KINDS = ("encoder", "speed", "torque", "load_cell")

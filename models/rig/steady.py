@@ -109,6 +109,10 @@ def _steady_solve(model, u, params, speed: float | None, eps: float | None = Non
     zv = np.zeros(len(other) + 1)
     if solve_speed:
         zv[-1] = speed
+    # a friction law's own states start at their steady values (rate-and-state's log age is ln(v0/|w|):
+    # from 0, Gauss-Newton's first step on its exponential overflows)
+    for j, val in model.friction_state_guess(speed, u, dict(zip(model.param_names, pv))).items():
+        zv[other.index(j)] = val
     free = np.ones(zv.size, bool)
     if not torque_drive:
         free[-1] = False

@@ -30,7 +30,7 @@ import math
 from typing import Mapping
 
 from models.errors import ConfigError
-from models.friction import get_law
+from models.friction import get_law, level_kind
 from models.rig.drives import get_drive
 from models.rig.spec import (ActuatorSpec, BodySpec, ConnectionSpec, ContactSpec, ParamDecl, Ref, RigSpec,
                              SensorSpec, SI_UNITS, NODE_DRIVE)
@@ -189,8 +189,7 @@ def with_friction_law(spec: RigSpec, law: str, values: Mapping[str, float], cont
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                     raise ConfigError(f"structure.friction.{p.name} must be a finite number, got {v!r}")
                 pname = f"{c.name}_{p.name}"
-                kind = {"level": "dimensionless" if c.normal is not None else "torque",
-                        "level_slowness": "slowness" if c.normal is not None else "damping"}.get(p.kind, p.kind)
+                kind = level_kind(p.kind, c.normal is not None)
                 new_params.append(ParamDecl(pname, float(v), kind, SI_UNITS[kind], -math.inf, math.inf, False,
                                             "structure.friction (plant only)", p.doc))
                 lp.append((p.name, Ref("param", name=pname)))

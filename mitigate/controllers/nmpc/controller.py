@@ -158,7 +158,7 @@ class NMPC(Controller):
                               f"interval to be stable (stiff friction or springs); the limit is {MAX_SUBSTEPS}: shorten "
                               f"dt, or widen eps where the friction law uses it")
         self.spec = OCPSpec(horizon=o.horizon, dt=cfg.dt, nsub=self.nsub, eps=cfg.eps, body=self.body,
-                            quasi_static=self.integration.quasi_static,
+                            quasi_static=self.integration.quasi_static, method=self.integration.method,
                             inputs=self.inputs, taus=taus, speed_scale=w_s,
                             setpoint_scale=(cfg.setpoint_band if self._torque_drive else w_s) or 1.0,
                             force_scales=tuple(float(a.n_max) for a in acts), weights=weights.as_tuple())

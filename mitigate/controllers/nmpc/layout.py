@@ -41,9 +41,9 @@ class OCPSpec:
 
     Parameters
     ----------
-    horizon : N; dt : interval [s]; nsub : RK4 substeps per interval; eps : friction
-        regularisation [rad/s]; quasi_static : a DC motor's current at its quasi-static value
-        (both from :func:`models.discretise.integration`)
+    horizon : N; dt : interval [s]; nsub : substeps per interval; eps : friction
+        regularisation [rad/s]; quasi_static : a DC motor's current at its quasi-static value;
+        method : "rk4" or the implicit "sdirk2" (all from :func:`models.discretise.integration`)
     body : the objective body
     inputs : the commanded inputs, the drive's first if it is commanded (model input names)
     taus : lag [s] of each commanded servo input, in ``inputs`` order without the drive (0: no
@@ -64,6 +64,7 @@ class OCPSpec:
     force_scales: tuple[float, ...]
     weights: tuple[float, ...]
     quasi_static: bool = False
+    method: str = "rk4"
 
     def step_limit(self, j: int, rate: float) -> float:
         """Largest ``|c_j - s_j|`` [N] of commanded servo ``j``: ``rate tau`` (the servo at its rate

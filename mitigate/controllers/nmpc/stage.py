@@ -3,7 +3,8 @@ dynamics, the least-squares cost and their Gauss-Newton blocks (named CasADi Fun
 
 The OCP is a multiple-shooting problem over ``N`` intervals of ``dt`` [s], each integrated by
 the rig's integration rule (:func:`models.discretise.integration`: RK4 with ``nsub`` substeps,
-a fast motor's current quasi-static) on the rig's regularised model (state and decisions:
+a fast motor's current quasi-static, or the L-stable implicit step where RK4 would need too many
+substeps: a small eps, a friction law with states) on the rig's regularised model (state and decisions:
 :mod:`mitigate.controllers.nmpc.layout`).
 
 The cost is a least-squares sum plus a linear servo-force term where the programme holds a
@@ -51,7 +52,7 @@ def prediction_rhs(model, eps: float) -> ca.Function:
     x, u, p = ca.SX.sym("x", model.nx), ca.SX.sym("u", model.nu), ca.SX.sym("p", model.n_p)
     fc = ca.SX.sym("fc", len(model.contacts))
     P = model.unpack(p)
-    Tc = [fc[i] * model.contact_friction(i, x[idx], u, P, eps) for i, idx in enumerate(model.contacts)]
+    Tc = [fc[i] * model.contact_friction(i, x[idx], u, P, eps, x=x) for i, idx in enumerate(model.contacts)]
     s = [fr.smooth_sign(x[idx], eps) for idx in model.contacts]
     xdot = ca.vertcat(*model.dynamics(x, u, P, Tc, s))
     return ca.Function(f"{model.cname}_nmpc_rhs", [x, u, p, fc], [xdot], ["x", "u", "p", "fc"], ["xdot"])
@@ -107,8 +108,15 @@ def stage_functions(model, spec: OCPSpec):
         sdot = [(v_[L.j_cmd[k]] - xa_[L.i_servo[k]]) / taus[k] if taus[k] > 0 else 0 for k in range(L.ns)]
         return ca.vertcat(xdot, *sdot, *([0] if L.drive else []))
 
-    xe = Integration(spec.dt, spec.nsub, model.current_index if spec.quasi_static else None).advance(
-        faug, xa, v, q, lambda xa_, v_, _q: model.quasi_static_current(xa_[:nx], inputs(xa_, v_), model.unpack(p)))
+    # the implicit step's predictor needs the contact speeds with a memoryless (sign-like) law
+    stiff = tuple(idx for i, idx in enumerate(model.contacts) if i not in model.stateful_contacts) \
+        if spec.method != "rk4" else ()
+    brk = tuple(model.contacts[i] for i in model.stateful_contacts if model.rest_free(i)) \
+        if spec.method != "rk4" else ()
+    integ = Integration(spec.dt, spec.nsub, model.current_index if spec.quasi_static else None,
+                        method=spec.method, stiff=stiff, band=spec.eps, bracket=brk)
+    xe = integ.advance(faug, xa, v, q,
+                       lambda xa_, v_, _q: model.quasi_static_current(xa_[:nx], inputs(xa_, v_), model.unpack(p)))
     xn = [xe[j] for j in range(nx)]
     for k in range(L.ns):
         xn.append(xe[L.i_servo[k]] if taus[k] > 0 else v[L.j_cmd[k]])
