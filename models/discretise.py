@@ -328,7 +328,7 @@ def unstable_rate(model, params, u, *, eps: float | None, speed: float | None = 
     e = model.eps_default if eps is None else float(eps)
     J = rate_jacobian(model, e, False)
     if speed is None:
-        speed = max(abs(float(u[model.inputs.index(model.drive_input)])), 1.0) if model.drive_kind != "torque" \
+        speed = max(abs(float(u[model.inputs.index(model.drive_input)])), 1.0) if model.drive.sets_speed \
             else max(abs(float(model.nominal_speed())), 1.0)
     # a regularised consumer: down to just beyond its band; the exact plant (a law with states, whose
     # own speed scale may be anything): eight decades

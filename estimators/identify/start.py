@@ -243,7 +243,7 @@ def derived_states(model, channels, d, P, known: dict) -> dict:
     for b in model.bodies:
         if model.speed_index(b) in known:
             speeds[b] = np.asarray(known[model.speed_index(b)], float)
-    if model.drive_kind == "speed":
+    if model.drive.sets_speed and not model.drive.on_body:      # a prescribed speed of the node "drive"
         speeds[NODE_DRIVE] = np.asarray(d.U[:, model.inputs.index(model.drive_input)], float)
     speeds[NODE_GROUND] = np.zeros(n)
     dt = float(np.median(np.diff(d.t))) if len(d.t) > 1 else 1.0
