@@ -95,6 +95,19 @@ class MetricOptions:
         which a run violates the programme (the driller's weight on bit; (0.8, 1.25))
     speed_band : ``(low, high)`` band of the objective body's mean speed over the residual window over
         its programme [-] outside which a run violates the programme (the bit's speed; (0.95, 1.05))
+    band_periods : the moving window of the band checks in periods [-] (1): the mean applied normal force
+        over EVERY such window must stay in ``force_band``, the mean speed in ``moving_speed_band``
+    moving_speed_band : ``(low, high)`` band of the objective body's mean speed over every moving band
+        window over its programme [-] ((0.85, 1.15)).  Wider than ``speed_band``: while the stick-slip
+        dies the string unwinds or winds up its twist, which moves a period's mean speed by the twist's
+        change over ``w_prog T`` whatever the controller does (rig3 at 30 rpm: 0.37 rad, about the swing
+        of its stick-slip twist, is 5 % of a period's turn); it catches a set-point left high (a
+        driller's bit 17.6 % fast for 25 s) or a bit held back
+    band_after : the moving band checks start this many periods after the switch-on [-] (1: the slip
+        under way at the switch-on, or the spin-up from rest, is the rig's, not the controller's)
+    stuck_limit : a run whose objective body is stuck (TRUE speed at or below ``stuck_speed``) for more
+        than this fraction of the residual window has stalled [-] (0.5: the bit does not drill; the
+        suite's uncontrolled stick-slip is stuck for 16-38 % of it)
     """
 
     period: float | None = None
@@ -107,6 +120,10 @@ class MetricOptions:
     stuck_speed_measured: float | None = None
     force_band: tuple = (0.8, 1.25)
     speed_band: tuple = (0.95, 1.05)
+    band_periods: float = 1.0
+    moving_speed_band: tuple = (0.85, 1.15)
+    band_after: float = 1.0
+    stuck_limit: float = 0.5
     where: str = "metrics"
 
     def __post_init__(self):
@@ -116,13 +133,18 @@ class MetricOptions:
             if v is not None:
                 object.__setattr__(self, name, finite_number(v, f"{w}.{name}", positive=True,
                                                              unit="s" if name == "period" else "rad/s"))
-        for name in ("residual_periods", "window_periods", "moving_periods", "suppress_threshold"):
+        for name in ("residual_periods", "window_periods", "moving_periods", "suppress_threshold", "band_periods"):
             object.__setattr__(self, name, finite_number(getattr(self, name), f"{w}.{name}", positive=True))
+        object.__setattr__(self, "band_after", finite_number(self.band_after, f"{w}.band_after", nonneg=True))
+        lim = finite_number(self.stuck_limit, f"{w}.stuck_limit", nonneg=True)
+        if lim >= 1:
+            raise ConfigError(f"{w}.stuck_limit must be in [0, 1) (a fraction of the residual window), got {lim!r}")
+        object.__setattr__(self, "stuck_limit", lim)
         f = finite_number(self.residual_fraction, f"{w}.residual_fraction", positive=True)
         if f > 1:
             raise ConfigError(f"{w}.residual_fraction must be in (0, 1], got {f!r}")
         object.__setattr__(self, "residual_fraction", f)
-        for name in ("force_band", "speed_band"):
+        for name in ("force_band", "speed_band", "moving_speed_band"):
             b = getattr(self, name)
             if not isinstance(b, (list, tuple)) or len(b) != 2:
                 raise ConfigError(f"{w}.{name} must be [low, high] (ratios to the programme), got {b!r}")
