@@ -132,7 +132,7 @@ def summarise(records: Iterable[RunRecord], kinds: Mapping[str, str], *, seed: i
     groups: dict[tuple, list[RunRecord]] = {}
     for r in records:
         groups.setdefault((r.run.scenario, r.run.controller), []).append(r)
-    counts = [m.name for m in registered() if m.kind == "count"]
+    counts = [m.name for m in registered() if m.kind == "count" and not m.timing]
     out = {}
     for (s, c), recs in groups.items():
         e = Entry(s, c, kinds.get(c, ""), options=dict(recs[0].run.options))

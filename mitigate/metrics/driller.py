@@ -60,10 +60,13 @@ def measured_severity(w: ClosedLoopWindow) -> float:
     return floor if sev <= floor * (1 + _AT_FLOOR) else sev
 
 
-@metric("suppressed", "-", "1 if what the rig sees is at its floor: the stick-slip is suppressed as far as the "
-        "rig's sensors can tell", needs=_MEASURED, kind="flag")
+@metric("suppressed", "-", "1 if what the rig sees is at its floor and the body has not stalled (stuck for more "
+        "than MetricOptions.stuck_limit of the residual window): the stick-slip is suppressed as far as the rig's "
+        "sensors can tell", needs=_MEASURED, kind="flag")
 def suppressed(w: ClosedLoopWindow) -> int:
-    return int(measured_severity(w) <= speed_floor(w))
+    from mitigate.severity import stuck_fraction
+    stalled = stuck_fraction(w.tail, w.stuck_speed) > w.options.stuck_limit
+    return int(measured_severity(w) <= speed_floor(w) and not stalled)
 
 
 @metric("measured_time_to_suppress", "s", "from the switch-on to the start of the first moving window from which "
