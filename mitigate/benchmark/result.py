@@ -24,7 +24,7 @@ from mitigate.benchmark.plan import Reference, make_tasks, reference_run
 from mitigate.benchmark.stats import Entry, class_tables, rank, summarise
 from mitigate.benchmark.suite import Suite
 
-__all__ = ["BenchmarkResult", "run_benchmark", "references", "definition"]
+__all__ = ["BenchmarkResult", "run_benchmark", "assemble", "references", "definition"]
 
 
 @dataclass(frozen=True)
@@ -164,7 +164,15 @@ def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None 
     computed: list = []
     recs = execute(tasks, store=st, jobs=jobs, scheduler=scheduler, client=client, progress=progress,
                    desc=f"benchmark {suite.name}", on_record=computed.append)
-    records = list(recs.values())
+    return assemble(suite, refs, list(recs.values()), phases=phases, seeds=seeds, tuned=tuned, tuning=tuning,
+                    elapsed=time.perf_counter() - t0, computed=len(computed))
+
+
+def assemble(suite: Suite, refs: Mapping, records: list, *, phases: int, seeds: int, tuned: Mapping | None = None,
+             tuning: Mapping | None = None, elapsed: float = 0.0, computed: int = 0) -> BenchmarkResult:
+    """A :class:`BenchmarkResult` from every run's record (:func:`run_benchmark` once its runs are done,
+    or a store's records read back): the entries, their ranks, the class tables, the status."""
+    from mitigate.metrics import METRICS_VERSION
     kinds = {c.name: c.kind for c in suite.controllers}
     entries = summarise(records, kinds)
     scen = [sc.name for sc in suite.scenarios]
@@ -194,8 +202,7 @@ def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None 
         notes.append(f"{warned} run(s) with warnings")
     # the whole is as good as its worst run (Status.worst); a suppression scenario without stick-slip warns
     status = Status.worst(runs + ([Status.WARNING] if no_slip else []))
-    from mitigate.metrics import METRICS_VERSION
-    return BenchmarkResult(suite, refs, records, entries, tables, phases, seeds, "tuned" if tuned else "defaults",
-                           dict(tuned or {}), time.perf_counter() - t0, status, "; ".join(notes) or "ok",
-                           computed=len(computed), tuning=dict(tuning or {}), metrics_version=METRICS_VERSION)
+    return BenchmarkResult(suite, dict(refs), records, entries, tables, phases, seeds,
+                           "tuned" if tuned else "defaults", dict(tuned or {}), elapsed, status, "; ".join(notes) or "ok",
+                           computed=computed, tuning=dict(tuning or {}), metrics_version=METRICS_VERSION)
 

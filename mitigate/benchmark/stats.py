@@ -33,8 +33,8 @@ from mitigate.metrics import Metric, ranked, registered, shown
 from mitigate.record import RunRecord
 from mitigate.tunables import ACTUATOR_CLASSES
 
-__all__ = ["interval", "summarise", "rank", "class_tables", "Entry", "clearly_better", "entry_metrics", "did_job",
-           "timing_metrics"]
+__all__ = ["interval", "summarise", "rank", "class_tables", "Entry", "clearly_better", "deciding", "entry_metrics",
+           "did_job", "timing_metrics"]
 
 CONFIDENCE = 0.95
 
@@ -183,6 +183,20 @@ def clearly_better(a: Entry, b: Entry) -> bool:
         if _better(b, a, m):
             return False
     return False
+
+
+def deciding(a: Entry, b: Entry) -> str:
+    """What decides between two entries in the ranking's order: ``"job done"`` (one did the job in every
+    run, the other not), ``"bad runs"`` (neither did; fewer failed runs), the first ranked metric whose
+    intervals separate them, or ``"tie"``."""
+    if a.job_done != b.job_done:
+        return "job done"
+    if not a.job_done:
+        return "bad runs" if a.n_bad != b.n_bad else "tie"
+    for m in ranked():
+        if _better(a, b, m) or _better(b, a, m):
+            return m.name
+    return "tie"
 
 
 def rank(entries: Iterable[Entry]) -> dict[str, int]:
