@@ -8,8 +8,9 @@ scenarios whose runs are ALL done (the tasks go scenario by scenario), and write
 message saying how many scenarios of the suite it holds.  The runs are read, never recomputed; only
 the uncontrolled reference runs of the kept scenarios are (they are not stored).
 
-It refuses a store made by other code than this checkout's (the store's definition hash), since the
-runs would then not be what this code computes.
+It refuses a store made for another definition (suite and scenario files, controllers, phases,
+seeds); when the code that computed the runs differs from this checkout's, the status message says
+so, with both code hashes.
 
 Examples::
 
@@ -35,8 +36,8 @@ def partial(suite_path, store, out, *, phases: int | None = None, seeds: int | N
             force: bool = False, command: str = "") -> dict:
     """Write the output set of the finished scenarios of ``store`` to ``out``; returns its files."""
     from mitigate.benchmark import load_suite, references, write_benchmark
-    from mitigate.benchmark.execute import RunStore
-    from mitigate.benchmark.result import assemble, definition
+    from mitigate.benchmark.result import assemble, code_hash, definition
+    from mitigate.record import RunRecord
     from models.errors import ConfigError
 
     suite = load_suite(suite_path)
@@ -44,13 +45,13 @@ def partial(suite_path, store, out, *, phases: int | None = None, seeds: int | N
     seeds = seeds or suite.seeds
     man = json.loads((Path(store) / "manifest.json").read_text())
     want = definition(suite, phases, seeds)
-    st = RunStore.__new__(RunStore)              # read only: no manifest rewritten
-    st.root, st.run_dir = Path(store), Path(store) / "runs"
-    from mitigate.sweep.store import definition_hash
-    if man["hash"] != definition_hash(want):
-        raise ConfigError(f"{store}: its runs were made for another definition or other code (hash {man['hash']}, "
-                          f"this checkout {definition_hash(want)}); not mixing them")
-    records = [st.read(k) for k in sorted(st.done())]
+    made = man.get("definition", {})
+    differ = [k for k in want if k != "code" and json.dumps(want[k], default=str) != json.dumps(made.get(k), default=str)]
+    if differ:
+        raise ConfigError(f"{store}: its runs were made for another benchmark ({', '.join(differ)} differ); "
+                          f"not mixing them")
+    runs = Path(store) / "runs"
+    records = [RunRecord.from_json(json.loads(p.read_text()), str(p)) for p in sorted(runs.rglob("*.json"))]
     per = Counter(r.run.scenario for r in records)
     full = len(suite.controllers) * phases * seeds
     keep = [sc for sc in suite.scenarios if per.get(sc.name, 0) == full]
@@ -62,6 +63,8 @@ def partial(suite_path, store, out, *, phases: int | None = None, seeds: int | N
     names = {sc.name for sc in keep}
     res = assemble(sub, refs, [r for r in records if r.run.scenario in names], phases=phases, seeds=seeds)
     note = f"partial: {len(keep)} of {len(suite.scenarios)} scenarios ({', '.join(sc.name for sc in keep)})"
+    if made.get("code") != code_hash():
+        note += f"; runs computed by code {made.get('code')} (this checkout: {code_hash()})"
     res = dataclasses.replace(res, message=f"{note}; {res.message}")
     return write_benchmark(res, out, force=force, command=command)
 

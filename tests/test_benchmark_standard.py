@@ -262,6 +262,33 @@ def test_an_outside_controller_submitted_appears_in_the_leaderboard_beside_the_r
     assert "## stickslip-benchmark v1, metrics" in md2 and "## stickslip-benchmark v0-test, metrics" in md2
 
 
+def test_the_leaderboard_ranks_a_submission_beside_reference_entries_of_the_same_suite(tiny, tmp_path, on_path,
+                                                                                          capsys):
+    """On the tiny suite: a reference entry (the suite's controllers) and a submission (--alone) built by the
+    documented commands; the leaderboard ranks them per class, scenario by scenario, from their records."""
+    from mitigate.cli import main
+    suite = str(tiny / "suite.toml")
+    common = ["--only", "drill", "--quick", "--jobs", "1"]
+    assert main(["benchmark", suite, *common, "--out", str(tmp_path / "ref" / "reference")]) == 0
+    assert main(["benchmark", suite, *common, "--controller", "tests.plugins.submitted:TwistDamper", "--alone",
+                 "--out", str(tmp_path / "entries" / "twist")]) == 0
+    capsys.readouterr()
+    assert main(["benchmark", "leaderboard", str(tmp_path / "entries"), "--reference", str(tmp_path / "ref"),
+                 "--out", str(tmp_path / "lb"), "--json"]) == 0
+    files = json.loads(capsys.readouterr().out)
+    md = Path(files["markdown"]).read_text()
+    drive = md[md.index("Drive set-point only"):md.index("Normal force only")]
+    rows = [ln for ln in drive.splitlines() if ln.startswith("| ") and "[defaults," in ln]
+    names = {ln.split(" | ")[1] for ln in rows}
+    assert names == {"TwistDamper [defaults, twist]", "SoftSpeed [defaults, reference]",
+                     "PI only [defaults, reference]"}
+    # the brake and D-OSKIL are in the force class, not beside a drive controller
+    assert "brake [defaults, reference]" in md[md.index("Normal force only"):]
+    assert "brake [defaults, reference]" not in drive
+    html_page = Path(files["html"]).read_text()
+    assert html_page.count("<table>") == md.count("| rank |") + md.count("| controller | entry |")
+
+
 def test_bad_leaderboard_and_submission_arguments_are_one_line(tmp_path, capsys):
     from mitigate.cli import main
     assert main(["benchmark", "leaderboard", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
@@ -296,3 +323,21 @@ def test_the_generated_set_is_the_same_from_the_same_seed(tmp_path):
     c = generate(SUITE, 1, 4, tmp_path / "c")
     assert (c.parent / "gen_4_0.toml").read_text() != (a.parent / "gen_3_0.toml").read_text()
     assert np.isfinite(json.loads((a.parent / "generated.json").read_text())["scenarios"]["gen_3_0"]["period"])
+
+
+@pytest.mark.slow
+def test_the_tuned_and_generated_modes_from_the_command_line(tmp_path, capsys):
+    """--generated N --seed S writes the scenarios and their suite and benchmarks them; --tuned stores the
+    tuned values and how they were tuned in the entry (a small budget here; the reference's is 50)."""
+    from mitigate.cli import main
+    out = tmp_path / "g"
+    code = main(["benchmark", str(SUITE), "--generated", "1", "--seed", "3", "--controller", "SS=softspeed",
+                 "--alone", "--quick", "--tuned", "--budget", "2", "--jobs", "1", "--out", str(out), "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert code in (0, 1)
+    validate(read_entry(out / "results.json"))
+    assert doc["suite"]["name"] == "stickslip-benchmark-generated" and doc["suite"]["scenarios"] == ["gen_3_0"]
+    assert (out / "generated" / "gen_3_0.toml").is_file() and (out / "generated" / "suite.toml").is_file()
+    assert doc["mode"] == "tuned" and doc["tuning"]["budget"] == 2 and "TPE" in doc["tuning"]["sampler"]
+    assert [t["controller"] for t in doc["tuned"]] == ["SS"] and "kp_factor" in doc["tuned"][0]["options"]
+    assert {r["run"]["options"]["kp_factor"] for r in doc["records"]} == {doc["tuned"][0]["options"]["kp_factor"]}

@@ -8,9 +8,10 @@ and of the results' schema.  Two entries are comparable when they ran the same s
 same metrics version and compute model; the lock makes sure that the version means the same files.
 
 :func:`check` lists every difference between a suite and its lock (``tests/test_benchmark_standard.py``
-keeps the shipped suite equal to its lock).  A change to a scenario, a rig or the metric code is a new
-version: bump ``[suite] version`` (and ``METRICS_VERSION`` if what a metric computes changed), then
-write the lock again::
+keeps the shipped suite equal to its lock).  A change to a scenario or a rig is a new suite version, a
+change to what a metric computes a new ``METRICS_VERSION``: bump it, then write the lock again (a change
+to the metric code that computes the same numbers -- a description, where a column is shown -- only
+rewrites the lock, and the reviewer sees it in the lock's diff)::
 
     python -m mitigate.benchmark.freeze scenarios/benchmark/suite.toml --write
 """

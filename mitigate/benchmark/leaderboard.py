@@ -63,7 +63,9 @@ class Submission:
 def _entries_from(doc: dict, source: str) -> list[Submission]:
     from mitigate.benchmark.stats import summarise
     from mitigate.record import RunRecord
-    recs = [RunRecord.from_json(r, f"{source}: records[{i}]") for i, r in enumerate(doc["records"])]
+    timings = doc["timing"].get("timings", {})
+    recs = [RunRecord.from_json({**r, "timings": timings.get(r["run"]["key"], {})}, f"{source}: records[{i}]")
+            for i, r in enumerate(doc["records"])]
     kinds = {c["name"]: c["kind"] for c in doc["controllers"]}
     per = summarise(recs, kinds)
     budget = (doc.get("tuning") or {}).get("budget")

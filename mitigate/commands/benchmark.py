@@ -191,9 +191,10 @@ def run(args) -> int:
             if args.tuned:
                 from mitigate.tune import settings, tune_suite
                 grid = phases or suite.phases
+                tp = min(2, grid)            # tuning phases: between the benchmark's, at most one per gap
                 tuned = tune_suite(suite, budget=args.budget, out=out / "tuning", refs=refs, jobs=args.jobs,
-                                   progress=not args.json, grid=grid)
-                how = settings(args.budget, 2, 1, grid)
+                                   progress=not args.json, grid=grid, phases=tp)
+                how = settings(args.budget, tp, 1, grid)
             res = run_benchmark(suite, phases=phases, seeds=seeds, jobs=args.jobs, store=out, force=args.force,
                                 client=client, progress=not args.json, tuned=tuned, refs=refs, tuning=how)
         finally:

@@ -60,7 +60,7 @@ def residual_severity(w: ClosedLoopWindow) -> float:
 
 @metric("time_to_suppress", "s", "from the switch-on to the start of the first moving window from which the moving "
         "severity of the TRUE speed stays below the threshold (0: never above; inf: never suppressed)", needs=_CTRL,
-        show=("report", "bars"), header="true t suppress", inf="never")
+        show=("bars",), header="true t suppress", inf="never")
 def time_to_suppress_(w: ClosedLoopWindow) -> float:
     return time_to_suppress(w.speed, w.dt, w.moving_window, w.options.suppress_threshold, w.ref, w.stuck_speed)
 
@@ -69,8 +69,7 @@ def time_to_suppress_(w: ClosedLoopWindow) -> float:
 @metric("peak_overshoot", "-", "what the controller added to the speed's peak: how far the true speed's peak after "
         "the switch-on rises above the peak of the uncontrolled run over the same window (the slip under way at the "
         "switch-on and the stick-slip cycle are the rig's), over the programme; 0 when it stays below",
-        needs=_CTRL + ("programmed_speed", "uncontrolled_run"), show=_TABLES + ("report", "bars"), header="overshoot",
-        percent=True)
+        needs=_CTRL + ("programmed_speed", "uncontrolled_run"), show=_TABLES, header="overshoot", percent=True)
 def peak_overshoot(w: ClosedLoopWindow) -> float:
     unc = w.uncontrolled[np.isfinite(w.uncontrolled)]
     if unc.size == 0:

@@ -108,7 +108,7 @@ def drive_load_peak(w: ClosedLoopWindow) -> float:
 @metric("setpoint_excursion", "-", "hardware: the largest command above its programme after the switch-on, over the "
         "programme, of every input the loop commands with a positive programme (the drive's set-point, a "
         "programmed normal force); 0 if no command exceeds its programme", needs=("controlled",), rank=5,
-        show=_TABLES + ("report",), header="set-point excursion", percent=True)
+        show=_TABLES, header="set-point excursion", percent=True)
 def setpoint_excursion(w: ClosedLoopWindow) -> float:
     worst = 0.0
     for name, cmd in w.result.commands.items():
