@@ -309,7 +309,9 @@ def test_a_failing_plug_in_in_the_benchmark_fails_its_cell_and_the_command_exits
     assert "controller_deadline_misses" not in entries["Late"]["counts"]
     assert entries["PI only"]["n_failed"] == 0 and entries["PI only"]["messages"] == []
     assert doc["status"] == "failed"
-    assert "**Bad**: every run failed (controller failed at t = 1.000 s in step: ValueError: boom in step)" in \
+    # it set nothing before failing: classed "none" (the inputs it moved away from the programme)
+    assert ("**Bad** (none class): job NOT done (1 of 1 runs: 1 failed); every run failed (controller failed "
+            "at t = 1.000 s in step: ValueError: boom in step)") in \
         (ws / "o" / "ranking.md").read_text()
 
 

@@ -86,7 +86,7 @@ def verdict(e: Entry, ref=None, programme_force: bool = False) -> str:
                  f"stays" + (f" (uncontrolled {fmt(ref.residual_severity, 100)} %)" if ref is not None else "") + over)
     tts = e.value("measured_time_to_suppress")
     if e.n_suppressed == 0:
-        parts.append("never suppressed as far as the rig can tell")
+        parts.append("but the stick-slip stays: never suppressed as far as the rig can tell")
     elif e.n_suppressed < n_done:
         parts.append(f"suppressed in {e.n_suppressed} of {n_done} runs (median {fmt(tts)} s after the switch-on)")
     else:
