@@ -62,7 +62,8 @@ def partial(suite_path, store, out, *, phases: int | None = None, seeds: int | N
     refs = references(sub, jobs)
     names = {sc.name for sc in keep}
     res = assemble(sub, refs, [r for r in records if r.run.scenario in names], phases=phases, seeds=seeds)
-    note = f"partial: {len(keep)} of {len(suite.scenarios)} scenarios ({', '.join(sc.name for sc in keep)})"
+    note = (f"from the run store: all {len(keep)} scenarios" if len(keep) == len(suite.scenarios) else
+            f"partial: {len(keep)} of {len(suite.scenarios)} scenarios ({', '.join(sc.name for sc in keep)})")
     if made.get("code") != code_hash():
         note += f"; runs computed by code {made.get('code')} (this checkout: {code_hash()})"
     res = dataclasses.replace(res, message=f"{note}; {res.message}")

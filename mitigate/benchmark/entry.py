@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import platform
 import subprocess
 from importlib import metadata, resources
@@ -56,7 +57,6 @@ def provenance(command: str = "") -> dict[str, Any]:
             versions[p] = metadata.version(p)
         except metadata.PackageNotFoundError:
             versions[p] = None
-    import os
     machine = {"system": platform.system(), "release": platform.release(), "machine": platform.machine(),
                "processor": platform.processor() or "", "cpus": os.cpu_count() or 0, "node": platform.node()}
     return {"commit": commit, "dirty": dirty, "packages": versions, "machine": machine, "command": command}

@@ -56,6 +56,7 @@ def run_task(task: RunTask) -> RunRecord:
     except Exception as exc:  # noqa: BLE001 - a user's controller may fail in any way: its run fails
         return RunRecord.measured(run, Status.FAILED, _one_line(exc), {}, elapsed=time.perf_counter() - t0)
     declares = type(ctrl).actuated_inputs is not Controller.actuated_inputs
+    declared: tuple = ()
     try:
         declared = tuple(ctrl.actuated_inputs()) if declares else ()
         res = run_closed_loop(sc, ctrl)

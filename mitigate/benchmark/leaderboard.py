@@ -12,6 +12,7 @@ budget), its runs per scenario and the compute model.  :data:`RULES` are written
 
 from __future__ import annotations
 
+import copy
 import html
 import math
 from dataclasses import dataclass, field
@@ -137,7 +138,6 @@ def build(subs: list[Submission], scenarios: list[str]) -> dict:
                 continue
             by_ctrl = {}
             for label, e in es.items():     # rank() keys by controller name: rank copies named by label
-                import copy
                 ee = copy.copy(e)
                 ee.controller = label
                 by_ctrl[label] = ee

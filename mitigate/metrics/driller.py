@@ -77,6 +77,7 @@ def measured_time_to_suppress(w: ClosedLoopWindow) -> float:
     n = max(1, int(round(w.moving_window / w.dt)))
     floor = w.ripple_floor(n) / (2 * abs(w.ref))
     # "at or below" (to rounding): time_to_suppress counts a window as suppressed strictly below its threshold
+    # (a floor of 0, ideal angles, still lets a window of zero severity count)
     threshold = max(w.options.suppress_threshold, floor * (1 + _AT_FLOOR) + 1e-300)
     return time_to_suppress(w.measured_speed, w.dt, w.moving_window, threshold, w.ref, w.measured[1])
 
