@@ -259,7 +259,9 @@ def test_an_outside_controller_submitted_appears_in_the_leaderboard_beside_the_r
     (entries / "old" / "results.json").write_text(json.dumps(other))
     assert main(["benchmark", "leaderboard", str(entries), "--out", str(tmp_path / "lb2"), "--no-reference"]) == 0
     md2 = (tmp_path / "lb2" / "leaderboard.md").read_text()
-    assert "## stickslip-benchmark v1, metrics" in md2 and "## stickslip-benchmark v0-test, metrics" in md2
+    assert "## stickslip-benchmark v1, metrics 1, compute period\n" in md2
+    assert "## stickslip-benchmark v0-test, metrics 1, compute period\n" in md2
+    assert doc["suite"]["frozen"] is True
 
 
 def test_the_leaderboard_ranks_a_submission_beside_reference_entries_of_the_same_suite(tiny, tmp_path, on_path,

@@ -94,6 +94,17 @@ def jsonable(obj: Any) -> Any:
     return obj
 
 
+def _frozen(suite) -> bool:
+    """The suite's files, rigs, metric code and schema are what its lock says (:mod:`.freeze`)."""
+    from mitigate.benchmark.freeze import check, lock_path
+    if not suite.path or not lock_path(suite.path).is_file():
+        return False
+    try:
+        return not check(suite.path)
+    except (DataError, OSError):
+        return False
+
+
 def entry_document(res, prov: Mapping | None = None) -> dict[str, Any]:
     """The entry of a :class:`mitigate.benchmark.BenchmarkResult` (module docstring)."""
     su = res.suite
@@ -106,7 +117,7 @@ def entry_document(res, prov: Mapping | None = None) -> dict[str, Any]:
             ctrl_class.setdefault(e.controller, e.klass)
     doc = {
         "format": "stickslip-benchmark-entry", "format_version": ENTRY_FORMAT,
-        "suite": {"name": su.name, "version": su.version, "description": su.description,
+        "suite": {"name": su.name, "version": su.version, "frozen": _frozen(su), "description": su.description,
                   "scenarios": [sc.name for sc in su.scenarios if sc.name not in timing_sc],
                   "timing_scenarios": list(su.timing), "compute": su.compute, "compute_model": su.compute_text,
                   "phases": res.phases, "seeds": res.seeds},

@@ -40,8 +40,9 @@ RULES = (
     "reference tunes every controller with the same budget of Optuna trials (at least 50) on switch-on phases "
     "and noise seeds the suite never scores (`mitigate benchmark SUITE --tuned --budget N`), scored in the "
     "ranking's order. Tuning on the scored phases or seeds, or on the generated set, is not allowed.",
-    "Entries compare only within one suite version, metrics version and compute model; the suite's files, "
-    "rigs and metric code are frozen by its lock (`suite.lock.json`).",
+    "Entries compare only within one suite version, metrics version and compute model, each made from a suite "
+    "whose files, rigs and metric code are as its lock says (`suite.lock.json`; an entry from a changed suite is "
+    "listed apart, as not frozen).",
     "An entry is the unedited `results.json` of `mitigate benchmark SUITE --controller module:Class --alone`; "
     "it holds every run's record, the commit and the package versions that made it.",
 )
@@ -84,8 +85,10 @@ def _entries_from(doc: dict, source: str) -> list[Submission]:
 
 
 def _key(doc: dict) -> tuple:
+    """What makes entries comparable: the suite and its version, the metrics version, the compute model,
+    and whether the suite was as its lock says (a changed suite is not the version it names)."""
     s = doc["suite"]
-    return s["name"], s["version"], doc["metrics_version"], s["compute"]
+    return s["name"], s["version"], doc["metrics_version"], s["compute"], bool(s.get("frozen"))
 
 
 def collect(*dirs, validate: bool = True) -> tuple[dict, list[str]]:
@@ -193,7 +196,9 @@ def _tables(suite: dict, tables: dict) -> list[tuple[str, list[str], list[list[s
 
 def _intro(suite: dict, notes: list[str]) -> list[str]:
     from mitigate.benchmark.render import how_to_read
-    return [f"Suite `{suite['name']}` version {suite['version'] or '(not frozen)'}; compute model: "
+    frozen = "frozen (its files, rigs and metric code as its lock says)" if suite.get("frozen") else \
+        "NOT frozen (no lock, or its files differ from the lock)"
+    return [f"Suite `{suite['name']}` version {suite['version'] or '-'}, {frozen}; compute model: "
             f"{suite['compute_model']}.", "", how_to_read(), "",
             "Entries read:", ""] + [f"- {n}" for n in notes] + [""]
 
@@ -202,7 +207,8 @@ def render_markdown(groups: dict, notes: list[str]) -> str:
     """The leaderboard as Markdown: the rules, then per comparable group and class the tables."""
     L = ["# Leaderboard", "", "## Rules", ""] + [f"{i}. {r}" for i, r in enumerate(RULES, 1)] + [""]
     for key, (suite, subs) in groups.items():
-        L += [f"## {suite['name']} v{suite['version']}, metrics {key[2]}, compute {key[3]}", ""] + _intro(suite, notes)
+        L += [f"## {suite['name']} v{suite['version']}, metrics {key[2]}, compute {key[3]}"
+              + ("" if key[4] else " (not frozen)"), ""] + _intro(suite, notes)
         for title, hdr, rows in _tables(suite, build(subs, _scenarios(suite, subs))):
             L += [f"### {title}", "", "| " + " | ".join(hdr) + " |", "|" + "---|" * len(hdr)]
             L += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in rows] + [""]
@@ -226,7 +232,8 @@ def render_html(groups: dict, notes: list[str]) -> str:
          "</title>", f"<style>{css}</style></head><body>", "<h1>Leaderboard</h1>", "<h2>Rules</h2>", "<ol>"]
     H += [f"<li>{e(r)}</li>" for r in RULES] + ["</ol>"]
     for key, (suite, subs) in groups.items():
-        H.append(f"<h2>{e(suite['name'])} v{e(suite['version'])}, metrics {e(key[2])}, compute {e(key[3])}</h2>")
+        H.append(f"<h2>{e(suite['name'])} v{e(suite['version'])}, metrics {e(key[2])}, compute {e(key[3])}"
+                 f"{'' if key[4] else ' (not frozen)'}</h2>")
         H += [f"<p>{e(line)}</p>" for line in _intro(suite, notes) if line and not line.startswith("- ")]
         H += ["<ul>"] + [f"<li>{e(n)}</li>" for n in notes] + ["</ul>"]
         for title, hdr, rows in _tables(suite, build(subs, _scenarios(suite, subs))):
