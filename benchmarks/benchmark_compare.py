@@ -1,17 +1,20 @@
-"""Where the NMPC wins and where the industry's laws win, per actuator class, and by how much.
+"""Where the NMPC wins and where the industry's laws win, per actuator class, on the benchmark's order.
 
 Reads a benchmark's ``results.json`` (``mitigate benchmark ... --out DIR``) and prints, per scenario
-and like for like, the NMPC variant's median residual severity against the best industry law of
-its class (ratio < 1: the NMPC leaves less), with both intervals, whether the intervals separate
-(a win or a loss) or overlap (a tie), the times to suppress and the effort (set-point variation).
+and like for like, the NMPC variant against the best industry law of its class by the benchmark's
+own ranking (the job done in every run, then what the rig sees, the time to suppress, the string's
+peak torque, the drive's peak load, the set-point's excursion, the effort, each with its interval):
+a win when the NMPC is clearly better, a loss when the law is, a tie otherwise, and the ranked
+column that decided it.
 
 - drive set-point only: "NMPC motor only" against SoftSpeed and Z-Torque;
 - normal force only: "NMPC pin only" against the brake and D-OSKIL;
-- both: "NMPC" against every industry law (SoftSpeed, Z-Torque, the brake, D-OSKIL).
+- both: "NMPC" against "Z-Torque + D-OSKIL" (the two-actuator industry baseline).
 
 Examples::
 
     python benchmarks/benchmark_compare.py out/benchmark/results.json
+    python benchmarks/benchmark_compare.py benchmarks/results/reference/results.json.gz
     python benchmarks/benchmark_compare.py --quick          # runs a 1-scenario --quick benchmark first (CI)
 """
 
@@ -27,85 +30,95 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 CLASSES = (("drive set-point only", "NMPC motor only", ("SoftSpeed", "Z-Torque")),
            ("normal force only", "NMPC pin only", ("brake", "D-OSKIL")),
-           ("both", "NMPC", ("SoftSpeed", "Z-Torque", "brake", "D-OSKIL")))
+           ("both", "NMPC", ("Z-Torque + D-OSKIL",)))
 
 
-def _m(e, key, what="median"):
-    v = e["metrics"].get(key, {}).get(what)
-    return math.inf if v is None and what != "median" else (math.nan if v is None else float(v))
+def _entry(d: dict):
+    """A :class:`mitigate.benchmark.stats.Entry` from an entry of results.json."""
+    from mitigate.benchmark.entry import finite
+    from mitigate.benchmark.stats import Entry
+    e = Entry(d["scenario"], d["controller"], d["kind"], d["class"], d["applicable"], d["n_runs"], d["n_failed"],
+              d["n_violations"], d.get("n_force_violations", 0), d.get("n_speed_violations", 0), d["n_suppressed"],
+              d.get("n_stalled", 0))
+    e.metrics = {k: {w: finite(v[w]) for w in ("median", "ci_low", "ci_high")} for k, v in d["metrics"].items()}
+    e.rank, e.class_rank = d.get("rank"), d.get("class_rank")
+    return e
 
 
-def _pct(v):
-    return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{100 * v:.3g}"
-
-
-def _s(v):
-    if v is None or (isinstance(v, float) and math.isnan(v)):
+def _v(e, key, what="median", pct=False) -> str:
+    v = e.value(key, what)
+    if math.isnan(v):
         return "-"
-    return "never" if math.isinf(v) else f"{v:.3g}"
+    if math.isinf(v):
+        return "never"
+    return f"{100 * v:.3g}" if pct else f"{v:.3g}"
 
 
-def _misses(e) -> str:
-    """Deadline misses summed over the entry's runs (the controller's fallback acted instead)."""
-    v = e.get("counts", {}).get("controller_deadline_misses")
-    return "-" if v is None else str(v)
+def _ci(e, key, pct=False) -> str:
+    lo, hi = _v(e, key, "ci_low", pct), _v(e, key, "ci_high", pct)
+    return _v(e, key, pct=pct) if lo == hi else f"{_v(e, key, pct=pct)} [{lo}, {hi}]"
+
+
+def _best(cands):
+    """The law ranked best among ``cands`` by the benchmark's order (ties: the first listed)."""
+    from mitigate.benchmark.stats import clearly_better
+    return min(cands, key=lambda e: sum(clearly_better(o, e) for o in cands if o is not e))
 
 
 def compare(doc: dict) -> str:
-    entries = {(e["scenario"], e["controller"]): e for e in doc["entries"]}
-    L = [f"Benchmark `{doc['suite']}` ({doc['mode']}, {doc['phases']} phase(s) x {doc['seeds']} seed(s)).", ""]
+    from mitigate.benchmark.render import job_words
+    from mitigate.benchmark.stats import clearly_better, deciding
+    entries = {(e["scenario"], e["controller"]): _entry(e) for e in doc["entries"]}
+    s = doc["suite"]
+    L = [f"Benchmark `{s['name']}` v{s['version']} ({doc['mode']}, {s['phases']} phase(s) x {s['seeds']} seed(s)); "
+         f"compute model: {s['compute_model']}.", ""]
     for title, nmpc, laws in CLASSES:
         L += [f"### {title}: {nmpc} against the best of {', '.join(laws)}", "",
-              "| scenario | best law | law: what stays [%] | NMPC: what stays [%] | ratio NMPC/law | verdict | "
-              "t suppress law / NMPC [s] | set-point var. law / NMPC [1/s] | deadline misses law / NMPC |",
-              "|---|---|---|---|---|---|---|---|---|"]
-        wins = losses = ties = lower = higher = 0
-        ratios = []
-        for s in doc["scenarios"]:
-            n = entries.get((s, nmpc))
-            cand = [entries[(s, c)] for c in laws if (s, c) in entries and entries[(s, c)]["applicable"]
-                    and entries[(s, c)]["job_done"]]
-            if n is None or not n["applicable"] or not cand:
+              "| scenario | best law | verdict | decided by | NMPC: job | law: job | rig sees NMPC / law [%] | "
+              "t suppress NMPC / law [s] | string torque peak NMPC / law | drive load NMPC / law [%] | "
+              "set-point excursion NMPC / law [%] | set-point var. NMPC / law [1/s] | true what stays NMPC / law [%] |",
+              "|" + "---|" * 13]
+        wins = losses = ties = 0
+        where = {"win": [], "tie": [], "loss": []}
+        for sc in s["scenarios"]:
+            n = entries.get((sc, nmpc))
+            cand = [entries[(sc, c)] for c in laws if (sc, c) in entries and entries[(sc, c)].applicable]
+            if n is None or not n.applicable or not cand:
                 continue
-            best = min(cand, key=lambda e: _m(e, "residual_severity"))
-            rn, rb = _m(n, "residual_severity"), _m(best, "residual_severity")
-            ratio = rn / rb if rb > 0 else math.nan
-            if not n["job_done"]:
-                verdict, losses = "NMPC: job NOT done", losses + 1
-            elif min(n["n_runs"], best["n_runs"]) < 2:       # one run: no interval, nothing separates
-                if rn < rb:
-                    verdict, lower = "NMPC lower (1 run, unproven)", lower + 1
-                else:
-                    verdict, higher = "law lower (1 run, unproven)", higher + 1
-            elif _m(n, "residual_severity", "ci_high") < _m(best, "residual_severity", "ci_low"):
+            best = _best(cand)
+            if clearly_better(n, best):
                 verdict, wins = "NMPC wins", wins + 1
-            elif _m(best, "residual_severity", "ci_high") < _m(n, "residual_severity", "ci_low"):
+                where["win"].append(sc)
+            elif clearly_better(best, n):
                 verdict, losses = "law wins", losses + 1
+                where["loss"].append(sc)
             else:
                 verdict, ties = "tie", ties + 1
-            if math.isfinite(ratio):
-                ratios.append(ratio)
-            L.append(f"| {s} | {best['controller']} | {_pct(rb)} [{_pct(_m(best, 'residual_severity', 'ci_low'))}, "
-                     f"{_pct(_m(best, 'residual_severity', 'ci_high'))}] | {_pct(rn)} "
-                     f"[{_pct(_m(n, 'residual_severity', 'ci_low'))}, {_pct(_m(n, 'residual_severity', 'ci_high'))}] | "
-                     f"{ratio:.2f} | {verdict} | {_s(_m(best, 'time_to_suppress'))} / {_s(_m(n, 'time_to_suppress'))} | "
-                     f"{_s(_m(best, 'setpoint_variation'))} / {_s(_m(n, 'setpoint_variation'))} | "
-                     f"{_misses(best)} / {_misses(n)} |")
-        if ratios:
-            g = math.exp(sum(math.log(r) for r in ratios) / len(ratios))
-            single = f"; single runs (no interval): NMPC lower {lower}, law lower {higher}" if lower + higher else ""
-            L += ["", f"{nmpc}: wins {wins}, ties {ties}, loses {losses} (job not done included){single}; geometric "
-                      f"mean ratio of what stays {g:.2f} (range {min(ratios):.2f}-{max(ratios):.2f}).", ""]
-        else:
-            L += ["", "(no comparable entries)", ""]
+                where["tie"].append(sc)
+            L.append(f"| {sc} | {best.controller} | {verdict} | {deciding(n, best)} | {job_words(n)} | "
+                     f"{job_words(best)} | {_ci(n, 'measured_severity', True)} / {_ci(best, 'measured_severity', True)} | "
+                     f"{_ci(n, 'measured_time_to_suppress')} / {_ci(best, 'measured_time_to_suppress')} | "
+                     f"{_v(n, 'string_torque_peak')} / {_v(best, 'string_torque_peak')} | "
+                     f"{_v(n, 'drive_load_peak', pct=True)} / {_v(best, 'drive_load_peak', pct=True)} | "
+                     f"{_v(n, 'setpoint_excursion', pct=True)} / {_v(best, 'setpoint_excursion', pct=True)} | "
+                     f"{_v(n, 'setpoint_variation')} / {_v(best, 'setpoint_variation')} | "
+                     f"{_v(n, 'residual_severity', pct=True)} / {_v(best, 'residual_severity', pct=True)} |")
+        detail = "; ".join(f"{k}: {', '.join(v)}" for k, v in where.items() if v)
+        L += ["", f"{nmpc}: wins {wins}, ties {ties}, loses {losses}" + (f" ({detail})" if detail else "") + ".", ""]
     return "\n".join(L)
+
+
+def _load(path: Path) -> dict:
+    from mitigate.benchmark.entry import read_entry
+    return read_entry(path)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("results", nargs="?", help="a benchmark's results.json")
+    ap.add_argument("results", nargs="?", help="a benchmark's results.json (or .json.gz)")
     ap.add_argument("--quick", action="store_true",
                     help="run `mitigate benchmark --quick --only drillstring` into a temporary folder first and time it")
     args = ap.parse_args(argv)
@@ -114,7 +127,7 @@ def main(argv=None) -> int:
             t0 = time.perf_counter()
             cmd = [sys.executable, "-m", "mitigate.cli", "benchmark", str(ROOT / "scenarios/benchmark/suite.toml"),
                    "--quick", "--only", "drillstring", "--json", "--out", d]
-            r = subprocess.run(cmd, capture_output=True, text=True)
+            r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
             if r.returncode not in (0, 1):
                 sys.stderr.write(r.stderr)
                 return r.returncode
@@ -123,10 +136,11 @@ def main(argv=None) -> int:
         return 0
     if not args.results:
         ap.error("give a results.json or --quick")
+    from models.errors import DataError
     try:
-        doc = json.loads(Path(args.results).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        sys.stderr.write(f"benchmark_compare: {args.results}: {exc}\n")
+        doc = _load(Path(args.results))
+    except DataError as exc:
+        sys.stderr.write(f"benchmark_compare: {exc}\n")
         return 2
     print(compare(doc))
     return 0

@@ -5,18 +5,22 @@ From Python::
     from mitigate import tune
     r = tune("scenarios/benchmark/established.toml", "softspeed", budget=30, out="out/tune")
     r.best_options            # the controller's options table with the tuned values
-    r.held_out                # residual severity of the defaults and of the tuned values on other seeds
+    r.held_out                # the score and ranked metrics of the defaults and of the tuned values on other seeds
 
-A trial runs the controller with one set of values at ``phases`` switch-on phases (spread over the
-scenario's measured stick-slip period) and ``seeds`` TUNING noise seeds, and scores the mean of the
-ranking's first metric (:func:`mitigate.metrics.ranked`: the residual severity; a failed run scores
-10, a run outside the programme's band adds 1: the severity of a body that stopped).  The first trial is the shipped options.  Optuna's TPE sampler
-(seeded) proposes the rest; a median pruner stops a trial whose running mean is worse than the
-median of earlier trials at the same run.  The study lives in a journal file under ``out``
+A trial runs the controller with one set of values at ``phases`` TUNING switch-on phases and
+``seeds`` TUNING noise seeds, and scores the mean of the declared score that follows the ranking's
+order (:func:`mitigate.benchmark.score.run_score`: whether the run did the job, then what the rig
+sees, the time to suppress, the hardware loads and the effort).  The tuning phases lie halfway
+between the benchmark's (``grid`` phases at ``k T / grid``: the tuning's are at ``(m + 1/2) T / grid``),
+and its seeds are other seeds (:data:`TUNING_SEED_OFFSET`): a tuned controller is scored on phases
+and seeds it never saw.  The first trial is the shipped options.  Optuna's TPE sampler (seeded,
+multivariate, its random start-up trials a fifth of the budget: :func:`startup_trials`) proposes the
+rest; a median pruner stops a trial whose running mean is worse than the median of earlier trials at
+the same run.  The study lives in a journal file under ``out``
 (:class:`optuna.storages.JournalStorage`): an interrupted tuning continues where it stopped, and
 ``n_jobs`` processes share it (each with its own sampler seed; with one process the study is
 reproducible, with several the order of the trials depends on timing).  The result is then reported on HELD-OUT seeds that neither the
-tuning nor the benchmark (seeds 0 .. S-1) uses.
+tuning nor the benchmark (seeds 0 .. S-1) uses, at the benchmark's own phases.
 
 Each tunable is a multiple of its natural unit on the rig (:mod:`mitigate.tunables`); the tuned
 options are stored in SI, the multiples beside them.
@@ -38,13 +42,45 @@ from mitigate.metrics import MetricOptions, ranked
 from mitigate.record import RunRecord
 from mitigate.tunables import set_option
 
-__all__ = ["TuneResult", "tune", "tune_suite", "TUNING_SEED_OFFSET", "HELD_OUT_SEED_OFFSET", "FAILED_SCORE"]
+__all__ = ["TuneResult", "tune", "tune_suite", "startup_trials", "tuning_phases", "settings", "TUNING_SEED_OFFSET",
+           "HELD_OUT_SEED_OFFSET", "FAILED_SCORE", "DEFAULT_GRID"]
 
 #: seed indices of the tuning runs and of the held-out report (the benchmark uses 0 .. S-1)
 TUNING_SEED_OFFSET = 100
 HELD_OUT_SEED_OFFSET = 200
-#: the score of a failed run (ten times a stopped body's)
+#: the score of a run the rig cannot host (:data:`mitigate.benchmark.score.NOT_APPLICABLE`)
 FAILED_SCORE = 10.0
+#: the benchmark's switch-on phases the tuning keeps away from when none are given (the suite's default)
+DEFAULT_GRID = 6
+
+
+def startup_trials(budget: int) -> int:
+    """TPE's random start-up trials for a budget: a fifth of it, 2 to 20 (Optuna's default of 10 made a
+    budget of 12 a seeded random search)."""
+    return max(2, min(20, round(budget / 5)))
+
+
+def tuning_phases(phases: int, grid: int) -> list[float]:
+    """The tuning's switch-on phases as fractions of the stick-slip period: ``phases`` of the midpoints
+    ``(m + 1/2) / grid`` between the benchmark's ``grid`` phases ``k / grid``, spread evenly.
+
+    Raises
+    ------
+    ConfigError : more tuning phases than the grid has midpoints.
+    """
+    if phases > grid:
+        raise ConfigError(f"phases must be <= the benchmark's {grid} phases (the tuning's lie between them), "
+                          f"got {phases}")
+    return [(math.floor(k * grid / phases) + 0.5) / grid for k in range(phases)]
+
+
+def settings(budget: int, phases: int, seeds: int, grid: int, seed: int = 0) -> dict:
+    """How a suite was tuned (stored with the results)."""
+    from mitigate.benchmark.score import describe
+    return {"budget": budget, "sampler": f"Optuna TPE (seed {seed}, multivariate, {startup_trials(budget)} random "
+                                         f"start-up trials; the first trial the shipped options; median pruning)",
+            "phases": phases, "seeds": seeds, "phase_fractions": tuning_phases(phases, grid),
+            "seed_offset": TUNING_SEED_OFFSET, "score": describe()}
 
 
 @dataclass(frozen=True)
@@ -58,8 +94,9 @@ class TuneResult(Outcome):
     tunables : ``{name: {"low", "high", "log", "unit"}}`` (range in multiples of ``unit`` on this rig)
     best_params : ``{name: multiple}``; best_options : the options table with the tuned values (SI)
     best_value, default_value : mean score on the tuning runs, tuned and shipped
-    held_out : ``{"defaults" | "tuned": {"median", "ci_low", "ci_high", "n_runs"}}`` of the residual
-        severity on held-out seeds
+    held_out : ``{"defaults" | "tuned": {"n_runs", "failed", "violations", "score", <ranked metric>:
+        {"median", "ci_low", "ci_high"}}}`` on held-out seeds at the benchmark's phases (medians over
+        the runs that did the job)
     study : the journal file ("" in memory)
     """
 
@@ -96,13 +133,9 @@ def _optuna():
 
 
 def _score(rec: RunRecord) -> float:
-    """The ranking's first metric (:func:`mitigate.metrics.ranked`: the residual severity), plus 1 for a
-    run outside the programme's band; :data:`FAILED_SCORE` for a failed run."""
-    if rec.failed or not rec.applicable:
-        return FAILED_SCORE
-    first = ranked()[0]
-    v = rec.value(first.name)
-    return (v if first.better == "lower" else -v) + rec.metrics.get("band_violation", 0)
+    """:func:`mitigate.benchmark.score.run_score`: the ranking's order in one number."""
+    from mitigate.benchmark.score import run_score
+    return run_score(rec)
 
 
 class _Objective:
@@ -133,14 +166,14 @@ class _Objective:
         return total / len(self.tasks)
 
 
-def _study(storage_path: str | None, name: str, seed: int, definition_hash: str, force: bool):
+def _study(storage_path: str | None, name: str, seed: int, definition_hash: str, force: bool, budget: int = 50):
     optuna = _optuna()
     from optuna.storages import JournalStorage
     from optuna.storages.journal import JournalFileBackend
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     storage = JournalStorage(JournalFileBackend(storage_path)) if storage_path else None
-    sampler = optuna.samplers.TPESampler(seed=seed)
+    sampler = optuna.samplers.TPESampler(seed=seed, n_startup_trials=startup_trials(budget), multivariate=True)
     pruner = optuna.pruners.MedianPruner(n_startup_trials=5, n_warmup_steps=0)
     study = optuna.create_study(storage=storage, study_name=name, sampler=sampler, pruner=pruner,
                                 direction="minimize", load_if_exists=True)
@@ -163,9 +196,9 @@ def _finished(study) -> int:
 
 def _optimize(args) -> int:
     """A worker: load the study and run ``n`` trials (the pool's job)."""
-    storage_path, name, seed, h, objective, n = args
+    storage_path, name, seed, h, objective, n, budget = args
     from mitigate.workers import report
-    study = _study(storage_path, name, seed, h, False)
+    study = _study(storage_path, name, seed, h, False, budget)
     done = [0]
 
     def tick(_s, _t):            # a heartbeat per trial (the pool's stall watchdog) and the progress
@@ -193,19 +226,21 @@ def _resolve(scenario, controller):
     return sc.replace(controllers=(spec,)), spec
 
 
-def _tasks(sc, spec, ref: Reference, mo: MetricOptions, phases: int, seeds: int, offset: int) -> list[RunTask]:
+def _tasks(sc, spec, ref: Reference, mo: MetricOptions, fractions, seeds: int, offset: int) -> list[RunTask]:
+    """Runs at the switch-on phases ``fractions`` of the stick-slip period and seeds ``offset + j``."""
     out = []
-    for k in range(phases):
-        t_on = sc.control.start + (0.0 if ref.prevention else k * ref.period / phases)
+    for k, f in enumerate(fractions):
+        t_on = sc.control.start + (0.0 if ref.prevention else f * ref.period)
         for j in range(seeds):
             s = run_seed(sc.seed, k, offset + j)
-            out.append(RunTask(sc, spec.name, k, offset + j, round(t_on, 9), s, dict(spec.options), mo, "tune"))
+            out.append(RunTask(sc, spec.name, k, offset + j, round(t_on, 9), s, dict(spec.options), mo, "tune",
+                               ref.speed))
     return out
 
 
 def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, held_out_seeds: int = 2,
          metrics: MetricOptions | None = None, out=None, n_jobs: int = 1, seed: int = 0, force: bool = False,
-         progress: bool = False, reference: Reference | None = None) -> TuneResult:
+         progress: bool = False, reference: Reference | None = None, grid: int = DEFAULT_GRID) -> TuneResult:
     """Tune a controller's declared tunables on a scenario (module docstring).
 
     Parameters
@@ -214,7 +249,9 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
     controller : a controller name of the scenario, a kind (``"softspeed"``), a ControllerSpec or a
         ``{name, kind, options...}`` table; its options are the starting point (the first trial)
     budget : trials (each ``phases x seeds`` runs, fewer when pruned)
-    phases, seeds : tuning runs per trial; held_out_seeds : seeds per phase of the held-out report
+    phases, seeds : tuning runs per trial (:func:`tuning_phases` of ``grid``); held_out_seeds : seeds per
+        phase of the held-out report, at the benchmark's own ``grid`` phases
+    grid : the benchmark's switch-on phases (the tuning's lie between them)
     metrics : MetricOptions (its period is set from the scenario's uncontrolled run)
     out : folder of the study's journal file (None: in memory)
     n_jobs : processes sharing the study
@@ -226,13 +263,13 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
         tunables, or a study in ``out`` made for something else (without ``force``).
     """
     from mitigate.benchmark.execute import pool, run_task
-    from mitigate.benchmark.stats import interval
+    from mitigate.benchmark.stats import did_job, interval
     from mitigate.controllers.factory import context_for, make_controller
     from mitigate.sweep.store import definition_hash
     from mitigate.tunables import tunables_of
 
     for name, v, lo in (("budget", budget, 1), ("phases", phases, 1), ("seeds", seeds, 1),
-                        ("held_out_seeds", held_out_seeds, 0), ("n_jobs", n_jobs, 1)):
+                        ("held_out_seeds", held_out_seeds, 0), ("n_jobs", n_jobs, 1), ("grid", grid, 1)):
         if isinstance(v, bool) or not isinstance(v, int) or v < lo:
             raise ConfigError(f"{name} must be an integer >= {lo}, got {v!r}")
     t0 = time.perf_counter()
@@ -245,9 +282,12 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
     ref = reference or reference_run(sc, mo)
     mo = dataclasses.replace(mo, period=ref.period)
     space = {n: (t.low, t.high, t.log, t.integer, t.unit_value(ctrl.context)) for n, t in tun.items()}
-    objective = _Objective(_tasks(sc, spec, ref, mo, phases, seeds, TUNING_SEED_OFFSET), spec.options, space)
+    fractions = tuning_phases(phases, grid)
+    objective = _Objective(_tasks(sc, spec, ref, mo, fractions, seeds, TUNING_SEED_OFFSET), spec.options, space)
+    from mitigate.benchmark.score import describe
     h = definition_hash({"scenario": sc.name, "path": sc.path, "controller": [spec.kind, dict(spec.options)],
-                         "space": space, "phases": phases, "seeds": seeds, "period": ref.period})
+                         "space": space, "phases": fractions, "seeds": seeds, "period": ref.period,
+                         "score": describe(), "startup": startup_trials(budget)})
     name = f"{slug(sc.name)}__{slug(spec.name)}"
     path = None
     if out is not None:
@@ -256,7 +296,7 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
     elif n_jobs > 1:
         import tempfile
         path = str(Path(tempfile.mkdtemp(prefix="stickslip_tune_")) / f"{name}.journal")
-    study = _study(path, name, seed, h, force)
+    study = _study(path, name, seed, h, force, budget)
     if not study.trials:
         start = _start_params(ctrl, spec, space)
         if start:
@@ -270,7 +310,7 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
             study.optimize(objective, n_trials=remaining, callbacks=[lambda s, t: bar.update()])
         elif remaining:
             shares = [remaining // n_jobs + (i < remaining % n_jobs) for i in range(n_jobs)]
-            jobs = [((path, name, seed + i, h, objective, n),) for i, n in enumerate(shares) if n]
+            jobs = [((path, name, seed + i, h, objective, n, budget),) for i, n in enumerate(shares) if n]
             counts = [0] * len(jobs)
 
             def progress_of(i, k):
@@ -282,7 +322,7 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
                 for out in p.map(_optimize, jobs, on_progress=progress_of):
                     if not out.ok:
                         raise ConfigError(f"tuning {spec.name!r} on {sc.name!r}: a tuning worker failed: {out.error}")
-            study = _study(path, name, seed, h, False)
+            study = _study(path, name, seed, h, False, budget)
     finally:
         bar.close()
     from optuna.trial import TrialState
@@ -294,14 +334,17 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
     best_options = objective.options(best.params)
     held = {}
     if held_out_seeds:
-        ho = _tasks(sc, spec, ref, mo, phases, held_out_seeds, HELD_OUT_SEED_OFFSET)
+        ho = _tasks(sc, spec, ref, mo, [k / grid for k in range(grid)] if not ref.prevention else [0.0],
+                    held_out_seeds, HELD_OUT_SEED_OFFSET)
         for label, opts in (("defaults", dict(spec.options)), ("tuned", best_options)):
             recs = [run_task(dataclasses.replace(t, options=opts)) for t in ho]
-            vals = [r.value(ranked()[0].name) for r in recs if not r.failed and r.applicable]
-            med, lo, hi = interval(vals)
-            held[label] = {"median": med, "ci_low": lo, "ci_high": hi, "n_runs": len(recs),
-                           "failed": sum(r.failed for r in recs),
-                           "violations": sum(int(r.metrics.get("band_violation", 0)) for r in recs)}
+            done = [r for r in recs if did_job(r)]
+            held[label] = {"n_runs": len(recs), "failed": sum(r.failed for r in recs),
+                           "violations": sum(int(r.metrics.get("band_violation", 0)) for r in recs),
+                           "score": float(sum(_score(r) for r in recs) / len(recs))}
+            for m in ranked():
+                med, lo, hi = interval([r.value(m.name) for r in done])
+                held[label][m.name] = {"median": med, "ci_low": lo, "ci_high": hi}
     n_pruned = sum(t.state is TrialState.PRUNED for t in study.trials)
     return TuneResult(sc.name, spec.name, spec.kind, budget,
                       {n: {"low": lo, "high": hi, "log": log, "unit": u} for n, (lo, hi, log, _i, u) in space.items()},
@@ -339,10 +382,11 @@ def _start_params(ctrl, spec, space) -> dict:
 
 
 def tune_suite(suite, *, budget: int, out, refs: Mapping | None = None, jobs: int = 1, progress: bool = False,
-               phases: int = 2, seeds: int = 1) -> dict[tuple, dict]:
+               phases: int = 2, seeds: int = 1, grid: int | None = None) -> dict[tuple, dict]:
     """Tune every controller of a suite on every scenario with the same ``budget`` (controllers with
     no tunables, or that a rig cannot host, keep their options); ``{(scenario, controller): options}``.
-    Each study is kept under ``out``; ``out/tuning.json`` lists the results."""
+    ``grid``: the benchmark's phases (the suite's by default; the tuning's phases lie between them).
+    Each study is kept under ``out``; ``out/tuning.json`` lists the results and :func:`settings`."""
     import json
 
     from mitigate.controllers.factory import context_for, make_controller
@@ -361,8 +405,10 @@ def tune_suite(suite, *, budget: int, out, refs: Mapping | None = None, jobs: in
                 continue
             # no held-out report here: the benchmark that follows scores the tuned values on its own seeds
             r = tune(sc, spec, budget=budget, phases=phases, seeds=seeds, held_out_seeds=0, metrics=suite.metrics,
-                     out=out, n_jobs=jobs, progress=progress, reference=ref)
+                     out=out, n_jobs=jobs, progress=progress, reference=ref, grid=grid or suite.phases)
             tuned[(sc.name, spec.name)] = r.best_options
             results.append(r.as_dict())
-    atomic_write_text(Path(out) / "tuning.json", json.dumps(results, indent=2) + "\n", overwrite=True)
+    how = settings(budget, phases, seeds, grid or suite.phases)
+    atomic_write_text(Path(out) / "tuning.json", json.dumps({"settings": how, "studies": results}, indent=2) + "\n",
+                      overwrite=True)
     return tuned

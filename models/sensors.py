@@ -32,10 +32,13 @@ import numpy as np
 from models.checks import check_options, option, prefix
 from models.errors import ConfigError
 
-__all__ = ["SensorOptions", "Sensors", "quantise", "encoder_step", "channel_variance", "channel_std", "FLOOR"]
+__all__ = ["SensorOptions", "Sensors", "quantise", "encoder_step", "channel_variance", "channel_std", "FLOOR",
+           "ripple_floor", "NOISE_FLOOR_RISK"]
 
 #: variance floor that keeps noise covariances positive when a channel is ideal
 FLOOR = 1e-12
+#: the chance that a speed sensor's noise alone reads a peak-to-peak above :func:`ripple_floor`
+NOISE_FLOOR_RISK = 0.01
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -80,6 +83,34 @@ def stuck_speed(model, channel: str | None, dt: float, w_scale: float) -> float:
     if s is not None and s.kind == "encoder":
         return 0.5 * encoder_step(s) / dt
     return 0.05 * abs(w_scale)
+
+
+def ripple_floor(model, channel: str, dt: float, n: int, options: SensorOptions = SensorOptions()) -> float:
+    """The smallest peak-to-peak ripple [rad/s] that a speed channel tells apart from a steady
+    speed over ``n`` DAQ samples of period ``dt`` [s]: what the channel reads peak to peak when the
+    true speed's ripple is below its resolution.
+
+    - encoder speed (the backward difference of whole counts, :class:`Sensors`): two counts per
+      sample, ``2 q / dt`` with ``q`` the tick on its body.  A true speed whose per-sample increment
+      moves by less than one count reads at most three consecutive counts per sample (a steady speed
+      one or two), so up to two counts peak to peak mean nothing; ideal angles (``quantise=False``): 0;
+    - a speed sensor with Gaussian noise ``sigma`` (times ``noise_scale``): ``2 z sigma`` with ``z``
+      the level that all ``n`` samples' noise stays within with probability 1 - :data:`NOISE_FLOOR_RISK`
+      (two-sided, ``z = Phi^-1(1 - risk / (2 n))``; 0 for a noiseless sensor).
+
+    Raises
+    ------
+    ConfigError : no sensor of ``model`` writes ``channel`` as a speed.
+    """
+    from statistics import NormalDist
+    s = model.sensor_of(channel) if channel else None
+    if s is None or channel != s.channels[-1] or s.kind not in ("encoder", "speed"):
+        raise ConfigError(f"{model.name}: channel {channel!r} is not a speed channel of an encoder or speed sensor")
+    if s.kind == "encoder":
+        return 2.0 * encoder_step(s) / dt if options.quantise else 0.0
+    sd = s.noise * options.noise_scale
+    z = NormalDist().inv_cdf(1.0 - NOISE_FLOOR_RISK / (2.0 * max(int(n), 1)))
+    return 2.0 * z * sd
 
 
 def channel_variance(model, channel: str, dt: float, options: SensorOptions = SensorOptions()) -> float:

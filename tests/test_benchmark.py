@@ -44,7 +44,7 @@ description = "two short drill-string scenarios and a broken one"
 scenarios = ["drill.toml", "no_servo.toml", "runaway.toml"]
 phases = 2
 seeds = 1
-deadline = "off"    # bit-reproducible: no answer replaced because the machine was busy
+compute = "period"  # each answer one control period late, no wall-clock deadline: bit-reproducible
 
 [metrics]
 force_band = [0.8, 1.25]
@@ -105,18 +105,29 @@ def test_load_suite(suite_dir):
     assert [sc.name for sc in only.scenarios] == ["no_servo"]
 
 
-def test_the_suite_sets_every_scenarios_deadline_unless_the_scenario_does(suite_dir):
+def test_the_compute_model_replaces_the_wall_clock_unless_a_scenario_states_its_own(suite_dir, tmp_path):
+    """Every answer one control period late, no deadline (the suite's compute model); a fixed latency
+    the suite declares; a scenario with its own measured latency keeps it and is a timing scenario."""
     s = load_suite(suite_dir / "suite.toml")
+    assert s.compute == "period" and s.timing == ()
     assert all(sc.control.deadline is None for sc in s.scenarios)
+    assert [sc.control.latency for sc in s.scenarios] == [sc.dt * sc.control.every for sc in s.scenarios]
     text = (suite_dir / "suite.toml").read_text()
-    (suite_dir / "on.toml").write_text(text.replace('deadline = "off"', 'deadline = "period"'))
-    on = load_suite(suite_dir / "on.toml")
-    assert [sc.control.deadline for sc in on.scenarios] == [sc.dt * sc.control.every for sc in on.scenarios]
-    (suite_dir / "ms.toml").write_text(text.replace('deadline = "off"', 'deadline = "7 ms"'))
-    assert [sc.control.deadline for sc in load_suite(suite_dir / "ms.toml").scenarios] == pytest.approx([0.007] * 3)
-    (suite_dir / "bad.toml").write_text(text.replace('deadline = "off"', "deadline = true"))
-    with pytest.raises(ConfigError, match="suite.deadline must be"):
+    (suite_dir / "ms.toml").write_text(text.replace('compute = "period"', 'compute = "7 ms"'))
+    assert [sc.control.latency for sc in load_suite(suite_dir / "ms.toml").scenarios] == pytest.approx([0.007] * 3)
+    for f in suite_dir.iterdir():
+        (tmp_path / f.name).write_text(f.read_text())
+    (tmp_path / "drill.toml").write_text((suite_dir / "drill.toml").read_text().replace(
+        "[control]\n", '[control]\nlatency = "measured"\n'))
+    own = load_suite(tmp_path / "suite.toml")
+    assert own.scenario("drill").control.latency == "measured" and own.timing == ("drill",)
+    assert own.scenario("drill").control.deadline is None
+    (suite_dir / "bad.toml").write_text(text.replace('compute = "period"', "compute = true"))
+    with pytest.raises(ConfigError, match=r"suite\.compute must be \"period\" or a latency"):
         load_suite(suite_dir / "bad.toml")
+    (suite_dir / "old.toml").write_text(text.replace('compute = "period"', 'deadline = "off"'))
+    with pytest.raises(ConfigError, match=r"suite\.deadline: unknown key"):
+        load_suite(suite_dir / "old.toml")
 
 
 @pytest.mark.slow
@@ -152,13 +163,22 @@ def test_every_entry_has_n_runs_and_intervals(result):
         if s == "runaway":
             assert e.n_failed == 6 and not e.job_done
             continue
-        for key in ("residual_severity", "time_to_suppress", "peak_overshoot"):
+        for key in ("measured_severity", "measured_time_to_suppress", "residual_severity", "peak_overshoot"):
             m = e.metrics[key]
+            if e.n_bad == e.n_runs:         # no run did the job: no median
+                assert math.isnan(m["median"]), (s, c, key, m)
+                continue
             assert m["ci_low"] <= m["median"] <= m["ci_high"], (s, c, key, m)
     # 6 runs of D-OSKIL on the drill string suppress it; the programme alone (PI) never does
     dk, pi = result.entry("drill", "D-OSKIL"), result.entry("drill", "PI only")
     assert dk.value("residual_severity", "ci_high") < 0.05 < 0.9 < pi.value("residual_severity", "ci_low")
-    assert dk.n_suppressed == 6 and pi.n_suppressed == 0 and math.isinf(pi.value("time_to_suppress"))
+    assert dk.n_suppressed == 6 and pi.n_suppressed == 0 and math.isinf(pi.value("measured_time_to_suppress"))
+    # the rig sees the suppressed runs at its encoder's floor (two counts of 10000 per turn per 2 ms sample
+    # over twice the programme's 3 rad/s): they tie there
+    floor = 2 * (2 * math.pi / 10000) / 0.002 / (2 * 3.0)
+    assert dk.value("speed_floor") == pytest.approx(floor)
+    assert dk.value("measured_severity", "ci_low") == dk.value("measured_severity", "ci_high") == pytest.approx(floor)
+    assert pi.value("measured_severity") > 0.9
 
 
 @pytest.mark.slow
@@ -169,7 +189,10 @@ def test_like_for_like_classes_and_the_weight_on_bit_band(result):
     # the brake presses only when the bit overspeeds: it lifts the weight on bit to a few % of the
     # programme, leaves the band in every run and has not done the job, whatever its ripple
     b = e[("drill", "brake")]
-    assert b.n_violations == 6 and not b.job_done and b.value("normal_force_ratio") < 0.5
+    assert b.n_violations == 6 and not b.job_done
+    assert all(r.metrics["normal_force_ratio"] < 0.5 for r in result.records
+               if (r.run.scenario, r.run.controller) == ("drill", "brake"))
+    assert math.isnan(b.value("normal_force_ratio"))        # no run did the job: no median
     assert b.rank > e[("drill", "PI only")].rank
     assert e[("drill", "D-OSKIL")].n_violations == 0 and e[("drill", "D-OSKIL")].rank == 1
     t = result.tables
@@ -180,32 +203,45 @@ def test_like_for_like_classes_and_the_weight_on_bit_band(result):
     assert result.status is Status.FAILED
     assert result.message == "24 run(s) failed or diverged; no stick-slip at the switch-on of runaway"
     md = render_ranking(result)
-    assert "LEFT the programme's normal-force band in 6 of 6 runs" in md and "job NOT done" in md
-    assert re.search(r"\| 1 \| D-OSKIL \| force \| 6/6 \| [0-9.]+ \[[0-9.]+, [0-9.]+\]", md)
+    assert "**brake** (force class): job NOT done (6 of 6 runs: 6 left the force band" in md
+    assert re.search(r"\| 1 \| D-OSKIL \| force \| 6/6 \| [0-9.]+ \| [0-9.]+ \[[0-9.]+, [0-9.]+\]", md)
     # force and speed leave their bands separately: counted apart in the entries, the tables and the report
     assert b.n_force_violations == 6 and b.n_violations == b.n_force_violations + b.n_speed_violations \
         - sum(1 for r in result.records if r.run.scenario == "drill" and r.run.controller == "brake"
               and r.metrics.get("force_violation") and r.metrics.get("speed_violation"))
     brow = next(r for r in t["force"] if r["controller"] == "brake")
     assert brow["force_violations"] == 6 and brow["speed_violations"] == b.n_speed_violations
-    assert "| left force band | left speed band |" in md
-    assert re.search(r"\| brake \| force \| 6/6 \|.*\| 6 \| %d \|$" % b.n_speed_violations, md, re.M)
+    assert "| left force band | left speed band | stalled |" in md
+    assert re.search(r"\| brake \| force \| 0/6 \|.*\| 6 \| %d \| 0 \|$" % b.n_speed_violations, md, re.M)
+    # the class table and the verdict say the same: the brake's job is not done in either
+    assert re.search(r"^\| brake \| force \| [0-9.]+ \| 0/2 \| 0/2 \|", md, re.M)       # drill and runaway
 
 
 def test_ranks_declare_ties_where_intervals_overlap():
-    def entry(name, lo, med, hi, tts=(1.0, 1.0, 1.0), failed=0):
-        e = Entry("s", name, "k", "drive", n_runs=6, n_failed=failed)
-        e.metrics = {"residual_severity": {"ci_low": lo, "median": med, "ci_high": hi},
-                     "time_to_suppress": dict(zip(("ci_low", "median", "ci_high"), tts))}
+    from mitigate.metrics import ranked
+    first, second, third = (m.name for m in ranked()[:3])
+
+    def entry(name, lo, med, hi, tts=(1.0, 1.0, 1.0), failed=0, violations=0, torque=(2.0, 2.0, 2.0)):
+        e = Entry("s", name, "k", "drive", n_runs=6, n_failed=failed, n_violations=violations)
+        e.metrics = {first: {"ci_low": lo, "median": med, "ci_high": hi},
+                     second: dict(zip(("ci_low", "median", "ci_high"), tts)),
+                     third: dict(zip(("ci_low", "median", "ci_high"), torque))}
         return e
     a, b, c = entry("a", 0.01, 0.02, 0.03), entry("b", 0.025, 0.04, 0.05), entry("c", 0.06, 0.07, 0.08)
     assert rank([a, b, c]) == {"a": 1, "b": 1, "c": 3}        # a and b overlap: a tie; both clearly beat c
-    # overlapping severities, clearly faster suppression: ranked ahead
+    # overlapping oscillation, clearly faster suppression: ranked ahead
     f = entry("f", 0.01, 0.02, 0.03, tts=(0.5, 0.6, 0.7))
     assert rank([a, f]) == {"a": 2, "f": 1}
-    # a controller that failed most runs has not done the job: behind everyone that has
-    x = entry("x", 0.0, 0.0, 0.0, failed=4)
-    assert rank([a, c, x]) == {"a": 1, "c": 2, "x": 3}
+    # both at the sensor's floor and as fast: the string's peak torque decides
+    g = entry("g", 0.2, 0.2, 0.2, torque=(1.2, 1.3, 1.4))
+    h = entry("h", 0.2, 0.2, 0.2, torque=(1.8, 1.9, 2.1))
+    assert rank([g, h]) == {"g": 1, "h": 2}
+    # a controller with one failed run, or one run off the programme, has not done the job: behind everyone
+    # that has, whatever its numbers; of two that have not, the one with fewer bad runs is ahead
+    x = entry("x", 0.0, 0.0, 0.0, failed=1)
+    y = entry("y", 0.0, 0.0, 0.0, violations=3)
+    assert rank([a, c, x, y]) == {"a": 1, "c": 2, "x": 3, "y": 4}
+    assert not x.job_done and not y.job_done and a.job_done
 
 
 def test_bootstrap_interval_is_seeded_and_handles_never():
@@ -274,13 +310,15 @@ def test_write_benchmark(result, tmp_path):
     md = (out / "ranking.md").read_text()
     assert "# Benchmark `tiny` (defaults)" in md and "mitigate benchmark suite.toml" in md
     assert "not applicable" in md and "every run failed" in md
+    assert "Compute model: each controller answer applied one control period" in md
     rows = list(csv.DictReader((out / "results.csv").open()))
     assert len(rows) == 3 * 4 * 6 and sum(r["applicable"] == "False" for r in rows) == 12
     assert "residual_severity [-]" in rows[0] and "time_to_suppress [s]" in rows[0]
     ent = list(csv.DictReader((out / "entries.csv").open()))
     assert len(ent) == 12 and "residual_severity_ci_low [-]" in ent[0]
     doc = json.loads((out / "results.json").read_text())
-    assert doc["suite"] == "tiny" and len(doc["entries"]) == 12 and doc["files"]["png"].endswith("benchmark.png")
+    assert doc["suite"]["name"] == "tiny" and len(doc["entries"]) == 12 and "files" not in doc
+    assert len(doc["records"]) == 3 * 4 * 6 and doc["suite"]["compute"] == "period"
     assert (out / "benchmark.png").stat().st_size > 5000 and (out / "distribution.png").stat().st_size > 5000
     assert files["ranking"] == out / "ranking.md"
     with pytest.raises(ConfigError, match="exists"):
@@ -337,10 +375,10 @@ def test_the_cli_gives_every_entry_n_runs_and_its_interval(suite_dir, tmp_path, 
     code = main(["benchmark", str(suite_dir / "suite.toml"), "--only", "drill", "--phases", "3", "--seeds", "2",
                  "--jobs", "1", "--json", "--out", str(out)])
     doc = json.loads(capsys.readouterr().out)
-    assert code == 0 and doc["phases"] == 3 and doc["seeds"] == 2 and len(doc["entries"]) == 3
+    assert code == 0 and doc["suite"]["phases"] == 3 and doc["suite"]["seeds"] == 2 and len(doc["entries"]) == 3
     for e in doc["entries"]:
         assert e["n_runs"] == 6
-        for key in ("residual_severity", "time_to_suppress", "peak_overshoot"):
+        for key in ("measured_severity", "measured_time_to_suppress", "residual_severity", "peak_overshoot"):
             assert set(e["metrics"][key]) == {"median", "ci_low", "ci_high"}
     # written, and refused the second time without --force (nothing run); a failed run exits 1
     assert main(["benchmark", str(suite_dir / "suite.toml"), "--only", "drill", "--quick", "--out", str(out)]) == 2
@@ -392,7 +430,7 @@ def test_kill_9_then_rerun_redoes_only_the_unfinished_runs(suite_dir, tmp_path):
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     doc = json.loads(res.stdout)
-    assert doc["runs"] == 18 and doc["computed"] == 18 - done
+    assert doc["timing"]["runs"] == 18 and doc["timing"]["computed"] == 18 - done
     whole = run_benchmark(load_suite(suite_dir / "suite.toml", only=["drill"]), phases=3, seeds=2, jobs=1)
-    got = {(e["controller"]): e["metrics"]["residual_severity"]["median"] for e in doc["entries"]}
-    assert got == {c: e.value("residual_severity") for (s, c), e in whole.entries.items()}
+    got = {(e["controller"]): str(float(e["metrics"]["residual_severity"]["median"])) for e in doc["entries"]}
+    assert got == {c: str(e.value("residual_severity")) for (s, c), e in whole.entries.items()}   # NaN: no run did it

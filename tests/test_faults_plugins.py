@@ -199,12 +199,14 @@ def test_a_late_answer_is_a_counted_deadline_miss_and_the_fallback_acts():
     assert "deadline miss: the answer took" in bad.message
 
 
-def test_deadline_period_is_one_control_period_and_the_benchmark_turns_it_on():
+def test_deadline_period_is_one_control_period_and_the_benchmarks_compute_model_replaces_it():
     assert scenario(control={"deadline": "period", "every": 5}).control.deadline == pytest.approx(0.05)
     assert scenario().control.deadline is None                               # off by default
     from mitigate.benchmark import load_suite
-    suite = load_suite(ROOT / "scenarios/benchmark/suite.toml", only=["established"])
-    assert suite.scenarios[0].control.deadline == pytest.approx(suite.scenarios[0].dt * suite.scenarios[0].control.every)
+    suite = load_suite(ROOT / "scenarios/benchmark/suite.toml", only=["established", "latency"])
+    sc = suite.scenario("established")        # one control period late, no wall clock
+    assert sc.control.deadline is None and sc.control.latency == pytest.approx(sc.dt * sc.control.every)
+    assert suite.scenario("latency").control.latency == "measured" and suite.timing == ("latency",)
 
 
 @pytest.mark.parametrize("latency, delay", [("30 ms", 3), ("25 ms", 3), ("10 ms", 1), (0.0, 0)])

@@ -8,7 +8,6 @@ Cases run through ``mitigate.cli.main`` in this process (fast) unless they need 
 
 import json
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -321,13 +320,15 @@ def test_a_failing_plug_in_in_the_benchmark_fails_its_cell_and_the_command_exits
     bad_ = entries["Bad"]
     assert bad_["n_runs"] == 1 and bad_["n_failed"] == 1 and not bad_["job_done"]
     assert bad_["messages"] == ["controller failed at t = 1.000 s in step: ValueError: boom in step"]
-    # the benchmark turns the deadline on (one control period): a late answer is a counted miss
-    assert entries["Late"]["n_failed"] == 0
-    misses = int(re.search(r"(\d+) deadline miss\(es\)", entries["Late"]["messages"][0]).group(1))
-    assert 20 <= misses <= 30      # (wall clock: >= the 20 slow)
+    # the benchmark's compute model has no wall-clock deadline: a slow answer is applied one control
+    # period late like every other, and is no miss (the machine's speed does not enter the results)
+    assert entries["Late"]["n_failed"] == 0 and entries["Late"]["messages"] == []
+    assert "controller_deadline_misses" not in entries["Late"]["counts"]
     assert entries["PI only"]["n_failed"] == 0 and entries["PI only"]["messages"] == []
     assert doc["status"] == "failed"
-    assert "**Bad**: every run failed (controller failed at t = 1.000 s in step: ValueError: boom in step)" in \
+    # it set nothing before failing: classed "none" (the inputs it moved away from the programme)
+    assert ("**Bad** (none class): job NOT done (1 of 1 runs: 1 failed); every run failed (controller failed "
+            "at t = 1.000 s in step: ValueError: boom in step)") in \
         (ws / "o" / "ranking.md").read_text()
 
 

@@ -136,7 +136,32 @@ def test_closed_loop_metrics_hand_computed():
     # what stays: the last 2 periods (0.2 s, 2 samples: 0, 2) against the programmed 30 rpm = pi rad/s
     assert m["residual_window"] == pytest.approx(0.2) and m["period"] == 0.1
     assert m["residual_severity"] == pytest.approx(2 / (2 * math.pi)) and m["residual_stuck_fraction"] == 0.5
-    assert m["speed_ratio"] == pytest.approx(1 / math.pi) and m["peak_overshoot"] == 0.0
+    assert m["speed_ratio"] == pytest.approx(1 / math.pi)
+    # the overshoot is what the controller added over the uncontrolled run: none known here, NaN; with
+    # an uncontrolled run whose peak is 3.5 rad/s, a run peaking at 4 rad/s added 0.5 / pi
+    assert math.isnan(m["peak_overshoot"])
+    r4 = _result(sc, 2 * w1, 2 * w1, tw, cur, z, n2, w3, [0.001, 0.002, 0.003], [False, True, True])
+    unc = np.full(10, 1.0)
+    unc[6] = 3.5
+    assert M.closed_loop_metrics(r4, sc, opts, unc)["peak_overshoot"] == pytest.approx(0.5 / math.pi)
+    assert M.closed_loop_metrics(r, sc, opts, unc)["peak_overshoot"] == 0.0      # 2 rad/s: below the programme
+    # what the rig sees: the measured speed 0.1, 2.1 over the residual window, (2.1 - 0.1) / (2 pi); its
+    # floor two counts of rig3's 1000-tick R1 encoder per 0.1 s sample over 2 pi: 2 (2 pi / 1000) / 0.1 / (2 pi)
+    assert m["speed_floor"] == pytest.approx(0.02)
+    assert m["measured_severity"] == pytest.approx(2.0 / (2 * math.pi)) and m["suppressed"] == 0
+    assert m["measured_time_to_suppress"] == math.inf
+    # the hardware: the current alternates 1 and 3 A against rig3's i_max = 10 A; the commands equal the
+    # programme (n2's programme is 0: no excursion to measure); the string: shaft1 twisted +-0.1 rad (R1
+    # and R2 turn together, no damping torque), shaft2 untwisted with R2 at 0 or 2 against R3 at pi (its
+    # damping d2), over the steady sliding torque at pi rad/s: pin1's Stribeck friction at 20 N
+    assert m["drive_load_peak"] == pytest.approx(0.3) and m["setpoint_excursion"] == 0.0
+    steady = 20.0 * p["r1"] * (p["mu_k"] + (p["mu_s"] - p["mu_k"]) * math.exp(-math.pi / p["v_s"]))
+    # (the steady state is the regularised model's: its friction differs by ~1e-6 at pi rad/s)
+    assert m["string_torque_peak"] == pytest.approx(max(0.1 * p["k1"], math.pi * p["d2"]) / steady, rel=1e-5)
+    # the residual window: the body stuck half of it (not more than the stuck limit); a one-period band
+    # window is one sample here, and in one the body is stuck: the worst ratio to the programme is 0
+    assert m["stalled"] == 0 and m["speed_ratio_worst"] == 0.0
+    assert M.closed_loop_metrics(r, sc, dataclasses.replace(opts, stuck_limit=0.4))["stalled"] == 1
     # the rig3 pin1 load (N1 = 20 N, a positive programme) is the process: R1 slides at 2 rad/s for 3
     # samples; the applied force is the programmed one
     mu1 = mu = p["mu_k"] + (p["mu_s"] - p["mu_k"]) * math.exp(-2.0 / p["v_s"])
@@ -293,7 +318,9 @@ def test_a_torque_drive_tracks_its_speed_not_its_torque():
                          inputs=m.inputs)
     out = M.closed_loop_metrics(r, sc, M.MetricOptions(period=0.3))
     assert out["speed_error_rms"] == pytest.approx(0.1) and out["speed_ratio"] == pytest.approx(1.1)
-    assert out["peak_overshoot"] == pytest.approx(0.1)
+    # the overshoot the controller added over an uncontrolled run at the programme: 0.1 of it
+    assert M.closed_loop_metrics(r, sc, M.MetricOptions(period=0.3), np.full(10, 1.0))["peak_overshoot"] == \
+        pytest.approx(0.1)
 
 
 @pytest.mark.parametrize("kw, match", [

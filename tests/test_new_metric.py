@@ -98,37 +98,46 @@ def test_it_is_in_the_benchmarks_records_entries_and_tables(declared, tmp_path):
 
 
 def test_a_ranked_metric_is_read_by_the_ranking_in_its_order_and_direction():
-    """Two controllers tied on what stays and on the time to suppress: a third ranked metric, higher
-    better, decides; without it they share a rank."""
+    """Two controllers tied on every ranked metric: one more ranked metric, higher better, after the
+    others decides; without it they share a rank."""
+    shipped = [m.name for m in ranked()]
+
     def entry(name, cut):
         e = Entry("s", name, "k", "drive", n_runs=6)
-        e.metrics = {"residual_severity": {"ci_low": 0.01, "median": 0.02, "ci_high": 0.03},
-                     "time_to_suppress": {"ci_low": 1.0, "median": 1.0, "ci_high": 1.0},
-                     "rate_of_cut": dict(zip(("ci_low", "median", "ci_high"), cut))}
+        e.metrics = {m: {"ci_low": 0.01, "median": 0.02, "ci_high": 0.03} for m in shipped}
+        e.metrics["rate_of_cut"] = dict(zip(("ci_low", "median", "ci_high"), cut))
         return e
     a, b = entry("a", (1.0, 1.5, 2.0)), entry("b", (3.0, 3.5, 4.0))
     assert rank([a, b]) == {"a": 1, "b": 1}
-    metric("rate_of_cut", "m/s", "a test's rate of penetration", rank=3, better="higher")(lambda w: 0.0)
+    metric("rate_of_cut", "m/s", "a test's rate of penetration", rank=len(shipped) + 1,
+           better="higher")(lambda w: 0.0)
     try:
-        assert [m.name for m in ranked()] == ["residual_severity", "time_to_suppress", "rate_of_cut"]
+        assert [m.name for m in ranked()] == shipped + ["rate_of_cut"]
         assert rank([a, b]) == {"a": 2, "b": 1}
     finally:
         unregister("rate_of_cut")
     assert rank([a, b]) == {"a": 1, "b": 1}
 
 
-def test_peak_overshoot_is_shown_not_ranked():
-    """It was listed as ranked and never read by the ranking (issue 25 item 3): now declared as what
-    it is, a column beside the ranks."""
-    assert [m.name for m in ranked()] == ["residual_severity", "time_to_suppress"]
-    ov = get("peak_overshoot")
-    assert ov.rank is None and {"ranking", "scenario", "entries"} <= ov.show
+def test_the_ranking_order_and_what_is_shown_beside_it():
+    """Issue 27: ranked on what the rig sees, then how fast, then the loads that damage hardware, then
+    the effort; the true-speed residual and the overshoot are shown beside, not ranked; no timing
+    metric is ranked or among the compared results."""
+    assert [m.name for m in ranked()] == ["measured_severity", "measured_time_to_suppress", "string_torque_peak",
+                                          "drive_load_peak", "setpoint_excursion", "setpoint_variation"]
+    for name in ("peak_overshoot", "residual_severity"):
+        m = get(name)
+        assert m.rank is None and {"ranking", "scenario", "entries"} <= m.show
+    from mitigate.metrics import COMPARED
+    assert all(not (m.show & COMPARED) and m.rank is None for m in registered() if m.timing)
+    with pytest.raises(ConfigError, match=r"a timing metric .* is never ranked nor shown in entries"):
+        metric("bad_timing", "ms", "a wall-clock one", timing=True, show=("entries",))
 
 
 @pytest.mark.parametrize("kw, match", [
     ({"needs": ("servo", "gearbox")}, r"needs 'gearbox' is not one of controlled, "),
     ({"show": ("poster",)}, r"show 'poster' is not one of entries, "),
-    ({"rank": 1}, r"rank 1 is already 'residual_severity''s"),
+    ({"rank": 1}, r"rank 1 is already 'measured_severity''s"),
     ({"kind": "flag", "rank": 7}, r"only a single value can be ranked"),
     ({"better": "up"}, r"better must be \"lower\" or \"higher\", got 'up'"),
 ])

@@ -24,7 +24,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("models", "estimators", "mitigate")
-DATA_SUFFIXES = (".toml", ".c", ".h")   # rig and parameter files; the compiled steps' C sources
+DATA_SUFFIXES = (".toml", ".c", ".h", ".json")   # rig and parameter files; the compiled steps' C sources; the benchmark's schema
 # data files the package-data patterns must cover before any exist in the tree
 EXAMPLE_DATA = ("models/rigs/example_rig.toml", "models/data/example_params.toml")
 

@@ -60,7 +60,7 @@ def test_report_json_and_table_of_a_run(tmp_path, capsys):
     # short tables (the CSV keeps every metric); "job done" agrees with each verdict
     hdr = next(ln for ln in rep.splitlines() if ln.startswith("| controller |"))
     cells = [c.strip() for c in hdr.strip("|").split("|")]
-    assert len(cells) <= 10 and cells[-1] == "job done" and "what stays [-]" in cells
+    assert len(cells) <= 10 and cells[-1] == "job done" and "rig sees [-]" in cells and "true what stays [-]" in cells
     term_lines = term.splitlines()
     head = next(ln for ln in term_lines if ln.startswith("controller "))
     assert len(re.split(r"\s{2,}", head.strip())) <= 10
@@ -69,7 +69,8 @@ def test_report_json_and_table_of_a_run(tmp_path, capsys):
     for name, *_ in LAWS:
         row = next(ln for ln in rep.splitlines() if ln.startswith(f"| {name} |"))
         done = [c.strip() for c in row.strip("|").split("|")][-1]
-        assert done == ("yes" if _verdict_line(rep, name).endswith("; job done.") else "no"), name
+        assert done == ("yes" if f"**{name}** " in _verdict_line(rep, name) and ": job done;" in _verdict_line(rep, name)
+                        else "no"), name
         trow = next(ln for ln in term_lines if ln.startswith(name + "  "))
         assert trow.split()[-1] == done
 
@@ -135,9 +136,11 @@ def test_no_generic_nmpc_centred_why_list(tmp_path):
     p.write_text(scenario_toml('[scenario]\nname = "s"\nduration = 2.0', controllers=[PI, ("NMPC", "nmpc")]))
     sc = load_scenario(p)
     base = {k: 0.0 for k in units()}
-    runs = [ControllerRun("PI only", "pi", None, {**base, "residual_severity": 0.1, "time_to_suppress": 1.0}),
-            ControllerRun("NMPC", "nmpc", None, {**base, "residual_severity": 0.5, "time_to_suppress": math.inf,
-                                                 "plan_median_ms": 4.0, "plan_p95_ms": 12.0, "solve_max_ms": 30.0})]
+    runs = [ControllerRun("PI only", "pi", None, {**base, "measured_severity": 0.1, "measured_time_to_suppress": 1.0}),
+            ControllerRun("NMPC", "nmpc", None, {**base, "measured_severity": 0.5,
+                                                 "measured_time_to_suppress": math.inf, "band_violation": 1,
+                                                 "speed_violation": 1, "plan_median_ms": 4.0, "plan_p95_ms": 12.0,
+                                                 "solve_max_ms": 30.0})]
     res = SimpleNamespace(runs=runs, status=Status.OK, message="ok", elapsed=1.0)
     rep = render_report(sc, res, output_paths(sc, tmp_path), slugs([r.name for r in runs]))
     assert "Why a model-based controller" not in rep and "regularised (tanh)" not in rep

@@ -178,18 +178,23 @@ def test_a_target_speed_on_a_speed_setting_drive_is_refused():
                       control={"speed": "2 rad/s"})
 
 
-def test_a_verdict_does_not_call_kept_stick_slip_a_job_done():
-    """item 6: PI on the held-out rig read 'never suppressed; ...; job done' (inside the bands)."""
-    from mitigate.benchmark.render import verdict
+def test_a_verdict_says_kept_stick_slip_stays_and_agrees_with_the_tables():
+    """item 6: PI on the held-out rig read 'never suppressed; ...; job done' (inside the bands), and the
+    table said one thing and the sentence another.  Issue 27's order: the job done (the programme kept),
+    THEN suppressed or not; the sentence says both, in the words the tables use."""
+    from mitigate.benchmark.render import job_words, verdict
     from mitigate.benchmark.stats import Entry
     e = Entry("s", "PI", "pi", n_runs=1, n_suppressed=0,
-              metrics={k: {"median": v} for k, v in (("residual_severity", 1.12), ("time_to_suppress", math.inf),
+              metrics={k: {"median": v} for k, v in (("measured_severity", 1.1), ("residual_severity", 1.12),
+                                                   ("measured_time_to_suppress", math.inf),
                                                    ("setpoint_variation", 0.0))})
-    assert e.job_done
+    assert e.job_done and job_words(e) == "job done"
     text = verdict(e)
-    assert "never suppressed" in text and text.endswith("the stick-slip stays: job NOT done.")
+    assert text.startswith("**PI**: job done;") and "but the stick-slip stays: never suppressed" in text
     done = verdict(Entry("s", "N", "nmpc", n_runs=1, n_suppressed=1, metrics=e.metrics))
-    assert done.endswith("; job done.")
+    assert done.startswith("**N**: job done;") and "stick-slip stays" not in done
+    bad = Entry("s", "B", "brake", n_runs=4, n_violations=1, n_force_violations=1, n_suppressed=3, metrics=e.metrics)
+    assert verdict(bad).startswith("**B**: job NOT done (1 of 4 runs: 1 left the force band);")
 
 
 @pytest.mark.slow

@@ -25,7 +25,7 @@ from models.status import Status
 from mitigate.benchmark.plan import RunTask, task_scenario
 from mitigate.record import RunRecord
 
-__all__ = ["run_task", "RunStore", "execute", "pool", "failed_record"]
+__all__ = ["run_task", "RunStore", "execute", "pool", "failed_record", "commanded_inputs"]
 
 #: environment of every worker process: one BLAS/OpenMP thread (the matrices are tiny; threads only
 #: add contention), set before the workers import numpy
@@ -35,8 +35,12 @@ WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THRE
 def run_task(task: RunTask) -> RunRecord:
     """Run one task; its :class:`mitigate.record.RunRecord`.  A controller the rig cannot host is not
     applicable (``applicable = False``, the reason in ``message``); a controller that raises, or a run
-    that diverges, is FAILED with the reason."""
+    that diverges, is FAILED with the reason; so is a controller that commands an input it does not
+    declare in ``actuated_inputs()`` (its class would not be like for like).  The actuator class is that
+    of the declared inputs (:func:`actuator_class`), or, for a controller that keeps the base class's
+    ``actuated_inputs`` (every input), that of the inputs its actions set."""
     from mitigate.closedloop import run_closed_loop
+    from mitigate.controllers.base import Controller
     from mitigate.controllers.factory import context_for, make_controller
     from mitigate.metrics import closed_loop_metrics
     from mitigate.tunables import actuator_class
@@ -51,15 +55,41 @@ def run_task(task: RunTask) -> RunRecord:
                                   applicable=False)
     except Exception as exc:  # noqa: BLE001 - a user's controller may fail in any way: its run fails
         return RunRecord.measured(run, Status.FAILED, _one_line(exc), {}, elapsed=time.perf_counter() - t0)
-    klass = actuator_class(sc.model, ctrl.actuated_inputs())
+    declares = type(ctrl).actuated_inputs is not Controller.actuated_inputs
+    declared: tuple = ()
     try:
+        declared = tuple(ctrl.actuated_inputs()) if declares else ()
         res = run_closed_loop(sc, ctrl)
-        met = closed_loop_metrics(res, sc, task.metrics)
+        met = closed_loop_metrics(res, sc, task.metrics, task.uncontrolled)
     except Exception as exc:  # noqa: BLE001 - a controller or estimator that raises fails its run
+        klass = actuator_class(sc.model, declared) if declares else ""
         return RunRecord.measured(run, Status.FAILED, _one_line(exc), {}, elapsed=time.perf_counter() - t0,
                                   actuator_class=klass)
+    used = commanded_inputs(res, sc)
+    klass = actuator_class(sc.model, declared if declares else used)
+    extra = [n for n in used if declares and n not in declared]
+    if extra:
+        return RunRecord.measured(run, Status.FAILED, f"the controller commanded {', '.join(extra)}, which its "
+                                  f"actuated_inputs() does not declare ({', '.join(declared) or 'none'})", met,
+                                  elapsed=time.perf_counter() - t0, actuator_class=klass)
     return RunRecord.measured(run, res.status, res.message, met, elapsed=time.perf_counter() - t0,
                               actuator_class=klass)
+
+
+def commanded_inputs(result, scenario) -> tuple[str, ...]:
+    """The inputs a run's controller set away from the programme while it was in charge."""
+    import numpy as np
+    on = np.asarray(result.controller_active, bool)
+    if not on.any():
+        return ()
+    prog = np.array([scenario.programme(t) for t in result.t[on]]).reshape(int(on.sum()), -1)
+    out = []
+    for name, cmd in result.commands.items():
+        c = np.asarray(cmd, float)[on]
+        p = prog[:, scenario.model.inputs.index(name)]
+        if np.any(np.isfinite(c) & (c != p)):
+            out.append(name)
+    return tuple(out)
 
 
 def failed_record(task: RunTask, why: str) -> RunRecord:

@@ -53,6 +53,9 @@ class Reference:
     stick_slip : the objective body sticks and slips in the period before the switch-on
     severity_before : severity of that period against the programmed speed [-]
     residual_severity : the uncontrolled run's residual severity (what a controller removes) [-]
+    speed : (m,) the objective body's true speed in the uncontrolled run from t = 0 at the DAQ period
+        [rad/s] (a run switched on at any phase is the same run until its switch-on: what it added is
+        measured against this; not in :meth:`as_dict`)
     """
 
     scenario: str
@@ -62,9 +65,10 @@ class Reference:
     stick_slip: bool
     severity_before: float
     residual_severity: float
+    speed: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "speed"}
 
 
 @dataclass(frozen=True)
@@ -72,7 +76,8 @@ class RunTask:
     """One closed-loop run of the benchmark (everything a worker needs, picklable).
 
     ``options`` are the controller's raw options (the suite's, or tuned ones); ``metrics`` has the
-    scenario's measured ``period``.
+    scenario's measured ``period``; ``uncontrolled`` is the scenario's uncontrolled speed
+    (:attr:`Reference.speed`).
     """
 
     scenario: object = field(repr=False)
@@ -84,6 +89,7 @@ class RunTask:
     options: Mapping = field(default_factory=dict, repr=False)
     metrics: MetricOptions = field(default_factory=MetricOptions, repr=False)
     tag: str = ""
+    uncontrolled: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def key(self) -> str:
@@ -148,7 +154,8 @@ def reference_run(scenario, metrics: MetricOptions = MetricOptions()) -> Referen
     n_res = int(round(windows(metrics, period, sc.duration - start, dt)[0] / dt))
     end = int(round(sc.duration / dt)) + 1
     tail = w[max(0, end - max(n_res, 2)):end] if run.success else w[:0]
-    return Reference(sc.name, float(period), source, prevention, bool(slip_before), sev_before, sev(tail))
+    return Reference(sc.name, float(period), source, prevention, bool(slip_before), sev_before, sev(tail),
+                     np.asarray(w, float) if run.success else None)
 
 
 def task_scenario(task: RunTask):
@@ -189,5 +196,5 @@ def make_tasks(suite, references: Mapping[str, Reference], *, phases: int, seeds
                 t_on = sc.control.start + (0.0 if ref.prevention else k * ref.period / phases)
                 for j in range(seeds):
                     s = run_seed(sc.seed, k, j)
-                    tasks.append(RunTask(sc, c.name, k, j, round(t_on, 9), s, opts, mo, tag))
+                    tasks.append(RunTask(sc, c.name, k, j, round(t_on, 9), s, opts, mo, tag, ref.speed))
     return tasks

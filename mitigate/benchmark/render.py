@@ -8,7 +8,7 @@ import math
 from mitigate.benchmark.stats import Entry
 from mitigate.metrics import Metric, ranked, shown
 
-__all__ = ["render_ranking", "verdict", "fmt", "CLASS_TITLES", "table_header", "table_value"]
+__all__ = ["render_ranking", "verdict", "job_words", "fmt", "CLASS_TITLES", "table_header", "table_value"]
 
 CLASS_TITLES = {
     "overall": "Overall (every controller, whatever it actuates)",
@@ -50,28 +50,55 @@ def _ci(e: Entry, metric: Metric) -> str:
             f"{table_value(metric, m['ci_high'])}]")
 
 
+def job_words(e: Entry) -> str:
+    """The verdict on the job, the one wording the tables and the verdict sentences share:
+    ``job done`` (every run kept the programme and finished) or ``job NOT done (k of n runs ...)``."""
+    if not e.applicable:
+        return "not applicable"
+    if e.job_done:
+        return "job done"
+    why = []
+    for n, what in ((e.n_failed, "failed"), (e.n_speed_violations, "left the speed band"),
+                    (e.n_force_violations, "left the force band"), (e.n_stalled, "stalled")):
+        if n:
+            why.append(f"{n} {what}")
+    return f"job NOT done ({e.n_bad} of {e.n_runs} runs: {', '.join(why) or 'no run'})"
+
+
 def verdict(e: Entry, ref=None, programme_force: bool = False) -> str:
-    """One sentence: what stays, how fast, at what effort, whether the job was done, where it left
-    the programme's band."""
+    """One sentence: whether the job was done (:func:`job_words`, as in the tables), what the rig sees
+    and what truly stays, how fast, the hardware loads, the effort, where it left the programme.  The
+    medians are over the runs that did the job."""
     if not e.applicable:
         return f"**{e.controller}**: not applicable ({e.messages[0] if e.messages else 'the rig lacks what it needs'})."
-    if e.n_failed == e.n_runs:
-        return f"**{e.controller}**: every run failed ({e.messages[0] if e.messages else 'no reason given'})."
-    rs = e.value("residual_severity")
     cls = f" ({e.klass} class)" if e.klass else ""
-    parts = [f"**{e.controller}**{cls}: what stays is {fmt(rs, 100)} % of the programmed "
-             f"speed" + (f" (uncontrolled {fmt(ref.residual_severity, 100)} %)" if ref is not None else "")]
-    n_ok = e.n_runs - e.n_failed
-    tts = e.value("time_to_suppress")
+    head = f"**{e.controller}**{cls}: {job_words(e)}"
+    if e.n_failed == e.n_runs:
+        return f"{head}; every run failed ({e.messages[0] if e.messages else 'no reason given'})."
+    n_done = e.n_runs - e.n_bad
+    if n_done == 0:
+        return f"{head}; no run did the job, so no median."
+    parts = [head]
+    over = f" over the {n_done} run(s) that did the job" if e.n_bad else ""
+    ms, fl = e.value("measured_severity"), e.value("speed_floor")
+    rs = e.value("residual_severity")
+    parts.append(f"the rig sees {fmt(ms, 100)} % of the programmed speed (floor {fmt(fl, 100)} %), {fmt(rs, 100)} % truly "
+                 f"stays" + (f" (uncontrolled {fmt(ref.residual_severity, 100)} %)" if ref is not None else "") + over)
+    tts = e.value("measured_time_to_suppress")
     if e.n_suppressed == 0:
-        parts.append("never suppressed")
-    elif e.n_suppressed < n_ok:
-        parts.append(f"suppressed in {e.n_suppressed} of {n_ok} runs (median {fmt(tts)} s after the switch-on)")
+        parts.append("but the stick-slip stays: never suppressed as far as the rig can tell")
+    elif e.n_suppressed < n_done:
+        parts.append(f"suppressed in {e.n_suppressed} of {n_done} runs (median {fmt(tts)} s after the switch-on)")
     else:
-        parts.append(f"suppressed {fmt(tts)} s after the switch-on" + (" (median)" if n_ok > 1 else ""))
+        parts.append(f"suppressed {fmt(tts)} s after the switch-on" + (" (median)" if n_done > 1 else ""))
+    loads = [f"string torque peak {fmt(e.value('string_torque_peak'))} x steady"]
+    if not math.isnan(e.value("drive_load_peak")):
+        loads.append(f"drive load peak {fmt(e.value('drive_load_peak'), 100)} % of its limit")
+    loads.append(f"set-point excursion {fmt(e.value('setpoint_excursion'), 100)} %")
     ov = e.value("peak_overshoot")
     if not math.isnan(ov):
-        parts.append(f"overshoot {fmt(ov, 100)} %")
+        loads.append(f"overshoot added {fmt(ov, 100)} %")
+    parts.append("hardware: " + ", ".join(loads))
     eff = [f"set-point variation {fmt(e.value('setpoint_variation'))} /s"]
     if not math.isnan(e.value("drive_energy")):
         eff.append(f"drive {fmt(e.value('drive_energy'))} J")
@@ -79,66 +106,88 @@ def verdict(e: Entry, ref=None, programme_force: bool = False) -> str:
         eff.append(f"brake wear {fmt(e.value('pin_work'))} J")
     parts.append("effort: " + ", ".join(eff))
     fr = e.value("normal_force_ratio")
-    if e.n_force_violations:
-        parts.append(f"LEFT the programme's normal-force band in {e.n_force_violations} of {n_ok} runs (mean force "
-                     f"{fmt(fr, 100)} % of the programme)")
-    elif programme_force and not math.isnan(fr):
-        parts.append(f"normal force kept ({fmt(fr, 100)} % of the programme)")
+    if programme_force and not math.isnan(fr):
+        parts.append(f"mean normal force {fmt(fr, 100)} % of the programme")
     cw = e.value("cutting_work_ratio")
     if programme_force and not math.isnan(cw) and abs(cw - 1) > 0.05:
         parts.append(f"cutting work {fmt(cw, 100)} % of what the programmed force would do")
-    rsr = e.value("residual_speed_ratio")
-    if e.n_speed_violations:
-        parts.append(f"LEFT the programme's speed band in {e.n_speed_violations} of {n_ok} runs (mean speed "
-                     f"{fmt(rsr, 100)} % of the programme at the end)")
     if e.n_failed:
-        parts.append(f"{e.n_failed} of {e.n_runs} runs FAILED ({e.messages[0] if e.messages else ''})")
+        parts.append(f"failures: {e.messages[0] if e.messages else 'no reason given'}")
     fb = e.counts.get("controller_fallbacks", 0)
     if fb:
         parts.append(f"{fb} fallback(s)")
-    if e.job_done and e.n_suppressed == 0:
-        parts.append("within the programme's bands, but the stick-slip stays: job NOT done")
-    else:
-        parts.append("job done" if e.job_done else "job NOT done")
     return "; ".join(parts) + "."
 
 
 def _class_table(rows) -> list[str]:
     cols = shown("ranking")
     hdr = ["controller", "class", "mean rank", "first", "job done"] + [table_header(m) for m in cols] + \
-        ["runs", "failed", "left force band", "left speed band", "fallbacks"]
+        ["runs", "failed", "left force band", "left speed band", "stalled", "fallbacks"]
     L = ["| " + " | ".join(hdr) + " |", "|" + "---|" * len(hdr)]
     for r in rows:
         L.append("| " + " | ".join([r["controller"], r["class"] or "-", f"{r['mean_rank']:.2f}",
                                     f"{r['first']}/{r['scenarios']}", f"{r['job_done']}/{r['scenarios']}"]
                                    + [table_value(m, r[m.name]) for m in cols]
                                    + [str(r["n_runs"]), str(r["failed"]), str(r["force_violations"]),
-                                      str(r["speed_violations"]), str(r["fallbacks"])])
+                                      str(r["speed_violations"]), str(r["stalled"]), str(r["fallbacks"])])
                  + " |")
+    return L
+
+
+def how_to_read() -> str:
+    """The paragraph that says how the benchmark ranks (the report's and the leaderboard's)."""
+    return ("How to read it. Every number is the median over the runs of a controller on a scenario that DID THE JOB "
+            "(its switch-on phases spread over one stick-slip period of the uncontrolled run, and its noise seeds), "
+            "with a 95 % bootstrap interval in brackets. A run did the job when it finished and kept the programme: "
+            "the objective body's mean speed and every programmed normal force inside the suite's bands over the "
+            "last stick-slip periods AND over every one-period moving window (from one period after the switch-on), "
+            "and the body not stuck for more than the suite's stuck limit of the last periods; any other run is a "
+            "failed run, counted and never a median entry. An entry did the job when every run did. The ranked "
+            "columns, in order: "
+            + " ".join(f"*{m.header or m.name}* ({m.name}, {m.better} is better): {m.description}." for m in ranked())
+            + " A rank is one plus the number of controllers clearly better: one that did the job beats one that "
+            "did not (two that did not: fewer failed runs); otherwise, in the order above, at the first ranked "
+            "column whose intervals do not overlap, the one whose interval lies entirely on the better side. "
+            "Overlapping intervals share a rank; an entry with a failed run is never counted first. The true "
+            "speed's residual (*true what stays*), the overshoot the controller added, the drive energy and the "
+            "brake wear are shown beside the ranks, never folded into them. Wall-clock call times are this "
+            "machine's and are reported apart.")
+
+
+def _timing_table(res) -> list[str]:
+    """This machine's call times per controller (medians over scenarios of each entry's median), apart."""
+    from mitigate.benchmark.stats import timing_metrics
+    keys = [k for k in timing_metrics() if k.startswith("plan_")]
+    names = [c.name for c in res.suite.controllers]
+    L = ["| controller | " + " | ".join(f"{k} [ms]" for k in keys) + " | deadline misses |",
+         "|" + "---|" * (len(keys) + 2)]
+    for n in names:
+        es = [e for (s, c), e in res.entries.items() if c == n and e.applicable]
+        vals = []
+        for k in keys:
+            v = [e.timings.get(k, math.nan) for e in es]
+            v = [x for x in v if not math.isnan(x)]
+            vals.append(fmt(sorted(v)[len(v) // 2]) if v else "-")
+        misses = sum(int(r.timings.get("controller_deadline_misses", 0) or 0) for r in res.records
+                     if r.run.controller == n)
+        L.append(f"| {n} | " + " | ".join(vals) + f" | {misses} |")
     return L
 
 
 def render_ranking(res, command: str = "") -> str:
     """The markdown report of a :class:`mitigate.benchmark.BenchmarkResult`."""
     su = res.suite
-    L = [f"# Benchmark `{su.name}` ({res.mode})", "", su.description, ""]
+    title = f"{su.name} v{su.version}" if su.version else su.name
+    L = [f"# Benchmark `{title}` ({res.mode})", "", su.description, ""]
     if command:
         L += ["Made with:", "", "```bash", command, "```", ""]
     L += [f"{len(su.scenarios)} scenarios x {len(su.controllers)} controllers x {res.phases} switch-on phase(s) x "
           f"{res.seeds} noise seed(s) = {len(res.records)} runs ({res.computed} computed now); wall time "
           f"{res.elapsed:.0f} s; status: {res.status.value} ({res.message}).", "",
-          "How to read it. Every number is the median over a controller's runs on a scenario (its switch-on "
-          "phases spread over one stick-slip period of the uncontrolled run, and its noise seeds), with a 95 % "
-          "bootstrap interval in brackets. "
-          + " ".join(f"*{m.header or m.name}* ({m.name}): {m.description}." for m in ranked()) +
-          " A rank is one plus the number of controllers clearly better: a controller that did the job (kept the "
-          "programme, did not fail) beats one that did not; otherwise, in this order, "
-          + ", then ".join(f"*{m.header or m.name}* ({m.better} is better)" for m in ranked()) +
-          ": at the first whose intervals do not overlap, the one whose interval lies entirely on the better side. "
-          "The programme is the speed and the normal forces: a run whose mean speed over the last periods, or "
-          "mean applied normal force, leaves the suite's band around it has not drilled as programmed. "
-          "Overlapping intervals share a rank. Every other column (effort: set-point variation per second, "
-          "drive energy, brake wear) is shown beside the ranks, never folded into them.", ""]
+          f"Compute model: {su.compute_text}. Metrics version {res.metrics_version}."
+          + (f" Timing scenarios (each answer applied after its own measured computation time, or a wall-clock "
+             f"deadline: their numbers depend on this machine, and they are left out of the class tables): "
+             f"{', '.join(su.timing)}." if su.timing else ""), "", how_to_read(), ""]
     L += ["## The uncontrolled runs", "",
           "| scenario | kind | stick-slip period [s] | stick-slip at switch-on | severity before [%] | "
           "what stays uncontrolled [%] |", "|---|---|---|---|---|---|"]
@@ -163,22 +212,30 @@ def render_ranking(res, command: str = "") -> str:
         es = sorted((res.entries[(sc.name, n)] for n in names), key=lambda e: (e.rank or 10**6, e.controller))
         prog_force = any(sc.model.contact_of_input(n) is not None and sc.inputs[n](sc.control.start) > 0
                          for n in sc.model.servo_inputs)
-        L += [f"## Scenario `{sc.name}`", "", sc.description, "",
-              "| rank | controller | class | runs | " + " | ".join(table_header(m) for m in cols)
-              + " | left force band | left speed band |", "|" + "---|" * (len(cols) + 6)]
+        timing = " (a TIMING scenario: its numbers depend on this machine; not in the class tables)" \
+            if sc.name in su.timing else ""
+        L += [f"## Scenario `{sc.name}`{timing}", "", sc.description, "",
+              "| rank | controller | class | did the job | " + " | ".join(table_header(m) for m in cols)
+              + " | left force band | left speed band | stalled |", "|" + "---|" * (len(cols) + 7)]
         for e in es:
             if not e.applicable:
-                L.append(f"| - | {e.controller} | - | 0 | n/a |" + " |" * (len(cols) + 1))
+                L.append(f"| - | {e.controller} | - | n/a |" + " |" * (len(cols) + 3))
                 continue
-            L.append(f"| {e.rank} | {e.controller} | {e.klass} | {e.n_runs - e.n_failed}/{e.n_runs} | "
+            L.append(f"| {e.rank} | {e.controller} | {e.klass} | {e.n_runs - e.n_bad}/{e.n_runs} | "
                      + " | ".join(_ci(e, m) for m in cols)
-                     + f" | {e.n_force_violations} | {e.n_speed_violations} |")
+                     + f" | {e.n_force_violations} | {e.n_speed_violations} | {e.n_stalled} |")
         L.append("")
         L += [f"- {verdict(e, ref, prog_force)}" for e in es]
         L.append("")
+    L += ["## Computation time on this machine (not ranked)", "",
+          "Median over scenarios of each entry's median call time, and the deadline misses of the timing "
+          "scenarios: wall-clock numbers of the machine that ran this, which the compute model keeps out of every "
+          "ranked result.", ""] + _timing_table(res) + [""]
     if res.tuned:
-        L += ["## Tuned values", "", "Each controller tuned on this scenario with the same budget (`mitigate tune`), "
-              "on tuning seeds the benchmark does not use:", "", "| scenario | controller | options |", "|---|---|---|"]
+        L += ["## Tuned values", "", "Each controller tuned on this scenario with the same budget (`mitigate tune`: "
+              f"{res.tuning.get('budget', '?')} trials, {res.tuning.get('sampler', '')}), on switch-on phases and "
+              "noise seeds the benchmark does not use, scored in the ranking's order:", "",
+              "| scenario | controller | options |", "|---|---|---|"]
         for (s, c), o in res.tuned.items():
             L.append(f"| {s} | {c} | {', '.join(f'{k} = {v}' for k, v in sorted(_flat(o).items()))} |")
         L.append("")

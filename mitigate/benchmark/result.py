@@ -24,7 +24,7 @@ from mitigate.benchmark.plan import Reference, make_tasks, reference_run
 from mitigate.benchmark.stats import Entry, class_tables, rank, summarise
 from mitigate.benchmark.suite import Suite
 
-__all__ = ["BenchmarkResult", "run_benchmark", "references", "definition"]
+__all__ = ["BenchmarkResult", "run_benchmark", "assemble", "references", "definition"]
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,8 @@ class BenchmarkResult(Outcome):
     tables : ``{"overall" | "drive" | "force" | "both": rows}`` (:func:`mitigate.benchmark.stats.class_tables`)
     phases, seeds : per (scenario, controller)
     tuned : ``{(scenario, controller): options}`` when the controllers were tuned (``mode == "tuned"``)
+    tuning : how they were tuned (budget, sampler, tuning phases and seeds; empty for the defaults)
+    metrics_version : :data:`mitigate.metrics.METRICS_VERSION` of the code that scored the runs
     status : :meth:`Status.worst` of the runs (FAILED if a run failed -- the others' results stand --,
         WARNING if a run warned), and WARNING when a suppression scenario has no stick-slip at its switch-on
     """
@@ -58,6 +60,8 @@ class BenchmarkResult(Outcome):
     message: str = "ok"
     files: dict = field(default_factory=dict)
     computed: int = 0
+    tuning: dict = field(default_factory=dict)
+    metrics_version: str = ""
 
     def entry(self, scenario: str, controller: str) -> Entry:
         try:
@@ -65,18 +69,12 @@ class BenchmarkResult(Outcome):
         except KeyError:
             raise ConfigError(f"no entry for controller {controller!r} on scenario {scenario!r}") from None
 
-    def as_dict(self) -> dict[str, Any]:
-        from mitigate.cliutil import to_jsonable
-        return to_jsonable({
-            "suite": self.suite.name, "mode": self.mode, "phases": self.phases, "seeds": self.seeds,
-            "status": self.status.value, "message": self.message, "elapsed_s": self.elapsed,
-            "runs": len(self.records), "computed": self.computed,
-            "scenarios": [sc.name for sc in self.suite.scenarios], "controllers": [c.name for c in self.suite.controllers],
-            "references": {k: v.as_dict() for k, v in self.references.items()},
-            "entries": [e.as_dict() for e in self.entries.values()],
-            "tables": self.tables,
-            "tuned": [{"scenario": s, "controller": c, "options": o} for (s, c), o in self.tuned.items()],
-            "files": {k: str(v) for k, v in self.files.items()}})
+    def as_dict(self, provenance: Mapping | None = None) -> dict[str, Any]:
+        """The results as a submittable entry (:func:`mitigate.benchmark.entry.entry_document`: every
+        run's record, the suite's version and compute model, ``provenance``), which the results' JSON
+        Schema accepts; everything but its ``timing`` and ``provenance`` is the same on any machine."""
+        from mitigate.benchmark.entry import entry_document
+        return entry_document(self, provenance)
 
 
 def references(suite: Suite, jobs: int = 1) -> dict[str, Reference]:
@@ -97,6 +95,8 @@ def references(suite: Suite, jobs: int = 1) -> dict[str, Reference]:
 
 #: modules that only present results (a change to them does not change a run)
 _PRESENTATION = ("mitigate/benchmark/render.py", "mitigate/benchmark/figures.py", "mitigate/benchmark/write.py",
+                 "mitigate/benchmark/entry.py", "mitigate/benchmark/leaderboard.py", "mitigate/benchmark/freeze.py",
+                 "mitigate/benchmark/generate.py", "mitigate/benchmark/score.py", "mitigate/benchmark/schema",
                  "mitigate/benchmark/stats.py", "mitigate/benchmark/result.py", "mitigate/benchmark/__init__.py",
                  "mitigate/report.py", "mitigate/plots.py", "mitigate/timeplots.py", "mitigate/cliutil.py",
                  "mitigate/cli.py", "mitigate/tune.py", "mitigate/commands/")
@@ -136,8 +136,8 @@ def definition(suite: Suite, phases: int, seeds: int, tuned: Mapping | None = No
 
 def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None = None, jobs: int = 2,
                   store: str | Path | None = None, force: bool = False, scheduler: str | None = None, client=None,
-                  progress: bool = False, tuned: Mapping | None = None, refs: Mapping | None = None
-                  ) -> BenchmarkResult:
+                  progress: bool = False, tuned: Mapping | None = None, refs: Mapping | None = None,
+                  tuning: Mapping | None = None) -> BenchmarkResult:
     """Run every controller of ``suite`` on every scenario at ``phases`` switch-on instants and
     ``seeds`` noise seeds, and rank them.
 
@@ -149,6 +149,7 @@ def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None 
     force : discard a store holding a different benchmark
     tuned : ``{(scenario, controller): options}`` replacing the suite's options (the tuned mode)
     refs : precomputed ``{scenario: Reference}``
+    tuning : how ``tuned`` was made (:func:`mitigate.tune.tune_suite`'s ``settings``), stored with the results
 
     Returns
     -------
@@ -163,7 +164,15 @@ def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None 
     computed: list = []
     recs = execute(tasks, store=st, jobs=jobs, scheduler=scheduler, client=client, progress=progress,
                    desc=f"benchmark {suite.name}", on_record=computed.append)
-    records = list(recs.values())
+    return assemble(suite, refs, list(recs.values()), phases=phases, seeds=seeds, tuned=tuned, tuning=tuning,
+                    elapsed=time.perf_counter() - t0, computed=len(computed))
+
+
+def assemble(suite: Suite, refs: Mapping, records: list, *, phases: int, seeds: int, tuned: Mapping | None = None,
+             tuning: Mapping | None = None, elapsed: float = 0.0, computed: int = 0) -> BenchmarkResult:
+    """A :class:`BenchmarkResult` from every run's record (:func:`run_benchmark` once its runs are done,
+    or a store's records read back): the entries, their ranks, the class tables, the status."""
+    from mitigate.metrics import METRICS_VERSION
     kinds = {c.name: c.kind for c in suite.controllers}
     entries = summarise(records, kinds)
     scen = [sc.name for sc in suite.scenarios]
@@ -171,7 +180,8 @@ def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None 
     for s in scen:
         for c, r in rank([entries[(s, c)] for c in names]).items():
             entries[(s, c)].rank = r
-    tables = class_tables(entries, scen, names)
+    # the class tables rank on the machine-independent scenarios only (the suite's timing ones apart)
+    tables = class_tables(entries, [s for s in scen if s not in suite.timing], names)
     for klass, rows in tables.items():
         if klass == "overall":
             continue
@@ -192,7 +202,7 @@ def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None 
         notes.append(f"{warned} run(s) with warnings")
     # the whole is as good as its worst run (Status.worst); a suppression scenario without stick-slip warns
     status = Status.worst(runs + ([Status.WARNING] if no_slip else []))
-    return BenchmarkResult(suite, refs, records, entries, tables, phases, seeds, "tuned" if tuned else "defaults",
-                           dict(tuned or {}), time.perf_counter() - t0, status, "; ".join(notes) or "ok",
-                           computed=len(computed))
+    return BenchmarkResult(suite, dict(refs), records, entries, tables, phases, seeds,
+                           "tuned" if tuned else "defaults", dict(tuned or {}), elapsed, status, "; ".join(notes) or "ok",
+                           computed=computed, tuning=dict(tuning or {}), metrics_version=METRICS_VERSION)
 

@@ -3,17 +3,22 @@ with ties, and the tables per actuator class.
 
 Each entry (a controller on a scenario, over its phases and seeds) gives ``n_runs`` and, per metric
 the registry shows in ``"entries"`` (:func:`mitigate.metrics.shown`: the ranked ones first), the
-median over the runs that finished and its 95 % bootstrap interval (:func:`scipy.stats.bootstrap`,
+median over the runs that DID THE JOB and its 95 % bootstrap interval (:func:`scipy.stats.bootstrap`,
 percentile method, a fixed seed: the same runs give the same interval); the registry's counts are
-summed over those runs.
+summed over those runs.  A run did the job when it finished (no failure, no divergence) and kept the
+programme (:func:`did_job`: the ``band_violation`` flag is 0: the objective body's speed and every
+programmed normal force inside their bands over the residual window and over every moving band window,
+and the body not stalled).  Any other run is a FAILED run of the benchmark: it is counted, never a
+median entry.  The timing metrics (this machine's wall clock) are summarised apart (``timings``).
 
 **Ranks.**  Within a table (a scenario, over a set of controllers), A is *clearly better* than B when
-A did the job and B did not (most of B's runs failed or left the programme: the band of an actuated
-normal force, or of the objective body's speed once the transient is over), or, both alike, in the
-registry's ranking order (:func:`mitigate.metrics.ranked`: the residual severity, then the time to
-suppress): at the first ranked metric whose intervals do not overlap, A's lies entirely on the better
-side of B's.  A controller's rank is one plus the number of controllers clearly better than it:
-controllers whose intervals overlap share a rank (a tie is declared, not broken by a decimal).
+A did the job in every run and B did not, or, both alike, in the registry's ranking order
+(:func:`mitigate.metrics.ranked`: what the rig sees, the time to suppress, the string's peak torque,
+the drive's peak load, the set-point's excursion, the effort): at the first ranked metric whose
+intervals do not overlap, A's lies entirely on the better side of B's.  Two entries that both failed
+runs are ordered by their failed runs only (fewer is better).  A controller's rank is one plus the
+number of controllers clearly better than it: controllers whose intervals overlap share a rank (a tie
+is declared, not broken by a decimal).  An entry with a failed run is never counted first.
 """
 
 from __future__ import annotations
@@ -28,7 +33,8 @@ from mitigate.metrics import Metric, ranked, registered, shown
 from mitigate.record import RunRecord
 from mitigate.tunables import ACTUATOR_CLASSES
 
-__all__ = ["interval", "summarise", "rank", "class_tables", "Entry", "clearly_better", "entry_metrics"]
+__all__ = ["interval", "summarise", "rank", "class_tables", "Entry", "clearly_better", "deciding", "entry_metrics",
+           "did_job", "timing_metrics"]
 
 CONFIDENCE = 0.95
 
@@ -36,6 +42,16 @@ CONFIDENCE = 0.95
 def entry_metrics() -> tuple[str, ...]:
     """The metrics an entry summarises (median and interval): the registry's ``"entries"``."""
     return tuple(m.name for m in shown("entries"))
+
+
+def timing_metrics() -> tuple[str, ...]:
+    """The timing metrics an entry summarises apart (medians of this machine's wall clock)."""
+    return tuple(m.name for m in registered() if m.timing and m.kind == "value")
+
+
+def did_job(r: RunRecord) -> bool:
+    """The run finished and kept the programme (its ``band_violation`` flag is 0)."""
+    return r.applicable and not r.failed and not _flag(r, "band_violation")
 
 
 def interval(values, *, seed: int = 0) -> tuple[float, float, float]:
@@ -74,7 +90,9 @@ class Entry:
     n_force_violations: int = 0
     n_speed_violations: int = 0
     n_suppressed: int = 0
+    n_stalled: int = 0
     metrics: dict = field(default_factory=dict)        # key -> {"median", "ci_low", "ci_high"}
+    timings: dict = field(default_factory=dict)        # timing metric -> median (this machine's wall clock)
     counts: dict = field(default_factory=dict)
     messages: list = field(default_factory=list)
     rank: int | None = None
@@ -83,9 +101,13 @@ class Entry:
 
     @property
     def job_done(self) -> bool:
-        """Most runs finished inside the programme's bands: every actuated normal force's and the
-        objective body's speed's (:class:`mitigate.metrics.MetricOptions`)."""
-        return self.applicable and self.n_runs > 0 and (self.n_failed + self.n_violations) * 2 < self.n_runs
+        """Every run did the job (:func:`did_job`): none failed, none left the programme's bands or stalled."""
+        return self.applicable and self.n_runs > 0 and self.n_failed + self.n_violations == 0
+
+    @property
+    def n_bad(self) -> int:
+        """Runs that did not do the job (failed, left a band, stalled)."""
+        return self.n_failed + self.n_violations
 
     def value(self, key: str, what: str = "median") -> float:
         return float(self.metrics.get(key, {}).get(what, math.nan))
@@ -94,7 +116,8 @@ class Entry:
         return {"scenario": self.scenario, "controller": self.controller, "kind": self.kind, "class": self.klass,
                 "applicable": self.applicable, "n_runs": self.n_runs, "n_failed": self.n_failed,
                 "n_violations": self.n_violations, "n_force_violations": self.n_force_violations,
-                "n_speed_violations": self.n_speed_violations, "n_suppressed": self.n_suppressed, "job_done": self.job_done, "rank": self.rank,
+                "n_speed_violations": self.n_speed_violations, "n_stalled": self.n_stalled,
+                "n_suppressed": self.n_suppressed, "job_done": self.job_done, "rank": self.rank,
                 "class_rank": self.class_rank, "metrics": self.metrics, "counts": self.counts,
                 "messages": self.messages[:5], "options": self.options}
 
@@ -109,7 +132,7 @@ def summarise(records: Iterable[RunRecord], kinds: Mapping[str, str], *, seed: i
     groups: dict[tuple, list[RunRecord]] = {}
     for r in records:
         groups.setdefault((r.run.scenario, r.run.controller), []).append(r)
-    counts = [m.name for m in registered() if m.kind == "count"]
+    counts = [m.name for m in registered() if m.kind == "count" and not m.timing]
     out = {}
     for (s, c), recs in groups.items():
         e = Entry(s, c, kinds.get(c, ""), options=dict(recs[0].run.options))
@@ -126,11 +149,16 @@ def summarise(records: Iterable[RunRecord], kinds: Mapping[str, str], *, seed: i
         e.n_violations = sum(_flag(r, "band_violation") for r in ok)
         e.n_force_violations = sum(_flag(r, "force_violation") for r in ok)
         e.n_speed_violations = sum(_flag(r, "speed_violation") for r in ok)
-        e.n_suppressed = sum(math.isfinite(r.metrics.get("time_to_suppress", math.inf)) for r in ok)
+        e.n_stalled = sum(_flag(r, "stalled") for r in ok)
+        done = [r for r in ok if did_job(r)]
+        e.n_suppressed = sum(_flag(r, "suppressed") for r in done)
         e.messages = sorted({r.message for r in app if r.failed or r.message not in ("ok", "")})
         for key in entry_metrics():
-            med, lo, hi = interval([r.value(key) for r in ok], seed=seed)
+            med, lo, hi = interval([r.value(key) for r in done], seed=seed)
             e.metrics[key] = {"median": med, "ci_low": lo, "ci_high": hi}
+        for key in timing_metrics():
+            v = [x for r in ok if math.isfinite(x := r.value(key))]
+            e.timings[key] = float(np.median(v)) if v else math.nan
         e.counts = {k: int(sum(v for r in ok if math.isfinite(v := r.value(k)))) for k in counts}
         out[(s, c)] = e
     return out
@@ -148,13 +176,27 @@ def clearly_better(a: Entry, b: Entry) -> bool:
     if a.job_done != b.job_done:
         return a.job_done
     if not a.job_done:
-        return False
+        return a.n_bad < b.n_bad
     for m in ranked():
         if _better(a, b, m):
             return True
         if _better(b, a, m):
             return False
     return False
+
+
+def deciding(a: Entry, b: Entry) -> str:
+    """What decides between two entries in the ranking's order: ``"job done"`` (one did the job in every
+    run, the other not), ``"bad runs"`` (neither did; fewer failed runs), the first ranked metric whose
+    intervals separate them, or ``"tie"``."""
+    if a.job_done != b.job_done:
+        return "job done"
+    if not a.job_done:
+        return "bad runs" if a.n_bad != b.n_bad else "tie"
+    for m in ranked():
+        if _better(a, b, m) or _better(b, a, m):
+            return m.name
+    return "tie"
 
 
 def rank(entries: Iterable[Entry]) -> dict[str, int]:
@@ -187,12 +229,13 @@ def class_tables(entries: Mapping[tuple, Entry], scenarios, controllers) -> dict
             es = [entries[(s, c)] for s in mine]
             row: dict[str, Any] = {"controller": c, "kind": es[0].kind, "class": es[0].klass, "scenarios": len(mine),
                                    "mean_rank": float(np.mean([ranks[(s, c)] for s in mine])),
-                                   "first": int(sum(ranks[(s, c)] == 1 for s in mine)),
+                                   "first": int(sum(ranks[(s, c)] == 1 and entries[(s, c)].job_done for s in mine)),
                                    "job_done": int(sum(e.job_done for e in es)),
                                    "n_runs": int(sum(e.n_runs for e in es)), "failed": int(sum(e.n_failed for e in es)),
                                    "violations": int(sum(e.n_violations for e in es)),
                                    "force_violations": int(sum(e.n_force_violations for e in es)),
                                    "speed_violations": int(sum(e.n_speed_violations for e in es)),
+                                   "stalled": int(sum(e.n_stalled for e in es)),
                                    "fallbacks": int(sum(e.counts.get("controller_fallbacks", 0) for e in es))}
             for key in entry_metrics():
                 v = np.array([e.value(key) for e in es], float)

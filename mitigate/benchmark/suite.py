@@ -3,11 +3,13 @@
 A suite is a TOML file (``scenarios/benchmark/suite.toml``)::
 
     [suite]
-    name = "stickslip-benchmark-2"
+    name = "stickslip-benchmark"
+    version = "1"       # the frozen suite's version (mitigate.benchmark.freeze)
     scenarios = ["established.toml", "bistable.toml", ...]   # relative to the suite file
     phases = 6          # switch-on instants spread over one stick-slip period (reference results)
     seeds = 3           # noise seeds per switch-on instant
-    deadline = "period" # each controller call's real-time budget ("off", "5 ms"; a scenario's own wins)
+    compute = "period"  # the compute model: each answer applied one control period late ("period"),
+                        # or after a fixed latency ("2 ms", "0 s"); no deadline, so no wall clock
 
     [metrics]           # mitigate.metrics.MetricOptions, e.g. the programme's band of a normal force
     force_band = [0.8, 1.25]
@@ -15,6 +17,14 @@ A suite is a TOML file (``scenarios/benchmark/suite.toml``)::
     [[controllers]]     # run on every scenario (as a scenario's [[controllers]])
     name = "SoftSpeed"
     kind = "softspeed"
+
+**The compute model.**  The ranked results never depend on the machine: every controller's answer
+is applied ``compute`` late (one control period, or the suite's fixed latency) and no call has a
+wall-clock deadline, so the same command gives the same numbers on any machine and at any load.  A
+scenario that states its own ``[control] latency`` or ``deadline`` keeps it; one whose latency is
+``"measured"`` (each answer applied after its own computation time: the suite's ``latency``) or that
+has a deadline depends on the machine: it is a TIMING scenario (:attr:`Suite.timing`), reported apart
+from the ranked results.
 
 A scenario of the suite may list ``[[controllers]]`` of its own: they are replaced by the suite's.
 A scenario whose control starts at t = 0 is a PREVENTION scenario (from rest, no stick-slip yet);
@@ -30,12 +40,13 @@ from typing import Mapping
 
 from models.checks import options_from_mapping, read_toml
 from models.errors import ConfigError
+from mitigate.scenario_fields import MAX_CALL_TIME, si_value
 from mitigate.metrics import MetricOptions
 from mitigate.scenario import ControllerSpec, Scenario, parse_scenario
 
-__all__ = ["Suite", "load_suite", "controller_spec"]
+__all__ = ["Suite", "load_suite", "controller_spec", "compute_model"]
 
-_SUITE_KEYS = ("name", "description", "scenarios", "phases", "seeds", "deadline")
+_SUITE_KEYS = ("name", "version", "description", "scenarios", "phases", "seeds", "compute")
 
 
 @dataclass(frozen=True)
@@ -51,6 +62,9 @@ class Suite:
         scenario from the uncontrolled run)
     phases, seeds : the suite's defaults for the reference results
     path : the suite file
+    version : ``[suite] version`` ("" for a suite that is not frozen)
+    compute : the compute model as the suite states it ("period" or a latency such as "2 ms")
+    timing : names of the TIMING scenarios (their results depend on the machine: module docstring)
     """
 
     name: str
@@ -61,6 +75,16 @@ class Suite:
     metrics: MetricOptions = MetricOptions()
     phases: int = 6
     seeds: int = 3
+    version: str = ""
+    compute: str = "period"
+    timing: tuple[str, ...] = ()
+
+    @property
+    def compute_text(self) -> str:
+        """The compute model in words (the results and the leaderboard state it)."""
+        when = "one control period" if self.compute == "period" else self.compute
+        return (f"each controller answer applied {when} after the sample it was computed for; no wall-clock "
+                f"deadline (results independent of the machine)")
 
     def scenario(self, name: str) -> Scenario:
         """The scenario called ``name``."""
@@ -131,13 +155,19 @@ def load_suite(path, *, extra_controllers=(), only=None) -> Suite:
         raise ConfigError(f"{where}: suite.scenarios must be a list of scenario files, got {files!r}")
     phases = _count(s.get("phases", 6), f"{where}: suite.phases")
     seeds = _count(s.get("seeds", 3), f"{where}: suite.seeds")
-    # every controller call's real-time budget unless a scenario states its own ([control] deadline:
-    # "period", "off" or a time); a late answer is a counted miss and the fallback acts -- a run with
-    # misses depends on the machine's load (bit-reproducible only without)
-    deadline = s.get("deadline", "period")
-    if isinstance(deadline, bool) or not isinstance(deadline, (str, int, float)):
-        raise ConfigError(f"{where}: suite.deadline must be \"period\", \"off\" or a time such as \"5 ms\", "
-                          f"got {deadline!r}")
+    compute = s.get("compute", "period")
+    if compute != "period":
+        try:
+            ok = not isinstance(compute, bool) and 0 <= si_value(compute, "time", f"{where}: suite.compute") \
+                <= MAX_CALL_TIME
+        except ConfigError:
+            ok = False
+        if not ok:
+            raise ConfigError(f"{where}: suite.compute must be \"period\" or a latency >= 0 such as \"2 ms\", "
+                              f"got {compute!r}")
+    version = s.get("version", "")
+    if not isinstance(version, str):
+        raise ConfigError(f"{where}: suite.version must be a string such as \"1\", got {version!r}")
     metrics = options_from_mapping(MetricOptions, data.get("metrics", {}), f"{where}: metrics")
     raw = data.get("controllers")
     if not isinstance(raw, list) or not raw:
@@ -156,14 +186,15 @@ def load_suite(path, *, extra_controllers=(), only=None) -> Suite:
         ctrls.append(spec)
     _check_options(ctrls, where, n_suite)
     raw_ctrls = [{"name": c.name, "kind": c.kind, **c.options} for c in ctrls]
-    scenarios = []
+    scenarios, timing = [], []
     for f in files:
         p = path.parent / f
-        sd = dict(read_toml(p, "scenario file"))
-        sd["controllers"] = raw_ctrls
-        if isinstance(sd.get("control", {}), Mapping):     # a real-time budget (default one control period)
-            sd["control"] = {"deadline": deadline, **sd.get("control", {})}
-        scenarios.append(parse_scenario(sd, str(p)))
+        own = compute_model(read_toml(p, "scenario file"), str(p), compute)
+        sc = parse_scenario({**own, "controllers": raw_ctrls}, str(p))
+        scenarios.append(sc)
+        ctl = own.get("control", {}) if isinstance(own.get("control", {}), Mapping) else {}
+        if ctl.get("latency") == "measured" or ctl.get("deadline", "off") != "off":
+            timing.append(sc.name)
     names = [sc.name for sc in scenarios]
     dup = next((n for n in names if names.count(n) > 1), None)
     if dup:
@@ -174,4 +205,25 @@ def load_suite(path, *, extra_controllers=(), only=None) -> Suite:
             raise ConfigError(f"scenario {bad[0]!r} is not in the suite ({', '.join(names)})")
         scenarios = [sc for sc in scenarios if sc.name in only]
     return Suite(str(s.get("name", path.stem)), str(s.get("description", "")), tuple(scenarios), tuple(ctrls),
-                 str(path), metrics, phases, seeds)
+                 str(path), metrics, phases, seeds, version, str(compute),
+                 tuple(n for n in timing if n in {sc.name for sc in scenarios}))
+
+
+def compute_model(data: Mapping, path: str, compute="period") -> dict:
+    """A scenario's TOML table under the suite's compute model (module docstring): no deadline, and
+    each answer applied ``compute`` late ("period": one control period of that scenario), unless the
+    scenario states its own ``[control] latency`` or ``deadline``."""
+    sd = dict(data)
+    ctl = sd.get("control", {})
+    if not isinstance(ctl, Mapping):
+        return sd                          # parse_scenario names the error
+    ctl = dict(ctl)
+    ctl.setdefault("deadline", "off")
+    if "latency" not in ctl:
+        if compute == "period":
+            sc = parse_scenario({**sd, "control": ctl, "controllers": []}, path)
+            ctl["latency"] = sc.dt * sc.control.every
+        else:
+            ctl["latency"] = compute
+    sd["control"] = ctl
+    return sd

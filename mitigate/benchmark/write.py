@@ -14,7 +14,7 @@ from pathlib import Path
 
 from models.files import OutputSet, output_set
 from mitigate.benchmark.render import render_ranking
-from mitigate.benchmark.stats import entry_metrics
+from mitigate.benchmark.stats import did_job, entry_metrics
 from mitigate.metrics import in_order, unit
 
 __all__ = ["write_benchmark", "output_paths", "BENCHMARK_FILES"]
@@ -37,11 +37,12 @@ def _runs_csv(res) -> str:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["scenario", "controller", "class", "phase", "seed", "switch_on [s]", "run_seed", "applicable",
-                "status", "message"] + [f"{k} [{unit(k) or ('s' if k == 'elapsed_s' else '-')}]" for k in keys + times])
+                "status", "did the job", "message"]
+               + [f"{k} [{unit(k) or ('s' if k == 'elapsed_s' else '-')}]" for k in keys + times])
     for r in res.records:
         q = r.run
         w.writerow([q.scenario, q.controller, r.actuator_class, q.phase, q.seed, q.switch_on, q.run_seed, r.applicable,
-                    r.status.value if r.applicable else "not applicable", r.message]
+                    r.status.value if r.applicable else "not applicable", did_job(r), r.message]
                    + [f"{float(r.metrics[k]):.6g}" if k in r.metrics else "" for k in keys]
                    + [f"{float(r.timings[k]):.6g}" if k in r.timings else "" for k in times])
     return buf.getvalue()
@@ -76,7 +77,8 @@ def write_benchmark(res, out, *, force: bool = False, command: str = "") -> dict
     w.write_text(n["csv"], _runs_csv(res))
     w.write_text(n["entries"], _entries_csv(res))
     res = dataclasses.replace(res, files=files)
-    w.write_text(n["json"], json.dumps(res.as_dict(), indent=2) + "\n")
+    from mitigate.benchmark.entry import provenance
+    w.write_text(n["json"], json.dumps(res.as_dict(provenance(command)), indent=2) + "\n")
     plot_heatmap(res, w.path(n["png"]))
     plot_distribution(res, w.path(n["distribution"]))
     return files

@@ -39,6 +39,7 @@ CONTROLLER_KINDS: dict[str, str] = {
     "softspeed": "mitigate.controllers.softspeed:SoftSpeed",
     "ztorque": "mitigate.controllers.ztorque:ZTorque",
     "doskil": "mitigate.controllers.doskil:DOSKIL",
+    "ztorque_doskil": "mitigate.controllers.combined:ZTorqueDOSKIL",
 }
 ENTRY_POINT_GROUP = "stickslip.controllers"
 

@@ -23,18 +23,20 @@ needs only the speed), the benchmark's records, entries and tables.  The signal 
 metrics are built on are in :mod:`mitigate.severity`.
 """
 
-from mitigate.metrics.registry import (Metric, columns, evaluate, get, in_order, is_count, is_timing, markdown_table,
-                                       metric, ranked, registered, shown, unit, units, unregister)
+from mitigate.metrics.registry import (COMPARED, METRICS_VERSION, Metric, columns, evaluate, get, in_order, is_count,
+                                       is_timing, markdown_table, metric, ranked, registered, shown, unit, units,
+                                       unregister)
 from mitigate.metrics.quantities import (MetricOptions, contact_work, force_roles, measured_stuck_speed,
                                          programmed_speed, rig_period, solve_time_stats, windows)
 from mitigate.metrics.window import ClosedLoopWindow, RunWindow, SweepWindow
+from mitigate.metrics import driller as _driller  # noqa: F401 - declares the ranked metrics (they lead every table)
 from mitigate.metrics.closed_loop import closed_loop_metrics
 from mitigate.metrics import sweep as _sweep  # noqa: F401 - declares the sweep's metrics
 from mitigate.severity import (amplitude, moving_severity, rms, severity, stuck_fraction, time_to_suppress,
                                total_variation, windowed_severity)
 from models.signals import dominant_frequency
 
-__all__ = ["Metric", "metric", "columns", "evaluate", "get", "in_order", "is_count", "markdown_table", "is_timing", "ranked", "registered", "shown",
+__all__ = ["COMPARED", "METRICS_VERSION", "Metric", "metric", "columns", "evaluate", "get", "in_order", "is_count", "markdown_table", "is_timing", "ranked", "registered", "shown",
            "unit", "units", "unregister", "RunWindow", "ClosedLoopWindow", "SweepWindow", "MetricOptions",
            "closed_loop_metrics", "contact_work", "force_roles", "measured_stuck_speed", "programmed_speed",
            "rig_period", "solve_time_stats", "windows", "severity", "windowed_severity",

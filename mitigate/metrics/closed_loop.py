@@ -27,7 +27,7 @@ _CTRL = ("controlled",)
 _TABLES = ("ranking", "scenario")
 
 
-def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) -> dict[str, float]:
+def closed_loop_metrics(result, scenario, options: MetricOptions | None = None, uncontrolled=None) -> dict[str, float]:
     """Every closed-loop metric of the registry on a run after its control start, from the TRUE plant
     trajectory (only ``stuck_fraction_measured`` uses a measured channel).
 
@@ -36,6 +36,8 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
     result : mitigate.closedloop.ClosedLoopResult
     scenario : its scenario (the plant's model and true parameters, the programme)
     options : :class:`MetricOptions` (default: every window and threshold from the scenario)
+    uncontrolled : the uncontrolled run's objective speed from t = 0 at the run's samples [rad/s]
+        (:class:`ClosedLoopWindow`; the benchmark's), or None
 
     Returns
     -------
@@ -44,34 +46,39 @@ def closed_loop_metrics(result, scenario, options: MetricOptions | None = None) 
     [N] and ``normal_force_ratio_<input>`` [-] of every servo input; ``period`` and
     ``residual_window`` [s] say which windows were used.
     """
-    return evaluate(ClosedLoopWindow(result, scenario, options))
+    return evaluate(ClosedLoopWindow(result, scenario, options, uncontrolled))
 
 
 # --------------------------------------------------------------------------- ranked: what stays, how fast
-@metric("residual_severity", "-", "the oscillation that stays: (max - min) / (2 w_prog) of the objective body's "
-        "speed over the residual window (the last few stick-slip periods); a body stuck throughout counts 1", needs=_CTRL, rank=1,
-        show=_TABLES + ("terminal", "report", "bars"), header="what stays", percent=True)
+@metric("residual_severity", "-", "the oscillation that stays in the TRUE speed (not ranked: below what a rig's "
+        "sensors resolve, measured_severity is): (max - min) / (2 w_prog) of the objective body's true speed over the "
+        "residual window (the last few stick-slip periods); a body stuck throughout counts 1", needs=_CTRL,
+        show=_TABLES + ("terminal", "report", "bars"), header="true what stays", percent=True)
 def residual_severity(w: ClosedLoopWindow) -> float:
     return severity(w.tail, w.ref, w.stuck_speed)
 
 
 @metric("time_to_suppress", "s", "from the switch-on to the start of the first moving window from which the moving "
-        "severity stays below the threshold (0: never above; inf: never suppressed)", needs=_CTRL, rank=2,
-        show=_TABLES + ("terminal", "report", "bars"), header="t suppress", inf="never")
+        "severity of the TRUE speed stays below the threshold (0: never above; inf: never suppressed)", needs=_CTRL,
+        show=("bars",), header="true t suppress", inf="never")
 def time_to_suppress_(w: ClosedLoopWindow) -> float:
     return time_to_suppress(w.speed, w.dt, w.moving_window, w.options.suppress_threshold, w.ref, w.stuck_speed)
 
 
 # --------------------------------------------------------------------------- shown beside the ranks
-@metric("peak_overshoot", "-", "the largest excursion of the speed above its programme, over the programme (not "
-        "ranked: at a given switch-on phase it measures the slip under way, not what the controller added)",
-        needs=_CTRL + ("programmed_speed",), show=_TABLES + ("report", "bars"), header="overshoot", percent=True)
+@metric("peak_overshoot", "-", "what the controller added to the speed's peak: how far the true speed's peak after "
+        "the switch-on rises above the peak of the uncontrolled run over the same window (the slip under way at the "
+        "switch-on and the stick-slip cycle are the rig's), over the programme; 0 when it stays below",
+        needs=_CTRL + ("programmed_speed", "uncontrolled_run"), show=_TABLES, header="overshoot", percent=True)
 def peak_overshoot(w: ClosedLoopWindow) -> float:
-    return max(0.0, float(np.max((w.speed - w.speed_programme) / np.abs(w.speed_programme))))
+    unc = w.uncontrolled[np.isfinite(w.uncontrolled)]
+    if unc.size == 0:
+        return float("nan")
+    return max(0.0, (float(np.max(w.speed)) - max(float(np.max(unc)), w.ref)) / abs(w.ref))
 
 
 @metric("setpoint_variation", "1/s", "effort: total variation of every commanded input per second, each scaled by "
-        "its programme (a servo by its range)", needs=_CTRL, show=_TABLES + ("terminal", "report", "bars"),
+        "its programme (a servo by its range)", needs=_CTRL, rank=6, show=_TABLES + ("terminal", "report", "bars"),
         header="set-point var.")
 def setpoint_variation(w: ClosedLoopWindow) -> float:
     m, prog, model = w.mask, w.programme, w.model
@@ -140,25 +147,77 @@ def residual_speed_ratio(w: ClosedLoopWindow) -> float:
 
 
 # --------------------------------------------------------------------------- the programme's bands
-@metric("force_violation", "-", "1 if the mean applied normal force of a servo input left MetricOptions.force_band "
-        "around its programme", needs=_CTRL, kind="flag")
+def _worst(ratios) -> float:
+    """The ratio farthest from 1 on a log scale (NaN for none)."""
+    r = [float(x) for x in ratios if math.isfinite(x)]
+    return max(r, key=lambda x: abs(math.log(x)) if x > 0 else math.inf) if r else float("nan")
+
+
+def _force_ratios(w: ClosedLoopWindow) -> list[float]:
+    """Every programmed normal force's mean over the residual window and over every moving band
+    window, each over its programme's mean there."""
+    out = []
+    for name in w.plant.servo_inputs:
+        u = w.u[:, w.plant.inputs.index(name)]
+        p = w.programme[:, w.model.inputs.index(name)]
+        if not float(np.mean(p)) > 0:
+            continue                    # a brake (zero programme) has no band
+        out.append(float(np.mean(u[-w.n_res:])) / float(np.mean(p[-w.n_res:])))
+        mu, mp = w.moving_mean(u), w.moving_mean(p)
+        out += list(mu[mp > 0] / mp[mp > 0])
+    return out
+
+
+def _speed_ratios(w: ClosedLoopWindow) -> tuple[list[float], list[float]]:
+    """(the objective body's mean speed over the residual window, over every moving band window), each
+    over the programme's mean there."""
+    if not w.ref:
+        return [], []
+    ms, mp = w.moving_mean(w.speed), w.moving_mean(w.speed_programme)
+    return [residual_speed_ratio(w)], list(ms[mp != 0] / mp[mp != 0])
+
+
+@metric("force_ratio_worst", "-", "the programmed normal force's mean over the residual window or over any moving "
+        "band window (MetricOptions.band_periods, from band_after periods after the switch-on), over its programme "
+        "there: the one farthest from 1", needs=_CTRL + ("servo",), show=("entries",))
+def force_ratio_worst(w: ClosedLoopWindow) -> float:
+    return _worst(_force_ratios(w))
+
+
+@metric("speed_ratio_worst", "-", "the objective body's mean speed over the residual window or over any moving band "
+        "window, over the programme there: the one farthest from 1", needs=_CTRL + ("programmed_speed",),
+        show=("entries",))
+def speed_ratio_worst(w: ClosedLoopWindow) -> float:
+    return _worst(sum(_speed_ratios(w), []))
+
+
+@metric("force_violation", "-", "1 if a programmed normal force's mean over the residual window or over any moving "
+        "band window left MetricOptions.force_band around its programme", needs=_CTRL, kind="flag")
 def force_violation(w: ClosedLoopWindow) -> int:
     lo, hi = w.options.force_band
-    return int(any(not (lo <= r <= hi) for _n, r in w.normal_forces.values() if math.isfinite(r)))
+    return int(any(not (lo <= r <= hi) for r in _force_ratios(w) if math.isfinite(r)))
 
 
-@metric("speed_violation", "-", "1 if the residual speed ratio left MetricOptions.speed_band", needs=_CTRL,
-        kind="flag")
+@metric("speed_violation", "-", "1 if the objective body's mean speed over the residual window left "
+        "MetricOptions.speed_band, or over any moving band window moving_speed_band, around the programme",
+        needs=_CTRL, kind="flag")
 def speed_violation(w: ClosedLoopWindow) -> int:
-    r = residual_speed_ratio(w) if w.ref else float("nan")
-    lo, hi = w.options.speed_band
-    return int(math.isfinite(r) and not (lo <= r <= hi))
+    tail, moving = _speed_ratios(w)
+    o = w.options
+    return int(any(not (lo <= r <= hi) for rs, (lo, hi) in ((tail, o.speed_band), (moving, o.moving_speed_band))
+                   for r in rs if math.isfinite(r)))
 
 
-@metric("band_violation", "-", "1 if the run left either band: it did not drill as programmed", needs=_CTRL,
-        kind="flag")
+@metric("stalled", "-", "1 if the objective body is stuck for more than MetricOptions.stuck_limit of the residual "
+        "window (the bit does not drill)", needs=_CTRL, kind="flag")
+def stalled(w: ClosedLoopWindow) -> int:
+    return int(stuck_fraction(w.tail, w.stuck_speed) > w.options.stuck_limit)
+
+
+@metric("band_violation", "-", "1 if the run left a band or stalled: it did not drill as programmed (a failed run of "
+        "the benchmark)", needs=_CTRL, kind="flag")
 def band_violation(w: ClosedLoopWindow) -> int:
-    return int(force_violation(w) or speed_violation(w))
+    return int(force_violation(w) or speed_violation(w) or stalled(w))
 
 
 # --------------------------------------------------------------------------- the rest of the run's physics
@@ -275,8 +334,7 @@ def _ms(which: str, stat: str):
 for _which, _what in (("solve", "every controller call"), ("plan", "the planning calls")):
     for _stat, _word in (("median", "median"), ("p95", "95th percentile"), ("max", "largest")):
         metric(f"{_which}_{_stat}_ms", "ms", f"{_word} wall time of {_what}", needs=_CTRL, timing=True,
-               show=(("bars",) if (_which, _stat) == ("plan", "median") else ())
-               + (("entries",) if (_which, _stat) == ("plan", "p95") else ()),
+               show=(("bars",) if (_which, _stat) == ("plan", "median") else ()),
                header=f"{_word} {_which} time")(_ms(_which, _stat))
 
 

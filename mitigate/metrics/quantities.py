@@ -99,6 +99,19 @@ class MetricOptions:
         which a run violates the programme (the driller's weight on bit; (0.8, 1.25))
     speed_band : ``(low, high)`` band of the objective body's mean speed over the residual window over
         its programme [-] outside which a run violates the programme (the bit's speed; (0.95, 1.05))
+    band_periods : the moving window of the band checks in periods [-] (1): the mean applied normal force
+        over EVERY such window must stay in ``force_band``, the mean speed in ``moving_speed_band``
+    moving_speed_band : ``(low, high)`` band of the objective body's mean speed over every moving band
+        window over its programme [-] ((0.85, 1.15)).  Wider than ``speed_band``: while the stick-slip
+        dies the string unwinds or winds up its twist, which moves a period's mean speed by the twist's
+        change over ``w_prog T`` whatever the controller does (rig3 at 30 rpm: 0.37 rad, about the swing
+        of its stick-slip twist, is 5 % of a period's turn); it catches a set-point left high (a
+        driller's bit 17.6 % fast for 25 s) or a bit held back
+    band_after : the moving band checks start this many periods after the switch-on [-] (1: the slip
+        under way at the switch-on, or the spin-up from rest, is the rig's, not the controller's)
+    stuck_limit : a run whose objective body is stuck (TRUE speed at or below ``stuck_speed``) for more
+        than this fraction of the residual window has stalled [-] (0.5: the bit does not drill; the
+        suite's uncontrolled stick-slip is stuck for 16-38 % of it)
     """
 
     period: float | None = option(None, lo=0.0, lo_open=True, unit="s", none=True)
@@ -113,6 +126,11 @@ class MetricOptions:
                                check=_straddles_one)
     speed_band: tuple = option((0.95, 1.05), items=2, lo=0.0, what="[low, high] (ratios to the programme)",
                                check=_straddles_one)
+    band_periods: float = option(1.0, lo=0.0, lo_open=True)
+    moving_speed_band: tuple = option((0.85, 1.15), items=2, lo=0.0, what="[low, high] (ratios to the programme)",
+                                      check=_straddles_one)
+    band_after: float = option(1.0, lo=0.0)
+    stuck_limit: float = option(0.5, lo=0.0, hi=1.0, hi_open=True, why="a fraction of the residual window")
     where: str = where_field("metrics")
 
     def __post_init__(self):

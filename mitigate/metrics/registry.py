@@ -24,7 +24,8 @@ What a declaration says
 ``kind`` : "value" (a median with an interval over runs), "count" (events, summed over runs, kept in
     a failed run's row) or "flag" (0 or 1, counted over runs).
 ``timing`` : a wall-clock measurement of this machine (it varies with the load): kept apart from the
-    results in a run record (:class:`mitigate.record.RunRecord`).
+    results in a run record (:class:`mitigate.record.RunRecord`); never ranked, and never among the
+    compared results (:data:`COMPARED`).
 ``show`` : where it is shown (:data:`PLACES`); ``header`` its short column header, ``percent`` shown
     as % (x 100) in the benchmark's tables, ``inf`` what an infinite value reads as.
 ``per_input`` : the name is a template with ``{input}`` and the function returns ``{input: value}``
@@ -40,7 +41,7 @@ from typing import Callable
 
 from models.errors import ConfigError
 
-__all__ = ["Metric", "metric", "NEEDS", "RUN_KINDS", "PLACES", "KINDS", "registered", "get", "columns", "ranked",
+__all__ = ["Metric", "metric", "NEEDS", "RUN_KINDS", "PLACES", "KINDS", "COMPARED", "METRICS_VERSION", "registered", "get", "columns", "ranked",
            "shown", "unit", "units", "evaluate", "unregister", "is_timing", "is_count", "in_order",
            "markdown_table"]
 
@@ -54,6 +55,7 @@ NEEDS = {
     "measured_speed": "a measured speed channel of the objective body",
     "twist": "a spring twist of the rig",
     "torque_sensor": "a torque sensor",
+    "uncontrolled_run": "the uncontrolled run (the programme alone) switched on at the same instant (the benchmark's)",
     "sweep_point": "a sweep point: the amplitude state after the settling time and the limit-cycle threshold",
 }
 #: the needs each kind of run can meet: a metric is a column of a kind when all its needs are here
@@ -69,6 +71,12 @@ PLACES = {
     "map": "a map of a sweep (map_<metric>_<start>.png)",
 }
 KINDS = ("value", "count", "flag")
+#: the places whose numbers are compared between machines (a timing metric is never shown there)
+COMPARED = frozenset({"entries", "ranking", "scenario", "terminal"})
+#: the version of the metrics' definitions: a change to what a metric of the benchmark computes (its
+#: code, or MetricOptions' defaults) is a new version (the frozen suite records it; a test holds the
+#: code's hash against it, :mod:`mitigate.benchmark.freeze`)
+METRICS_VERSION = "1"
 
 _REGISTRY: dict[str, "Metric"] = {}
 
@@ -157,6 +165,9 @@ def metric(name: str, unit: str, description: str, *, needs=(), rank: int | None
             raise ConfigError(f"metric {name!r}: rank {rank} is already {other!r}'s")
         if kind != "value" or per_input:
             raise ConfigError(f"metric {name!r}: only a single value can be ranked")
+    if timing and (rank is not None or show & COMPARED):
+        raise ConfigError(f"metric {name!r}: a timing metric (this machine's wall clock) is never ranked nor shown "
+                          f"in {', '.join(sorted(COMPARED))}")
     if rank is not None or show & {"ranking", "scenario", "terminal"}:
         show = show | {"entries"}                 # a ranked or tabled metric has its median and interval
     if per_input and show:

@@ -52,6 +52,9 @@ class ClosedLoopWindow(RunWindow):
     result : mitigate.closedloop.ClosedLoopResult
     scenario : its scenario (the plant's model and true parameters, the programme)
     options : :class:`MetricOptions` (default: every window and threshold from the scenario)
+    uncontrolled : (m,) the objective body's TRUE speed in the uncontrolled run (the programme alone)
+        of the same scenario switched on at the same instant, sampled at the run's ``t`` from t = 0
+        [rad/s]; None: unknown (what needs it is NaN)
 
     Attributes
     ----------
@@ -71,7 +74,7 @@ class ClosedLoopWindow(RunWindow):
 
     kind = "closed_loop"
 
-    def __init__(self, result, scenario, options: MetricOptions | None = None):
+    def __init__(self, result, scenario, options: MetricOptions | None = None, uncontrolled=None):
         o = options or MetricOptions()
         self.result, self.scenario, self.options = result, scenario, o
         self.dt = dt = scenario.dt
@@ -111,12 +114,56 @@ class ClosedLoopWindow(RunWindow):
             | ({"process_force"} if "process" in self.roles.values() else set())
             | ({"measured_speed"} if self.measured[0] in result.y else set())
             | ({"twist"} if result.twists else set())
-            | ({"torque_sensor"} if self.torque_channel and self.torque_channel in result.y else set()))
+            | ({"torque_sensor"} if self.torque_channel and self.torque_channel in result.y else set())
+            | ({"uncontrolled_run"} if uncontrolled is not None else set()))
+        if uncontrolled is not None:       # the same samples as the run's; NaN where the reference ran shorter
+            unc = np.full(len(result.t), np.nan)
+            v = np.asarray(uncontrolled, float)[:len(result.t)]
+            unc[:len(v)] = v
+            self.uncontrolled = unc[m]
 
     @cached_property
     def measured(self) -> tuple[str | None, float]:
         """(the objective body's measured speed channel, its stuck threshold [rad/s]): :func:`measured_stuck_speed`."""
         return measured_stuck_speed(self.scenario, self.speed_scale, self.options.stuck_speed_measured)
+
+    @cached_property
+    def measured_speed(self) -> np.ndarray:
+        """(n,) the objective body's speed as the DAQ recorded it (its encoder's counts per sample, or
+        its speed sensor's noisy reading) [rad/s]; dropouts are NaN."""
+        return np.asarray(self.result.y[self.measured[0]], float)[self.mask]
+
+    def ripple_floor(self, n: int) -> float:
+        """The peak-to-peak ripple [rad/s] the objective body's speed channel cannot tell from a steady
+        speed over ``n`` samples (:func:`models.sensors.ripple_floor`)."""
+        from models.sensors import ripple_floor
+        return ripple_floor(self.scenario.model, self.measured[0], self.dt, n, self.scenario.sensors)
+
+    @cached_property
+    def band_windows(self) -> tuple[int, int]:
+        """(samples of a moving band window, index of the first sample the band checks cover)."""
+        o = self.options
+        n = max(1, min(len(self.t), int(round(o.band_periods * self.period / self.dt))))
+        return n, min(len(self.t), int(round(o.band_after * self.period / self.dt)))
+
+    def moving_mean(self, x: np.ndarray) -> np.ndarray:
+        """The mean of ``x`` (n,) over every moving band window from the first the checks cover
+        (:attr:`band_windows`); empty when the run is shorter than that."""
+        n, k0 = self.band_windows
+        x = np.asarray(x, float)[k0:]
+        if len(x) < n:
+            return np.zeros(0)
+        c = np.concatenate(([0.0], np.cumsum(x)))
+        return (c[n:] - c[:-n]) / n
+
+    @cached_property
+    def string_torque(self) -> tuple[np.ndarray, float]:
+        """((n, springs) the torque every spring of the PLANT carries [N m], the largest a spring carries
+        in steady sliding at the programme at the switch-on [N m] (NaN if there is none))."""
+        from mitigate.metrics.loads import steady_string_torque, string_torques
+        return (string_torques(self.plant, self.params, self.x, self.u),
+                steady_string_torque(self.plant, self.params,
+                                     [self.programme[0][self.model.inputs.index(n)] for n in self.plant.inputs]))
 
     @cached_property
     def windowed_severity(self) -> np.ndarray:

@@ -34,6 +34,9 @@ class HighPassTorque(Controller):
     options_class = HighPassTorqueOptions
     slow = None              # the low-passed torque [N m]; the high-pass is torque - slow
 
+    def actuated_inputs(self):   # what it sets: its benchmark class ("drive": the drive's set-point only)
+        return ("omega_ref",)
+
     def reset(self):         # called before every run
         self.slow = None
 

@@ -24,9 +24,7 @@ hold_gain      60 where steady sliding at the programme (at the nominal      60 
 
 Why the hold gain follows the stability of sliding.  Once the stick-slip is gone, a rig whose
 sliding equilibrium is stable needs nothing from the controller, and everything the plan does is
-the state estimate's noise fed back (the field drill string with a surface encoder only: at 15
-the table torque dithered by +-0.24 % and left a residual of 0.0007 where SoftSpeed, which then
-does nothing, leaves 0.0000; at 60, 0.0001).  On an unstable equilibrium (negative friction
+the state estimate's noise fed back.  On an unstable equilibrium (negative friction
 slope at the programme) the calm plan must keep damping: at 60 the residual on the suite's
 unstable-sliding and low-speed scenarios rose from 0.0044 / 0.0058 to 0.0125 / 0.0208
 (``benchmarks/results/nmpc.md``).
