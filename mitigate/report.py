@@ -74,11 +74,11 @@ def _tuning_line(r) -> str:
 
 
 def drive_limit_note(sc, metrics) -> str:
-    """The verdict's line on the drive's limit (``drive_peak_ratio``): the peak of what the rig limits
+    """The verdict's line on the drive's limit (``drive_load_peak``): the peak of what the rig limits
     against that limit, and whether the run EXCEEDED it or ran at it; "" when the rig declares none."""
     drive = sc.plant_model.drive
     lim = drive.limit(sc.plant_params.as_dict())
-    ratio = float(metrics.get("drive_peak_ratio", math.nan))
+    ratio = float(metrics.get("drive_load_peak", math.nan))
     if lim is None or not math.isfinite(ratio):
         return ""
     name, value = lim

@@ -68,8 +68,9 @@ def _symbolic(x) -> bool:
 
 
 def _with(x, j: int, value):
-    """``x`` with entry ``j`` replaced by ``value`` (a column expression)."""
-    return ca.vertcat(x[:j], value, x[j + 1:])
+    """``x`` with entry ``j`` replaced by ``value`` (a column expression).  Sliced by rows and column:
+    a 1x1 expression's ``x[:0]`` is 1x0 (CasADi reads a scalar as a row too), which ``vertcat`` counts."""
+    return ca.vertcat(x[:j, 0], value, x[j + 1:, 0])
 
 
 def _split(lo, hi, floor):

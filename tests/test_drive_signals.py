@@ -3,7 +3,7 @@ drive's limit (issue 28, item 5).
 
 The drive registry says what a drive reports (:meth:`models.rig.drives.Drive.signals`) and what the
 rig limits (:meth:`~models.rig.drives.Drive.limit`); the closed loop logs the first as ``true_*``
-columns with units, the metric ``drive_peak_ratio`` is the second's peak over its limit, and the
+columns with units, the metric ``drive_load_peak`` is the second's peak over its limit, and the
 report's verdict says when a run reached or exceeded it.
 """
 
@@ -51,7 +51,7 @@ def test_dc_motor_log_carries_current_and_voltage_that_obey_the_armature_circuit
     # the metric: the peak current after the switch-on over rig3's i_max = 10 A, and the energy from the same V i
     met = closed_loop_metrics(r, sc)
     after = r.t >= sc.control.start - 1e-12
-    assert met["drive_peak_ratio"] == pytest.approx(np.max(np.abs(r.state("current")[after])) / p.i_max, rel=1e-12)
+    assert met["drive_load_peak"] == pytest.approx(np.max(np.abs(r.state("current")[after])) / p.i_max, rel=1e-12)
     assert met["drive_energy"] == pytest.approx(np.sum(np.abs(log["true_voltage"] * log["true_current"])[after])
                                                 * sc.dt, rel=1e-9)
     note = drive_limit_note(sc, met)
@@ -81,29 +81,29 @@ def test_torque_drive_logs_its_torque_and_a_saturated_run_is_at_its_limit(tmp_pa
     np.testing.assert_allclose(log["true_drive_torque"][:-1], 0.3)          # applied, not the 0.4 commanded
     np.testing.assert_allclose(log["motor_torque"], 0.4)                    # the command column
     met = closed_loop_metrics(r, sc)
-    assert met["drive_peak_ratio"] == pytest.approx(1.0, abs=1e-12)
+    assert met["drive_load_peak"] == pytest.approx(1.0, abs=1e-12)
     assert drive_limit_note(sc, met) == "Drive: at its limit: peak |drive_torque| 0.3 N m (the rig's limit 0.3 N m)."
 
     free = make_scenario(name="free", model="rig2", duration=3.0, inputs={"motor_torque": 0.4}, controllers=["pi"],
                          estimator="fd", control_start=1.0)
     met_free = closed_loop_metrics(_run(free), free)
-    assert math.isnan(met_free["drive_peak_ratio"]) and drive_limit_note(free, met_free) == ""
+    assert math.isnan(met_free["drive_load_peak"]) and drive_limit_note(free, met_free) == ""
 
 
 def test_a_run_beyond_the_limit_says_so():
     """The verdict's words for a peak above the limit (a drive whose model does not enforce its
     rating), at it and below it, with the peak in the drive's unit."""
     sc = SimpleNamespace(plant_model=get_model("rig3"), plant_params=get_model("rig3").published())
-    assert drive_limit_note(sc, {"drive_peak_ratio": 1.25}) == (
+    assert drive_limit_note(sc, {"drive_load_peak": 1.25}) == (
         "Drive: the run EXCEEDED its drive's limit: peak |current| 12.5 A, 1.25 x the rig's limit of 10 A.")
-    assert drive_limit_note(sc, {"drive_peak_ratio": 0.9999}).startswith("Drive: at its limit")
-    assert drive_limit_note(sc, {"drive_peak_ratio": 0.5}) == "Drive: peak |current| 5 A, 50 % of the rig's limit of 10 A."
+    assert drive_limit_note(sc, {"drive_load_peak": 0.9999}).startswith("Drive: at its limit")
+    assert drive_limit_note(sc, {"drive_load_peak": 0.5}) == "Drive: peak |current| 5 A, 50 % of the rig's limit of 10 A."
     assert drive_limit_note(sc, {}) == ""
 
 
 def test_the_metric_is_one_plain_declaration():
-    m = get("drive_peak_ratio")
-    assert m.unit == "-" and m.rank is None and m.kind == "value" and "closed_loop" in m.runs
+    m = get("drive_load_peak")
+    assert m.unit == "-" and m.rank == 4 and m.kind == "value" and "closed_loop" in m.runs
 
 
 def test_a_speed_drive_reports_nothing_and_the_drive_kinds_declare_their_units():

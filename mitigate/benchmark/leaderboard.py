@@ -27,7 +27,7 @@ LEADERBOARD_FILES = {"markdown": "leaderboard.md", "html": "leaderboard.html"}
 
 #: the rules of a submission (docs/benchmark.md has them too)
 RULES = (
-    "What a controller may know: the NOMINAL model and its parameters (the rig file's published values, never "
+    "What a controller may know: the NOMINAL model and its parameters (the rig file's stated values, never "
     "the plant's: mismatch, structure and drift stay in the plant), the scenario's programme, and the DAQ's "
     "channels as the rig file declares its sensors (quantised encoders, noisy load cells, delays), through "
     "the one `Controller.step(t, measurement, estimate)` call; nothing of the simulated truth.",

@@ -54,7 +54,7 @@ def run(args) -> int:
             print(f"observability: {getattr(obs, 'message', obs)}")
         print(format_table(*summary_rows(res.scenario, res.runs)))
         for r in res.runs:           # a run at or beyond its drive's limit (NaN: the rig declares none)
-            if float(r.metrics.get("drive_peak_ratio", math.nan)) >= 1 - 1e-3:
+            if float(r.metrics.get("drive_load_peak", math.nan)) >= 1 - 1e-3:
                 print(f"{r.name}: {drive_limit_note(res.scenario, r.metrics)}")
         print(f"\n{res.message}; {res.elapsed:.1f} s; outputs in {args.out} (report: {res.files['report']})")
     return 0 if res.success else 1

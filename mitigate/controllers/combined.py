@@ -20,14 +20,13 @@ plans both inputs together.  Options are the two laws' tables::
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any, Mapping
+from dataclasses import dataclass
+from typing import Mapping
 
 from mitigate.controllers.base import Action, Controller, ControlContext
 from mitigate.controllers.doskil import DOSKIL, DOSKILOptions
 from mitigate.controllers.ztorque import ZTorque, ZTorqueOptions
-from models.checks import options_from_mapping
-from models.errors import ConfigError
+from models.checks import check_options, option
 
 __all__ = ["ZTorqueDOSKILOptions", "ZTorqueDOSKIL"]
 
@@ -42,30 +41,11 @@ class ZTorqueDOSKILOptions:
     doskil : :class:`mitigate.controllers.doskil.DOSKILOptions` (the normal force)
     """
 
-    ztorque: ZTorqueOptions = field(default_factory=ZTorqueOptions)
-    doskil: DOSKILOptions = field(default_factory=DOSKILOptions)
+    ztorque: ZTorqueOptions = option(ZTorqueOptions(), table=ZTorqueOptions, what="a table of Z-Torque's options")
+    doskil: DOSKILOptions = option(DOSKILOptions(), table=DOSKILOptions, what="a table of D-OSKIL's options")
 
     def __post_init__(self):
-        if not isinstance(self.ztorque, ZTorqueOptions) or not isinstance(self.doskil, DOSKILOptions):
-            raise ConfigError("ztorque and doskil must be ZTorqueOptions and DOSKILOptions (tables in a scenario)")
-
-    @classmethod
-    def from_mapping(cls, table: Mapping[str, Any], where: str = "controller") -> "ZTorqueDOSKILOptions":
-        """From a scenario's table: ``ztorque`` and ``doskil`` sub-tables (each optional)."""
-        bad = sorted(set(table) - {"ztorque", "doskil"})
-        if bad:
-            raise ConfigError(f"{where}.{bad[0]}: unknown key; expected ztorque and doskil (tables of those laws' "
-                              f"options)")
-        parts = {}
-        for key, oc in (("ztorque", ZTorqueOptions), ("doskil", DOSKILOptions)):
-            sub = table.get(key, {})
-            if isinstance(sub, oc):
-                parts[key] = sub
-                continue
-            if not isinstance(sub, Mapping):
-                raise ConfigError(f"{where}.{key} must be a table of {oc.__name__}, got {sub!r}")
-            parts[key] = options_from_mapping(oc, dict(sub), f"{where}.{key}")
-        return cls(**parts)
+        check_options(self)
 
 
 class ZTorqueDOSKIL(Controller):

@@ -104,14 +104,6 @@ def drive_energy(w: ClosedLoopWindow) -> float:
     return float(np.sum(np.abs(power)) * w.dt) if power is not None else float("nan")
 
 
-@metric("drive_peak_ratio", "-", "the drive's limit: the peak of the quantity the rig limits over its limit (a DC "
-        "motor's |current| over i_max, a torque drive's |torque| over torque_max; NaN when the rig declares no limit); "
-        "above 1 the run exceeded its drive's limit (the report's verdict says so)", needs=_CTRL, header="drive peak / limit")
-def drive_peak_ratio(w: ClosedLoopWindow) -> float:
-    pm = w.plant
-    return pm.drive.peak_ratio(pm, w.params, w.x, w.u)     # the drive kind says what it limits (None: NaN)
-
-
 @metric("pin_work", "J", "brake wear: friction work at the contacts whose normal force is an input with a zero "
         "programme, only the part the normal force causes", needs=_CTRL, show=("ranking", "report", "bars"),
         header="brake wear")

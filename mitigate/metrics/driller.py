@@ -94,16 +94,13 @@ def string_torque_peak(w: ClosedLoopWindow) -> float:
     return peak / scale if scale > 0 else float("nan")
 
 
-@metric("drive_load_peak", "-", "hardware: the drive's largest |armature current| over its i_max (a DC motor) or "
-        "|torque| over its torque_max (a torque drive) after the switch-on; NaN for a speed drive or a drive "
-        "without a stated limit", needs=("controlled",), rank=4, show=_TABLES, header="drive load peak",
+@metric("drive_load_peak", "-", "hardware: the peak of what the rig limits over its limit after the switch-on (a DC "
+        "motor's |armature current| over i_max, a torque drive's |torque| over torque_max; NaN for a speed drive or "
+        "a drive without a stated limit); above 1 the run exceeded its drive's limit (the report's verdict says so)", needs=("controlled",), rank=4, show=_TABLES, header="drive load peak",
         percent=True)
 def drive_load_peak(w: ClosedLoopWindow) -> float:
-    from mitigate.metrics.loads import drive_load
-    load, limit = drive_load(w.plant, w.params, w.x, w.u)
-    if load.size == 0 or not (math.isfinite(limit) and limit > 0):
-        return float("nan")
-    return float(np.max(load)) / limit
+    pm = w.plant
+    return pm.drive.peak_ratio(pm, w.params, w.x, w.u)     # the drive kind says what it limits (none: NaN)
 
 
 @metric("setpoint_excursion", "-", "hardware: the largest command above its programme after the switch-on, over the "

@@ -7,14 +7,13 @@ real one), states ``x`` (n, nx) and applied inputs ``u`` (n, nu) sampled along a
 
 from __future__ import annotations
 
-import math
 
 import casadi as ca
 import numpy as np
 
 from models.errors import ConfigError
 
-__all__ = ["string_torques", "steady_string_torque", "drive_load"]
+__all__ = ["string_torques", "steady_string_torque"]
 
 
 def _torque_function(model) -> ca.Function:
@@ -50,18 +49,3 @@ def steady_string_torque(model, params, u: np.ndarray) -> float:
     T = string_torques(model, params, xs[None, :], np.asarray(u, float)[None, :])
     return float(np.max(np.abs(T))) if T.size else float("nan")
 
-
-def drive_load(model, params, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, float]:
-    """``(load, limit)``: the drive's |armature current| [A] and its ``i_max`` (a DC motor), or its
-    |torque| [N m] and ``torque_max`` (a torque drive); a limit the rig does not state is NaN.  A
-    speed drive has no load of its own: ``(empty, NaN)``."""
-    d = model.spec.drive
-    if model.drive_kind == "dc_motor":
-        ref = d.param("i_max")
-        lim = float(ref.value(model.unpack(ca.DM(params.vector())))) if ref is not None else math.nan
-        return np.abs(np.asarray(x, float)[:, model.current_index]), lim
-    if model.drive_kind == "torque":
-        lim = float(d.torque_max)
-        return np.abs(np.asarray(u, float)[:, model.inputs.index(model.drive_input)]), (lim if math.isfinite(lim)
-                                                                                        else math.nan)
-    return np.zeros(0), math.nan
