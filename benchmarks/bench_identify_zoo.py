@@ -7,7 +7,7 @@ Run from the repository root::
     PYTHONPATH=. python benchmarks/bench_identify_zoo.py --profile user_pin_rig   # where the time goes
     PYTHONPATH=. python benchmarks/bench_identify_zoo.py --help
 
-Cases (``benchmarks/zoo_rigs.py``): the zoo's four CI corners and its first derandomised rigs of up
+Cases (``benchmarks/_zoo_rigs.py``): the zoo's four CI corners and its first derandomised rigs of up
 to 3 bodies (``tests/rig_zoo.py``: speed, torque and DC-motor drives, every friction law, lab to
 field scale), and the student's rig ``tests/data/userrig/pin_rig.toml``.  Each: a 60 s log of the
 exact plant from rest at the operating point (the rig's sensors and noise), up to 6 free parameters
@@ -33,7 +33,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_identify as bi  # noqa: E402 - the results file's section writer
-from zoo_rigs import cases, errors_in_bars, rel_errors  # noqa: E402
+from _zoo_rigs import cases, errors_in_bars, rel_errors  # noqa: E402
 
 from estimators.identify import IdentifyOptions, identify  # noqa: E402
 

@@ -96,9 +96,14 @@ def sample_cost(model, eps, log, u, free, reps):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description="the implicit step against explicit RK4: accuracy and cost")
-    ap.add_argument("--quick", action="store_true", help="short runs, no identification")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "implicit.md"))
+    ap = argparse.ArgumentParser(description="the implicit step against explicit RK4: accuracy and cost",
+                                 epilog="example: python benchmarks/bench_implicit.py --quick   (CI; prints only)\n"
+                                        "         python benchmarks/bench_implicit.py          "
+                                        "(writes benchmarks/results/implicit.md)",
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="short runs, no identification; prints, writes nothing")
+    ap.add_argument("--out", default=None, help="the report (default: benchmarks/results/implicit.md; "
+                                                "--quick writes none unless given)")
     a = ap.parse_args(argv)
     lines = ["# The implicit step (SDIRK2) against explicit RK4", "",
              f"`python benchmarks/bench_implicit.py{' --quick' if a.quick else ''}`; {platform.node()}, "
@@ -138,7 +143,9 @@ def main(argv=None) -> int:
                   out.stdout.strip()[-3000:], "```"]
     text = "\n".join(lines) + "\n"
     print(text)
-    Path(a.out).write_text(text)
+    out = a.out or (None if a.quick else str(ROOT / "benchmarks" / "results" / "implicit.md"))
+    if out:
+        Path(out).write_text(text)
     return 0
 
 

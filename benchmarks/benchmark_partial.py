@@ -33,14 +33,15 @@ sys.path.insert(0, str(ROOT))
 
 
 def partial(suite_path, store, out, *, phases: int | None = None, seeds: int | None = None, jobs: int = 1,
-            force: bool = False, command: str = "") -> dict:
-    """Write the output set of the finished scenarios of ``store`` to ``out``; returns its files."""
+            force: bool = False, command: str = "", only=None) -> dict:
+    """Write the output set of the finished scenarios of ``store`` to ``out``; returns its files.  ``only``:
+    the scenarios the benchmark was run on (its ``--only``), None: the whole suite."""
     from mitigate.benchmark import load_suite, references, write_benchmark
     from mitigate.benchmark.result import assemble, code_hash, definition
     from mitigate.record import RunRecord
     from models.errors import ConfigError
 
-    suite = load_suite(suite_path)
+    suite = load_suite(suite_path, only=only)
     phases = phases or suite.phases
     seeds = seeds or suite.seeds
     man = json.loads((Path(store) / "manifest.json").read_text())
@@ -78,6 +79,7 @@ def main(argv=None) -> int:
     ap.add_argument("--phases", type=int, default=None)
     ap.add_argument("--seeds", type=int, default=None)
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--only", default=None, help="the scenarios the benchmark ran on (its --only), comma-separated")
     ap.add_argument("--force", action="store_true")
     ap.add_argument("--quick", action="store_true", help="run a 1-scenario --quick benchmark first, then this")
     args = ap.parse_args(argv)
@@ -93,13 +95,13 @@ def main(argv=None) -> int:
                 if r.returncode not in (0, 1):
                     sys.stderr.write(r.stderr)
                     return r.returncode
-                files = partial(suite, f"{d}/b", f"{d}/p", phases=1, seeds=1)
+                files = partial(suite, f"{d}/b", f"{d}/p", phases=1, seeds=1, only=["drillstring"])
                 print(json.loads(Path(files["json"]).read_text())["message"])
             return 0
         if not (args.suite and args.store and args.out):
             ap.error("give SUITE STORE --out OUT, or --quick")
         files = partial(args.suite, args.store, args.out, phases=args.phases, seeds=args.seeds, jobs=args.jobs,
-                        force=args.force, command="python benchmarks/benchmark_partial.py " + " ".join(sys.argv[1:]))
+                        force=args.force, only=args.only.split(",") if args.only else None, command="python benchmarks/benchmark_partial.py " + " ".join(sys.argv[1:]))
     except (ConfigError, DataError) as exc:
         sys.stderr.write(f"benchmark_partial: {exc}\n")
         return 2

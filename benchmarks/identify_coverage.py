@@ -7,7 +7,7 @@ Run from the repository root::
     PYTHONPATH=. python benchmarks/identify_coverage.py --quick         # CI: 1 rig x 4 seeds, prints only
     PYTHONPATH=. python benchmarks/identify_coverage.py --help
 
-For each rig (``benchmarks/zoo_rigs.py``: zoo rigs and the user's rig) and each seed: a log of the
+For each rig (``benchmarks/_zoo_rigs.py``: zoo rigs and the user's rig) and each seed: a log of the
 exact stick/slip plant (``--duration`` s from rest at the operating point; the seed draws the sensors'
 noise and each encoder's phase within a tick at power-on, ``SensorOptions(encoder_phase=True)``:
 without it every encoder starts at a tick boundary and the quantisation errors repeat, seed after
@@ -34,7 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_identify as bi  # noqa: E402 - the results file's section writer
-from zoo_rigs import cases  # noqa: E402
+from _zoo_rigs import cases  # noqa: E402
 
 from estimators.identify import IdentifyOptions, identify  # noqa: E402
 from models.sensors import SensorOptions  # noqa: E402

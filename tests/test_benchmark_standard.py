@@ -137,8 +137,8 @@ def test_with_the_nmpcs_stall_guard_off_the_stuck_bit_is_a_failed_run(monkeypatc
 
     from mitigate.benchmark.execute import run_task
     from mitigate.benchmark.plan import RunTask
-    from mitigate.controllers.nmpc.controller import NMPC
-    monkeypatch.setattr(NMPC, "_stalled", lambda self, *a: False)
+    from mitigate.controllers.nmpc.supervision import Supervisor
+    monkeypatch.setattr(Supervisor, "stalled", lambda self, *a: False)
     suite = load_suite(SUITE, only=["mismatch_m40"],
                        extra_controllers=[{"name": "motor", "kind": "nmpc", "inputs": "motor"}])
     sc = suite.scenarios[0]

@@ -242,7 +242,7 @@ def test_a_dc_motor_rig_whose_gaps_stay_open_ends_on_one_trajectory():
     20 % off, the direct fit alone: every gap left open sits where the voltage limit engages (a
     kink no Gauss-Newton step crosses); the fit stops there and continues by single shooting, to
     one trajectory, the truth within the stated errors."""
-    from zoo_rigs import cases
+    from _zoo_rigs import cases
 
     c = {c.name: c for c in cases(0, user=False)}["lab_dc_motor_LR_0.05ms"]
     with warnings.catch_warnings():

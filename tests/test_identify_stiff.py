@@ -40,7 +40,7 @@ def test_slider_identification_takes_the_implicit_step_and_recovers_friction(sli
         warnings.simplefilter("ignore", IdentifiabilityWarning)
         fit = identify(log, m, None, IdentifyOptions(free=("mu_s", "mu_k")))
     integ = fit.problem.integration
-    assert integ.implicit and integ.nsub <= 10
+    assert integ.implicit and integ.nsub <= 20          # explicit RK4: ~11,000
     assert "implicit SDIRK2" in fit.integration and "explicit RK4 would need" in fit.integration
     assert fit.eps == pytest.approx(6.7e-8, rel=0.01)
     assert fit.success, fit.message

@@ -298,7 +298,9 @@ def test_identification_on_a_rig_read_at_the_motor_only(tmp_path):
     """The far disc's twist and speed unmeasured: the shooting nodes start from the EKF's estimates
     at the initial parameters.  From a smooth simulation they drifted out of phase with the log's
     stick-slip, and Gauss-Newton ended at its iteration limit with gaps open (mu_k 0.377 +- 0.018
-    against 0.32 with --shoot-every 5); now it converges, the truth within 3 standard errors."""
+    against 0.32 with --shoot-every 5); now it converges, the truth within 2 total errors.  (The
+    statistical error alone, the Newey-West sandwich, is 20x smaller here: k2 0.1949 +- 0.00026 against
+    0.2; what moves k2 is the regularisation's bias, which the total error ``fit.error`` holds.)"""
     from estimators.identify import IdentifyOptions, identify
     m = get_model(str(_one_encoder_rig(tmp_path, keep_torque=True)))
     p = m.published()
@@ -306,8 +308,8 @@ def test_identification_on_a_rig_read_at_the_motor_only(tmp_path):
     start = p.replace(k2=1.2 * p.k2, mu_k=1.2 * p.mu_k)
     fit = identify(log, m, start, IdentifyOptions(free=("k2", "mu_k")))
     assert fit.status.success and fit.reason != "max_iter" and fit.iterations < 40, (fit.reason, fit.message)
-    for n, v, se in zip(fit.names, fit.estimate, fit.stderr):
-        assert abs(v - getattr(p, n)) < 3 * se, (n, v, se)
+    for n, v, err in zip(fit.names, fit.estimate, fit.error):
+        assert abs(v - getattr(p, n)) < 2 * err, (n, v, err)
     assert np.max(np.abs([fit.estimate[0] / p.k2 - 1, fit.estimate[1] / p.mu_k - 1])) < 0.05
 
 

@@ -50,7 +50,7 @@ def _draw(strategy, seed=None, n: int = 1) -> list[ZooRig]:
 def zoo(examples: int = 6) -> dict[str, ZooRig]:
     """The corners (their CI seeds) and the first ``examples`` derandomised rigs of up to 3 bodies."""
     out = {name: _draw(zoo_rigs(max_bodies=3, **kw), seed=i + 18)[0] for i, (name, kw) in enumerate(CORNERS.items())}
-    for i, z in enumerate(_draw(zoo_rigs(max_bodies=3), n=examples)):
+    for i, z in enumerate(_draw(zoo_rigs(max_bodies=3), n=examples) if examples > 0 else []):
         out[f"example_{i}"] = z
     return out
 
