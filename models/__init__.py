@@ -11,6 +11,7 @@ The Python API::
 
 from models.errors import ConfigError, DataError, PluginError, SolverFailure
 from models.friction import FrictionLaw, LAWS, LawState, Param, get_law, register
+from models import friction_state as _friction_state  # noqa: F401 - the laws with state register themselves
 from models.logs import Log, read_csv
 from models.modal import LinearModel, ModalResult, linearise, modes
 from models.stability import sliding_stability, stability_map

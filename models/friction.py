@@ -470,5 +470,5 @@ register(FrictionLaw("leadscrew", None, _LS_PARAMS, doc="lead-screw thread frict
                      reference="seed 002 eqs. (9.7), (9.31), (9.33)", directional=leadscrew_torque,
                      inertia=leadscrew_inertia, smooth_fn=leadscrew_smooth, smoothing_param="r1"))
 
-# the laws with state (LuGre, rate-and-state) live in their own module and register themselves
-from models import friction_state as _friction_state  # noqa: E402,F401
+# the laws with state (LuGre, rate-and-state) live in models/friction_state.py and register themselves
+# there; the package's __init__ imports it, so every use of the registry sees them

@@ -22,10 +22,11 @@ import math
 import os
 import platform
 import subprocess
-from importlib import metadata, resources
+from importlib import metadata
 from pathlib import Path
 from typing import Any, Mapping
 
+from mitigate.benchmark.freeze import check, lock_path, schema
 from models.errors import DataError
 
 __all__ = ["entry_document", "provenance", "schema", "validate", "read_entry", "jsonable", "finite", "ENTRY_FORMAT",
@@ -96,7 +97,6 @@ def jsonable(obj: Any) -> Any:
 
 def _frozen(suite) -> bool:
     """The suite's files, rigs, metric code and schema are what its lock says (:mod:`.freeze`)."""
-    from mitigate.benchmark.freeze import check, lock_path
     if not suite.path or not lock_path(suite.path).is_file():
         return False
     try:
@@ -140,11 +140,6 @@ def entry_document(res, prov: Mapping | None = None) -> dict[str, Any]:
         "provenance": dict(prov) if prov is not None else provenance(),
     }
     return jsonable(doc)
-
-
-def schema() -> dict:
-    """The results' JSON Schema (``mitigate/benchmark/results.schema.json``)."""
-    return json.loads(resources.files("mitigate.benchmark").joinpath("results.schema.json").read_text())
 
 
 def validate(doc: Mapping, where: str = "results.json") -> None:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import sys
+from importlib import resources
 from pathlib import Path
 
 from models.checks import read_toml
@@ -57,9 +58,13 @@ def lock_path(suite_path) -> Path:
     return p.with_name(p.stem + ".lock.json")
 
 
+def schema() -> dict:
+    """The results' JSON Schema (``mitigate/benchmark/results.schema.json``), part of a suite version."""
+    return json.loads(resources.files("mitigate.benchmark").joinpath("results.schema.json").read_text())
+
+
 def fingerprint(suite_path) -> dict:
     """What a suite version ties together (module docstring), as a JSON-serialisable dict."""
-    from mitigate.benchmark.entry import schema
     from mitigate.metrics import METRICS_VERSION
     from models.rig import RIGS_DIR, rig_key
 
