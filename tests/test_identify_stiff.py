@@ -34,6 +34,9 @@ def slider_log():
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="open defect (issue 28): on this log of our own plant the fit takes the "
+                   "implicit step but ends with mu_s and mu_k both at their upper bound 2.0 (cost 2459, 'no further "
+                   "decrease' after 6 iterations) from a start of 0.4 / 0.3; the same on the ident-stiff branch alone")
 def test_slider_identification_takes_the_implicit_step_and_recovers_friction(slider_log):
     m, true, log = slider_log
     with warnings.catch_warnings():
