@@ -46,17 +46,18 @@ Measurements
   mean speed over the last sample and its noise is MA(1); the model reads the speed at the
   sample and treats the noise as white (a documented approximation).
 
-Process noise (per DAQ sample): an unmodelled torque of standard deviation ``q_torque`` on
-every body (``var(omega_b) = (q_torque dt / J_b)^2``, ``J_b`` the body's total inertia, a DC
-motor's ``ratio^2 Jm`` included), ``q_current`` on a DC motor's current, ``q_twist`` on the
-twists, none on the PI integral (it integrates known signals) nor on ``zero:`` and ``lag``
-states, and random walks ``q_load^2 dt``, ``q_offset^2 dt``, ``q_gain^2 dt``.  On top, a body
-with friction that is (nearly) at rest gets an unknown torque of ``q_stick`` times its
-contacts' static friction torque (weighted by ``1 - tanh^2(omega/eps)``, so only within about
-``eps`` of rest): in stick the friction is a constraint force anywhere within the static
-limit, while the regularised model makes it a steep function of a creep speed that the real
-contact does not have.  Trusting that creep (``q_stick = 0``) made the EKF converge to a
-wrong twist at power-on on our exact stick/slip plant (0.2-0.7 rad off, benchmarks).
+Process noise (per DAQ sample; :mod:`estimators.online.covariance`, with the prior and the
+bounds): an unmodelled torque of standard deviation ``q_torque`` on every body (``var(omega_b) =
+(q_torque dt / J_b)^2``, ``J_b`` the body's total inertia, a DC motor's ``ratio^2 Jm``
+included), ``q_current`` on a DC motor's current, ``q_twist`` on the twists, none on the PI
+integral (it integrates known signals) nor on ``zero:`` and ``lag`` states, and random walks
+``q_load^2 dt``, ``q_offset^2 dt``, ``q_gain^2 dt``.  On top, a body with friction that is
+(nearly) at rest gets an unknown torque of ``q_stick`` times its contacts' static friction
+torque (weighted by ``1 - tanh^2(omega/eps)``, so only within about ``eps`` of rest): in stick
+the friction is a constraint force anywhere within the static limit, while the regularised model
+makes it a steep function of a creep speed that the real contact does not have.  Trusting that
+creep (``q_stick = 0``) made the EKF converge to a wrong twist at power-on on our exact
+stick/slip plant (0.2-0.7 rad off, benchmarks).
 
 Defaults, and why
 -----------------
@@ -110,6 +111,7 @@ from models.sensors import FLOOR, SensorOptions, channel_variance
 from models.discretise import Integration, integration
 from estimators.online.options import for_rig
 from estimators.online.projection import projection
+from estimators.online.covariance import prior, process_variances, state_bounds
 
 __all__ = ["EstimationModel", "build_estimation_model", "rig_rhs"]
 
@@ -388,12 +390,12 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
     # ---- projection: a DC motor's PI integral within what its anti-windup lets it reach, the load
     # factors within the MHE's bounds (a negative friction factor, with a twist of the wrong sign
     # along the unobservable twist/zero/load direction, made the NMPC run mismatch_p40 42 % fast)
-    project = projection(model, names, *_bounds(names), x, uh, p, u_at(0), Pm)
+    project = projection(model, names, *state_bounds(names), x, uh, p, u_at(0), Pm)
 
     # ---- covariances, prior, bounds
-    q = _process_variances(model, names, P_num, dt, options)
-    x0v, P0 = _prior(model, names, idx, P_num, options, x0, where, model.friction_state_scale(params))
-    lb, ub = _bounds(names)
+    q = process_variances(model, names, P_num, dt, options)
+    x0v, P0 = prior(model, names, idx, P_num, options, x0, where, model.friction_state_scale(params))
+    lb, ub = state_bounds(names)
     return EstimationModel(model, params, dt, names, state_units(model, names), nxr, chans, tuple(meas), D, F, h,
                            to_internal, np.array(dep_rows, bool).reshape(len(meas), len(chans)), q, stick, float(options.eps), r, x0v, P0, lb,
                            ub, np.array([P_num[n] for n in model.param_names]), options.angles, aug, integ,
@@ -405,98 +407,3 @@ def _prod(terms):
     for t in terms[1:]:
         out = out * t
     return out
-
-
-def _process_variances(model: RigModel, names, P_num: dict, dt: float, o) -> np.ndarray:
-    out = []
-    drive_states = {s.name: s for s in model.drive.states}
-    for n in names:
-        kind, _, target = n.partition(":")
-        if not target:
-            if n.startswith("twist_"):
-                v = o.q_twist ** 2
-            elif n.startswith("omega_"):
-                J = float(model.inertia(n[len("omega_"):], P_num))
-                v = (o.q_torque * dt / J) ** 2 if J > 0 else o.q_torque ** 2
-            else:           # the drive's: its family's process noise, none when it integrates known signals
-                st = drive_states.get(n)
-                v = getattr(o, f"q_{st.noise}") ** 2 if st is not None and st.noise else 0.0
-        elif kind == "load":
-            v = o.q_load ** 2 * dt
-        elif kind == "offset":
-            v = o.q_offset ** 2 * dt
-        elif kind == "gain":
-            v = o.q_gain ** 2 * dt
-        else:               # zero:, lag: constants and exact copies
-            v = 0.0
-        out.append(max(v, FLOOR))
-    return np.array(out)
-
-
-def _prior(model: RigModel, names, idx, P_num, o, x0, where, friction_std=None):
-    nx, nxr = len(names), model.nx
-    x = np.zeros(nx)
-    for n in names:
-        kind, _, target = n.partition(":")
-        if kind == "load":
-            x[idx[n]] = 1.0
-        elif kind in ("offset", "gain"):
-            x[idx[n]] = P_num[getattr(model.sensor_of(target), kind).name]
-    full = False
-    if x0 is not None:
-        x0 = np.asarray(x0, float).ravel()
-        if x0.shape not in ((nxr,), (nx,)) or not np.all(np.isfinite(x0)):
-            raise ConfigError(f"{where}.x0 must be {nxr} (the rig's states) or {nx} finite numbers, got shape "
-                              f"{x0.shape}")
-        full = x0.size == nx
-        if full:
-            x[:] = x0
-        else:
-            x[:nxr] = x0
-    std = []
-    drive_prior = {s.name: s.prior for s in model.drive.states}
-    for n in names:
-        kind, _, target = n.partition(":")
-        base = target if (kind == "zero" or kind.startswith("lag")) else n
-        if base.startswith("twist_"):
-            s = o.p0_twist
-        elif base.startswith("omega_"):
-            s = o.p0_speed
-        elif base in drive_prior:
-            s = getattr(o, f"p0_{drive_prior[base]}")
-        elif kind == "load":
-            s = o.p0_load
-        elif kind == "offset":
-            s = o.p0_offset
-        elif base in (friction_std or {}):
-            s = friction_std[base]
-        else:
-            s = o.p0_gain
-        std.append(s)
-    P0 = np.diag(np.square(std))
-    for n in names:
-        kind, _, target = n.partition(":")
-        if kind == "zero" or kind.startswith("lag"):
-            # the twist at power-on IS the initial twist (a lagged state is the initial state):
-            # same prior, fully correlated
-            j, t = idx[n], model.states.index(target)
-            if not full:
-                x[j] = x[t]
-            P0[j, t] = P0[t, j] = P0[t, t]
-            for m in names:
-                km, _, tm = m.partition(":")
-                if (km == "zero" or km.startswith("lag")) and tm == target:
-                    P0[j, idx[m]] = P0[t, t]
-    P0 += 1e-12 * np.eye(nx)
-    return x, P0
-
-
-def _bounds(names):
-    big = 1e6
-    lb, ub = np.full(len(names), -big), np.full(len(names), big)
-    for j, n in enumerate(names):
-        if n.startswith("load:"):
-            lb[j], ub[j] = 0.0, 5.0
-        elif n.startswith("gain:"):
-            lb[j], ub[j] = 0.05, 20.0
-    return lb, ub
