@@ -9,7 +9,7 @@ import math
 import os
 import sys
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
@@ -97,18 +97,36 @@ def check_outputs(paths: Iterable[os.PathLike | str], force: bool) -> None:
                           f"refusing to overwrite (use --force or another --out)")
 
 
-def to_jsonable(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
+def to_jsonable(obj: Any, *, nonfinite: str = "null") -> Any:
+    """JSON data of ``obj``: mappings, sequences and arrays as dicts and lists, numpy scalars as
+    Python numbers, enums as their values, paths as strings.
+
+    Parameters
+    ----------
+    obj : the data
+    nonfinite : how an infinite or NaN number is written: ``"null"`` (JSON's null), or ``"text"``
+        (the strings "inf", "-inf" and "nan", as in a run's record,
+        :meth:`mitigate.record.RunRecord.to_json`, so that "never suppressed" survives a round trip)
+    """
+    if nonfinite not in ("null", "text"):
+        raise ValueError(f"nonfinite must be 'null' or 'text', got {nonfinite!r}")
+    if isinstance(obj, Mapping):
+        return {str(k): to_jsonable(v, nonfinite=nonfinite) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
+        return [to_jsonable(v, nonfinite=nonfinite) for v in obj]
     if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
+        return to_jsonable(obj.tolist(), nonfinite=nonfinite)
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
     if isinstance(obj, (np.integer,)):
         return int(obj)
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        if math.isfinite(v):
+            return v
+        if nonfinite == "text":
+            return "inf" if v > 0 else "-inf" if v < 0 else "nan"
+        return None
     if isinstance(obj, Path):
         return str(obj)
     if isinstance(obj, enum.Enum):

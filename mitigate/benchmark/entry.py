@@ -27,9 +27,10 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from mitigate.benchmark.freeze import check, lock_path, schema
+from mitigate.cliutil import to_jsonable
 from models.errors import DataError
 
-__all__ = ["entry_document", "provenance", "schema", "validate", "read_entry", "jsonable", "finite", "ENTRY_FORMAT",
+__all__ = ["entry_document", "provenance", "schema", "validate", "read_entry", "finite", "ENTRY_FORMAT",
            "VARYING"]
 
 #: the entry's format (the schema's ``format_version``)
@@ -67,32 +68,6 @@ def _record(r) -> dict:
     d = r.to_json()
     d.pop("timings", None)
     return d
-
-
-def jsonable(obj: Any) -> Any:
-    """JSON data of ``obj`` with non-finite numbers as the strings "inf", "-inf" and "nan" (as in a run's
-    record: :meth:`mitigate.record.RunRecord.to_json`), so "never suppressed" survives a round trip."""
-    import enum
-
-    import numpy as np
-    if isinstance(obj, Mapping):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        v = float(obj)
-        return v if math.isfinite(v) else ("inf" if v > 0 else "-inf" if v < 0 else "nan")
-    if isinstance(obj, enum.Enum):
-        return obj.value
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
 
 
 def _frozen(suite) -> bool:
@@ -139,7 +114,7 @@ def entry_document(res, prov: Mapping | None = None) -> dict[str, Any]:
                    "records": [_record(r) for r in timing_recs]},
         "provenance": dict(prov) if prov is not None else provenance(),
     }
-    return jsonable(doc)
+    return to_jsonable(doc, nonfinite="text")
 
 
 def validate(doc: Mapping, where: str = "results.json") -> None:
