@@ -56,6 +56,8 @@ from models.plant import SimOptions, simulate
 from models.rig import RigModel
 from models.status import Status
 
+from _results import publish
+
 ENCODERS = ("theta1", "theta2", "theta3", "omega1", "omega2", "omega3")
 ROOT = Path(__file__).resolve().parents[1]
 INDEPENDENT = ROOT / "tests" / "independent_rig3.py"
@@ -261,10 +263,7 @@ def main(argv=None):
               "encoders only: <= 10 % or a warning naming what is not observable; EKF <= 0.1 ms, MHE <= 3 ms median. "
               "Timings include the Python `update` overhead; the shared 2-core machine moves medians by 30-50 %.", ""]
     text = "\n".join(lines)
-    print(text)
-    if not args.no_write:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(text)
+    publish(text, None if args.no_write else args.out)
 
 
 def _pct(v: float) -> str:

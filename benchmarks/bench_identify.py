@@ -135,6 +135,12 @@ def replace_section(marker: str, lines: list[str]) -> None:
     print(f"wrote section {marker} of {RESULTS}", flush=True)
 
 
+def row(lines: list[str], text: str) -> None:
+    """Add a row to a section's table and print it at once (a section runs for minutes)."""
+    lines.append(text)
+    print(text, flush=True)
+
+
 def header(cmd: str) -> list[str]:
     return [f"Command: `PYTHONPATH=. python benchmarks/bench_identify.py {cmd}{' --quick' if S.quick else ''}` "
             f"({S.dur:g} s logs where not stated; 2 cores shared with other sessions; 1-min load average at start "
@@ -187,10 +193,9 @@ def accuracy():
                 walls.append(wall)
             e = errors(fit, true)
             z = ", ".join(f"{n} {abs(v - true[n]) / s:.1f}" for n, v, s in zip(fit.names, fit.estimate, fit.stderr))
-            lines.append(f"| {model} | {label} (stuck {100 * stuck:.0f} %) | {ns:g} | {vname} | {fit.nsub} | "
-                         f"{np.median(walls):.1f} ({max(walls):.1f}) | {fit.iterations} | {fit.status.value} | "
-                         f"{fmt(e)} | {z} |")
-            print(lines[-1], flush=True)
+            row(lines, f"| {model} | {label} (stuck {100 * stuck:.0f} %) | {ns:g} | {vname} | {fit.nsub} | "
+                       f"{np.median(walls):.1f} ({max(walls):.1f}) | {fit.iterations} | {fit.status.value} | "
+                       f"{fmt(e)} | {z} |")
     lines += ["", "Targets: stiffness within 3 %, friction levels within 5 %, damping within 30 %, a 60 s 100 Hz log in "
               "<= 20 s (previous code: 11.6 s for rig3)."]
     replace_section("accuracy", lines)
@@ -220,9 +225,8 @@ def mismatch():
             if ez == "untwisted" and dd:
                 met += ok
                 total += 1
-            lines.append(f"| {seed} | {ez} | {'0-2' if dd else 'off'} | {fit.delay} | {wall:.1f} | {fit.iterations} | "
-                         f"{fit.status.value} | {fmt(e)} | {fit.estimate[-1]:.4f} | {fit.sigma2:.2f} |")
-            print(lines[-1], flush=True)
+            row(lines, f"| {seed} | {ez} | {'0-2' if dd else 'off'} | {fit.delay} | {wall:.1f} | {fit.iterations} | "
+                       f"{fit.status.value} | {fmt(e)} | {fit.estimate[-1]:.4f} | {fit.sigma2:.2f} |")
     lines += ["", f"Targets (k1, k2 within 3 %, mu_s, mu_k within 5 %) met in {met}/{total} runs with the delay search."]
     replace_section("mismatch", lines)
 
@@ -249,9 +253,8 @@ def guess():
         for name, init in (("guess", None), ("published", pub)):
             fit, wall = timed(identify, log, d, init, IdentifyOptions(free=("k", "d", "mu_k", "mu_s")))
             sv = ", ".join(f"{v:.3g}" for v in fit.initial)
-            lines.append(f"| {lab} | {name} | {sv} | {wall:.1f} | {fit.iterations} | {fit.status.value} | "
-                         f"{fmt(errors(fit, true))} |")
-            print(lines[-1], flush=True)
+            row(lines, f"| {lab} | {name} | {sv} | {wall:.1f} | {fit.iterations} | {fit.status.value} | "
+                       f"{fmt(errors(fit, true))} |")
     replace_section("guess", lines)
 
 
@@ -271,9 +274,8 @@ def drillstring():
                     ("omega_bit, theta_top-theta_bit (no torque)", {"exclude": ("torque_bit",)})):
         fit, wall = timed(identify, log, "drillstring", None, IdentifyOptions(free=("k", "d", "mu_sb", "mu_cb"), **kw))
         rse = {n: 100 * s / abs(v) for n, s, v in zip(fit.names, fit.stderr, fit.estimate)}
-        lines.append(f"| {lab} | {wall:.1f} | {fit.iterations} | {fit.status.value} | {fmt(errors(fit, true), 2)} | "
-                     f"{fmt(rse, 2).replace('+', '')} | {fit.condition:.3g} |")
-        print(lines[-1], flush=True)
+        row(lines, f"| {lab} | {wall:.1f} | {fit.iterations} | {fit.status.value} | {fmt(errors(fit, true), 2)} | "
+                   f"{fmt(rse, 2).replace('+', '')} | {fit.condition:.3g} |")
     replace_section("drillstring", lines)
 
 
@@ -333,11 +335,10 @@ def labstring():
                 if st is not None:
                     miss += f" (slow {st.slow_rms[st.channel]:.2g} noise levels, gap {st.max_gap:.1g})"
                 meth = fit.method.replace(GN_METHOD, "GN").split(" (")[0]
-                lines.append(f"| {lname} | {', '.join(free)} | {sname} | {wall:.1f} | {fit.iterations} | "
-                             f"{fit.status.value} | {fit.reason} | {fit.cost:.4g} | "
-                             + (", ".join(f"{k} {x:.3f}" for k, x in v.nrmse.items()) if v else "-")
-                             + f" | {100 * (p_sim / p_log - 1):+.1f} % | {miss} | {meth} |")
-                print(lines[-1], flush=True)
+                row(lines, f"| {lname} | {', '.join(free)} | {sname} | {wall:.1f} | {fit.iterations} | "
+                           f"{fit.status.value} | {fit.reason} | {fit.cost:.4g} | "
+                           + (", ".join(f"{k} {x:.3f}" for k, x in v.nrmse.items()) if v else "-")
+                           + f" | {100 * (p_sim / p_log - 1):+.1f} % | {miss} | {meth} |")
     lines += ["", "Target (issue 18 item 11): exit 0 (converged, or \"best fit within the model; structure misses: "
               "...\"), the stick-slip period within 10 %, held-out NRMSE <= 0.25.  Before the KKT solves were refined "
               "against the exact KKT matrix, the direct fit of the 200 Hz log ended \"the line search failed ... "
@@ -392,9 +393,8 @@ def independent():
                 st = fit.states[0]
                 tw = np.array([log["twist12"][k * M] for k in range(len(st))])
                 rms = float(np.sqrt(np.mean((st[:, 0] - tw) ** 2)))
-                lines.append(f"| {lab} | {ez} | {wall:.1f} | {fit.iterations} | {fit.status.value} | "
-                             f"{fmt(errors(fit, true), 2)} | {rms:.2g} |")
-                print(lines[-1], flush=True)
+                row(lines, f"| {lab} | {ez} | {wall:.1f} | {fit.iterations} | {fit.status.value} | "
+                           f"{fmt(errors(fit, true), 2)} | {rms:.2g} |")
     replace_section("independent", lines)
 
 
@@ -424,9 +424,8 @@ def systematic():
             n += 1
             n_se += a <= 2
             n_tot += b <= 2
-            lines.append(f"| {model} | {label} | {nm} | {100 * err / true[nm]:+.2f} | {100 * se / true[nm]:.2f} | "
-                         f"{100 * sy / true[nm]:.2f} | {a:.1f} | {b:.1f} | {wall:.1f} |")
-            print(lines[-1], flush=True)
+            row(lines, f"| {model} | {label} | {nm} | {100 * err / true[nm]:+.2f} | {100 * se / true[nm]:.2f} | "
+                       f"{100 * sy / true[nm]:.2f} | {a:.1f} | {b:.1f} | {wall:.1f} |")
     lines += ["", f"Covered (|err| <= 2 x bar): statistical SE {n_se}/{n}, total error {n_tot}/{n}."]
     replace_section("systematic", lines)
 
@@ -447,10 +446,9 @@ def bootstrap_section():
             n_se += a <= 2
             n_b += b <= 2
             pc = 100 / abs(true[nm])
-            lines.append(f"| {model} | {label} | {nm} | {pc * err:+.2f} | {pc * fit.stderr[i]:.2f} | "
-                         f"{pc * bo.bias[i]:+.2f} | {pc * bo.sd[i]:.2f} | {pc * bo.error[i]:.2f} | {a:.1f} | {b:.2f} | "
-                         f"{wall:.0f} |")
-            print(lines[-1], flush=True)
+            row(lines, f"| {model} | {label} | {nm} | {pc * err:+.2f} | {pc * fit.stderr[i]:.2f} | "
+                       f"{pc * bo.bias[i]:+.2f} | {pc * bo.sd[i]:.2f} | {pc * bo.error[i]:.2f} | {a:.1f} | {b:.2f} | "
+                       f"{wall:.0f} |")
     lines += ["", f"Covered (|err| <= 2 x bar): statistical SE {n_se}/{n}, bootstrap RMS error {n_b}/{n}."]
     replace_section("bootstrap", lines)
 

@@ -16,6 +16,8 @@ from models import get_model
 from models.modal import linearise, modes
 from models.stability import stability_map
 
+from _results import publish
+
 
 def timeit(fn, repeats):
     fn()  # warm-up
@@ -52,10 +54,7 @@ def main(argv=None):
     lines += [f"| {n} | {a * 1e3:.1f} | {b * 1e3:.1f} |" for n, a, b in rows]
     text = (f"### Modal analysis\n\nCommand: `python benchmarks/bench_modal.py --repeats {args.repeats}`  \n"
             f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the start\n\n" + "\n".join(lines) + "\n")
-    print(text)
-    if args.out:
-        with open(args.out, "a") as fh:
-            fh.write(text + "\n")
+    publish(text, args.out, append=True)
 
 
 if __name__ == "__main__":

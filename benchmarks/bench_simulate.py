@@ -23,6 +23,8 @@ import numpy as np
 from models import get_model
 from models.plant import SimOptions, simulate
 
+from _results import publish
+
 DURATION = 60.0
 
 
@@ -65,10 +67,7 @@ def main(argv=None):
             f"{args.repeats}`  \nMachine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
             f"load average {os.getloadavg()[0]:.1f} at the start of the table\n")
     text = head + "\n" + "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        with open(args.out, "a") as fh:
-            fh.write(text + "\n")
+    publish(text, args.out, append=True)
 
 
 if __name__ == "__main__":

@@ -42,6 +42,8 @@ from models import get_model
 from models.discretise import RHO, Integration, integration, stiff_rates
 from models.plant import SimOptions, hybrid_step_function, plant_integration
 
+from _results import publish
+
 #: the rig (L = 1 mH in the file; this script varies L)
 RIG = Path(__file__).resolve().parents[1] / "tests" / "data" / "small_motor.toml"
 
@@ -184,9 +186,7 @@ def main(argv=None) -> int:
               "| L/R [ms] | speed error | finite | rule |", "|---|---|---|---|"]
     lines += [f"| {p['lr_ms']:g} | {p['err_w']:.2e} | {p['ok']} | {p['note']} |" for p in plants]
     text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text)
+    publish(text, args.out)
     bad = [r for r in rows if r["method"] == "rule" and not r["err_w"] < 0.05]
     return 1 if bad else 0
 

@@ -36,6 +36,8 @@ from mitigate.sweep import (batched_step, make_tasks, options_from_scenario, par
                             run_chunk, run_sweep)
 from mitigate.sweep import SweepStore  # noqa: E402
 
+from _results import publish  # noqa: E402
+
 
 def p95(xs):
     return float(np.percentile(xs, 95))
@@ -186,10 +188,7 @@ def main(argv=None) -> int:
     lines += ["", "Hence `scenarios/sweep_leadscrew.toml` uses dt = 0.2 ms with nsub = 10 (20 us substeps).", "",
               "Command:", "", "```", f"python benchmarks/bench_sweep.py{' --quick' if args.quick else ''}", "```", ""]
     text = "\n".join(lines)
-    print(text)
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(text)
+    publish(text, args.out)
     return 0
 
 

@@ -57,6 +57,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+from _results import publish  # noqa: E402
 SUITE = ROOT / "scenarios" / "benchmark"
 HELDOUT = ROOT / "benchmarks" / "heldout"
 
@@ -318,14 +319,11 @@ def main(argv=None) -> int:
                           "summary": summ, "verdict": verdict, "elapsed_s": elapsed}, indent=1, default=float))
         return 0
     text = render(summ, verdict, periods, args, elapsed, argv)
-    print(text)
+    publish(text, args.out)
     for r in rows:
         if not r.get("success", False):
             print(f"FAILED {r['scenario']} {r['controller']} seed {r['seed']} start {r['start']}: "
                   f"{r.get('message', r.get('status'))}")
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
     return 0
 
 
