@@ -1,6 +1,7 @@
 """EKF on any rig: the generic model, the textbook update, dlqe, truth recovery on our plant, dropouts, options."""
 
 import math
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -18,6 +19,8 @@ from models.plant import SimOptions, simulate
 from models.status import Status
 
 from daq_run import powered_on
+
+DATA = Path(__file__).resolve().parent / "data"
 
 M = get_model("rig3")
 P3 = M.published()
@@ -302,71 +305,17 @@ def test_factory_builds_every_kind_and_rejects_bad_options():
 
 
 # ----------------------------------------------------------------------------- any rig
-FOUR = """
-[rig]
-name = "two-disc test rig"
-operating_point = { omega_top = "2 rad/s", wob = "30 N" }
-[parameters]
-J = { value = 0.02, unit = "kg m^2", positive = true }
-k = { value = 0.8, unit = "N m/rad" }
-d = { value = 0.01, unit = "N m s/rad" }
-mu_k = { value = 0.3 }
-[bodies.top]
-inertia = "J"
-[bodies.bit]
-inertia = "J"
-[connections.upper]
-between = ["drive", "top"]
-stiffness = "k"
-damping = "d"
-[connections.lower]
-between = ["top", "bit"]
-stiffness = "k"
-damping = "d"
-[contacts.rock]
-body = "bit"
-law = "coulomb"
-normal = "wob"
-radius = "0.05 m"
-mu_k = "mu_k"
-[drive]
-kind = "speed"
-input = "omega_top"
-[sensors.enc_drive]
-kind = "encoder"
-body = "drive"
-ticks = 2000
-angle = "theta_drive"
-speed = "omega_top"
-[sensors.enc_bit]
-kind = "encoder"
-body = "bit"
-ticks = 2000
-angle = "theta_bit"
-speed = "omega_bit"
-[sensors.torque]
-kind = "torque"
-at = "upper"
-channel = "torque_upper"
-noise = "0.005 N m"
-[sensors.wob]
-kind = "load_cell"
-contact = "rock"
-noise = "0.5 N"
-"""
 
 
 @pytest.mark.slow
-def test_a_rig_written_in_the_test_nothing_is_rig3_specific(tmp_path):
-    """A two-disc rig with a speed drive, encoders at the drive end and at the bit, a torque
-    sensor on the upper spring and a weight-on-bit load cell.  The defaults follow its sensors
+def test_a_rig_file_where_nothing_is_rig3_specific():
+    """A two-disc rig (tests/data/two_disc_speed_drive.toml) with a speed drive, encoders at the
+    drive end and at the bit, a torque sensor on the upper spring and a weight-on-bit load cell.  The defaults follow its sensors
     (the drive speed and the weight on bit are inputs).  Its Coulomb friction has no shape to
     tell a load factor from a sensor offset: with both states the twist is not observable at
     steady sliding, the report says so, and so does the check along the run's estimates; with
     the offset known the EKF recovers both twists."""
-    path = tmp_path / "two_disc.toml"
-    path.write_text(FOUR)
-    rig = get_model(str(path))
+    rig = get_model(str(DATA / "two_disc_speed_drive.toml"))
     assert rig.inputs == ("omega_top", "wob")
     u = np.array([2.0, 30.0])
     sim = simulate(rig, rig.published(), u, 8.0, SimOptions(seed=1))

@@ -523,89 +523,14 @@ def test_disc_rig_with_its_speed_drive_as_the_only_command():
     assert all(set(a.u) == {"omega3"} for a in acts) and c.counts.failures == 0
 
 
-TWO_DISC = """
-[rig]
-name = "two disc"
-description = "two discs under a speed drive; pin friction on D1, a servo brake on D2 (test rig)"
-objective_body = "D1"
-
-[parameters]
-J1 = { value = 0.02888, unit = "kg m^2", positive = true, source = "thesis Table 3.2 (R1)" }
-J2 = { value = 0.01496, unit = "kg m^2", positive = true, source = "thesis Table 3.2 (R2)" }
-k1 = { value = 1.1175, unit = "N m/rad", positive = true, source = "thesis eq. 3-7" }
-k2 = { value = 0.3659, unit = "N m/rad", positive = true, source = "thesis eq. 3-7" }
-d1 = { value = 0.02145, unit = "N m s/rad", source = "thesis eq. 3-9" }
-d2 = { value = 0.01595, unit = "N m s/rad", source = "thesis eq. 3-9" }
-mu_s = { value = 0.5, source = "thesis eq. 3-11" }
-mu_k = { value = 0.306, source = "thesis eq. 3-14" }
-v_s = { value = 1.0, unit = "rad/s", positive = true, source = "thesis eq. 3-13" }
-r1 = { value = 0.047, unit = "m", positive = true, source = "thesis eq. 3-10" }
-r2 = { value = 0.040, unit = "m", positive = true, source = "models/rigs/rig3.toml" }
-
-[bodies.D1]
-inertia = "J1"
-[bodies.D2]
-inertia = "J2"
-
-[connections.lower]
-between = ["D1", "D2"]
-stiffness = "k1"
-damping = "d1"
-[connections.upper]
-between = ["D2", "drive"]
-stiffness = "k2"
-damping = "d2"
-
-[contacts.load]
-body = "D1"
-law = "stribeck"
-normal = "n_load"
-radius = "r1"
-mu_s = "mu_s"
-mu_k = "mu_k"
-v_s = "v_s"
-[contacts.brake]
-body = "D2"
-law = "stribeck"
-normal = "n_brake"
-radius = "r2"
-mu_s = "mu_s"
-mu_k = "mu_k"
-v_s = "v_s"
-
-[drive]
-kind = "speed"
-input = "omega_drive"
-
-[actuators.brake_servo]
-kind = "servo"
-input = "n_brake"
-n_min = "0 N"
-n_max = "30 N"
-rate_max = "150 N/s"
-tau = "40 ms"
-
-[sensors.enc1]
-kind = "encoder"
-body = "D1"
-ticks = 1000
-[sensors.load]
-kind = "load_cell"
-contact = "load"
-[sensors.brake]
-kind = "load_cell"
-contact = "brake"
-"""
 
 
 @pytest.mark.slow
-def test_two_disc_rig_file_with_a_servo_brake(tmp_path: Path):
-    """A rig written here: speed drive, two discs, a servo brake on the upper disc.  The pin-only
+def test_two_disc_rig_file_with_a_servo_brake():
+    """A rig file (tests/data/two_disc_servo_brake.toml): speed drive, two discs, a servo brake on the upper disc.  The pin-only
     NMPC sets only the brake (within that servo's 30 N and 150 N/s x 40 ms) and stops D1's
     stick-slip."""
-    path = tmp_path / "two_disc.toml"
-    path.write_text(TWO_DISC)
-    m = get_model(str(path))
+    m = get_model(str(Path(__file__).resolve().parent / "data" / "two_disc_servo_brake.toml"))
     u0 = np.array([W0, 20.0, 0.0])
     c = make_controller({"kind": "nmpc", "horizon": 20, "compile": False, "inputs": "pin"}, _ctx(model=m, programme=u0))
     assert c.inputs == ("n_brake",) and c.body == "D1" and c.spec.taus == (0.04,)
