@@ -21,9 +21,15 @@ class Follow(Controller):
     """Sets the drive's set-point to the programme (a well-behaved plug-in)."""
 
     kind = "follow"
+    calls = 0
 
     def _step_impl(self, t, measurement, estimate):
         return Action({"omega_ref": self.context.scheduled(t, "omega_ref")})
+
+    def nth_call(self, option: str, default: int) -> bool:
+        """Count this call; True on every ``n``-th, ``n`` the option ``option`` (else ``default``)."""
+        self.calls += 1
+        return self.calls % int(self.options.get(option, default)) == 0
 
 
 class InitRaises(Follow):
@@ -94,11 +100,8 @@ class Sleeps(Follow):
 class SlowEvery(Follow):
     """Takes ``seconds`` on every ``every``-th call (a controller that misses a deadline now and then)."""
 
-    calls = 0
-
     def _step_impl(self, t, measurement, estimate):
-        self.calls += 1
-        if self.calls % int(self.options.get("every", 2)) == 0:
+        if self.nth_call("every", 2):
             time.sleep(float(self.options.get("seconds", 0.03)))
         return Action({"omega_ref": self.context.scheduled(t, "omega_ref") + 1.0})
 
@@ -117,11 +120,8 @@ class Prints(Follow):
 class Transient(Follow):
     """Its solver fails (SolverFailure, the documented transient failure) on ``fail_every``-th calls."""
 
-    calls = 0
-
     def _step_impl(self, t, measurement, estimate):
-        self.calls += 1
-        if self.calls % int(self.options.get("fail_every", 1)) == 0:
+        if self.nth_call("fail_every", 1):
             raise SolverFailure("did not converge")
         return super()._step_impl(t, measurement, estimate)
 
@@ -133,7 +133,7 @@ class Chatters(Follow):
     Kp, f_t = 0.22, 0.43
 
     def _step_impl(self, t, measurement, estimate):
-        self.calls = getattr(self, "calls", 0) + 1
+        self.calls += 1
         return Action({"omega_ref": self.context.scheduled(t, "omega_ref") + (3.0 if self.calls % 2 else -3.0)})
 
 
