@@ -23,10 +23,10 @@ import math
 from dataclasses import dataclass
 from typing import Mapping
 
-from mitigate.controllers.base import Action, Controller, ControlContext, reading
-from mitigate.controllers.compiled import IMPLEMENTATIONS, compiled_action, compiled_law, law_config
+from mitigate.controllers.base import Action, ControlContext, reading
+from mitigate.controllers.compiled import CompiledStepLaw, LawOptions, compiled_action, law_config
 from mitigate.tunables import Tunable
-from models.checks import check_options, option
+from models.checks import option
 from models.errors import ConfigError
 
 __all__ = ["BrakeOptions", "BrakeController", "body_speed"]
@@ -38,7 +38,7 @@ FILTER_PERIODS = 3.0
 
 
 @dataclass(frozen=True, kw_only=True)
-class BrakeOptions:
+class BrakeOptions(LawOptions):
     """Semi-active brake law options.
 
     Parameters
@@ -51,8 +51,7 @@ class BrakeOptions:
     n_max : largest commanded pin force [N] (0: the servo's range)
     filter_tau : first-order low-pass time constant on the speeds [s] (0: none; default: 3 DAQ periods)
     use_estimate : take speeds from the state estimate when one is available
-    implementation : "c": the step as one compiled C call (csrc/ss_laws.c, the one ``mitigate
-        export`` writes out); "python": the reference step below
+    implementation : "c" (compiled) or "python" (:class:`~mitigate.controllers.compiled.LawOptions`)
     """
 
     input: str = option("", what="a servo input name")
@@ -62,10 +61,6 @@ class BrakeOptions:
     n_max: float = option(0.0, lo=0.0, unit="N")
     filter_tau: float | None = option(None, lo=0.0, unit="s", none=True)
     use_estimate: bool = option(True)
-    implementation: str = option("c", choices=IMPLEMENTATIONS)
-
-    def __post_init__(self):
-        check_options(self)
 
 
 def body_speed(model, body: str, estimate, measurement: Mapping[str, float], use_estimate: bool) -> float:
@@ -86,7 +81,7 @@ def force_per_speed(context) -> float:
     return a.n_max / w if a is not None and w > 0 else float("nan")
 
 
-class BrakeController(Controller):
+class BrakeController(CompiledStepLaw):
     """Semi-active servo-pin brake (see module docstring)."""
 
     kind = "brake"
@@ -129,9 +124,7 @@ class BrakeController(Controller):
             raise ConfigError(f"{context.where}: the brake needs the speeds of {self.body!r}"
                               f"{' and ' + repr(self.drive_body) if options.gain_relative > 0 else ''}, "
                               f"which rig {m.name!r} does not measure")
-        #: the compiled step (csrc/ss_laws.c); None: the Python reference
-        self.compiled, self.compile_status = compiled_law(self)
-        self.reset()
+        self.compile_step()
 
     def c_config(self):
         """The law's C configuration, the channels it reads (its body's speed, the drive body's when
@@ -147,9 +140,7 @@ class BrakeController(Controller):
     def actuated_inputs(self) -> tuple[str, ...]:
         return (self.input,)
 
-    def reset(self) -> None:
-        if self.compiled is not None:
-            self.compiled.reset()
+    def reset_reference(self) -> None:
         self._w = None
         self._t = None
 

@@ -23,17 +23,19 @@ from __future__ import annotations
 
 import ctypes
 import functools
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
 
-from mitigate.controllers.base import Action, reading
+from mitigate.controllers.base import Action, Controller, reading
 from models.cbuild import CSRC, CStruct, build_library, c_view, lay_out, read_channels, read_source
+from models.checks import check_options, option
 from models.errors import SolverFailure
 
 __all__ = ["LAW_CONFIG", "LAW_IDS", "LAW_SOURCES", "IMPLEMENTATIONS", "law_config", "law_files", "law_library",
-           "CompiledLaw", "compiled_law", "compiled_action"]
+           "CompiledLaw", "compiled_law", "compiled_action", "LawOptions", "CompiledStepLaw"]
 
 #: the C sources of the laws' steps
 LAW_SOURCES = Path(__file__).resolve().parent / "csrc"
@@ -206,3 +208,46 @@ def compiled_action(law, t: float, measurement, estimate, name: str, w_nom: floa
         reading(measurement, ch)
         raise SolverFailure(f"channel {ch!r} has no finite reading in this sample")
     return Action({name: u})
+
+
+@dataclass(frozen=True, kw_only=True)
+class LawOptions:
+    """The option every law with a compiled step takes; a law's options class extends it.
+
+    Parameters
+    ----------
+    implementation : "c": the step as one compiled C call (csrc/ss_laws.c, the one ``mitigate
+        export`` writes out); "python": the law's reference step in Python
+    """
+
+    implementation: str = option("c", choices=IMPLEMENTATIONS)
+
+    def __post_init__(self):
+        check_options(self)
+
+
+class CompiledStepLaw(Controller):
+    """Base of a law whose step runs as one compiled C call or as its Python reference.
+
+    A subclass resolves what its ``c_config()`` reads, then calls :meth:`compile_step`; it keeps
+    its Python step's state in :meth:`reset_reference`, and its ``_step_impl`` answers with
+    :func:`compiled_action` while ``self.compiled`` is set.
+    """
+
+    #: the compiled step (csrc/ss_laws.c); None: the Python reference
+    compiled: CompiledLaw | None = None
+    #: which step runs, and why (:func:`compiled_law`)
+    compile_status: str = ""
+
+    def compile_step(self) -> None:
+        """Build the step the options ask for (:func:`compiled_law`), then reset."""
+        self.compiled, self.compile_status = compiled_law(self)
+        self.reset()
+
+    def reset(self) -> None:
+        if self.compiled is not None:
+            self.compiled.reset()
+        self.reset_reference()
+
+    def reset_reference(self) -> None:
+        """Forget the Python reference step's state."""

@@ -26,18 +26,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Mapping
 
-from mitigate.controllers.base import Action, Controller, ControlContext, reading
-from mitigate.controllers.compiled import IMPLEMENTATIONS, compiled_action, compiled_law, law_config
+from mitigate.controllers.base import Action, ControlContext, reading
+from mitigate.controllers.compiled import CompiledStepLaw, LawOptions, compiled_action, law_config
 from mitigate.controllers.tuning import drive_speed_channel, first_order, np_clip, tuning_for
 from mitigate.tunables import Tunable
-from models.checks import check_options, option
+from models.checks import option
 from models.errors import ConfigError
 
 __all__ = ["DOSKILOptions", "DOSKIL"]
 
 
 @dataclass(frozen=True, kw_only=True)
-class DOSKILOptions:
+class DOSKILOptions(LawOptions):
     """D-OSKIL options (scenario keys of ``kind = "doskil"``); 0 means "derive from the rig".
 
     Parameters
@@ -47,8 +47,7 @@ class DOSKILOptions:
     gain_factor : multiplies the derived gain [-] (2: the sweep's compromise between severity and pin wear)
     n_min, n_max : force range [N] (n_max 0: the servo's range)
     tau : low-pass of the measured speeds [s] (0: 1/80 of the rig's stick-slip period; rig3 29 ms)
-    implementation : "c": the step as one compiled C call (csrc/ss_laws.c, the one ``mitigate
-        export`` writes out); "python": the reference step below
+    implementation : "c" (compiled) or "python" (:class:`~mitigate.controllers.compiled.LawOptions`)
     """
 
     input: str = option("", what="a servo input name")
@@ -57,13 +56,9 @@ class DOSKILOptions:
     n_min: float = option(0.0, lo=0.0, unit="N")
     n_max: float = option(0.0, lo=0.0, unit="N")
     tau: float = option(0.0, lo=0.0, unit="s")
-    implementation: str = option("c", choices=IMPLEMENTATIONS)
-
-    def __post_init__(self):
-        check_options(self)
 
 
-class DOSKIL(Controller):
+class DOSKIL(CompiledStepLaw):
     """D-OSKIL normal-force modulation (module docstring)."""
 
     kind = "doskil"
@@ -101,9 +96,7 @@ class DOSKIL(Controller):
         a = m.actuator(self.input)
         self.n_min = max(options.n_min, a.n_min)
         self.n_max = options.n_max or a.n_max
-        #: the compiled step (csrc/ss_laws.c); None: the Python reference
-        self.compiled, self.compile_status = compiled_law(self)
-        self.reset()
+        self.compile_step()
 
     def c_config(self):
         """The law's C configuration, the channels it reads, the estimates it reads (none)."""
@@ -113,9 +106,7 @@ class DOSKIL(Controller):
     def actuated_inputs(self) -> tuple[str, ...]:
         return (self.input,)
 
-    def reset(self) -> None:
-        if self.compiled is not None:
-            self.compiled.reset()
+    def reset_reference(self) -> None:
         self._d = None
 
     def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:

@@ -8,13 +8,14 @@ starting at the pipe torque and stopping while the command is at ``[drive] torqu
 
 from __future__ import annotations
 
-from mitigate.controllers.base import Action, Controller, ControlContext
+from mitigate.controllers.base import Action, ControlContext
+from mitigate.controllers.compiled import CompiledStepLaw
 from mitigate.controllers.tuning import drive_speed_channel, np_clip, tuning_for
 
 __all__ = ["DriveSetpointLaw"]
 
 
-class DriveSetpointLaw(Controller):
+class DriveSetpointLaw(CompiledStepLaw):
     """Base of a law acting on the drive's input (module docstring).
 
     Sets ``speed_ch`` (the drive's speed channel), ``tuning`` (:func:`tuning_for` of the rig),

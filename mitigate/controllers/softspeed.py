@@ -50,18 +50,18 @@ from dataclasses import dataclass
 from typing import Mapping
 
 from mitigate.controllers.base import Action, ControlContext, reading
-from mitigate.controllers.compiled import IMPLEMENTATIONS, compiled_action, compiled_law, law_config
+from mitigate.controllers.compiled import LawOptions, compiled_action, law_config
 from mitigate.controllers.setpoint import DriveSetpointLaw
 from mitigate.controllers.tuning import PipeTorque, VirtualDrive, absorber_frequency, np_clip, tuning_for
 from mitigate.tunables import Tunable
-from models.checks import check_options, option
+from models.checks import option
 from models.errors import ConfigError
 
 __all__ = ["SoftSpeedOptions", "SoftSpeed"]
 
 
 @dataclass(frozen=True, kw_only=True)
-class SoftSpeedOptions:
+class SoftSpeedOptions(LawOptions):
     """SoftSpeed options (scenario keys of ``kind = "softspeed"``); 0 means "derive from the rig".
 
     Parameters
@@ -74,8 +74,7 @@ class SoftSpeedOptions:
     band : the set-point stays within the programme +- band [rad/s] (0: the programme's speed, so
         the set-point stays in ``[0, 2 w_nom]``)
     tau_torque : low-pass of the pipe-torque estimate [s] (0: 1/100 of the period ``1/f_t``)
-    implementation : "c": the step as one compiled C call (csrc/ss_laws.c, the one ``mitigate
-        export`` writes out); "python": the reference step below
+    implementation : "c" (compiled) or "python" (:class:`~mitigate.controllers.compiled.LawOptions`)
     """
 
     kp_factor: float = option(2.0, lo=0.0, lo_open=True)
@@ -85,10 +84,6 @@ class SoftSpeedOptions:
     J_comp: float = option(0.0, lo=0.0, unit="kg m^2")
     band: float = option(0.0, lo=0.0, unit="rad/s")
     tau_torque: float = option(0.0, lo=0.0, unit="s")
-    implementation: str = option("c", choices=IMPLEMENTATIONS)
-
-    def __post_init__(self):
-        check_options(self)
 
 
 class SoftSpeed(DriveSetpointLaw):
@@ -120,18 +115,14 @@ class SoftSpeed(DriveSetpointLaw):
         self.tau_torque = options.tau_torque or 1.0 / (100.0 * self.f_t)
         self.pipe = PipeTorque(context, tau=self.tau_torque, tau_acc=max(1.0 / (80.0 * self.f_t), 3.0 * context.period))
         self.drive = VirtualDrive(self.J_v, self.Kp, self.Ki, context.period)
-        #: the compiled step (csrc/ss_laws.c); None: the Python reference
-        self.compiled, self.compile_status = compiled_law(self)
-        self.reset()
+        self.compile_step()
 
     def c_config(self):
         """The law's C configuration, the channels it reads, the estimates it reads (none)."""
         fields, channels = self.drive_config(J_v=self.J_v, band=self.options.band)
         return law_config("softspeed", **fields), channels, ()
 
-    def reset(self) -> None:
-        if self.compiled is not None:
-            self.compiled.reset()
+    def reset_reference(self) -> None:
         self.pipe.reset()
         self._w = None
         self._I = None

@@ -36,9 +36,9 @@ import math
 from dataclasses import dataclass
 from typing import Mapping
 
-from models.checks import check_options, option
+from models.checks import option
 from mitigate.controllers.base import Action, ControlContext, reading
-from mitigate.controllers.compiled import IMPLEMENTATIONS, compiled_action, compiled_law, law_config
+from mitigate.controllers.compiled import LawOptions, compiled_action, law_config
 from mitigate.controllers.setpoint import DriveSetpointLaw
 from mitigate.controllers.tuning import PipeTorque, first_order, np_clip, tuning_for
 from mitigate.tunables import Tunable
@@ -52,7 +52,7 @@ NOISE_TORQUE_FRACTION = 0.05
 
 
 @dataclass(frozen=True, kw_only=True)
-class ZTorqueOptions:
+class ZTorqueOptions(LawOptions):
     """Z-Torque options (scenario keys of ``kind = "ztorque"``); 0 means "derive from the rig".
 
     Parameters
@@ -63,8 +63,7 @@ class ZTorqueOptions:
     tau_lp : low-pass time constant [s] (0: 1/100 of the stick-slip period)
     band : the set-point stays within the programme +- band [rad/s] (0: the programme's speed)
     kp_factor, ki : a torque drive's stiff loop ``Kp = kp_factor Z`` [-], ``Ki`` [N m/rad] (0: ``5 J_drive``, NORCE)
-    implementation : "c": the step as one compiled C call (csrc/ss_laws.c, the one ``mitigate
-        export`` writes out); "python": the reference step below
+    implementation : "c" (compiled) or "python" (:class:`~mitigate.controllers.compiled.LawOptions`)
     """
 
     z: float = option(0.35, lo=0.0)
@@ -74,10 +73,6 @@ class ZTorqueOptions:
     band: float = option(0.0, lo=0.0, unit="rad/s")
     kp_factor: float = option(50.0, lo=0.0, lo_open=True)
     ki: float = option(0.0, lo=0.0, unit="N m/rad")
-    implementation: str = option("c", choices=IMPLEMENTATIONS)
-
-    def __post_init__(self):
-        check_options(self)
 
 
 class ZTorque(DriveSetpointLaw):
@@ -106,9 +101,7 @@ class ZTorque(DriveSetpointLaw):
         if self.torque_drive:
             self.Kp = min(self.Kp, t.J_drive / context.period, self._kp_noise_bound(context))
         self.Ki = options.ki or 5.0 * t.J_drive
-        #: the compiled step (csrc/ss_laws.c); None: the Python reference
-        self.compiled, self.compile_status = compiled_law(self)
-        self.reset()
+        self.compile_step()
 
     def c_config(self):
         """The law's C configuration, the channels it reads, the estimates it reads (none)."""
@@ -127,9 +120,7 @@ class ZTorque(DriveSetpointLaw):
         sd = channel_std(m, self.speed_ch, context.period, context.sensors)
         return NOISE_TORQUE_FRACTION * T_nom / sd if T_nom > 0 and sd > 1e-9 else math.inf
 
-    def reset(self) -> None:
-        if self.compiled is not None:
-            self.compiled.reset()
+    def reset_reference(self) -> None:
         self.pipe.reset()
         self._lp = None          # the slow part of the pipe torque (its high-pass is T - slow)
         self._I = None
