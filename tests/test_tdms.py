@@ -1,6 +1,7 @@
 """TDMS logs through npTDMS with a TOML channel mapping (models.tdms)."""
 
 import math
+import textwrap
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ import nptdms
 from nptdms import ChannelObject, TdmsWriter  # noqa: E402
 
 from models.errors import ConfigError, DataError  # noqa: E402
+from models import tdms  # noqa: E402
 from models.tdms import read_tdms  # noqa: E402
 
 
@@ -28,21 +30,23 @@ def make_tdms(path, n=50, dt=0.01, with_time=True, bad_value=None):
     return t, speed_rpm
 
 
-MAP_TIME = """
-[time]
-group = "Time"
-channel = "t"
-unit = "ms"
+def doc_mapping() -> str:
+    """The example mapping of :mod:`models.tdms`'s docstring (the block after its ``::``)."""
+    block = []
+    for line in tdms.__doc__.split("::\n", 1)[1].splitlines():
+        if line.strip() and not line.startswith("    "):
+            break
+        block.append(line)
+    return textwrap.dedent("\n".join(block)).strip() + "\n"
 
-[channels]
-omega1 = { group = "Encoders", channel = "Disc1 speed", unit = "rpm" }
-n1 = { group = "Load cells", channel = "Pin 1", unit = "kN" }
-"""
 
+#: the documented mapping, with the time channel in ms as make_tdms writes it
+MAP_TIME = doc_mapping().replace('unit = "s"', 'unit = "ms"', 1)
 MAP_WF = MAP_TIME.replace('group = "Time"\nchannel = "t"\nunit = "ms"', "wf_increment = true")
 
 
 def test_read_with_time_channel(tmp_path):
+    """The documented example mapping (models.tdms) reads a file: time in ms, speed in rpm, force in kN."""
     t, rpm = make_tdms(tmp_path / "a.tdms")
     (tmp_path / "m.toml").write_text(MAP_TIME)
     log = read_tdms(tmp_path / "a.tdms", tmp_path / "m.toml", required=("omega1", "n1"))
