@@ -123,10 +123,7 @@ class ParameterSet:
             raise AttributeError(f"{self.model}: no parameter {name!r}") from None
 
     def __getitem__(self, name: str) -> float:
-        try:
-            return self._values[name]
-        except KeyError:
-            raise ConfigError(f"{self.model}: unknown parameter {name!r}; expected one of {', '.join(self._specs)}") from None
+        return self._known(self._values, name)
 
     def __contains__(self, name: str) -> bool:
         return name in self._values
@@ -151,8 +148,12 @@ class ParameterSet:
         return tuple(self._specs)
 
     def spec(self, name: str) -> Spec:
+        return self._known(self._specs, name)
+
+    def _known(self, table: dict, name: str):
+        """``table[name]`` of a parameter table; ConfigError naming the rig's parameters if unknown."""
         try:
-            return self._specs[name]
+            return table[name]
         except KeyError:
             raise ConfigError(f"{self.model}: unknown parameter {name!r}; expected one of {', '.join(self._specs)}") from None
 
