@@ -135,23 +135,31 @@ def replace_section(marker: str, lines: list[str]) -> None:
     print(f"wrote section {marker} of {RESULTS}", flush=True)
 
 
-def row(lines: list[str], text: str) -> None:
-    """Add a row to a section's table and print it at once (a section runs for minutes)."""
-    lines.append(text)
-    print(text, flush=True)
+class Section:
+    """One section of the results file: its title, the command that measures it, what precedes the
+    table (``intro``: prose, the table's head), the rows as they are measured (each printed at once:
+    a section runs for minutes), and :meth:`write`, which puts it in the file (:func:`replace_section`)."""
 
+    def __init__(self, marker: str, title: str, cmd: str, intro: list[str] = ()):
+        self.marker = marker
+        quick = " --quick" if S.quick else ""
+        self.lines = [title, "", f"Command: `PYTHONPATH=. python benchmarks/bench_identify.py {cmd}{quick}` "
+                      f"({S.dur:g} s logs where not stated; 2 cores shared with other sessions; 1-min load average at "
+                      f"start {os.getloadavg()[0]:.1f}).", ""] + list(intro)
 
-def header(cmd: str) -> list[str]:
-    return [f"Command: `PYTHONPATH=. python benchmarks/bench_identify.py {cmd}{' --quick' if S.quick else ''}` "
-            f"({S.dur:g} s logs where not stated; 2 cores shared with other sessions; 1-min load average at start "
-            f"{os.getloadavg()[0]:.1f}).", ""]
+    def row(self, text: str) -> None:
+        self.lines.append(text)
+        print(text, flush=True)
+
+    def write(self, footer: list[str] = ()) -> None:
+        replace_section(self.marker, self.lines + list(footer))
 
 
 # --------------------------------------------------------------------------- sections
 def accuracy():
-    lines = ["## Accuracy and speed on logs of our exact plant", ""] + header("accuracy --repeat %d" % S.repeat) + [
+    sec = Section("accuracy", "## Accuracy and speed on logs of our exact plant", "accuracy --repeat %d" % S.repeat, [
         "| model | true set | noise x | variant | nsub | wall [s] | iters | status | errors [%] | |err|/SE |",
-        "|---|---|---|---|---|---|---|---|---|---|"]
+        "|---|---|---|---|---|---|---|---|---|---|"])
     d0 = published("disc")
     cases = []
     for label, true in (("A: k-10%, d+40%, mu_k-8%, mu_s-10%", d0.replace(k=1.0, d=0.03, mu_k=0.28, mu_s=0.45)),
@@ -193,23 +201,22 @@ def accuracy():
                 walls.append(wall)
             e = errors(fit, true)
             z = ", ".join(f"{n} {abs(v - true[n]) / s:.1f}" for n, v, s in zip(fit.names, fit.estimate, fit.stderr))
-            row(lines, f"| {model} | {label} (stuck {100 * stuck:.0f} %) | {ns:g} | {vname} | {fit.nsub} | "
-                       f"{np.median(walls):.1f} ({max(walls):.1f}) | {fit.iterations} | {fit.status.value} | "
-                       f"{fmt(e)} | {z} |")
-    lines += ["", "Targets: stiffness within 3 %, friction levels within 5 %, damping within 30 %, a 60 s 100 Hz log in "
-              "<= 20 s (previous code: 11.6 s for rig3)."]
-    replace_section("accuracy", lines)
+            sec.row(f"| {model} | {label} (stuck {100 * stuck:.0f} %) | {ns:g} | {vname} | {fit.nsub} | "
+                    f"{np.median(walls):.1f} ({max(walls):.1f}) | {fit.iterations} | {fit.status.value} | "
+                    f"{fmt(e)} | {z} |")
+    sec.write(["", "Targets: stiffness within 3 %, friction levels within 5 %, damping within 30 %, a 60 s 100 Hz log "
+               "in <= 20 s (previous code: 11.6 s for rig3)."])
 
 
 def mismatch():
-    lines = ["## Structural mismatch: plant and model differ", ""] + header("mismatch") + [
+    sec = Section("mismatch", "## Structural mismatch: plant and model differ", "mismatch", [
         "Plant: rig3 with the PI loop on the motor-side error (pi_error = \"motor\"), every sensor channel one DAQ "
         "sample late (delay = 1), the torque load cell 0.05 N m high; torque definition reaction (the model's too). "
         "Model: the shipped rig3 (PI on the disc-side error, no delay).  Start: k1 1.0, k2 0.33, d1 0.03, mu_k 0.28, "
         "mu_s 0.45, offset 0.  The logs start at rest, untwisted (encoder_zero = \"untwisted\"), except in the last "
         "rows.", "",
         "| seed | encoder zero | delay search | delay found | wall [s] | iters | status | errors [%] | offset [N m] | s^2 |",
-        "|---|---|---|---|---|---|---|---|---|---|"]
+        "|---|---|---|---|---|---|---|---|---|---|"])
     plant = mismatch_plant()
     true = published("rig3").replace(motor_torque_offset=0.05)
     start = true.replace(k1=1.0, k2=0.33, d1=0.03, mu_k=0.28, mu_s=0.45, motor_torque_offset=0.0)
@@ -225,20 +232,20 @@ def mismatch():
             if ez == "untwisted" and dd:
                 met += ok
                 total += 1
-            row(lines, f"| {seed} | {ez} | {'0-2' if dd else 'off'} | {fit.delay} | {wall:.1f} | {fit.iterations} | "
-                       f"{fit.status.value} | {fmt(e)} | {fit.estimate[-1]:.4f} | {fit.sigma2:.2f} |")
-    lines += ["", f"Targets (k1, k2 within 3 %, mu_s, mu_k within 5 %) met in {met}/{total} runs with the delay search."]
-    replace_section("mismatch", lines)
+            sec.row(f"| {seed} | {ez} | {'0-2' if dd else 'off'} | {fit.delay} | {wall:.1f} | {fit.iterations} | "
+                    f"{fit.status.value} | {fmt(e)} | {fit.estimate[-1]:.4f} | {fit.sigma2:.2f} |")
+    sec.write(["", f"Targets (k1, k2 within 3 %, mu_s, mu_k within 5 %) met in {met}/{total} runs with the delay "
+               "search."])
 
 
 def guess():
-    lines = ["## The automatic guess on real-data-like disc logs", ""] + header("guess") + [
+    sec = Section("guess", "## The automatic guess on real-data-like disc logs", "guess", [
         "Disc logs (30 s): drive speed 1.2 + 0.4 sin(2 pi 0.15 t) + 0.2 sin(2 pi 0.9 t) rad/s, normal force "
         "20 + 6 sin(2 pi 0.05 t) N, load-cell noise x3; encoder zero free (the default).  Guess: "
         "`initial=None` (data-derived, or the rig file's values if those predict the log better over one "
         "shooting interval).", "",
         "| true set | start | start values (k, d, mu_k, mu_s) | wall [s] | iters | status | errors [%] |",
-        "|---|---|---|---|---|---|---|"]
+        "|---|---|---|---|---|---|---|"])
     d = get_model("disc")
     pub = published("disc")
 
@@ -253,30 +260,30 @@ def guess():
         for name, init in (("guess", None), ("published", pub)):
             fit, wall = timed(identify, log, d, init, IdentifyOptions(free=("k", "d", "mu_k", "mu_s")))
             sv = ", ".join(f"{v:.3g}" for v in fit.initial)
-            row(lines, f"| {lab} | {name} | {sv} | {wall:.1f} | {fit.iterations} | {fit.status.value} | "
-                       f"{fmt(errors(fit, true))} |")
-    replace_section("guess", lines)
+            sec.row(f"| {lab} | {name} | {sv} | {wall:.1f} | {fit.iterations} | {fit.status.value} | "
+                    f"{fmt(errors(fit, true))} |")
+    sec.write()
 
 
 def drillstring():
     sys.path.insert(0, str(ROOT / "tests" / "data"))
     from make_drillstring_log import truth
 
-    lines = ["## Drill string: the torque-on-bit pins the friction level", ""] + header("drillstring") + [
+    sec = Section("drillstring", "## Drill string: the torque-on-bit pins the friction level", "drillstring", [
         "Log: tests/data/drillstring_stickslip.csv (3 s at 1 kHz, our plant, stick-slip at 2.66 Hz, WOB 200 N + "
         "10 N sin(2 pi 0.7 t) with 4 N load-cell noise).  Free k, d, mu_sb, mu_cb from the data-derived guess, "
         "encoder zero free.", "",
         "| compared channels | wall [s] | iters | status | errors [%] | rel. SE [%] | condition |",
-        "|---|---|---|---|---|---|---|"]
+        "|---|---|---|---|---|---|---|"])
     log = read_csv(ROOT / "tests" / "data" / "drillstring_stickslip.csv")
     true = truth()
     for lab, kw in (("omega_bit, torque_bit, theta_top-theta_bit", {}),
                     ("omega_bit, theta_top-theta_bit (no torque)", {"exclude": ("torque_bit",)})):
         fit, wall = timed(identify, log, "drillstring", None, IdentifyOptions(free=("k", "d", "mu_sb", "mu_cb"), **kw))
         rse = {n: 100 * s / abs(v) for n, s, v in zip(fit.names, fit.stderr, fit.estimate)}
-        row(lines, f"| {lab} | {wall:.1f} | {fit.iterations} | {fit.status.value} | {fmt(errors(fit, true), 2)} | "
-                   f"{fmt(rse, 2).replace('+', '')} | {fit.condition:.3g} |")
-    replace_section("drillstring", lines)
+        sec.row(f"| {lab} | {wall:.1f} | {fit.iterations} | {fit.status.value} | {fmt(errors(fit, true), 2)} | "
+                f"{fmt(rse, 2).replace('+', '')} | {fit.condition:.3g} |")
+    sec.write()
 
 
 def labstring():
@@ -287,8 +294,8 @@ def labstring():
     from models.signals import moving_average, stick_slip_cycles
 
     rig = ROOT / "tests" / "data" / "lab_string_1dof.toml"
-    lines = ["## A model simpler than the rig: a 1-DOF user rig on a synthetic lab drill string", ""] + \
-        header("labstring") + [
+    sec = Section("labstring", "## A model simpler than the rig: a 1-DOF user rig on a synthetic lab drill string",
+                  "labstring", [
         "Logs: `tests/data/lab_string_stickslip.csv` (SYNTHETIC, `tests/lab_drillstring.py`: 6-node pipe with "
         "collars, PI top drive, rational bit-rock law, 200 Hz DAQ with jitter, 12 s, stick-slip period 1.0 s)"
         + ("" if S.quick else "; its 1 kHz variant (the same string with the DAQ at 1 kHz, 12 s, generated)")
@@ -296,7 +303,7 @@ def labstring():
         "Period: the fitted model free-running over the whole log (exact plant, from rest) against the log, "
         "stick-slip cycles after 2 s.  Cost: 0.5 |weighted residual|^2 at eps = 0.005.", "",
         "| log | free | solver | wall [s] | iters | status | reason | cost | held-out NRMSE | period error | "
-        "structure | method |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        "structure | method |", "|---|---|---|---|---|---|---|---|---|---|---|---|"])
     logs = [("200 Hz", read_csv(ROOT / "tests" / "data" / "lab_string_stickslip.csv"))]
     if not S.quick:
         with tempfile.TemporaryDirectory() as tmp:
@@ -324,8 +331,8 @@ def labstring():
                 try:
                     fit, wall = timed(identify, log, m, None, IdentifyOptions(free=free, **kw), holdout=0.2)
                 except Exception as exc:  # noqa: BLE001 - a benchmark reports every outcome
-                    lines.append(f"| {lname} | {', '.join(free)} | {sname} | - | - | error | {type(exc).__name__}: "
-                                 f"{str(exc).splitlines()[0][:80]} | | | | | |")
+                    sec.lines.append(f"| {lname} | {', '.join(free)} | {sname} | - | - | error | {type(exc).__name__}: "
+                                     f"{str(exc).splitlines()[0][:80]} | | | | | |")
                     continue
                 v = fit.validation
                 sim = simulate(m, fit.params, U, log.dt * len(U), _Sim(dt=log.dt, nsub=10))
@@ -335,16 +342,15 @@ def labstring():
                 if st is not None:
                     miss += f" (slow {st.slow_rms[st.channel]:.2g} noise levels, gap {st.max_gap:.1g})"
                 meth = fit.method.replace(GN_METHOD, "GN").split(" (")[0]
-                row(lines, f"| {lname} | {', '.join(free)} | {sname} | {wall:.1f} | {fit.iterations} | "
-                           f"{fit.status.value} | {fit.reason} | {fit.cost:.4g} | "
-                           + (", ".join(f"{k} {x:.3f}" for k, x in v.nrmse.items()) if v else "-")
-                           + f" | {100 * (p_sim / p_log - 1):+.1f} % | {miss} | {meth} |")
-    lines += ["", "Target (issue 18 item 11): exit 0 (converged, or \"best fit within the model; structure misses: "
-              "...\"), the stick-slip period within 10 %, held-out NRMSE <= 0.25.  Before the KKT solves were refined "
-              "against the exact KKT matrix, the direct fit of the 200 Hz log ended \"the line search failed ... "
-              "continuity gaps remain (largest 0.00016)\", exit 1, with --shoot-every 5 and --eps 0.05 too; IPOPT "
-              "converged (12 iterations, 8.6 s)."]
-    replace_section("labstring", lines)
+                sec.row(f"| {lname} | {', '.join(free)} | {sname} | {wall:.1f} | {fit.iterations} | "
+                        f"{fit.status.value} | {fit.reason} | {fit.cost:.4g} | "
+                        + (", ".join(f"{k} {x:.3f}" for k, x in v.nrmse.items()) if v else "-")
+                        + f" | {100 * (p_sim / p_log - 1):+.1f} % | {miss} | {meth} |")
+    sec.write(["", "Target (issue 18 item 11): exit 0 (converged, or \"best fit within the model; structure misses: "
+               "...\"), the stick-slip period within 10 %, held-out NRMSE <= 0.25.  Before the KKT solves were refined "
+               "against the exact KKT matrix, the direct fit of the 200 Hz log ended \"the line search failed ... "
+               "continuity gaps remain (largest 0.00016)\", exit 1, with --shoot-every 5 and --eps 0.05 too; IPOPT "
+               "converged (12 iterations, 8.6 s)."])
 
 
 def _independent_module():
@@ -361,16 +367,16 @@ def _independent_module():
 
 def independent():
     ind, path = _independent_module()
-    lines = ["## Logs of the independent simulator (a world we did not write)", ""] + header("independent")
+    sec = Section("independent", "## Logs of the independent simulator (a world we did not write)", "independent")
     if ind is None:
-        replace_section("independent", lines + ["The independent simulator was not found; nothing measured."])
+        sec.write(["The independent simulator was not found; nothing measured."])
         return
-    lines += [f"Simulator: `{path}` (scipy Radau, tanh sign with v_t = 1e-4 rad/s, thesis parameters, reaction "
-              "torque, encoders zeroed at power-on, 10 ms; row k holds the command over [t_k, t_k+1): "
-              "input_row = \"start\").  Free k1, k2, d1, d2, mu_s, mu_k from the data-derived guess.  The previous "
-              "model (torque channel as eta KT i) had k2 off by 12.8 % and mu_k by 7.4 % on such logs.", "",
-              "| log | encoder zero | wall [s] | iters | status | errors [%] | twist RMS error [rad] |",
-              "|---|---|---|---|---|---|---|"]
+    sec.lines += [f"Simulator: `{path}` (scipy Radau, tanh sign with v_t = 1e-4 rad/s, thesis parameters, reaction "
+                  "torque, encoders zeroed at power-on, 10 ms; row k holds the command over [t_k, t_k+1): "
+                  "input_row = \"start\").  Free k1, k2, d1, d2, mu_s, mu_k from the data-derived guess.  The previous "
+                  "model (torque channel as eta KT i) had k2 off by 12.8 % and mu_k by 7.4 % on such logs.", "",
+                  "| log | encoder zero | wall [s] | iters | status | errors [%] | twist RMS error [rad] |",
+                  "|---|---|---|---|---|---|---|"]
     true = published("rig3")
     runs = (("rest, 30 rpm, N1 = 20 N, seed 1", dict(), math.pi, 20.0, 1),
             ("rest, 30 rpm, N1 = 20 N, seed 2", dict(), math.pi, 20.0, 2),
@@ -393,9 +399,9 @@ def independent():
                 st = fit.states[0]
                 tw = np.array([log["twist12"][k * M] for k in range(len(st))])
                 rms = float(np.sqrt(np.mean((st[:, 0] - tw) ** 2)))
-                row(lines, f"| {lab} | {ez} | {wall:.1f} | {fit.iterations} | {fit.status.value} | "
-                           f"{fmt(errors(fit, true), 2)} | {rms:.2g} |")
-    replace_section("independent", lines)
+                sec.row(f"| {lab} | {ez} | {wall:.1f} | {fit.iterations} | {fit.status.value} | "
+                        f"{fmt(errors(fit, true), 2)} | {rms:.2g} |")
+    sec.write()
 
 
 def _coverage_cases():
@@ -412,9 +418,9 @@ def _coverage_cases():
 
 
 def systematic():
-    lines = ["## Error bars: statistical SE vs. total error with `systematic=True`", ""] + header("systematic") + [
+    sec = Section("systematic", "## Error bars: statistical SE vs. total error with `systematic=True`", "systematic", [
         "| model | true set | param | err [%] | SE [%] | syserr [%] | |err|/SE | |err|/total | wall [s] |",
-        "|---|---|---|---|---|---|---|---|---|"]
+        "|---|---|---|---|---|---|---|---|---|"])
     n_se = n_tot = n = 0
     for model, label, true, log, free, init, kw in _coverage_cases():
         fit, wall = timed(identify, log, model, init, IdentifyOptions(free=free, systematic=True, **kw))
@@ -424,17 +430,16 @@ def systematic():
             n += 1
             n_se += a <= 2
             n_tot += b <= 2
-            row(lines, f"| {model} | {label} | {nm} | {100 * err / true[nm]:+.2f} | {100 * se / true[nm]:.2f} | "
-                       f"{100 * sy / true[nm]:.2f} | {a:.1f} | {b:.1f} | {wall:.1f} |")
-    lines += ["", f"Covered (|err| <= 2 x bar): statistical SE {n_se}/{n}, total error {n_tot}/{n}."]
-    replace_section("systematic", lines)
+            sec.row(f"| {model} | {label} | {nm} | {100 * err / true[nm]:+.2f} | {100 * se / true[nm]:.2f} | "
+                    f"{100 * sy / true[nm]:.2f} | {a:.1f} | {b:.1f} | {wall:.1f} |")
+    sec.write(["", f"Covered (|err| <= 2 x bar): statistical SE {n_se}/{n}, total error {n_tot}/{n}."])
 
 
 def bootstrap_section():
-    lines = ["## Error bars: parametric bootstrap", ""] + header("bootstrap") + [
+    sec = Section("bootstrap", "## Error bars: parametric bootstrap", "bootstrap", [
         "B = 6 replicates on 2 worker processes.", "",
         "| model | true set | param | err [%] | SE [%] | boot. bias [%] | boot. sd [%] | RMS [%] | |err|/SE | "
-        "|err|/RMS | bootstrap [s] |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+        "|err|/RMS | bootstrap [s] |", "|---|---|---|---|---|---|---|---|---|---|---|"])
     n_se = n_b = n = 0
     for model, label, true, log, free, init, kw in _coverage_cases():
         fit = identify(log, model, init, IdentifyOptions(free=free, **kw))
@@ -446,11 +451,10 @@ def bootstrap_section():
             n_se += a <= 2
             n_b += b <= 2
             pc = 100 / abs(true[nm])
-            row(lines, f"| {model} | {label} | {nm} | {pc * err:+.2f} | {pc * fit.stderr[i]:.2f} | "
-                       f"{pc * bo.bias[i]:+.2f} | {pc * bo.sd[i]:.2f} | {pc * bo.error[i]:.2f} | {a:.1f} | {b:.2f} | "
-                       f"{wall:.0f} |")
-    lines += ["", f"Covered (|err| <= 2 x bar): statistical SE {n_se}/{n}, bootstrap RMS error {n_b}/{n}."]
-    replace_section("bootstrap", lines)
+            sec.row(f"| {model} | {label} | {nm} | {pc * err:+.2f} | {pc * fit.stderr[i]:.2f} | "
+                    f"{pc * bo.bias[i]:+.2f} | {pc * bo.sd[i]:.2f} | {pc * bo.error[i]:.2f} | {a:.1f} | {b:.2f} | "
+                    f"{wall:.0f} |")
+    sec.write(["", f"Covered (|err| <= 2 x bar): statistical SE {n_se}/{n}, bootstrap RMS error {n_b}/{n}."])
 
 
 SECTIONS = {"accuracy": accuracy, "mismatch": mismatch, "guess": guess, "drillstring": drillstring,
