@@ -159,3 +159,17 @@ def test_l_stable_limit():
         R = (1 + (1 - 2 * GAMMA) * z) / (1 - GAMMA * z) ** 2
         assert y == pytest.approx(R, rel=1e-9, abs=1e-12)
     assert abs(float(Integration(0.01, 1, method="sdirk2").advance(lambda a, b, c: -1e10 * a, ca.DM(1.0), 0, 0))) < 1e-6
+
+
+def test_note_of_an_asked_implicit_substep_count_gives_what_rk4_would_need():
+    """A fit's substep raise asks the implicit step for ``nsub`` substeps: the note still states RK4's own
+    count (the slider at eps 6.7e-8: ~11,700 a 0.5 ms sample), not the count asked ("would need 6")."""
+    from pathlib import Path
+    m = get_model(Path(__file__).resolve().parent / "data" / "paper_slider" / "slider_k1002.toml")
+    p, eps = m.published(), 6.684507609859605e-08
+    free = integration(m, p, 5e-4, u=np.array([4.2e-5]), eps=eps, where="identification")
+    asked = integration(m, p, 5e-4, u=np.array([4.2e-5]), eps=eps, nsub=6, method="sdirk2", where="identification")
+    assert free.implicit and asked.implicit and asked.nsub == 6
+    need = int(free.note.split("explicit RK4 would need ")[1].split()[0])
+    assert need > 10000
+    assert f"explicit RK4 would need {need} " in asked.note
