@@ -72,7 +72,12 @@ def export_horizon(N: int, seconds: float, work: Path):
     sc = replace(sc, controllers=ctrls)
     out = work / f"nmpc_N{N}"
     res = export_controller(sc, "NMPC", out, reference=seconds, prefix=f"nmpc{N}", force=True)
-    so = build_export(out)
+    so = build_export(out)                       # Release (-O2): the build measured here
+    # what is timed must be what the workbench computes: the Release build replays its reference
+    r = subprocess.run([str(so.parent / f"{res.prefix}_replay"), str(out / "test" / "reference.csv")],
+                       capture_output=True, text=True)
+    if r.returncode or " mismatches 0 " not in f" {r.stdout} ":
+        raise SystemExit(f"bench_export: the Release build of N = {N} does not replay the workbench: {r.stdout.strip()}")
     return sc, res, so
 
 

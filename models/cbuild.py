@@ -38,8 +38,9 @@ __all__ = ["CStruct", "generate", "build_library", "hpipm_paths", "lay_out", "re
 #: the shared C sources (ss_common.h/.c)
 CSRC = Path(__file__).resolve().parent / "csrc"
 #: compiler flags of every compiled step: optimised, strict IEEE arithmetic (no -ffast-math, no
-#: -march: the same bits on every x86-64 machine)
-C_FLAGS = ("-O2", "-std=c99", "-fPIC", "-fno-fast-math")
+#: -march, no multiply-add fused by the compiler, which ARM's compilers do by default: the same bits
+#: on every machine, and as an export's C builds them, mitigate.export.files)
+C_FLAGS = ("-O2", "-std=c99", "-fPIC", "-fno-fast-math", "-ffp-contract=off")
 
 _CTYPES = {"int": ctypes.c_int, "double": ctypes.c_double}
 

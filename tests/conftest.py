@@ -31,13 +31,22 @@ UNIT_FILES = frozenset({
 })
 TIERS = ("unit", "integration")
 
+#: the files whose tests share no costly module fixture and are spread over the workers one test at a
+#: time (the benchmark scripts' --quick runs: about 15 min of work together); every other file's
+#: tests stay on one worker, so its module fixtures (an export, a compiled library) are built once
+SPREAD_FILES = frozenset({"test_benchmark_scripts.py", "test_fuzz_faults.py"})
 
+
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
-    """Give every test its file's tier unless it carries one of its own."""
+    """Give every test its file's tier unless it carries one of its own, and its file's xdist group
+    (``--dist loadgroup``) unless the file is in :data:`SPREAD_FILES`."""
     for item in items:
         if not any(item.get_closest_marker(t) for t in TIERS):
             tier = "unit" if item.path.name in UNIT_FILES else "integration"
             item.add_marker(getattr(pytest.mark, tier))
+        if item.path.name not in SPREAD_FILES and item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(item.path.stem))
 
 
 @pytest.fixture

@@ -22,6 +22,10 @@ from models.errors import ConfigError
 ROOT = Path(__file__).resolve().parent.parent
 MAIN = ROOT / "scenarios" / "stick_slip_30rpm.toml"
 
+#: the tests build unoptimised (about 4x faster to compile, the same results: docs/export.md);
+#: benchmarks/bench_export.py builds Release (-O2), checks that it replays the reference, and times it
+BUILD = "Debug"
+
 pytestmark = pytest.mark.skipif(shutil.which("cmake") is None or shutil.which("cc") is None,
                                 reason="needs a C compiler and cmake")
 
@@ -30,7 +34,7 @@ pytestmark = pytest.mark.skipif(shutil.which("cmake") is None or shutil.which("c
 def exported(tmp_path_factory):
     out = tmp_path_factory.mktemp("export") / "nmpc"
     res = export_controller(MAIN, "NMPC", out, reference=60.0)
-    so = build_export(out)
+    so = build_export(out, build_type=BUILD)
     return res, so
 
 
@@ -72,7 +76,7 @@ def test_make_builds_the_same_library(exported, tmp_path):
     res, _ = exported
     copy = tmp_path / "copy"
     shutil.copytree(res.out, copy, symlinks=True, ignore=shutil.ignore_patterns("build"))
-    so = build_export(copy, tool="make")
+    so = build_export(copy, tool="make", build_type=BUILD)
     code, out = _replay(so.parent / f"{res.prefix}_replay", copy / "test" / "reference.csv")
     assert code == 0 and out["mismatches"] == "0" and out["allocations_after_create"] == "0"
 
@@ -123,6 +127,8 @@ def test_bad_exports_are_one_line_refusals_and_write_nothing(tmp_path, capsys):
     sc = load_scenario(MAIN)
     with pytest.raises(ConfigError, match=r"estimator.kind = 'mhe'; export supports the EKF"):
         export_controller(replace(sc, estimator={"kind": "mhe"}), "NMPC", out)
+    with pytest.raises(ConfigError, match=r"^build_type: expected one of Release, Debug; got 'Fast'$"):
+        export_controller(MAIN, "NMPC", out, build_type="Fast")
     assert not out.exists()
     out.mkdir()
     with pytest.raises(ConfigError, match=r"exists; refusing to overwrite"):
@@ -143,7 +149,7 @@ def test_every_input_set_exports_and_replays(inputs, tmp_path):
     res = export_controller(replace(sc, controllers=ctrls), "NMPC", tmp_path / inputs, reference=25.0,
                             prefix=f"nmpc_{inputs}")
     assert [p.name for p in res.interface.outputs][:1] == (["omega_ref"] if inputs == "motor" else ["n2"])
-    so = build_export(res.out)
+    so = build_export(res.out, build_type=BUILD)
     code, out = _replay(so.parent / f"{res.prefix}_replay", res.out / "test" / "reference.csv")
     assert code == 0 and out["rows"] == "2501" and out["mismatches"] == "0", out
     assert out["allocations_after_create"] == "0" and int(out["ok"]) > 0

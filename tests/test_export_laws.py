@@ -36,7 +36,7 @@ pytestmark = pytest.mark.skipif(shutil.which("cmake") is None or shutil.which("c
 def exported(request, tmp_path_factory):
     out = tmp_path_factory.mktemp("laws") / request.param.replace(" ", "_").replace("-", "_").lower()
     res = export_controller(MAIN, request.param, out, reference=60.0)
-    return request.param, res, build_export(out)
+    return request.param, res, build_export(out, build_type="Debug")   # as tests/test_export.py
 
 
 def _replay(exe: Path, csv: Path) -> tuple[int, dict]:
@@ -121,7 +121,7 @@ def test_an_exported_law_refuses_parameters_its_core_cannot_run(tmp_path):
     assert "SoftSpeed (omega_ref) with an EKF on rig 'rig3'" in (res.out / "include" / "softspeed.h").read_text()
     readme = (res.out / "README.md").read_text()
     assert "no solver library" in readme and "Z = 0.1099" in readme
-    build_export(res.out, tool="make")
+    build_export(res.out, tool="make", build_type="Debug")
     ExportedLibrary(res.out)
     with pytest.raises(ConfigError, match=r"create\(\) refused its parameters"):
         ExportedLibrary(res.out, {"J_v": 0.0})
@@ -134,7 +134,7 @@ def test_a_law_on_the_drill_string_exports_and_replays(tmp_path):
     sc = load_scenario(DRILL)
     sc = replace(sc, controllers=(ControllerSpec("D-OSKIL", "doskil", {}),))
     res = export_controller(sc, "D-OSKIL", tmp_path / "dk", reference=12.0)
-    so = build_export(res.out)
+    so = build_export(res.out, build_type="Debug")
     code, out = _replay(so.parent / f"{res.prefix}_replay", res.out / "test" / "reference.csv")
     assert code == 0 and out["rows"] == "6001" and out["mismatches"] == "0", out
     data = np.loadtxt(res.out / "test" / "reference.csv", delimiter=",", skiprows=1)

@@ -41,7 +41,7 @@ def exported(tmp_path_factory):
     pytest.importorskip("fmpy")
     out = tmp_path_factory.mktemp("fmu") / "nmpc"
     r = subprocess.run([sys.executable, "-m", "mitigate.cli", "export", str(MAIN), "--controller", "NMPC", "--out",
-                        str(out), "--reference", str(REFERENCE), "--fmu", "--rt", "3", "--json"],
+                        str(out), "--reference", str(REFERENCE), "--fmu", "--rt", "3", "--build-type", "Debug", "--json"],
                        capture_output=True, text=True, timeout=1800, env=_env(), cwd=str(ROOT))
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
     doc = json.loads(r.stdout)

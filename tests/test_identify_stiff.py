@@ -14,6 +14,7 @@ and the report (it takes minutes).
 
 from __future__ import annotations
 
+import os
 import warnings
 from pathlib import Path
 
@@ -59,6 +60,10 @@ def test_slider_log_holds_stick_slip(slider_log):
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(os.environ.get("STICKSLIP_LONG_TESTS") != "1",
+                    reason="long (329 s alone; STICKSLIP_LONG_TESTS=1 runs it): the levels come back within 0.2 % "
+                           "only through the single-shooting refinement, after the multiple-shooting fit stalls "
+                           "with gaps open at the slip onsets (open, issue 28)")
 def test_slider_identification_takes_the_implicit_step_and_recovers_friction(slider_log):
     m, true, log, _ = slider_log
     with warnings.catch_warnings():

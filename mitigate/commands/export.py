@@ -18,6 +18,8 @@ Also rt/driver.c, a real-time driver example: the library at the DAQ period agai
 workbench's plant in another process over UDP, with missed deadlines counted.
 --build also builds DIR with CMake and runs its replay test (needs a C compiler and cmake).
 --fmu also writes DIR/<name>.fmu, an FMI 2.0 co-simulation FMU of the same library (built here).
+--build-type Debug builds unoptimised (-O0 -g; the generated C compiles about 4x faster, with the
+same results): for trying things and tests; the default Release (-O2) is the build to run on a rig.
 --rt SECONDS builds, then runs the driver for SECONDS of samples against the scenario's plant and
 prints its deadline statistics and the plant's stick-slip severity (docs/export.md).
 Exit codes: 0 written (and built, replayed, run), 1 the build, the replay or the real-time run
@@ -43,6 +45,9 @@ def register(sub) -> None:
     p.add_argument("--prefix", default=None, metavar="NAME", help="prefix of the C names (default: from the controller)")
     p.add_argument("--build", action="store_true", help="build with CMake and run the replay test")
     p.add_argument("--fmu", action="store_true", help="also build DIR/<name>.fmu, an FMI 2.0 co-simulation FMU")
+    p.add_argument("--build-type", choices=("Release", "Debug"), default="Release",
+                   help="the C build of --build, --fmu and --rt: Release (-O2, default) or Debug (-O0 -g, faster to "
+                        "build, the same results)")
     p.add_argument("--rt", type=quantity("time", lo=0.0), default=None, metavar="TIME",
                    help="build, then run the real-time driver against the scenario's plant for TIME of samples (s or "
                         "with a unit)")
@@ -61,7 +66,8 @@ def run(args) -> int:
         raise ConfigError(f"--rt must be a number of seconds > 0, got {args.rt}")
     try:
         res = export_controller(args.scenario, args.controller, args.out, reference=args.reference or None,
-                                prefix=args.prefix, force=args.force, fmu=args.fmu)
+                                prefix=args.prefix, force=args.force, fmu=args.fmu,
+                                build_type=args.build_type)
     except RuntimeError as exc:          # the FMU's build
         print(f"export failed: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 1
@@ -69,7 +75,7 @@ def run(args) -> int:
     code = 0
     if args.build or args.rt is not None:
         try:
-            so = build_export(res.out)
+            so = build_export(res.out, build_type=args.build_type)
             out["library"] = str(so)
             if res.reference_rows:
                 exe = so.parent / f"{res.prefix}_replay"

@@ -42,6 +42,7 @@ import numpy as np
 from models.cbuild import CSRC, generate, read_source
 from models.errors import ConfigError
 from models.status import Status
+from mitigate.export.files import BUILD_TYPES, check_build_type
 from mitigate.export.interface import Interface, c_name
 
 __all__ = ["export_controller", "ExportResult", "EXPORTABLE", "build_export"]
@@ -100,7 +101,7 @@ def _estimator(scenario):
 
 
 def export_controller(scenario, controller: str, out, *, reference: float | None = 60.0, prefix: str | None = None,
-                      force: bool = False, fmu: bool = False) -> ExportResult:
+                      force: bool = False, fmu: bool = False, build_type: str = "Release") -> ExportResult:
     """Write the C library of ``controller`` (a ``[[controllers]]`` name) with the scenario's estimator.
 
     Parameters
@@ -113,6 +114,8 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
     prefix : the C names' prefix (default: from the controller's name)
     fmu : also build ``<prefix>.fmu``, an FMI 2.0 co-simulation FMU of the library
         (:func:`mitigate.export.fmu.write_fmu`; needs a C compiler and cmake)
+    build_type : the FMU's build, ``"Release"`` (-O2, as measured) or ``"Debug"`` (-O0 -g, builds
+        about 4x faster, the same results); see :func:`build_export`
 
     Raises
     ------
@@ -138,6 +141,7 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
     if est_kind != "ekf":
         raise ConfigError(f"{sc.where}: estimator.kind = {est_kind!r}; export supports the EKF (the MHE is not "
                           f"exported yet)")
+    check_build_type(build_type)
     if fmu:
         fmu_tools()
     out = Path(out)
@@ -206,7 +210,7 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
         (d / "export.json").write_text(json.dumps(manifest, indent=2) + "\n")
         files.append("export.json")
         if fmu:
-            files.append(write_fmu(d, prefix, itf, sc, title=kind.what, notes=notes))
+            files.append(write_fmu(d, prefix, itf, sc, title=kind.what, notes=notes, build_type=build_type))
         if out.exists():
             shutil.rmtree(out)
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -260,8 +264,16 @@ def _write_reference(sc, index: int, itf: Interface, seconds: float, path: Path)
     return n
 
 
-def build_export(out, *, tool: str = "cmake") -> Path:
+def build_export(out, *, tool: str = "cmake", build_type: str = "Release") -> Path:
     """Build an exported folder with CMake (or make) and return the shared library's path.
+
+    Parameters
+    ----------
+    out : the exported folder (:func:`export_controller`)
+    tool : ``"cmake"`` (into ``out/build``) or ``"make"`` (in ``out``)
+    build_type : ``"Release"`` (-O2: the build whose times BENCHMARKS.md gives) or ``"Debug"``
+        (-O0 -g: the generated C compiles about 4x faster; the results are the same, since neither
+        build uses fast-math or fused multiply-adds)
 
     Raises
     ------
@@ -269,18 +281,19 @@ def build_export(out, *, tool: str = "cmake") -> Path:
     RuntimeError : the build failed (the tool's last lines).
     """
     out = Path(out)
+    check_build_type(build_type)
     exe = shutil.which(tool)
     if exe is None or (shutil.which("cc") or shutil.which("gcc")) is None:
         raise ConfigError(f"building an export needs a C compiler and {tool} (install them with the package manager)")
     prefix = json.loads((out / "export.json").read_text())["prefix"]
     if tool == "cmake":
         b = out / "build"
-        for cmd in ([exe, "-S", str(out), "-B", str(b), "-DCMAKE_BUILD_TYPE=Release"], [exe, "--build", str(b)]):
+        for cmd in ([exe, "-S", str(out), "-B", str(b), f"-DCMAKE_BUILD_TYPE={build_type}"], [exe, "--build", str(b)]):
             r = subprocess.run(cmd, capture_output=True, text=True)
             if r.returncode:
                 raise RuntimeError(f"{' '.join(cmd[:2])} failed: {(r.stdout + r.stderr)[-800:]}")
         return b / f"lib{prefix}.so"
-    r = subprocess.run([exe, "-C", str(out)], capture_output=True, text=True)
+    r = subprocess.run([exe, "-C", str(out), f"OPT={BUILD_TYPES[build_type]}"], capture_output=True, text=True)
     if r.returncode:
         raise RuntimeError(f"make failed: {(r.stdout + r.stderr)[-800:]}")
     return out / f"lib{prefix}.so"

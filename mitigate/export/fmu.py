@@ -39,6 +39,7 @@ from xml.etree import ElementTree as ET
 
 from models.errors import ConfigError
 from models.units import parse_unit
+from mitigate.export.files import CMAKE_BUILD_TYPES, check_build_type
 from mitigate.export.interface import Interface
 
 __all__ = ["write_fmu", "fmu_tools", "fmu_variables", "input_starts", "unit_definition", "FMI2_SOURCES"]
@@ -218,10 +219,10 @@ project({prefix}_fmu C)
 # The FMU's binary: cmake -S sources -B build {note}&& cmake --build build;
 # then put {prefix}.<so|dylib|dll>{' with hpipm and blasfeo' if qp else ''} in binaries/<platform>/.
 set(CMAKE_C_STANDARD 99)
-{find}add_library({prefix} SHARED {" ".join(sources)})
+{CMAKE_BUILD_TYPES}{find}add_library({prefix} SHARED {" ".join(sources)})
 target_include_directories({prefix} PRIVATE "${{CMAKE_CURRENT_SOURCE_DIR}}"{inc})
 {link}if(NOT MSVC)
-  target_compile_options({prefix} PRIVATE -O2 -fno-fast-math)
+  target_compile_options({prefix} PRIVATE -fno-fast-math -ffp-contract=off)
   target_link_libraries({prefix} PRIVATE m)
 endif()
 # the FMI functions only are exported{'; hpipm and blasfeo are found beside the binary' if qp else ''}
@@ -312,7 +313,8 @@ def input_starts(scenario, itf: Interface) -> dict[str, float]:
     return out
 
 
-def write_fmu(folder: Path, prefix: str, itf: Interface, scenario, *, title: str, notes: list[str]) -> str:
+def write_fmu(folder: Path, prefix: str, itf: Interface, scenario, *, title: str, notes: list[str],
+              build_type: str = "Release") -> str:
     """Build and write ``folder/<prefix>.fmu`` from an export folder (``src/``, ``include/``, ``vendor/``).
 
     Parameters
@@ -377,7 +379,7 @@ another platform.
             (tmp / name).write_bytes(data)
         build = tmp / "build"
         hp = [f"-DHPIPM_DIR={(folder / 'vendor').resolve()}"] if qp else []
-        for cmd in ([cmake, "-S", str(tmp / "sources"), "-B", str(build), "-DCMAKE_BUILD_TYPE=Release", *hp],
+        for cmd in ([cmake, "-S", str(tmp / "sources"), "-B", str(build), f"-DCMAKE_BUILD_TYPE={check_build_type(build_type)}", *hp],
                     [cmake, "--build", str(build)]):
             r = subprocess.run(cmd, capture_output=True, text=True)
             if r.returncode:
