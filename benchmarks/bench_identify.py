@@ -360,7 +360,11 @@ def _independent_module():
             spec = importlib.util.spec_from_file_location("independent_rig3", p)
             mod = importlib.util.module_from_spec(spec)
             sys.modules["independent_rig3"] = mod
-            spec.loader.exec_module(mod)
+            sys.path.insert(0, str(p.parent))   # its sibling modules independent_rig3_*.py
+            try:
+                spec.loader.exec_module(mod)
+            finally:
+                sys.path.pop(0)
             return mod, p
     return None, None
 
