@@ -39,7 +39,8 @@ import casadi as ca
 import numpy as np
 
 from models import get_model
-from models.discretise import RHO, Integration, integration, stiff_rates
+from models.discretise import RHO, Integration, integration
+from models.rates import stiff_rates
 from models.plant import SimOptions, hybrid_step_function, plant_integration
 
 from _results import publish

@@ -395,7 +395,7 @@ def test_stiff_rates_where_no_sliding_is_sustained(tmp_path_factory):
     twice the programme's turns it, the steady-sliding guess runs off to ~1e8 rad/s, and the rate the
     integration rule took there (the dampers against the screw's speed-dependent inertia) was 1e8-1e9
     1/s: the NMPC and the identification refused the rig.  Taken at the sliding speed: the string's own."""
-    from models.discretise import stiff_rates
+    from models.rates import stiff_rates
     z = find(zoo_rigs(max_bodies=1, drives=("torque",), laws=("leadscrew",)), lambda z: True,
              settings=FIND)
     m = get_model(str(_write(tmp_path_factory, z)))

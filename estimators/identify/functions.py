@@ -16,7 +16,8 @@ import numpy as np
 
 from estimators.identify.outputs import output_function
 from estimators.identify.shooting import compiled_or_none, sample_function
-from models.discretise import Integration, rate_jacobian
+from models.discretise import Integration
+from models.rates import rate_jacobian
 from models.params import ParameterSet
 
 __all__ = ["shooting_functions", "folded_sample_function", "StiffRate", "FOLD_ABOVE"]
