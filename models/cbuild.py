@@ -13,7 +13,10 @@ a library of its own.  This module is what they share:
   (:file:`models/csrc/ss_common.h`) that hands them to a core.
 - :func:`build_library` compiles sources into a shared library in the trusted cache
   (:func:`models.codegen.trusted_cache_dir`), keyed by the hash of every source byte and flag, with
-  the same sidecar check as :func:`models.codegen.compile_cached`.
+  the same sidecar check as :func:`models.codegen.compile_cached`; the libraries it links (hpipm,
+  blasfeo) are staged in the cache by content (:func:`stage_libraries`) and found by a run path
+  relative to the library, so neither the key nor the library depends on the environment that built
+  it (a fresh virtual environment reuses the build; before, the NMPC's step was built again in each).
 - :func:`hpipm_paths`: the hpipm and blasfeo headers and libraries the casadi wheel ships.
 """
 
@@ -22,6 +25,7 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import os
+import shutil
 import subprocess
 import tempfile
 from dataclasses import dataclass
@@ -33,7 +37,7 @@ import numpy as np
 
 from models.codegen import compiler, store_built, trusted_cache_dir, verify_library
 
-__all__ = ["CStruct", "generate", "build_library", "hpipm_paths", "lay_out", "read_channels", "c_view", "CSRC", "C_FLAGS"]
+__all__ = ["CStruct", "generate", "build_library", "stage_libraries", "hpipm_paths", "lay_out", "read_channels", "c_view", "CSRC", "C_FLAGS"]
 
 #: the shared C sources (ss_common.h/.c)
 CSRC = Path(__file__).resolve().parent / "csrc"
@@ -196,12 +200,17 @@ def build_library(tag: str, files: Mapping[str, str], sources: Sequence[str], *,
     cc = compiler()
     if cc is None:
         raise RuntimeError("no C compiler (gcc/cc) found")
+    d = trusted_cache_dir()
+    staged = stage_libraries(libs, libdirs) if libs and libdirs else None
     h = hashlib.sha256((ca.__version__ + " ".join(C_FLAGS)).encode())
     for name in sorted(files):
         h.update(name.encode() + b"\0" + files[name].encode() + b"\0")
-    for x in list(map(str, include)) + list(libs) + list(map(str, libdirs)):
+    # the key names what is linked by content, not by where this environment keeps it: a fresh
+    # virtual environment (CI, a user's second one) finds the library its first one built
+    keys = [_portable(p) for p in include] + list(libs)
+    keys += [staged.name] if staged is not None else list(map(str, libdirs))
+    for x in keys:
         h.update(x.encode() + b"\0")
-    d = trusted_cache_dir()
     so = d / f"{tag}_{h.hexdigest()[:16]}.so"
     if verify_library(so):
         return so
@@ -210,7 +219,10 @@ def build_library(tag: str, files: Mapping[str, str], sources: Sequence[str], *,
             (Path(tmp) / name).write_text(text)
         part = d / f".{so.name}.{os.getpid()}.tmp"
         cmd = [cc, *C_FLAGS, "-shared", *sources, "-o", str(part.absolute()), "-I."]
-        cmd += [f"-I{p}" for p in include] + [f"-L{p}" for p in libdirs] + [f"-Wl,-rpath,{p}" for p in libdirs]
+        if staged is not None:           # found beside the library, whatever environment built it
+            cmd += [f"-I{p}" for p in include] + [f"-L{staged}", f"-Wl,-rpath,$ORIGIN/{staged.name}"]
+        else:
+            cmd += [f"-I{p}" for p in include] + [f"-L{p}" for p in libdirs] + [f"-Wl,-rpath,{p}" for p in libdirs]
         cmd += [f"-l{x}" for x in libs] + ["-lm"]
         res = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp)
         if res.returncode != 0:
@@ -218,6 +230,55 @@ def build_library(tag: str, files: Mapping[str, str], sources: Sequence[str], *,
                 part.unlink()
             raise RuntimeError(f"{cc} failed building {tag}: {res.stderr.strip()[:600]}")
         return store_built(part, so)
+
+
+def _portable(path) -> str:
+    """``path`` as a cache key: relative to the casadi package (whose version the key holds) when
+    inside it, so that every environment with this casadi gives the same key."""
+    path = Path(path).resolve()
+    root = Path(ca.__file__).resolve().parent
+    return f"casadi:{path.relative_to(root)}" if path.is_relative_to(root) else str(path)
+
+
+def _files_digest(files) -> str:
+    h = hashlib.sha256()
+    for f in files:
+        h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()[:16]
+
+
+def stage_libraries(libs: Sequence[str], libdirs: Sequence[Path]) -> Path:
+    """Copies of the shared libraries ``lib<name>.so*`` of ``libs`` (found in ``libdirs``) in the
+    compiled-code cache, in a folder named by their content (``libs_<digest>``): a cached library
+    links them by a run path relative to itself, so it outlives the environment that built it (a
+    CI's fresh virtual environment, deleted after the run).  A folder whose content no longer
+    matches its name is staged again.
+
+    Raises
+    ------
+    RuntimeError : a library of ``libs`` is in none of ``libdirs``.
+    """
+    found = []
+    for x in libs:
+        hits = sorted({f for dd in libdirs for f in Path(dd).glob(f"lib{x}.so*") if f.is_file()}, key=lambda f: f.name)
+        if not hits:
+            raise RuntimeError(f"lib{x}.so not found in {', '.join(map(str, libdirs))}")
+        found += hits
+    digest = _files_digest(found)
+    d = trusted_cache_dir()
+    dest = d / f"libs_{digest}"
+    if dest.is_dir() and _files_digest(sorted(dest.iterdir(), key=lambda f: f.name)) == digest:
+        return dest
+    tmp = Path(tempfile.mkdtemp(prefix=f".libs_{digest}.", dir=d))
+    for f in found:
+        shutil.copyfile(f, tmp / f.name)
+    if dest.exists():                    # staged wrongly (content changed): replace it
+        shutil.rmtree(dest, ignore_errors=True)
+    try:
+        os.rename(tmp, dest)
+    except OSError:                      # another process staged it meanwhile
+        shutil.rmtree(tmp, ignore_errors=True)
+    return dest
 
 
 def read_source(*names: str, folder: Path = CSRC) -> dict[str, str]:

@@ -1,0 +1,46 @@
+"""The compiled-code cache outlives the environment that filled it: a library linking hpipm and
+blasfeo built from one copy of them is found, by the same key, from another copy elsewhere (a
+fresh virtual environment), and still loads after both copies are gone (models.cbuild)."""
+
+from __future__ import annotations
+
+import ctypes
+import shutil
+
+import pytest
+
+from models.cbuild import build_library, hpipm_paths, stage_libraries
+
+SRC = """#include "hpipm_d_ocp_qp_dim.h"
+/* a call into hpipm, so that the library really links it */
+long long ss_probe_dim_memsize(int N) { return (long long) d_ocp_qp_dim_memsize(N); }
+"""
+
+
+def _copy_of_the_wheels_libraries(dest):
+    _, lib = hpipm_paths()
+    dest.mkdir()
+    for f in list(lib.glob("libhpipm.so*")) + list(lib.glob("libblasfeo.so*")):
+        shutil.copyfile(f, dest / f.name)
+    return dest
+
+
+@pytest.mark.skipif(shutil.which("cc") is None and shutil.which("gcc") is None, reason="needs a C compiler")
+def test_a_library_built_in_one_environment_is_reused_and_loads_from_another(tmp_path):
+    inc, _ = hpipm_paths()
+    first, second = (_copy_of_the_wheels_libraries(tmp_path / n) for n in ("venv1", "venv2"))
+    files = {"probe.c": SRC + f"/* {tmp_path.name} */\n"}          # a key of this test's own
+    a = build_library("probe", files, ["probe.c"], include=[inc], libs=["hpipm", "blasfeo"], libdirs=[first])
+    b = build_library("probe", files, ["probe.c"], include=[inc], libs=["hpipm", "blasfeo"], libdirs=[second])
+    assert a == b                                          # one key: the content linked, not its path
+    assert stage_libraries(["hpipm", "blasfeo"], [first]) == stage_libraries(["hpipm", "blasfeo"], [second])
+    shutil.rmtree(first)
+    shutil.rmtree(second)                                  # both environments gone
+    lib = ctypes.CDLL(str(a))
+    lib.ss_probe_dim_memsize.restype = ctypes.c_longlong
+    assert lib.ss_probe_dim_memsize(5) > 0
+
+
+def test_a_library_that_is_nowhere_is_one_line(tmp_path):
+    with pytest.raises(RuntimeError, match=r"^libnope\.so not found in "):
+        stage_libraries(["nope"], [tmp_path])
