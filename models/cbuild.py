@@ -264,6 +264,7 @@ def stage_libraries(libs: Sequence[str], libdirs: Sequence[Path]) -> Path:
         if not hits:
             raise RuntimeError(f"lib{x}.so not found in {', '.join(map(str, libdirs))}")
         found += hits
+    found = sorted(set(found), key=lambda f: f.name)     # the order the staged folder lists them in
     digest = _files_digest(found)
     d = trusted_cache_dir()
     dest = d / f"libs_{digest}"

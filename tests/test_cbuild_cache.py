@@ -33,7 +33,11 @@ def test_a_library_built_in_one_environment_is_reused_and_loads_from_another(tmp
     a = build_library("probe", files, ["probe.c"], include=[inc], libs=["hpipm", "blasfeo"], libdirs=[first])
     b = build_library("probe", files, ["probe.c"], include=[inc], libs=["hpipm", "blasfeo"], libdirs=[second])
     assert a == b                                          # one key: the content linked, not its path
-    assert stage_libraries(["hpipm", "blasfeo"], [first]) == stage_libraries(["hpipm", "blasfeo"], [second])
+    staged = stage_libraries(["hpipm", "blasfeo"], [first])
+    assert staged == stage_libraries(["hpipm", "blasfeo"], [second])
+    before = {f.name: f.stat().st_mtime_ns for f in staged.iterdir()}
+    assert stage_libraries(["blasfeo", "hpipm"], [first]) == staged       # staged once, in any order
+    assert {f.name: f.stat().st_mtime_ns for f in staged.iterdir()} == before
     shutil.rmtree(first)
     shutil.rmtree(second)                                  # both environments gone
     lib = ctypes.CDLL(str(a))
