@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from mitigate.cliutil import add_command, emit_json, quantity
+from mitigate.export.files import BUILD_TYPES
 from models.errors import ConfigError
 
 EPILOG = """\
@@ -45,7 +46,7 @@ def register(sub) -> None:
     p.add_argument("--prefix", default=None, metavar="NAME", help="prefix of the C names (default: from the controller)")
     p.add_argument("--build", action="store_true", help="build with CMake and run the replay test")
     p.add_argument("--fmu", action="store_true", help="also build DIR/<name>.fmu, an FMI 2.0 co-simulation FMU")
-    p.add_argument("--build-type", choices=("Release", "Debug"), default="Release",
+    p.add_argument("--build-type", choices=tuple(BUILD_TYPES), default="Release",
                    help="the C build of --build, --fmu and --rt: Release (-O2, default) or Debug (-O0 -g, faster to "
                         "build, the same results)")
     p.add_argument("--rt", type=quantity("time", lo=0.0), default=None, metavar="TIME",
