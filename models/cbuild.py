@@ -35,16 +35,23 @@ from typing import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
-from models.codegen import compiler, store_built, trusted_cache_dir, verify_library
+from models.codegen import compiler, opt_flags, store_built, trusted_cache_dir, verify_library
 
-__all__ = ["CStruct", "generate", "build_library", "stage_libraries", "hpipm_paths", "lay_out", "read_channels", "c_view", "CSRC", "C_FLAGS"]
+__all__ = ["CStruct", "generate", "build_library", "stage_libraries", "hpipm_paths", "lay_out", "read_channels", "c_view", "CSRC", "C_FLAGS", "c_flags"]
 
 #: the shared C sources (ss_common.h/.c)
 CSRC = Path(__file__).resolve().parent / "csrc"
-#: compiler flags of every compiled step: optimised, strict IEEE arithmetic (no -ffast-math, no
-#: -march, no multiply-add fused by the compiler, which ARM's compilers do by default: the same bits
-#: on every machine, and as an export's C builds them, mitigate.export.files)
-C_FLAGS = ("-O2", "-std=c99", "-fPIC", "-fno-fast-math", "-ffp-contract=off")
+#: compiler flags of every compiled step besides the optimisation (:func:`c_flags`): strict IEEE
+#: arithmetic (no -ffast-math, no -march, no multiply-add fused by the compiler, which ARM's compilers
+#: do by default: the same bits on every machine, in both build types, and as an export's C builds
+#: them, mitigate.export.files)
+C_FLAGS = ("-std=c99", "-fPIC", "-fno-fast-math", "-ffp-contract=off")
+
+
+def c_flags() -> list[str]:
+    """The flags of a compiled step now: the build type's optimisation
+    (:func:`models.codegen.build_type`) and :data:`C_FLAGS`."""
+    return [*opt_flags(), *C_FLAGS]
 
 _CTYPES = {"int": ctypes.c_int, "double": ctypes.c_double}
 
@@ -202,7 +209,8 @@ def build_library(tag: str, files: Mapping[str, str], sources: Sequence[str], *,
         raise RuntimeError("no C compiler (gcc/cc) found")
     d = trusted_cache_dir()
     staged = stage_libraries(libs, libdirs) if libs and libdirs else None
-    h = hashlib.sha256((ca.__version__ + " ".join(C_FLAGS)).encode())
+    flags = c_flags()
+    h = hashlib.sha256((ca.__version__ + " ".join(flags)).encode())
     for name in sorted(files):
         h.update(name.encode() + b"\0" + files[name].encode() + b"\0")
     # the key names what is linked by content, not by where this environment keeps it: a fresh
@@ -218,7 +226,7 @@ def build_library(tag: str, files: Mapping[str, str], sources: Sequence[str], *,
         for name, text in files.items():
             (Path(tmp) / name).write_text(text)
         part = d / f".{so.name}.{os.getpid()}.tmp"
-        cmd = [cc, *C_FLAGS, "-shared", *sources, "-o", str(part.absolute()), "-I."]
+        cmd = [cc, *flags, "-shared", *sources, "-o", str(part.absolute()), "-I."]
         if staged is not None:           # found beside the library, whatever environment built it
             cmd += [f"-I{p}" for p in include] + [f"-L{staged}", f"-Wl,-rpath,$ORIGIN/{staged.name}"]
         else:

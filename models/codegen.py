@@ -16,6 +16,12 @@ writable by the group or the world, is refused (a RuntimeError naming it: set
 they can).  Each library is written with a sidecar ``<library>.sha256`` (the SHA-256 of the
 library's bytes) and checked against it before every load; a library that is not yours, is
 writable by others, has no sidecar or does not match it is rebuilt, never loaded.
+
+Every library is built as one of :data:`BUILD_TYPES`: ``Release`` (optimised; the default, the build
+``BENCHMARKS.md`` times) or ``Debug`` (unoptimised: the generated C of an NMPC's step compiles about
+3x faster, runs slower, and gives the same bits: strict IEEE arithmetic in both).  The environment
+variable ``STICKSLIP_BUILD_TYPE`` chooses (:func:`build_type`); the test suite sets ``Debug``
+(``tests/conftest.py``).  The build type is part of every cache key.
 """
 
 from __future__ import annotations
@@ -34,9 +40,33 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
-__all__ = ["cache_dir", "trusted_cache_dir", "compiler", "compile_cached", "load_compiled", "compiled_or_none",
+__all__ = ["BUILD_TYPES", "build_type", "cache_dir", "trusted_cache_dir", "compiler", "compile_cached", "load_compiled", "compiled_or_none",
            "verify_library", "store_built", "CtypesFunction", "FastFunction",
            "BufferedFunction"]
+
+
+#: the build types and their optimisation flags (one declaration: the compiled steps, the exports'
+#: CMakeLists.txt and Makefile all read it)
+BUILD_TYPES = {"Release": "-O2", "Debug": "-O0 -g"}
+
+
+def build_type() -> str:
+    """``$STICKSLIP_BUILD_TYPE`` (one of :data:`BUILD_TYPES`), else ``"Release"``.
+
+    Raises
+    ------
+    ConfigError : the variable names no build type (one line naming it).
+    """
+    v = os.environ.get("STICKSLIP_BUILD_TYPE") or "Release"
+    if v not in BUILD_TYPES:
+        from models.errors import ConfigError
+        raise ConfigError(f"STICKSLIP_BUILD_TYPE: expected one of {', '.join(BUILD_TYPES)}; got {v!r}")
+    return v
+
+
+def opt_flags(release: str = "-O2") -> list[str]:
+    """The optimisation flags of a build now: ``release`` in a Release build, Debug's otherwise."""
+    return (release if build_type() == "Release" else BUILD_TYPES["Debug"]).split()
 
 
 def cache_dir() -> Path:
@@ -102,7 +132,7 @@ def compile_cached(functions: ca.Function | Sequence[ca.Function], opt: str = "-
     Parameters
     ----------
     functions : one Function or several (they share one library)
-    opt : gcc optimisation flag
+    opt : gcc optimisation flag of a Release build (a Debug build uses Debug's, :func:`build_type`)
     tag : library name stem (default: the first Function's name)
 
     Raises
@@ -118,7 +148,8 @@ def compile_cached(functions: ca.Function | Sequence[ca.Function], opt: str = "-
     for fn in fns:
         cg.add(fn)
     src = cg.dump()
-    key = hashlib.sha256((ca.__version__ + opt + src).encode()).hexdigest()[:16]
+    flags = opt_flags(opt)
+    key = hashlib.sha256((ca.__version__ + " ".join(flags) + src).encode()).hexdigest()[:16]
     d = trusted_cache_dir()
     so = d / f"{tag}_{key}.so"
     if verify_library(so):
@@ -128,7 +159,7 @@ def compile_cached(functions: ca.Function | Sequence[ca.Function], opt: str = "-
         c.write_text(src)
         part = d / f".{so.name}.{os.getpid()}.tmp"
         # a relative source name: the same bytes from every build (parallel builders agree on the hash)
-        res = subprocess.run([cc, opt, "-fPIC", "-shared", c.name, "-o", str(part.absolute()), "-lm"],
+        res = subprocess.run([cc, *flags, "-fPIC", "-shared", c.name, "-o", str(part.absolute()), "-lm"],
                              capture_output=True, text=True, cwd=tmp)
         if res.returncode != 0:
             if part.exists():

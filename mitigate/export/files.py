@@ -17,15 +17,15 @@ import shutil
 from pathlib import Path
 
 from models.cbuild import hpipm_paths
+# the build types of an export and their C flags (one declaration, models.codegen.BUILD_TYPES):
+# Release is the build measured in BENCHMARKS.md; Debug compiles the generated C about 3-4x faster,
+# unoptimised, with the same results (no fast-math, no contraction into fused multiply-adds)
+from models.codegen import BUILD_TYPES
 from mitigate.export.interface import Interface
 
 __all__ = ["vendor_hpipm", "cmake_lists", "makefile", "replay_program", "readme", "BUILD_TYPES", "CMAKE_BUILD_TYPES",
            "check_build_type"]
 
-#: the build types of an export and their C flags: Release is the build measured in BENCHMARKS.md;
-#: Debug compiles the generated C about 4x faster, unoptimised, with the same results (no fast-math,
-#: no contraction into fused multiply-adds, so both builds round alike)
-BUILD_TYPES = {"Release": "-O2", "Debug": "-O0 -g"}
 
 #: the same in a CMakeLists.txt: Release unless ``-DCMAKE_BUILD_TYPE=Debug`` is given
 CMAKE_BUILD_TYPES = f"""if(NOT CMAKE_BUILD_TYPE)
