@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import subprocess
 import sys
 import tempfile
 import time
@@ -123,15 +122,14 @@ def main(argv=None) -> int:
                     help="run `mitigate benchmark --quick --only drillstring` into a temporary folder first and time it")
     args = ap.parse_args(argv)
     if args.quick:
+        from _results import QUICK_ONLY, quick_benchmark
         with tempfile.TemporaryDirectory() as d:
             t0 = time.perf_counter()
-            cmd = [sys.executable, "-m", "mitigate.cli", "benchmark", str(ROOT / "scenarios/benchmark/suite.toml"),
-                   "--quick", "--only", "drillstring", "--json", "--out", d]
-            r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+            r = quick_benchmark(d)
             if r.returncode not in (0, 1):
                 sys.stderr.write(r.stderr)
                 return r.returncode
-            print(f"`mitigate benchmark --quick --only drillstring`: {time.perf_counter() - t0:.1f} s\n")
+            print(f"`mitigate benchmark --quick --only {QUICK_ONLY}`: {time.perf_counter() - t0:.1f} s\n")
             print(compare(json.loads(r.stdout)))
         return 0
     if not args.results:

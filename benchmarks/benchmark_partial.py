@@ -86,16 +86,14 @@ def main(argv=None) -> int:
     from models.errors import ConfigError, DataError
     try:
         if args.quick:
-            import subprocess
+            from _results import QUICK_ONLY, quick_benchmark
             with tempfile.TemporaryDirectory() as d:
-                suite = ROOT / "scenarios/benchmark/suite.toml"
-                cmd = [sys.executable, "-m", "mitigate.cli", "benchmark", str(suite), "--quick", "--only",
-                       "drillstring", "--json", "--out", f"{d}/b"]
-                r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+                r = quick_benchmark(f"{d}/b")
                 if r.returncode not in (0, 1):
                     sys.stderr.write(r.stderr)
                     return r.returncode
-                files = partial(suite, f"{d}/b", f"{d}/p", phases=1, seeds=1, only=["drillstring"])
+                files = partial(ROOT / "scenarios/benchmark/suite.toml", f"{d}/b", f"{d}/p", phases=1, seeds=1,
+                                only=[QUICK_ONLY])
                 print(json.loads(Path(files["json"]).read_text())["message"])
             return 0
         if not (args.suite and args.store and args.out):

@@ -35,6 +35,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import multiprocessing as mp
+from multiprocessing import resource_tracker
 import os
 import signal
 import sys
@@ -96,6 +97,8 @@ def _worker_main(conn, parent_pid: int) -> None:
     global _reporter
     die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)        # Ctrl-C is the parent's to handle
+    if hasattr(signal, "pthread_sigmask"):               # born with it blocked (WorkerPool._spawn)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     try:                                               # the parent's stdout is for its --json only
@@ -217,17 +220,27 @@ class WorkerPool:
         parent, child = self._ctx.Pipe(duplex=True)
         p = self._ctx.Process(target=_worker_main, args=(child, os.getpid()), daemon=True,
                               name="stickslip-worker")
-        # the worker starts with SIGINT ignored (inherited through exec; Python keeps an ignored SIGINT),
-        # so a Ctrl-C while it is still importing does not print a traceback from it
-        try:
-            old = signal.signal(signal.SIGINT, signal.SIG_IGN)
-        except ValueError:              # not the main thread: nothing to do
-            old = None
+        # The worker starts with SIGINT blocked (the signal mask is inherited through fork and exec), so a
+        # Ctrl-C while it is still importing does not print a traceback from it; its first act is to
+        # ignore SIGINT and unblock it (_worker_main).  The parent only blocks SIGINT in this thread
+        # meanwhile and keeps its handler: a Ctrl-C in that window reaches the handler (through another
+        # thread, or here when unblocked).  Ignoring it in the parent instead, as before, lost a Ctrl-C
+        # that fell in the window (the process's other threads took it and dropped it): seen once on a
+        # loaded machine, `mitigate run` ran its 60 s to the end and exited 0.  The spawn context's
+        # resource tracker, started with the first process, unblocks SIGINT when it is up: started first.
+        resource_tracker.ensure_running()
+        sigmask = getattr(signal, "pthread_sigmask", None)
+        mask = sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if sigmask is not None else None
         try:
             p.start()
+        except BaseException:           # (a Ctrl-C inside start: no worker left behind)
+            if p.pid is not None:
+                p.kill()
+                p.join(timeout=5.0)
+            raise
         finally:
-            if old is not None:
-                signal.signal(signal.SIGINT, old)
+            if mask is not None:
+                sigmask(signal.SIG_SETMASK, mask)
         child.close()
         w = {"proc": p, "conn": parent, "task": None, "last": time.monotonic(), "ready": False}
         self._workers.append(w)

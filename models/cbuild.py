@@ -35,7 +35,7 @@ from typing import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
-from models.codegen import compiler, opt_flags, store_built, trusted_cache_dir, verify_library
+from models.codegen import compiler, opt_flags, reproducible, store_built, trusted_cache_dir, verify_library
 
 __all__ = ["CStruct", "generate", "build_library", "stage_libraries", "hpipm_paths", "lay_out", "read_channels", "c_view", "CSRC", "C_FLAGS", "c_flags"]
 
@@ -226,7 +226,7 @@ def build_library(tag: str, files: Mapping[str, str], sources: Sequence[str], *,
         for name, text in files.items():
             (Path(tmp) / name).write_text(text)
         part = d / f".{so.name}.{os.getpid()}.tmp"
-        cmd = [cc, *flags, "-shared", *sources, "-o", str(part.absolute()), "-I."]
+        cmd = [cc, *reproducible(flags, tmp), "-shared", *sources, "-o", str(part.absolute()), "-I."]
         if staged is not None:           # found beside the library, whatever environment built it
             cmd += [f"-I{p}" for p in include] + [f"-L{staged}", f"-Wl,-rpath,$ORIGIN/{staged.name}"]
         else:

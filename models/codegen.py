@@ -69,6 +69,12 @@ def opt_flags(release: str = "-O2") -> list[str]:
     return (release if build_type() == "Release" else BUILD_TYPES["Debug"]).split()
 
 
+def reproducible(flags, folder) -> list[str]:
+    """``flags`` plus, with debug information (``-g``), the build ``folder`` mapped to ``.`` in it: the
+    same bytes from every build (the folder is a fresh temporary one)."""
+    return [*flags, f"-fdebug-prefix-map={folder}=."] if "-g" in flags else list(flags)
+
+
 def cache_dir() -> Path:
     """``$STICKSLIP_CACHE``, else ``$XDG_CACHE_HOME/stickslip``, else ``~/.cache/stickslip``."""
     env = os.environ.get("STICKSLIP_CACHE")
@@ -159,7 +165,7 @@ def compile_cached(functions: ca.Function | Sequence[ca.Function], opt: str = "-
         c.write_text(src)
         part = d / f".{so.name}.{os.getpid()}.tmp"
         # a relative source name: the same bytes from every build (parallel builders agree on the hash)
-        res = subprocess.run([cc, *flags, "-fPIC", "-shared", c.name, "-o", str(part.absolute()), "-lm"],
+        res = subprocess.run([cc, *reproducible(flags, tmp), "-fPIC", "-shared", c.name, "-o", str(part.absolute()), "-lm"],
                              capture_output=True, text=True, cwd=tmp)
         if res.returncode != 0:
             if part.exists():

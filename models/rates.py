@@ -9,7 +9,9 @@ import math
 import casadi as ca
 import numpy as np
 
-__all__ = ["rate_jacobian", "stiff_rates", "unstable_rate", "sliding_points"]
+from models.rig.steady import by_speed
+
+__all__ = ["rate_jacobian", "stiff_rates", "unstable_rate", "sliding_points", "speed_floor"]
 
 
 def rate_jacobian(model, eps: float, reduced: bool = False) -> ca.Function:
@@ -42,21 +44,22 @@ def stiff_rates(model, params, u, *, eps: float | None = None, speed: float | No
     eps : friction regularisation [rad/s] of a regularised consumer: every contact body at rest
         or sliding at ``speed`` counts; None (the exact stick/slip plant): only sliding, at the
         model's default regularisation (whose sliding slope is the law's own)
-    speed : the sliding speed [rad/s] of every body (default: the drive's, at least 1 rad/s; a torque
-        drive's: the speed its torque sustains, or the rig's nominal speed where it sustains none)
+    speed : the sliding speed [rad/s] of every body (default: the drive's, at least :func:`speed_floor`;
+        a torque drive's: the speed its torque sustains, or the rig's nominal speed where it sustains
+        none)
     reduced : with the DC motor's current quasi-static
     """
     xs, pv, u = sliding_points(model, params, u)
     J = rate_jacobian(model, model.eps_default if eps is None else float(eps), reduced)
     if speed is None:
-        speed = 1.0
+        speed = lo = speed_floor(model)
         if model.drive.sets_speed:
-            speed = max(abs(float(u[model.inputs.index(model.drive_input)])), 1.0)
+            speed = max(abs(float(u[model.inputs.index(model.drive_input)])), lo)
         elif model.contacts:
             # the speed the torque sustains; where none does, the guess runs off (100 x the rig's nominal
             # speed and more): the rig's nominal speed then
             w, w_nom = abs(float(xs[model.contacts[0]])), abs(float(model.nominal_speed()))
-            speed = max(w if w <= 100 * max(w_nom, 1.0) else w_nom, 1.0)
+            speed = max(w if w <= 100 * max(w_nom, lo) else w_nom, lo)
     # every body at the sliding speed (the guess has them at one speed, its own): a torque the friction
     # holds at every speed has no steady sliding and the guess runs off (a lead screw under an axial load
     # its drive torque cannot turn: 6e8 rad/s), and the springs' dampers between a body at that speed and
@@ -78,6 +81,13 @@ def stiff_rates(model, params, u, *, eps: float | None = None, speed: float | No
         ev = np.linalg.eigvals(A) if A.size else np.zeros(0)
         lam = max(lam, float(np.max(np.abs(ev))) if ev.size else 0.0)
     return lam
+
+
+def speed_floor(model) -> float:
+    """The lowest sliding speed [rad/s, or m/s] the rates are taken at when none is given: 1 rad/s on
+    rig3 (30 rpm), carried to the rig by its nominal speed (:func:`models.rig.steady.by_speed`; a
+    friction bench at micrometres per second is not rated at 1 m/s)."""
+    return by_speed(1.0, model)
 
 
 def sliding_points(model, params, u):
@@ -104,8 +114,9 @@ def unstable_rate(model, params, u, *, eps: float | None, speed: float | None = 
     e = model.eps_default if eps is None else float(eps)
     J = rate_jacobian(model, e, False)
     if speed is None:
-        speed = max(abs(float(u[model.inputs.index(model.drive_input)])), 1.0) if model.drive.sets_speed \
-            else max(abs(float(model.nominal_speed())), 1.0)
+        lo = speed_floor(model)
+        speed = max(abs(float(u[model.inputs.index(model.drive_input)])), lo) if model.drive.sets_speed \
+            else max(abs(float(model.nominal_speed())), lo)
     # a regularised consumer: down to just beyond its band; the exact plant (a law with states, whose
     # own speed scale may be anything): eight decades
     floor = 10 * e if eps is not None else speed * 1e-8

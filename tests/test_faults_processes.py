@@ -2,7 +2,9 @@
 (models/codegen.py): issue 20, "Kills and processes" and "Trust"."""
 
 import os
+import signal
 import stat
+import sys
 import time
 
 import casadi as ca
@@ -66,6 +68,27 @@ def test_a_stuck_worker_is_killed_after_the_stall_timeout():
     assert time.perf_counter() - t0 < 30
     assert out[1].ok is False and "sent nothing for 1 s (stuck); killed" in out[1].error
     assert out[0].value == 0 and out[2].value == 2
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+def test_a_ctrl_c_while_a_worker_starts_is_not_lost(monkeypatch):
+    """A Ctrl-C that falls inside the start of a worker reaches the parent as KeyboardInterrupt (it
+    ignored SIGINT there before, and the process's other threads dropped it: `mitigate run` ran on
+    and exited 0), and the worker started is not left behind."""
+    with WorkerPool(1) as pool:
+        start = pool._ctx.Process.start
+
+        def interrupted_start(proc):
+            os.kill(os.getpid(), signal.SIGINT)          # what a terminal sends, inside the window
+            return start(proc)
+
+        monkeypatch.setattr(pool._ctx.Process, "start", interrupted_start)
+        with pytest.raises(KeyboardInterrupt):
+            pool._spawn()
+            time.sleep(2.0)                              # (delivered at the latest when unblocked)
+        monkeypatch.undo()
+        procs = [w["proc"] for w in pool._workers]
+    assert all(not p.is_alive() for p in procs)
 
 
 def test_bad_pool_arguments_are_config_errors():

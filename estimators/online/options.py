@@ -12,11 +12,13 @@ The defaults, and why, are in :mod:`estimators.online.model`'s docstring.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
 
 from models.checks import check_options, option, prefix
 from models.errors import ConfigError
+# the speed scale and the rule that carries a speed-like default from rig3 are the model's
+# (models.rig.steady): the model's own eps follows it too
+from models.rig.steady import RIG3_SPEED, by_speed, speed_scale
 
 __all__ = ["EKFOptions", "MHEOptions", "FDOptions", "ANGLES", "QP_SOLVERS", "RigScales",
            "rig_scales", "for_rig", "REFERENCE", "SCALED", "speed_scale", "by_speed"]
@@ -171,7 +173,7 @@ class RigScales:
 
 
 #: rig3's scales (30 rpm, N1 = 20 N): the defaults were measured there
-REFERENCE = RigScales(speed=math.pi, torque=0.29552088, twist=0.80765478, current=10.0, period=1.0 / 0.42854708)
+REFERENCE = RigScales(speed=RIG3_SPEED, torque=0.29552088, twist=0.80765478, current=10.0, period=1.0 / 0.42854708)
 
 #: option -> (rig3's value, the scale that carries it)
 SCALED = {
@@ -181,19 +183,6 @@ SCALED = {
     "q_current": (0.05, "current"), "p0_current": (2.0, "current"),
     "observability_window": (4.0, "period"),
 }
-
-
-def speed_scale(model) -> float:
-    """The rig's speed scale [rad/s]: its nominal speed (:meth:`models.rig.RigModel.nominal_speed`),
-    rig3's when that is 0."""
-    return abs(float(model.nominal_speed())) or REFERENCE.speed
-
-
-def by_speed(value_at_rig3: float, model) -> float:
-    """A speed-like default measured on rig3 (``value_at_rig3``, at its 30 rpm) carried to ``model``
-    by the ratio of the speed scales, as :func:`for_rig` carries the estimators' ``eps`` (the
-    identification's ``eps`` uses it too)."""
-    return float(value_at_rig3) * speed_scale(model) / REFERENCE.speed
 
 
 def rig_scales(model, params) -> RigScales:

@@ -78,7 +78,17 @@ class RigModel(RigOutputs, FrictionStates):
     param_names : the parameter vector's order
     """
 
-    eps_default: float = 0.05
+    #: the friction regularisation [rad/s, or m/s on a linear contact] of :meth:`ode` and of the
+    #: modal analysis, the regularised simulation and the integration's rates when none is given:
+    #: 0.05 rad/s on rig3 (30 rpm), carried to another rig by its nominal speed
+    #: (:func:`models.rig.steady.by_speed`): a field string at 0.5 rad/s gets 0.008 rad/s, a friction
+    #: bench at 1e-4 m/s 1.6e-6 m/s, not rig3's number, which would smooth their whole stick-slip
+    EPS_RIG3 = 0.05
+
+    @property
+    def eps_default(self) -> float:
+        """The rig's default friction regularisation (:data:`EPS_RIG3` carried by the nominal speed)."""
+        return steady.by_speed(self.EPS_RIG3, self)
 
     def __init__(self, spec: RigSpec, key: str = ""):
         self.spec = spec

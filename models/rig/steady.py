@@ -6,16 +6,21 @@
 - :func:`sliding_guess`, :func:`operating_point`, :func:`steady_sliding`: the state of steady
   sliding (every body at one speed) from a Gauss-Newton solve of the force balance, polished by
   Newton on the regularised model.  :class:`models.rig.RigModel` offers them as methods.
+- :func:`speed_scale`, :func:`by_speed`: a speed-like default measured on rig3 (its 30 rpm) carried
+  to another rig by the ratio of the nominal speeds -- the friction regularisation of the model
+  (:attr:`models.rig.RigModel.eps_default`), of the estimators and of the identification.
 """
 
 from __future__ import annotations
+
+import math
 
 import casadi as ca
 import numpy as np
 
 from models.errors import ConfigError, SolverFailure
 
-__all__ = ["nominal_operating_point", "nominal_speed", "drive_speed_index", "sliding_guess", "operating_point",
+__all__ = ["nominal_operating_point", "nominal_speed", "speed_scale", "by_speed", "RIG3_SPEED", "drive_speed_index", "sliding_guess", "operating_point",
            "steady_sliding"]
 
 #: a torque drive's steady-sliding solve has converged when its largest acceleration residual fell
@@ -29,6 +34,23 @@ def nominal_speed(model) -> float:
     op = model.spec.extra.get("operating_point", {})
     key = model.drive_input if model.drive.sets_speed else "speed"
     return float(op.get(key, 1.0))
+
+
+#: rig3's nominal speed [rad/s] (30 rpm): the speed the speed-like defaults were measured at
+RIG3_SPEED = math.pi
+
+
+def speed_scale(model) -> float:
+    """The rig's speed scale [rad/s]: its nominal speed (:meth:`models.rig.RigModel.nominal_speed`),
+    rig3's when that is 0."""
+    return abs(float(model.nominal_speed())) or RIG3_SPEED
+
+
+def by_speed(value_at_rig3: float, model) -> float:
+    """A speed-like default measured on rig3 (``value_at_rig3``, at its 30 rpm) carried to ``model``
+    by the ratio of the speed scales (the model's, the estimators' and the identification's ``eps``).
+    rig3 gets ``value_at_rig3`` to the bit."""
+    return float(value_at_rig3) * speed_scale(model) / RIG3_SPEED
 
 
 def nominal_operating_point(model, params=None, *, omega: float | None = None,
