@@ -17,11 +17,14 @@ they can).  Each library is written with a sidecar ``<library>.sha256`` (the SHA
 library's bytes) and checked against it before every load; a library that is not yours, is
 writable by others, has no sidecar or does not match it is rebuilt, never loaded.
 
-Every library is built as one of :data:`BUILD_TYPES`: ``Release`` (optimised; the default, the build
-``BENCHMARKS.md`` times) or ``Debug`` (unoptimised: the generated C of an NMPC's step compiles about
-3x faster, runs slower, and gives the same bits: strict IEEE arithmetic in both).  The environment
-variable ``STICKSLIP_BUILD_TYPE`` chooses (:func:`build_type`); the test suite sets ``Debug``
-(``tests/conftest.py``).  The build type is part of every cache key.
+The compiled steps (:func:`models.cbuild.build_library`: the NMPC's, the EKF's, the laws') are built
+as one of :data:`BUILD_TYPES`: ``Release`` (optimised; the default, the build ``BENCHMARKS.md`` times)
+or ``Debug`` (unoptimised: the 2.7 MB of generated C of rig3's NMPC step compiles in 12 s instead of
+40 s, runs a few per cent slower, and gives the same bits: strict IEEE arithmetic in both).  The
+environment variable ``STICKSLIP_BUILD_TYPE`` chooses (:func:`build_type`); the test suite sets
+``Debug`` (``tests/conftest.py``).  The build type is part of their cache keys.  The small Functions
+of :func:`compile_cached` (a plant step, a shooting interval's sensitivities: quick to compile, and
+evaluated millions of times by a simulation or a fit) keep the optimisation their caller asks for.
 """
 
 from __future__ import annotations
@@ -138,7 +141,7 @@ def compile_cached(functions: ca.Function | Sequence[ca.Function], opt: str = "-
     Parameters
     ----------
     functions : one Function or several (they share one library)
-    opt : gcc optimisation flag of a Release build (a Debug build uses Debug's, :func:`build_type`)
+    opt : gcc optimisation flag
     tag : library name stem (default: the first Function's name)
 
     Raises
@@ -154,8 +157,8 @@ def compile_cached(functions: ca.Function | Sequence[ca.Function], opt: str = "-
     for fn in fns:
         cg.add(fn)
     src = cg.dump()
-    flags = opt_flags(opt)
-    key = hashlib.sha256((ca.__version__ + " ".join(flags) + src).encode()).hexdigest()[:16]
+    flags = opt.split()
+    key = hashlib.sha256((ca.__version__ + opt + src).encode()).hexdigest()[:16]
     d = trusted_cache_dir()
     so = d / f"{tag}_{key}.so"
     if verify_library(so):

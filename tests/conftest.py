@@ -24,7 +24,7 @@ import pytest
 
 import mitigate.cli as cli
 
-# The compiled steps and libraries the tests build are Debug builds (models.codegen.BUILD_TYPES):
+# The compiled steps the tests build (NMPC, EKF, laws) are Debug builds (models.codegen.BUILD_TYPES):
 # the generated C of an NMPC's step compiles about 3x faster unoptimised (measured 12 s against 40 s
 # for one step's C; a cold test of the NMPC on a new rig 26 s against 61 s) and gives the same bits.
 # Set in the environment, so the commands and scripts the tests start build Debug too; a developer's
