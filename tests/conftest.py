@@ -18,7 +18,12 @@ A file is one tier unless a test in it says otherwise (``@pytest.mark.unit`` or
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -63,3 +68,32 @@ def pytest_collection_modifyitems(config, items):
 def main():
     """The command line's entry point, ``main(argv) -> exit code`` (:func:`mitigate.cli.main`)."""
     return cli.main
+
+
+@pytest.fixture(scope="session")
+def nmpc_export(tmp_path_factory):
+    """The main scenario's NMPC exported by the one command (``mitigate export ... --fmu --rt 3
+    --reference 30 --build-type Debug --json``: export with the FMU, build, replay the 30 s reference,
+    3 s of the real-time driver), once for tests/test_export.py and tests/test_fmu.py (both in the
+    xdist group ``nmpc_export``: one worker builds it once).
+
+    Returns a namespace: ``out`` (the export folder), ``prefix``, ``interface``, ``cli`` (the
+    command's JSON), ``library`` (the built library), ``fmu`` (the FMU's path), ``reference_rows`` and
+    ``ref`` (``test/reference.csv`` as an array).
+    """
+    from mitigate.export.interface import Interface, Port
+    root = Path(__file__).resolve().parent.parent
+    out = tmp_path_factory.mktemp("nmpc_export") / "nmpc"
+    env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    r = subprocess.run([sys.executable, "-m", "mitigate.cli", "export", str(root / "scenarios" / "stick_slip_30rpm.toml"),
+                        "--controller", "NMPC", "--out", str(out), "--reference", "30", "--fmu", "--rt", "3",
+                        "--build-type", "Debug", "--json"],
+                       capture_output=True, text=True, timeout=1800, env=env, cwd=str(root))
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    doc = json.loads(r.stdout)
+    itf = Interface(doc["prefix"], tuple(Port(n, u) for n, u in doc["inputs"]),
+                    tuple(Port(n, u) for n, u in doc["outputs"]), tuple(Port(n, u, v) for n, u, v in doc["params"]))
+    import numpy as np
+    ref = np.loadtxt(out / "test" / "reference.csv", delimiter=",", skiprows=1)
+    return SimpleNamespace(out=out, prefix=doc["prefix"], interface=itf, cli=doc, library=Path(doc["library"]),
+                           fmu=out / f"{doc['prefix']}.fmu", reference_rows=doc["reference_rows"], ref=ref)

@@ -1,6 +1,7 @@
 """The controller leaves the workbench (issue 26): ``mitigate export`` writes a C library of the
 main scenario's NMPC with its EKF; built with CMake (and with make), it reproduces the workbench's
-own 60 s run step by step to 1e-9 without allocating after ``create``; loaded back into the
+own 30 s run step by step to 1e-9 without allocating after ``create`` (the export of the one command,
+shared with tests/test_fmu.py: tests/conftest.py ``nmpc_export``); loaded back into the
 workbench as ``kind = "exported"`` it gives the NMPC's commands exactly."""
 
 from __future__ import annotations
@@ -26,16 +27,14 @@ MAIN = ROOT / "scenarios" / "stick_slip_30rpm.toml"
 #: benchmarks/bench_export.py builds Release (-O2), checks that it replays the reference, and times it
 BUILD = "Debug"
 
-pytestmark = pytest.mark.skipif(shutil.which("cmake") is None or shutil.which("cc") is None,
-                                reason="needs a C compiler and cmake")
+pytestmark = [pytest.mark.skipif(shutil.which("cmake") is None or shutil.which("cc") is None,
+                                 reason="needs a C compiler and cmake"),
+              pytest.mark.xdist_group("nmpc_export")]
 
 
 @pytest.fixture(scope="module")
-def exported(tmp_path_factory):
-    out = tmp_path_factory.mktemp("export") / "nmpc"
-    res = export_controller(MAIN, "NMPC", out, reference=60.0)
-    so = build_export(out, build_type=BUILD)
-    return res, so
+def exported(nmpc_export):
+    return nmpc_export, nmpc_export.library
 
 
 def _replay(exe: Path, csv: Path) -> tuple[int, dict]:
@@ -47,10 +46,10 @@ def _replay(exe: Path, csv: Path) -> tuple[int, dict]:
 @pytest.mark.slow
 def test_the_exported_library_replays_the_workbench_bit_for_bit_without_allocating(exported):
     res, so = exported
-    assert res.reference_rows == 6001                                  # 60 s at 10 ms
+    assert res.reference_rows == 3001                                  # 30 s at 10 ms
     code, out = _replay(so.parent / f"{res.prefix}_replay", res.out / "test" / "reference.csv")
     assert code == 0, out
-    assert out["rows"] == "6001" and out["mismatches"] == "0" and float(out["worst_relative"]) <= 1e-9
+    assert out["rows"] == "3001" and out["mismatches"] == "0" and float(out["worst_relative"]) <= 1e-9
     assert out["allocations_after_create"] == "0"
     assert int(out["ok"]) > 0 and int(out["hold"]) > 0 and out["failed"] == "0"   # it planned and held
 

@@ -74,20 +74,25 @@ def test_a_stuck_worker_is_killed_after_the_stall_timeout():
 def test_a_ctrl_c_while_a_worker_starts_is_not_lost(monkeypatch):
     """A Ctrl-C that falls inside the start of a worker reaches the parent as KeyboardInterrupt (it
     ignored SIGINT there before, and the process's other threads dropped it: `mitigate run` ran on
-    and exited 0), and the worker started is not left behind."""
-    with WorkerPool(1) as pool:
-        start = pool._ctx.Process.start
+    and exited 0), and the worker started is not left behind.  (Python's own SIGINT handler, as in a
+    command run from a terminal: a pytest-xdist worker ignores SIGINT.)"""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with WorkerPool(1) as pool:
+            start = pool._ctx.Process.start
 
-        def interrupted_start(proc):
-            os.kill(os.getpid(), signal.SIGINT)          # what a terminal sends, inside the window
-            return start(proc)
+            def interrupted_start(proc):
+                os.kill(os.getpid(), signal.SIGINT)          # what a terminal sends, inside the window
+                return start(proc)
 
-        monkeypatch.setattr(pool._ctx.Process, "start", interrupted_start)
-        with pytest.raises(KeyboardInterrupt):
-            pool._spawn()
-            time.sleep(2.0)                              # (delivered at the latest when unblocked)
-        monkeypatch.undo()
-        procs = [w["proc"] for w in pool._workers]
+            with monkeypatch.context() as m:
+                m.setattr(pool._ctx.Process, "start", interrupted_start)
+                with pytest.raises(KeyboardInterrupt):
+                    pool._spawn()
+                    time.sleep(2.0)                          # (delivered at the latest when unblocked)
+            procs = [w["proc"] for w in pool._workers]
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert all(not p.is_alive() for p in procs)
 
 

@@ -11,13 +11,11 @@ own per-period log.
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -25,31 +23,22 @@ import pytest
 from mitigate.cli import main as cli_main
 from mitigate.export.driver import parse_summary
 from mitigate.export.fmu import unit_definition
-from mitigate.export.interface import Interface, Port
 from models.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
 MAIN = ROOT / "scenarios" / "stick_slip_30rpm.toml"
-REFERENCE = 30.0
+REFERENCE = 30.0             # the shared export's (tests/conftest.py nmpc_export)
+pytestmark = pytest.mark.xdist_group("nmpc_export")
 needs_tools = pytest.mark.skipif(shutil.which("cmake") is None or shutil.which("cc") is None,
                                  reason="needs a C compiler and cmake")
 
 
 @pytest.fixture(scope="module")
-def exported(tmp_path_factory):
-    """The one command: export with the FMU, build, replay, and 3 s of the real-time driver."""
+def exported(nmpc_export):
+    """The one command's export with the FMU (tests/conftest.py: export, build, replay, and 3 s of the
+    real-time driver), shared with tests/test_export.py."""
     pytest.importorskip("fmpy")
-    out = tmp_path_factory.mktemp("fmu") / "nmpc"
-    r = subprocess.run([sys.executable, "-m", "mitigate.cli", "export", str(MAIN), "--controller", "NMPC", "--out",
-                        str(out), "--reference", str(REFERENCE), "--fmu", "--rt", "3", "--build-type", "Debug", "--json"],
-                       capture_output=True, text=True, timeout=1800, env=_env(), cwd=str(ROOT))
-    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
-    doc = json.loads(r.stdout)
-    itf = Interface(doc["prefix"], tuple(Port(n, u) for n, u in doc["inputs"]),
-                    tuple(Port(n, u) for n, u in doc["outputs"]), tuple(Port(n, u, v) for n, u, v in doc["params"]))
-    res = SimpleNamespace(out=out, prefix=doc["prefix"], interface=itf, cli=doc)
-    ref = np.loadtxt(out / "test" / "reference.csv", delimiter=",", skiprows=1)
-    return res, out / f"{res.prefix}.fmu", ref
+    return nmpc_export, nmpc_export.fmu, nmpc_export.ref
 
 
 def _env():

@@ -370,9 +370,28 @@ def _group(pgid):
     return found
 
 
+def _as_from_a_terminal():
+    """In the command's process before it starts: SIGINT and SIGTERM at their defaults and unblocked, as
+    a shell starts a foreground command, whatever this test process inherited or was left with by an
+    earlier test in the same pytest-xdist worker (a command started with SIGINT ignored keeps it
+    ignored: seen as a Ctrl-C test's `mitigate run` running on to exit 0 in two suite runs)."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+
+
+def _signal_state(pid="self") -> str:
+    """The ignored and blocked signal masks of a process (/proc), for a failure's message."""
+    try:
+        lines = Path(f"/proc/{pid}/status").read_text().splitlines()
+    except OSError:
+        return "?"
+    return " ".join(ln.replace("\t", "") for ln in lines if ln.startswith(("SigIgn", "SigBlk")))
+
+
 def _start(ws, args):
     p = subprocess.Popen(PY + args, cwd=ws, start_new_session=True, stdout=subprocess.DEVNULL,
-                         stderr=subprocess.PIPE, text=True)
+                         stderr=subprocess.PIPE, text=True, preexec_fn=_as_from_a_terminal)
     t0 = time.time()
     while time.time() - t0 < 60 and len(_group(p.pid)) < 4:      # the command, the tracker and 2 workers
         time.sleep(0.1)
@@ -420,6 +439,7 @@ def test_ctrl_c_ends_cleanly_with_no_process_and_nothing_written(ws):
     p = _start(ws, ["run", "long.toml", "--out", "o", "--jobs", "2"])
     os.killpg(p.pid, signal.SIGINT)                  # what a terminal does: the whole foreground group
     _, err = p.communicate(timeout=30)
-    assert p.returncode == 130 and err.strip().splitlines()[-1] == "mitigate run: interrupted", err
+    assert p.returncode == 130 and err.strip().splitlines()[-1] == "mitigate run: interrupted", \
+        (err, "this test process:", _signal_state())
     assert "Traceback" not in err
     assert _gone(p.pid) and not (ws / "o").exists()

@@ -134,8 +134,10 @@ class RunStore:
         return self.run_dir / f"{key}.json"
 
     def done(self) -> set[str]:
-        """Keys of the runs on disk."""
-        return {str(p.relative_to(self.run_dir).with_suffix("")) for p in self.run_dir.rglob("*.json")}
+        """Keys of the runs on disk (not the hidden ``.<run>.json.tmp<pid>.json`` of a write a
+        ``kill -9`` cut short: :func:`models.files.atomic_path`)."""
+        return {str(p.relative_to(self.run_dir).with_suffix("")) for p in self.run_dir.rglob("*.json")
+                if not p.name.startswith(".")}
 
     def write(self, record: RunRecord) -> Path:
         """Write one finished run (the only function that writes a run's result)."""

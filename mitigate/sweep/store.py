@@ -101,7 +101,7 @@ class SweepStore:
 
     def done(self) -> set[str]:
         """Keys of the chunks already on disk."""
-        return {p.stem for p in self.chunk_dir.glob("*.csv")}
+        return {p.stem for p in self.chunk_dir.glob("*.csv") if not p.name.startswith(".")}   # (not a cut write's temp)
 
     def write_records(self, key: str, records) -> Path:
         """Write one finished chunk of points atomically: a row per :class:`mitigate.record.RunRecord`
