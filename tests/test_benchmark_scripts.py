@@ -61,9 +61,11 @@ def test_quick_runs_and_writes_no_result(script, tmp_path):
     assert _results_state() == before, "a --quick run changed benchmarks/results/"
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def quick_store(tmp_path_factory):
-    """The readers' quick benchmark (``_results.quick_benchmark``, what their ``--quick`` runs), once."""
+    """The readers' quick benchmark (``_results.quick_benchmark``, what their ``--quick`` runs), once
+    (a session fixture: a module one is built again when the worker ran another file's test between
+    the two readers, as it did in a suite run: 80 s and 92 s)."""
     out = tmp_path_factory.mktemp("quick_benchmark") / "b"
     r = RESULTS.quick_benchmark(out)
     assert r.returncode in (0, 1), r.stderr[-1500:]
