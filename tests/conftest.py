@@ -62,6 +62,25 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(getattr(pytest.mark, tier))
         if item.path.name not in SPREAD_FILES and item.get_closest_marker("xdist_group") is None:
             item.add_marker(pytest.mark.xdist_group(item.path.stem))
+        if config.getvalue("loadgroup") if hasattr(config.option, "loadgroup") else False:
+            _group_node_id(item)
+
+
+def _group_node_id(item) -> None:
+    """Put the test's xdist group in its node id (``<id>@<group>``: what ``--dist loadgroup``
+    schedules by).  pytest-xdist does it by assigning ``item._nodeid``, which pytest 9 no longer
+    reads (its node id lives in ``item._id``): every group was ignored and every test scheduled
+    alone, so a file's module fixtures were built on both workers (measured: the quick benchmark
+    the two readers share was run twice).  Done here where pytest keeps ``_id``; xdist's own does
+    it where it does not."""
+    if not hasattr(item, "_id"):
+        return
+    marks = item.get_closest_marker("xdist_group")
+    name = (marks.args[0] if marks.args else marks.kwargs.get("name", "default")) if marks else None
+    if name is None or item.nodeid.rsplit("@", 1)[-1] == name:
+        return
+    from _pytest.nodeid import coerce_node_id
+    item._id = coerce_node_id(f"{item.nodeid}@{name}")
 
 
 @pytest.fixture
