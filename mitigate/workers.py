@@ -225,8 +225,7 @@ class WorkerPool:
         # ignore SIGINT and unblock it (_worker_main).  The parent only blocks SIGINT in this thread
         # meanwhile and keeps its handler: a Ctrl-C in that window reaches the handler (through another
         # thread, or here when unblocked).  Ignoring it in the parent instead, as before, lost a Ctrl-C
-        # that fell in the window (the process's other threads took it and dropped it): seen once on a
-        # loaded machine, `mitigate run` ran its 60 s to the end and exited 0.  The spawn context's
+        # that fell in the window (tests/test_faults_processes.py sends one there).  The spawn context's
         # resource tracker, started with the first process, unblocks SIGINT when it is up: started first.
         resource_tracker.ensure_running()
         sigmask = getattr(signal, "pthread_sigmask", None)

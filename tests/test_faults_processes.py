@@ -72,9 +72,9 @@ def test_a_stuck_worker_is_killed_after_the_stall_timeout():
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 def test_a_ctrl_c_while_a_worker_starts_is_not_lost(monkeypatch):
-    """A Ctrl-C that falls inside the start of a worker reaches the parent as KeyboardInterrupt (it
-    ignored SIGINT there before, and the process's other threads dropped it: `mitigate run` ran on
-    and exited 0), and the worker started is not left behind.  (Python's own SIGINT handler, as in a
+    """A Ctrl-C that falls inside the start of a worker reaches the parent as KeyboardInterrupt (the
+    parent ignored SIGINT there before and the Ctrl-C was lost: the command ran on), and the worker
+    started is not left behind.  (Python's own SIGINT handler, as in a
     command run from a terminal: a pytest-xdist worker ignores SIGINT.)"""
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
