@@ -67,9 +67,9 @@ def build_type() -> str:
     return v
 
 
-def opt_flags(release: str = "-O2") -> list[str]:
-    """The optimisation flags of a build now: ``release`` in a Release build, Debug's otherwise."""
-    return (release if build_type() == "Release" else BUILD_TYPES["Debug"]).split()
+def opt_flags() -> list[str]:
+    """The optimisation flags of the build type now (:func:`build_type`)."""
+    return BUILD_TYPES[build_type()].split()
 
 
 def reproducible(flags, folder) -> list[str]:
