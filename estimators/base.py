@@ -127,6 +127,10 @@ class StateEstimator(ABC):
 
     kind: ClassVar[str] = "estimator"
     options_class: ClassVar[type | None] = None
+    #: it estimates every state of :attr:`names` through the rig's model (the EKF, the MHE), so a
+    #: controller may take from it the speed of a body the rig does not measure; False (the
+    #: finite-difference baseline, and a plug-in unless it says so): it only reads what is measured
+    model_based: ClassVar[bool] = False
     names: tuple[str, ...] = ()
     channels: tuple[str, ...] = ()
     #: how the step functions were built ("compiled (...)", "compile failed, ..."); None: nothing compiled

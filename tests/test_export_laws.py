@@ -129,9 +129,13 @@ def test_an_exported_law_refuses_parameters_its_core_cannot_run(tmp_path):
 
 @pytest.mark.slow
 def test_a_law_on_the_drill_string_exports_and_replays(tmp_path):
-    """Another rig: D-OSKIL on the lab drill string (the weight on bit modulated around 200 N, a 2 ms
-    DAQ), 12 s of which 4 s under control."""
-    sc = load_scenario(DRILL)
+    """Another rig: D-OSKIL on the lab drill string read at the surface only (no bit encoder: the bit's
+    speed is the exported EKF's; the weight on bit modulated around 200 N, a 2 ms DAQ), 12 s of which
+    4 s under control."""
+    from test_bench_sensors import _surface_only
+    rig = _surface_only(tmp_path)
+    (tmp_path / "sc.toml").write_text(DRILL.read_text().replace('model = "drillstring_motor"', f'model = "{rig}"'))
+    sc = load_scenario(tmp_path / "sc.toml")
     sc = replace(sc, controllers=(ControllerSpec("D-OSKIL", "doskil", {}),))
     res = export_controller(sc, "D-OSKIL", tmp_path / "dk", reference=12.0)
     so = build_export(res.out, build_type="Debug")
@@ -140,3 +144,5 @@ def test_a_law_on_the_drill_string_exports_and_replays(tmp_path):
     data = np.loadtxt(res.out / "test" / "reference.csv", delimiter=",", skiprows=1)
     wob = data[:, 1 + len(res.interface.inputs)]
     assert np.ptp(wob[data[:, 0] >= 8.0]) > 1.0                # it modulated the weight on bit
+    assert "omega_bit" not in [p.name for p in res.interface.inputs]
+    assert "and the estimate's omega_bit" in (res.out / "README.md").read_text()

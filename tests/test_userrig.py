@@ -117,7 +117,8 @@ def test_every_missing_channel_of_every_controller_in_one_line_before_anything_r
     assert err.count("\n") == 1, err
     assert ("rig 'pin_rig' lacks what the controllers need: the drive's speed (add an encoder or speed sensor "
             "on body 'mot'), for controller 2 'SoftSpeed', controller 3 'Z-Torque', controller 5 'D-OSKIL'; "
-            "the torque at the drive (add a torque sensor with at = \"drive\"), for controller 2 'SoftSpeed', "
+            "the torque at the drive (add a torque sensor with at = \"drive\", or on the shaft at the drive), "
+            "for controller 2 'SoftSpeed', "
             "controller 3 'Z-Torque'") in err
     assert not (tmp_path / "out").exists()
 

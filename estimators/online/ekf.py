@@ -231,6 +231,7 @@ class EKF(ObservabilityMixin, StateEstimator):
 
     kind = "ekf"
     options_class = EKFOptions
+    model_based = True
 
     def __init__(self, options: EKFOptions, context: EstimatorContext):
         options = for_rig(options, context.model, context.params)      # unit-carrying defaults from the rig

@@ -87,6 +87,7 @@ class MHE(ObservabilityMixin, StateEstimator):
 
     kind = "mhe"
     options_class = MHEOptions
+    model_based = True
 
     def __init__(self, options: MHEOptions, context: EstimatorContext):
         options = for_rig(options, context.model, context.params)      # unit-carrying defaults from the rig

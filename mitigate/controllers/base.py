@@ -44,21 +44,23 @@ import numpy as np
 from models import plugins
 from models.errors import ConfigError, PluginError, SolverFailure, quote
 from models.params import ParameterSet
-from models.sensors import SensorOptions
+from models.sensors import SensorOptions, drive_load_sensor
 from models.status import Status
 from mitigate.scenario_fields import ControlSection
 
-__all__ = ["Action", "Controller", "ControllerCounts", "ControlContext", "NEEDS", "reading", "sees_string"]
+__all__ = ["Action", "Controller", "ControllerCounts", "ControlContext", "NEEDS", "reading", "estimated",
+           "sees_string"]
 
 #: what a controller may declare in ``Controller.needs`` (a class attribute), and what it means
 #: on a rig; :meth:`ControlContext.missing` says which of them a rig lacks (README, "What each
 #: controller needs")
 NEEDS: dict[str, str] = {
     "drive_speed": "the drive's measured speed (an encoder or speed sensor on the drive's body)",
-    "drive_torque": "the torque at the drive (a torque sensor with at = \"drive\")",
+    "drive_torque": "the torque at the drive (a torque sensor with at = \"drive\", or on the shaft at the drive)",
     "speed_drive": "a drive that sets a speed (its set-point is offset in rad/s; not a torque drive)",
     "servo": "a servo on a contact's normal force ([actuators] kind = \"servo\")",
-    "servo_body_speed": "the measured speed of the body the servo's contact acts on",
+    "servo_body_speed": "the speed of the body the servo's contact acts on: measured, or estimated by a model-based "
+                        "estimator (an EKF or MHE)",
     "objective_speed": "the measured speed of the objective body",
     "string_sensor": "a sensor that sees the string: an encoder or speed sensor on a body a speed drive does not "
                      "set, or a torque sensor (a speed drive's own encoder reads only its set-point)",
@@ -86,6 +88,17 @@ def reading(measurement: Mapping[str, float] | None, channel: str) -> float:
         raise SolverFailure(f"no reading of channel {channel!r} in this sample") from None
     if not math.isfinite(v):
         raise SolverFailure(f"channel {channel!r} reads {v} in this sample")
+    return v
+
+
+def estimated(estimate, name: str) -> float:
+    """The estimate's value of state ``name`` [SI] (a speed the rig does not measure); no estimate
+    with that state raises :class:`SolverFailure`, answered like a missing reading."""
+    if estimate is None or name not in estimate.names:
+        raise SolverFailure(f"no estimate of {name!r} in this call")
+    v = estimate.get(name)
+    if not math.isfinite(v):
+        raise SolverFailure(f"the estimate of {name!r} is {v} in this call")
     return v
 
 
@@ -131,6 +144,9 @@ class ControlContext:
         the call period (:attr:`period`), the ``deadline`` a call may take before its answer counts as a
         deadline miss and the fallback acts, the ``timeout`` after which a call that has not returned fails
         the run, a torque drive's target ``speed`` (:meth:`target_speed`)
+    estimated : the states the scenario's estimator estimates through the model (an EKF's or MHE's: all;
+        the finite-difference baseline's: none): a speed the rig does not measure may come from there
+        (:meth:`speed_source`)
     """
 
     model: Any
@@ -141,6 +157,16 @@ class ControlContext:
     where: str = "controller"
     schedule: Mapping[str, Callable[[float], float]] = field(default_factory=dict)
     control: ControlSection = ControlSection()
+    estimated: tuple[str, ...] = ()
+
+    def speed_source(self, body: str) -> tuple[str, str] | None:
+        """Where ``body``'s speed comes from: ``("channel", name)`` when the rig measures it, else
+        ``("estimate", "omega_<body>")`` when the estimator estimates it, else None."""
+        ch = self.model.speed_channel(body)
+        if ch is not None:
+            return "channel", ch
+        name = f"omega_{body}"
+        return ("estimate", name) if name in self.estimated else None
 
     @property
     def period(self) -> float:
@@ -196,8 +222,9 @@ class ControlContext:
         for n in needs:
             if n == "drive_speed" and m.speed_channel(drive) is None:
                 out.append(f"the drive's speed (add an encoder or speed sensor on body {drive!r})")
-            elif n == "drive_torque" and not any(s.kind == "torque" and s.target == "drive" for s in m.sensors):
-                out.append("the torque at the drive (add a torque sensor with at = \"drive\")")
+            elif n == "drive_torque" and drive_load_sensor(m) is None:
+                out.append("the torque at the drive (add a torque sensor with at = \"drive\", or on the shaft at "
+                           "the drive)")
             elif n == "speed_drive" and not m.drive.sets_speed:
                 out.append(f"a speed-setting drive (rig {m.name!r} has a torque drive, input {m.drive_input!r} [N m])")
             elif n == "servo" and not m.servo_inputs:
@@ -205,9 +232,9 @@ class ControlContext:
                            "[actuators] entry of kind \"servo\")")
             elif n == "servo_body_speed" and m.servo_inputs:
                 body = m.contact_of_input(m.servo_inputs[0]).body
-                if m.speed_channel(body) is None:
+                if self.speed_source(body) is None:
                     out.append(f"the speed of {body!r}, the body its servo's contact acts on (add an encoder or "
-                               f"speed sensor on {body!r})")
+                               f"speed sensor on {body!r}, or estimate it: an estimator of kind \"ekf\" or \"mhe\")")
             elif n == "string_sensor" and not sees_string(m):
                 out.append(f"a sensor that sees the string (rig {m.name!r} is read only at its speed drive, whose "
                            f"encoder reads the set-point it follows: add an encoder on a body of the string or a "

@@ -10,7 +10,8 @@ programmed drive speed and ``w_d`` the drive body's speed (rig3: R3).  It brakes
 when it overspeeds (pulled ahead by the release at the end of a stick phase) or runs faster
 than the drive.  A brake can only remove energy, so it acts as a one-sided damper on the
 torsional mode that drives the limit cycle.  Speeds come from the state estimate (when one is
-given and ``use_estimate``) or from the measured channels, low-pass filtered with
+given and ``use_estimate``; always, for a body the rig does not measure, when the scenario's
+estimator is model-based) or from the measured channels, low-pass filtered with
 ``filter_tau`` (a differentiated encoder speed is quantised: one tick per 10 ms is 0.63 rad/s
 on a 1000-tick encoder).  The shipped gains come from a grid search on the stick-slip
 scenario (``benchmarks/brake_tuning.py``).
@@ -23,7 +24,7 @@ import math
 from dataclasses import dataclass
 from typing import Mapping
 
-from mitigate.controllers.base import Action, ControlContext, reading
+from mitigate.controllers.base import Action, ControlContext, estimated, reading
 from mitigate.controllers.compiled import CompiledStepLaw, LawOptions, compiled_action, law_config
 from mitigate.tunables import Tunable
 from models.checks import option
@@ -64,11 +65,14 @@ class BrakeOptions(LawOptions):
 
 
 def body_speed(model, body: str, estimate, measurement: Mapping[str, float], use_estimate: bool) -> float:
-    """Speed of ``body`` [rad/s] from the estimate if usable, else from its measured channel."""
+    """Speed of ``body`` [rad/s] from the estimate if usable, else from its measured channel; a body
+    the rig does not measure, from the estimate (or :class:`SolverFailure` without one)."""
     name = f"omega_{body}"
     if use_estimate and estimate is not None and name in estimate.names:
         return estimate.get(name)
     ch = model.speed_channel(body)
+    if ch is None:
+        return estimated(estimate, name)
     return reading(measurement, ch)
 
 
@@ -119,11 +123,16 @@ class BrakeController(CompiledStepLaw):
             tau = options.filter_tau if options.filter_tau is not None else FILTER_PERIODS * context.dt
             #: the options it runs with: the given ones, the rest derived from the rig
             self.options = options = dataclasses.replace(options, gain_overspeed=g, filter_tau=tau)
-        need = [m.speed_channel(self.body)] + ([m.speed_channel(self.drive_body)] if options.gain_relative > 0 else [])
-        if None in need:
-            raise ConfigError(f"{context.where}: the brake needs the speeds of {self.body!r}"
-                              f"{' and ' + repr(self.drive_body) if options.gain_relative > 0 else ''}, "
+        src = context.speed_source(self.body)
+        if src is None or (src[0] == "estimate" and not options.use_estimate):
+            raise ConfigError(f"{context.where}: the brake needs the speed of {self.body!r}, which rig {m.name!r} does "
+                              f"not measure and " + ("the estimator does not estimate" if src is None else
+                                                     "use_estimate = false forbids estimating"))
+        if options.gain_relative > 0 and m.speed_channel(self.drive_body) is None:
+            raise ConfigError(f"{context.where}: the brake's gain_relative needs the speed of {self.drive_body!r}, "
                               f"which rig {m.name!r} does not measure")
+        #: the body's speed comes from the estimate only (the rig does not measure it)
+        self.est_body = src[0] == "estimate"
         self.compile_step()
 
     def c_config(self):
@@ -131,8 +140,10 @@ class BrakeController(CompiledStepLaw):
         the rig measures it), the estimates it reads (the same two speeds)."""
         m, o = self.context.model, self.options
         drive_ch = m.speed_channel(self.drive_body) if self.drive_body else None
-        channels = (m.speed_channel(self.body),) + ((drive_ch,) if drive_ch is not None else ())
-        return (law_config("brake", n_ch=len(channels), ch_body=0, ch_drive=1 if drive_ch is not None else -1,
+        body_ch = () if self.est_body else (m.speed_channel(self.body),)
+        channels = body_ch + ((drive_ch,) if drive_ch is not None else ())
+        return (law_config("brake", n_ch=len(channels), ch_body=-1 if self.est_body else 0,
+                           ch_drive=channels.index(drive_ch) if drive_ch is not None else -1, est_body=int(self.est_body),
                            use_estimate=int(o.use_estimate), period=self.context.period, gain=o.gain_overspeed,
                            gain_relative=o.gain_relative, deadband=o.deadband, tau=o.filter_tau, n_max=self.n_max),
                 channels, (f"omega_{self.body}", f"omega_{self.drive_body}"))

@@ -29,7 +29,7 @@ from typing import Mapping
 
 import numpy as np
 
-from mitigate.controllers.base import Action, Controller, reading
+from mitigate.controllers.base import Action, Controller, estimated, reading
 from models.cbuild import CSRC, CStruct, build_library, c_view, lay_out, read_channels, read_source
 from models.checks import check_options, option
 from models.errors import SolverFailure
@@ -49,10 +49,12 @@ LAW_CONFIG = CStruct("ssl_config", [
     ("n_ch", "int", None, "DAQ channels read (y)"),
     ("ch_drive", "int", None, "y: the drive's speed (D-OSKIL's top, the brake's drive body; -1 none)"),
     ("ch_torque", "int", None, "y: the torque at the drive (-1 none)"),
+    ("torque_flip", "int", None, "the torque channel reads minus the string's torque (a flange in a shaft toward the drive)"),
     ("ch_body", "int", None, "y: the servo's body's speed (-1 none)"),
     ("torque_drive", "int", None, "the drive sets a torque: the law is its speed loop"),
     ("motor_friction", "int", None, "the torque channel reads the motor's electromagnetic torque"),
     ("use_estimate", "int", None, "brake: speeds from the estimate when it has them"),
+    ("est_body", "int", None, "the servo's body's speed from the estimate e[0] (the rig does not measure it)"),
     ("period", "double", None, "call period [s]"),
     ("pipe_J", "double", None, "inertia the torque channel reads beyond the pipe [kg m^2]"),
     ("tau_pipe", "double", None, "pipe torque's low-pass [s]"),
@@ -129,7 +131,8 @@ class CompiledLaw:
     ----------
     config : the law's :data:`LAW_CONFIG` values (:func:`law_config`)
     channels : the DAQ channels the configuration's ``ch_*`` indices point into, in order
-    estimates : the brake's estimate names (its body's and the drive body's speed state), or ()
+    estimates : the estimate names e[] holds (the brake: its body's and the drive body's speed state;
+        D-OSKIL: its body's speed state when the rig does not measure it), or ()
 
     Raises
     ------
@@ -159,7 +162,7 @@ class CompiledLaw:
     def step(self, t: float, measurement: Mapping[str, float] | None, estimate, w_nom: float,
              u_prog: float = 0.0) -> float | None:
         """One call of ``ssl_step``: the command, or None when a reading was missing (the index of
-        its channel in ``info.missing``)."""
+        its channel in ``info.missing``; ``-2 - i``: the estimate ``estimates[i]``)."""
         read_channels(measurement, self.channels, self.y)
         mask = 0
         if self.estimates and estimate is not None:
@@ -173,8 +176,12 @@ class CompiledLaw:
         return float(self.u[0]) if self.info.n_u else None
 
     def missing_channel(self) -> str:
-        """The channel whose reading the last call missed."""
-        return self.channels[self.info.missing]
+        """The channel whose reading the last call missed (None: an estimate was missing, :meth:`missing_estimate`)."""
+        return self.channels[self.info.missing] if self.info.missing >= 0 else None
+
+    def missing_estimate(self) -> str | None:
+        """The estimate the last call missed, or None."""
+        return self.estimates[-2 - self.info.missing] if self.info.missing <= -2 else None
 
     def virtual_drive(self) -> tuple[np.ndarray, np.ndarray]:
         """SoftSpeed's ``(Ad, Bd)`` as the C core computed them (2 x 2 each)."""
@@ -204,6 +211,10 @@ def compiled_action(law, t: float, measurement, estimate, name: str, w_nom: floa
     :class:`SolverFailure` the Python step raises (its fallback answers it)."""
     u = law.compiled.step(t, measurement, estimate, w_nom, u_prog)
     if u is None:
+        name = law.compiled.missing_estimate()
+        if name is not None:
+            estimated(estimate, name)
+            raise SolverFailure(f"no finite estimate of {name!r} in this call")
         ch = law.compiled.missing_channel()
         reading(measurement, ch)
         raise SolverFailure(f"channel {ch!r} has no finite reading in this sample")

@@ -11,7 +11,9 @@ here::
 ``w_b`` is the speed of the body whose contact the servo presses (rig3: the R2 pin; a
 drill-string rig file: the bit, through its weight on bit), ``w_top`` the drive's speed,
 ``N_prog`` the programmed force (rig3: 0 N, so the pin only ever brakes; a drill string: the
-nominal weight on bit, modulated around it).  Speeds are the measured channels, low-passed.
+nominal weight on bit, modulated around it).  Speeds are the measured channels, low-passed; a
+body the rig does not measure (a field string's bit) has its speed from the scenario's
+model-based estimator (an EKF or MHE: :meth:`~mitigate.controllers.base.ControlContext.speed_source`).
 
 Default gain from the rig: the force's friction ``r mu_k k_n`` acts on the relative speed like a
 damper; matched to the string's impedance it is ``k_n = Z / (r mu_k)`` (:mod:`mitigate.controllers.tuning`;
@@ -26,7 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Mapping
 
-from mitigate.controllers.base import Action, ControlContext, reading
+from mitigate.controllers.base import Action, ControlContext, estimated, reading
 from mitigate.controllers.compiled import CompiledStepLaw, LawOptions, compiled_action, law_config
 from mitigate.controllers.tuning import drive_speed_channel, first_order, np_clip, tuning_for
 from mitigate.tunables import Tunable
@@ -79,9 +81,13 @@ class DOSKIL(CompiledStepLaw):
             raise ConfigError(f"{context.where}.input must be a servo input ({', '.join(m.servo_inputs)}), "
                               f"got {self.input!r}")
         c = m.contact_of_input(self.input)
-        self.body_ch = m.speed_channel(c.body)
-        if self.body_ch is None:
-            raise ConfigError(f"{context.where}: needs the speed of {c.body!r}, which rig {m.name!r} does not measure")
+        src = context.speed_source(c.body)
+        if src is None:
+            raise ConfigError(f"{context.where}: needs the speed of {c.body!r}, which rig {m.name!r} does not measure "
+                              f"and the estimator does not estimate")
+        #: the body's speed channel, or None: its speed is the estimate's ``body_estimate``
+        self.body_ch = src[1] if src[0] == "channel" else None
+        self.body_estimate = src[1] if src[0] == "estimate" else None
         self.top_ch = drive_speed_channel(context)
         kinetic = m.law(c.name).with_role("kinetic")
         level = dict(c.params).get(kinetic) if kinetic else None
@@ -99,7 +105,11 @@ class DOSKIL(CompiledStepLaw):
         self.compile_step()
 
     def c_config(self):
-        """The law's C configuration, the channels it reads, the estimates it reads (none)."""
+        """The law's C configuration, the channels it reads, the estimates it reads (its body's speed
+        when the rig does not measure it)."""
+        if self.body_ch is None:
+            return (law_config("doskil", n_ch=1, ch_drive=0, est_body=1, period=self.context.period, gain=self.gain,
+                               tau=self.tau, n_min=self.n_min, n_max=self.n_max), (self.top_ch,), (self.body_estimate,))
         return law_config("doskil", n_ch=2, ch_body=0, ch_drive=1, period=self.context.period, gain=self.gain,
                           tau=self.tau, n_min=self.n_min, n_max=self.n_max), (self.body_ch, self.top_ch), ()
 
@@ -112,7 +122,9 @@ class DOSKIL(CompiledStepLaw):
     def _step_impl(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
         if self.compiled is not None:
             return compiled_action(self, t, measurement, estimate, self.input, 0.0, self.context.scheduled(t, self.input))
-        d = reading(measurement, self.body_ch) - reading(measurement, self.top_ch)
+        wb = (reading(measurement, self.body_ch) if self.body_ch is not None
+              else estimated(estimate, self.body_estimate))
+        d = wb - reading(measurement, self.top_ch)
         self._d = d if self._d is None else first_order(self._d, d, self.context.period, self.tau)
         n = self.context.scheduled(t, self.input) + self.gain * self._d
         return Action({self.input: np_clip(n, self.n_min, self.n_max)})

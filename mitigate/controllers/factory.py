@@ -24,7 +24,7 @@ from typing import Any, Mapping
 from mitigate.controllers.base import ControlContext, Controller
 from models import plugins
 from models.checks import options_from_mapping
-from models.errors import ConfigError
+from models.errors import ConfigError, PluginError
 
 __all__ = ["make_controller", "controller_class", "CONTROLLER_KINDS", "ENTRY_POINT_GROUP", "parse_options",
            "context_for"]
@@ -76,7 +76,19 @@ def context_for(scenario, index: int | None = None) -> ControlContext:
              if index is not None and index < len(scenario.controllers) else f"{scenario.where}: controller")
     return ControlContext(model=scenario.model, params=scenario.model_params, dt=scenario.dt,
                           programme=scenario.programme, sensors=scenario.sensors, where=where,
-                          schedule=dict(scenario.inputs), control=scenario.control)
+                          schedule=dict(scenario.inputs), control=scenario.control, estimated=_estimated(scenario))
+
+
+def _estimated(scenario) -> tuple[str, ...]:
+    """The states the scenario's estimator estimates through the model: every state of the rig for a
+    model-based kind (``StateEstimator.model_based``), else none (an unknown kind is refused where the
+    estimator is built)."""
+    from estimators.online.factory import estimator_class
+    try:
+        cls = estimator_class(scenario.estimator.get("kind"), f"{scenario.where}: estimator")
+    except (ConfigError, PluginError):
+        return ()
+    return tuple(scenario.model.states) if getattr(cls, "model_based", False) else ()
 
 
 def _split(spec) -> tuple[Any, dict]:

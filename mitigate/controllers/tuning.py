@@ -29,9 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mitigate.controllers.base import reading
+from mitigate.controllers.base import NEEDS, reading
 from models.errors import ConfigError
 from models.modal import stick_slip_frequency
+from models.sensors import drive_load_sensor
 
 __all__ = ["DriveTuning", "string_impedance", "stick_slip_frequency", "drive_inertia", "tuning_for",
            "absorber_frequency", "VirtualDrive"]
@@ -186,13 +187,13 @@ def drive_speed_channel(context) -> str:
 
 
 def drive_torque_channel(context) -> str:
-    """The measured channel of the torque at the drive, or a one-line ConfigError."""
-    m = context.model
-    for s in m.sensors:
-        if s.kind == "torque" and s.target == "drive":
-            return s.channels[0]
-    raise ConfigError(f"{context.where}: needs the torque at the drive (a torque sensor with at = \"drive\"), "
-                      f"which rig {m.name!r} does not have")
+    """The measured channel of the torque the string loads the drive with (a torque sensor at the
+    drive, or a flange in the shaft at the drive: :func:`models.sensors.drive_load_sensor`), or a
+    one-line ConfigError."""
+    s = drive_load_sensor(context.model)
+    if s is None:
+        raise ConfigError(f"{context.where}: needs {NEEDS['drive_torque']}, which rig {context.model.name!r} does not have")
+    return s.channel
 
 
 def np_clip(x, lo, hi):
@@ -207,7 +208,8 @@ class PipeTorque:
     of a free-mounted gear motor reads ``T_pipe + ratio Jm w'``; the electromagnetic torque
     ``ratio KT i`` reads ``T_pipe + ratio^2 Jm w' + ratio (Tf + Cm ratio w)`` (the motor's own
     friction, taken from the nominal parameters); a torque drive's applied torque reads
-    ``T_pipe + J_drive w'``.  The acceleration is the backward difference of the measured drive
+    ``T_pipe + J_drive w'``; an inline flange in the shaft at the drive reads ``T_pipe`` itself
+    (signed by the shaft's direction: :func:`models.sensors.drive_load_sensor`).  The acceleration is the backward difference of the measured drive
     speed, low-passed with ``tau_acc`` [s], and the torque passes the same low-pass (matched filters:
     the part of the torque that accelerates the drive cancels exactly, also the command of a torque
     drive, whose torque channel logs it); the result is low-passed with ``tau`` [s].
@@ -219,17 +221,22 @@ class PipeTorque:
         self.torque_ch = drive_torque_channel(context)
         self.dt = context.period
         self.tau, self.tau_acc = tau, tau_acc
-        # the sensor reads T_pipe + J w' + friction(w) (models.rig.drives.Drive.pipe_torque_terms)
-        sensor = m.sensor_of(self.torque_ch)
-        self.J, self.friction = m.drive.pipe_torque_terms(m, sensor, P)
-        #: ``(eta, Tf, Cm, eps)`` of the motor friction the torque channel includes, or None (the C core's form)
-        self.motor = m.drive.pipe_torque_loss(m, sensor, P)
+        load = drive_load_sensor(m)
+        #: +1 or -1: the string's torque is ``sign * reading`` (a flange in a shaft whose second node is the drive: -1)
+        self.sign = load.sign
+        if load.at_drive:
+            # the sensor reads T_pipe + J w' + friction(w) (models.rig.drives.Drive.pipe_torque_terms)
+            self.J, self.friction = m.drive.pipe_torque_terms(m, load.sensor, P)
+            #: ``(eta, Tf, Cm, eps)`` of the motor friction the torque channel includes, or None (the C core's form)
+            self.motor = m.drive.pipe_torque_loss(m, load.sensor, P)
+        else:           # a flange in the shaft reads the string's torque: nothing of the drive's to remove
+            self.J, self.friction, self.motor = 0.0, None, None
         self.reset()
 
     def c_fields(self) -> dict:
         """Its values as fields of the laws' C configuration (:data:`mitigate.controllers.compiled.LAW_CONFIG`)."""
         eta, Tf, Cm, eps = self.motor or (0.0, 0.0, 0.0, 0.0)
-        return dict(pipe_J=float(self.J), tau_pipe=float(self.tau), tau_acc=float(self.tau_acc),
+        return dict(pipe_J=float(self.J), torque_flip=int(self.sign < 0), tau_pipe=float(self.tau), tau_acc=float(self.tau_acc),
                     motor_friction=int(self.motor is not None), eta=float(eta), Tf=float(Tf), Cm=float(Cm),
                     eps_motor=float(eps))
 
@@ -242,7 +249,7 @@ class PipeTorque:
     def update(self, measurement) -> float:
         """The new estimate [N m] from one DAQ sample (measured drive speed and torque)."""
         w = reading(measurement, self.speed_ch)
-        T = reading(measurement, self.torque_ch)
+        T = self.sign * reading(measurement, self.torque_ch)
         if self._w is not None:
             self._acc = first_order(self._acc, (w - self._w) / self.dt, self.dt, self.tau_acc)
             # the torque through the SAME filter as the acceleration: LP(T) - J LP(w') = LP(T - J w'),

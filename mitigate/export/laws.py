@@ -5,7 +5,7 @@ The adapter holds the law's exported configuration (:meth:`models.cbuild.CStruct
 ``law.c_config()``: every value the workbench's law resolved from the rig), writes the runtime
 parameters into it, and hands the core its channels from in[], the target speed (a speed drive's
 programmed set-point, a torque drive's ``target_speed``), the programme of its own input, and --
-the brake -- its speeds from the estimate.  A law that does not read the estimate still publishes
+the brake, and D-OSKIL on a body the rig does not measure -- its speeds from the estimate.  A law that does not read the estimate still publishes
 it in out[].
 """
 
@@ -101,7 +101,7 @@ def law_export(law, ekf) -> KindExport:
                                law_default=LAW_CONFIG.c_initialiser("law_default", config))
 
     what = f"{_TITLES[law.kind]} ({command}) with an EKF on rig {m.name!r}"
-    uses_estimate = law.kind == "brake" and config["use_estimate"]
+    uses_estimate = (law.kind == "brake" and config["use_estimate"]) or config["est_body"]
     notes = (f"the law's structure: it reads {', '.join(channels)}"
              + (" and the estimate's " + ", ".join(n for n in estimates if n in ekf.em.names) if uses_estimate else "")
              + (", the drive is a torque drive (the law is its speed loop)" if config["torque_drive"] else ""),
@@ -144,7 +144,7 @@ static void ctl_reset(ctl_mem* c) {{ ssl_reset(c); }}
 
 static void ctl_call(ctl_mem* c, double t, const double* in, const double* x, const double* prog, double* act,
                      ctl_out* r) {{
-    double y[NCL], e[2] = {{0.0, 0.0}}, t0 = ss_clock();
+    double y[NCL > 0 ? NCL : 1], e[2] = {{0.0, 0.0}}, t0 = ss_clock();
     int j, mask = 0;
     ssl_info li;
     for (j = 0; j < NCL; j++) y[j] = in[law_ch[j]];

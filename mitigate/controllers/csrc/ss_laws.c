@@ -100,17 +100,17 @@ static void virtual_drive(ssl_mem* m) {
 static int in_range(int ch, int n) { return ch >= 0 && ch < n; }
 
 static int valid(const ssl_config* c) {
-    if (!(c->n_ch >= 1 && c->period > 0)) return 0;
+    if (!(c->n_ch >= 0 && c->period > 0)) return 0;
     switch (c->law) {
     case SSL_SOFTSPEED:
     case SSL_ZTORQUE:
         if (!in_range(c->ch_drive, c->n_ch) || !in_range(c->ch_torque, c->n_ch)) return 0;
         return c->law == SSL_ZTORQUE || c->torque_drive || c->J_v > 0;
     case SSL_DOSKIL:
-        return in_range(c->ch_body, c->n_ch) && in_range(c->ch_drive, c->n_ch);
+        return (c->est_body || in_range(c->ch_body, c->n_ch)) && in_range(c->ch_drive, c->n_ch);
     case SSL_BRAKE:
         /* the relative gain reads the drive body's speed (the brake's constructor refuses it without) */
-        return in_range(c->ch_body, c->n_ch) && (!(c->gain_relative > 0) || in_range(c->ch_drive, c->n_ch));
+        return (c->est_body || in_range(c->ch_body, c->n_ch)) && (!(c->gain_relative > 0) || in_range(c->ch_drive, c->n_ch));
     default:
         return 0;
     }
@@ -147,6 +147,9 @@ const double* ssl_virtual_drive(const ssl_mem* m, int which) { return which ? m-
 
 /* a reading that is missing or not finite: the law's fallback (base.reading raises SolverFailure) */
 #define READ(v, ch) do { (v) = y[(ch)]; if (!isfinite(v)) { info->missing = (ch); return 0; } } while (0)
+/* a speed from the estimate e[i] (a body the rig does not measure): missing or not finite, the fallback */
+#define READ_EST(v, i) do { if (!(e && (e_mask & (1 << (i))) && isfinite(e[(i)]))) { info->missing = -2 - (i); return 0; } \
+                            (v) = e[(i)]; } while (0)
 
 /* PipeTorque.update: the torque the string loads the drive with [N m]; 0 if a reading is missing */
 static int pipe_update(ssl_mem* m, const double* y, double* out, ssl_info* info) {
@@ -154,6 +157,7 @@ static int pipe_update(ssl_mem* m, const double* y, double* out, ssl_info* info)
     double w, T, est;
     READ(w, c->ch_drive);
     READ(T, c->ch_torque);
+    if (c->torque_flip) T = -T;     /* a flange in a shaft whose second node is the drive */
     if (m->pipe_has_w) {
         m->pipe_acc = first_order(m->pipe_acc, (w - m->pipe_w) / c->period, c->period, c->tau_acc);
         /* the torque through the same filter as the acceleration (tuning.py says why) */
@@ -216,10 +220,12 @@ static int ztorque(ssl_mem* m, const double* y, double w_nom, double* u, ssl_inf
     return 1;
 }
 
-static int doskil(ssl_mem* m, const double* y, double u_prog, double* u, ssl_info* info) {
+static int doskil(ssl_mem* m, const double* y, const double* e, int e_mask, double u_prog, double* u,
+                  ssl_info* info) {
     const ssl_config* c = &m->c;
     double wb, wt, d;
-    READ(wb, c->ch_body);
+    if (c->est_body) READ_EST(wb, 0);
+    else READ(wb, c->ch_body);
     READ(wt, c->ch_drive);
     d = wb - wt;
     m->d = m->has_d ? first_order(m->d, d, c->period, c->tau) : d;
@@ -233,6 +239,7 @@ static int brake(ssl_mem* m, double t, const double* y, const double* e, int e_m
     const ssl_config* c = &m->c;
     double wb, wd = 0.0, n;
     if (c->use_estimate && e && (e_mask & 1)) wb = e[0];
+    else if (c->est_body) READ_EST(wb, 0);
     else READ(wb, c->ch_body);
     if (c->gain_relative > 0) {
         if (c->use_estimate && e && (e_mask & 2)) wd = e[1];
@@ -262,7 +269,7 @@ int ssl_step(ssl_mem* m, double t, const double* y, const double* e, int e_mask,
     switch (m->c.law) {
     case SSL_SOFTSPEED: ok = softspeed(m, y, w_nom, u, info); break;
     case SSL_ZTORQUE: ok = ztorque(m, y, w_nom, u, info); break;
-    case SSL_DOSKIL: ok = doskil(m, y, u_prog, u, info); break;
+    case SSL_DOSKIL: ok = doskil(m, y, e, e_mask, u_prog, u, info); break;
     case SSL_BRAKE: ok = brake(m, t, y, e, e_mask, w_nom, u, info); break;
     default: break;
     }

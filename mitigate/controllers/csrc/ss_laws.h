@@ -32,7 +32,7 @@ enum { SSL_SOFTSPEED = 1, SSL_ZTORQUE = 2, SSL_DOSKIL = 3, SSL_BRAKE = 4 };
 typedef struct {
     int status;      /* SS_OK, or SS_FALLBACK: a reading the law needs is missing, the programme acts */
     int n_u;         /* 1: u holds the command; 0: the programme (the fallback) */
-    int missing;     /* the y index of the missing reading (-1: none) */
+    int missing;     /* the y index of the missing reading (-1: none; -2 - i: the estimate e[i]) */
 } ssl_info;
 
 typedef struct ssl_mem ssl_mem;
@@ -49,7 +49,8 @@ void ssl_reset(ssl_mem* m);
 
 /* One call of the law at time t [s].
  *   y       the DAQ channels the configuration reads (cfg->n_ch; NaN or inf: missing)
- *   e       the brake's speeds from the state estimate: e[0] its body's, e[1] the drive body's
+ *   e       speeds from the state estimate: e[0] the servo's body's, e[1] the drive body's (the brake's;
+ *           D-OSKIL's e[0] when cfg->est_body)
  *           [rad/s] (NULL: none)
  *   e_mask  bit 0: e[0] is there, bit 1: e[1] is there
  *   w_nom   the target speed now [rad/s] (a speed drive: its programmed set-point; a torque drive:
