@@ -291,6 +291,11 @@ def integration(model, params, dt: float, *, u=None, eps: float | None = None, s
     extra = max([float(r) for r in rates], default=0.0)
     lam_full = max(stiff_rates(model, params, u, eps=eps, speed=speed), extra)
     tau_e = model.electrical_time_constant(params)
+    if tau_e > 0 and model.drive.limit_refs():
+        # a drive held at its supply voltage or current limit has no loop around its current, which then
+        # relaxes at R/L alone: a rate the points of steady sliding (the loop acting) do not show.  A zoo
+        # rig's plant (R/L = 2867 1/s, the loop's rate 1524 1/s) diverged from rest at 1 ms RK4 substeps
+        lam_full = max(lam_full, 1.0 / tau_e)
     if not math.isfinite(lam_full):
         raise ConfigError(f"{where}: the model of rig {model.name!r} has non-finite rates at its operating point "
                           f"(check its parameters)")
