@@ -213,6 +213,14 @@ class SlipEvents:
         return int(self.intervals.size)
 
 
+#: a force record's running median [samples] before its slips are looked for (removes spikes of up to 4 samples)
+DESPIKE = 9
+#: a slip's drop is at least this fraction of the force record's span (1st to 99th percentile) ...
+SLIP_SPAN = 0.05
+#: ... and this many noise levels (the measured slider's noise runs reach 9, its smallest slips 20)
+SLIP_NOISE = 15.0
+
+
 def _noise_level(x) -> float:
     """Robust white-noise level of ``x``: the MAD of its first differences (a slow trend or a
     sawtooth's constant build-up moves the median, not the spread) over sqrt(2)."""
@@ -265,10 +273,20 @@ def _force_slips(x, dt: float, floor: float) -> tuple[np.ndarray, str]:
     dy = np.diff(y)
     falling = dy < 0
     runs = stuck_runs(np.r_[False, falling, False], 1)           # (first, end) indices into dy, shifted by 1
+    # a step or two of plateau inside a slip's edge (a running median's, a quantised record's) does not split it
+    joined = []
+    for a, b in runs:
+        if joined and a - joined[-1][1] <= 2:
+            joined[-1] = (joined[-1][0], b)
+        else:
+            joined.append((a, b))
+    runs = joined
     drops = np.array([y[a - 1] - y[b - 1] for a, b in runs]) if runs else np.zeros(0)
     if drops.size == 0:
         return np.zeros(0), "no drop"
-    big = max(0.25 * float(np.percentile(drops, 95)), 6 * floor)
+    # well above the noise and at least a twentieth of the record's span: a measured slider's slips range
+    # over 10x in size (4-45 mN), so no fraction of the largest separates them from the noise's runs
+    big = max(SLIP_NOISE * floor, SLIP_SPAN * span)
     keep = [(a - 1, b - 1) for (a, b), dr in zip(runs, drops) if dr >= big]
     if not keep:
         return np.zeros(0), "no drop above the noise (steady sliding)"
@@ -302,8 +320,11 @@ def slip_events(x, dt: float, kind: str = "speed", *, noise: float | None = None
       is within 4 noise levels.
     - ``kind = "force"``: a spring's force, twist or a shaft's torque.  A slip is a sharp drop of a
       slow build-up (the fast edges' sign is read from the record: a spring loaded backwards rises):
-      a falling run of the record of at least a quarter of the largest drops (95th percentile) and
-      6 noise levels; runs closer than their own length merge.  A record whose span (1st to 99th
+      a falling run of the record of at least a quarter of the largest drops (the 95th percentile of
+      those above 6 noise levels), 6 noise levels and :data:`SLIP_SPAN` of the record's span; runs closer
+      than their own length merge.  Spikes go first: a running median over :data:`DESPIKE` samples
+      (a measured slider's force holds spikes as large as its slips, which read as 139 slips in 8 s
+      where there were 11).  A record whose span (1st to 99th
       percentile) is within 10 noise levels has none.
       The drops must be short against the time between them (at most 0.35 of it): a smooth
       oscillation falls for half its period and is not a stick-slip.
@@ -333,7 +354,13 @@ def slip_events(x, dt: float, kind: str = "speed", *, noise: float | None = None
     raw = np.asarray(x, dtype=float)
     if raw.size < 8 or not np.all(np.isfinite(raw)):
         return _none(kind, "too short" if raw.size < 8 else "non-finite samples")
-    xs = moving_average(raw, smooth)
+    if kind == "force":
+        # a measured force carries impulsive spikes (a paper-on-paper slider's sensor: up to 30 mN, one to a
+        # few samples, against slips of 5-35 mN); a running median removes them and keeps a slip's edge
+        from scipy.ndimage import median_filter
+        xs = moving_average(median_filter(raw, size=DESPIKE, mode="nearest"), smooth)
+    else:
+        xs = moving_average(raw, smooth)
     # the noise level after the moving average (white noise: / sqrt(smooth)), at least half a quantisation step
     floor = max((noise if noise is not None else _noise_level(raw)) / math.sqrt(max(smooth, 1)), _resolution(raw) / 2)
     times, why = (_speed_slips if kind == "speed" else _force_slips)(xs, float(dt), floor)
