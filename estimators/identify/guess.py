@@ -29,6 +29,14 @@ Three pieces of physics, each used where the log and the rig allow it:
    speed and the law's levels (and an intercept for a free encoder zero) gives those that the
    data determine.
 
+4. **The sawtooth of a spring's force** where no speed of the friction body is measured (a force
+   sensor on the spring of a friction bench's slider): the slider is stuck until the spring's force
+   reaches the static level, so the force at each slip's onset IS the static friction; an
+   undamped Coulomb oscillator rebounds as far below the kinetic level as it started above it, so
+   the kinetic level is the mean of the force before and after the slip (an approximation: damping
+   and a speed-dependent law shorten the rebound).  Slips are events of the force
+   (:func:`models.signals.slip_events`), medians over them.
+
 Only free parameters are changed; a guess that is not finite, not positive where it must be,
 or more than 100x from the starting value is dropped.  Guesses are clipped into the bounds and
 ``mu_k <= mu_s`` is restored.  Each guess says where it came from (:attr:`Guess.notes`).
@@ -157,6 +165,46 @@ def _cycle_guess(model, P, data, body, log, free, notes, values):
             notes.append(f"{jref.name} = {Jb:.4g} from the {src}")
     delta = k * dk_over_k
     return {"delta": delta, "thr": thr, "src": src, "spring": c, "other": other, "k": k}
+
+
+def _sawtooth_guess(model, P, data, tq, T_in, side, free, values, notes) -> bool:
+    """Piece 4: the static and kinetic levels of the one contact beyond a force sensor from the
+    sawtooth of its reading ``T_in`` (the force into that side) at the slips; True if it set any."""
+    from scipy.ndimage import median_filter
+    from models.signals import DESPIKE, slip_events
+    contacts = [c for c in model.spec.contacts if c.body in side]
+    if len(side) != 1 or len(contacts) != 1 or model.speed_channel(contacts[0].body) is not None:
+        return False
+    ct = contacts[0]
+    order = model.law(ct.name).level_order
+    if order is None:
+        return False
+    pr = dict(ct.params)
+    refs = [(pr[order[1]], "static"), (pr[order[0]], "kinetic")]
+    if not any(r.kind == "param" and r.name in free and r.name not in values for r, _ in refs):
+        return False
+    sgn = 1.0 if np.median(T_in) >= 0 else -1.0
+    y = median_filter(sgn * np.asarray(T_in, float), size=DESPIKE, mode="nearest")
+    ev = slip_events(y, data.dt, "force", noise=float(tq.noise) or None)
+    if ev.times.size < 2:
+        return False
+    on = np.round(ev.times / data.dt).astype(int)
+    gap = max(int(0.25 * np.median(np.diff(on))), 2)
+    peak = np.array([np.max(y[max(i - gap, 0):i + 1]) for i in on])
+    after = np.array([np.min(y[i:i + gap]) for i in on])
+    sc = float(np.mean(data.scale(ct)))
+    if not sc > 0:
+        return False
+    level = {"static": float(np.median(peak)), "kinetic": float(np.median(0.5 * (peak + after)))}
+    src = (f"the sawtooth of {tq.channels[0]} ({ev.times.size} slips, median period {ev.period:.3g} s: "
+           f"the force at a slip's onset, and the mean of the force before and after it)")
+    done = False
+    for ref, role in refs:
+        if ref.kind == "param" and ref.name in free and ref.name not in values:
+            values[ref.name] = level[role] / sc
+            notes.append(f"{ref.name} = {values[ref.name]:.4g}, the {role} level from {src}")
+            done = True
+    return done
 
 
 def _walk_chain(model, P, data, conn, T_conn, free, values, notes, source):
@@ -328,8 +376,12 @@ def initial_guess(model, logs, free, base: ParameterSet | None = None, *, encode
         # stiffness and damping from the connection's torque and its encoders, along the chain (piece 3)
         if k_conn is not None:
             _walk_chain(model, P, data, k_conn[0], k_conn[1], free, values, notes, tq.channels[0])
+        # friction levels from the force's sawtooth at the slips where the friction body's speed is not measured (piece 4)
+        if T_in is not None and side and _sawtooth_guess(model, P, data, tq, T_in, side, free, values, notes):
+            friction_done = True
+            P.update(values)
         # friction levels from the torque balance of the bodies beyond the sensor (piece 2)
-        if T_in is not None and side and all(data.speed(b) is not None for b in side):
+        elif T_in is not None and side and all(data.speed(b) is not None for b in side):
             F = T_in.copy()
             for b in side:
                 F = F - float(model.inertia(b, P)) * data.accel(b)

@@ -125,7 +125,10 @@ class IdentificationProblem:
         self.guess_notes: tuple[str, ...] = ()
         self._alternative = None
         if initial is None:
-            g = initial_guess(m, logs, o.free, m.published(), encoder_zero=o.encoder_zero, input_row=o.input_row)
+            # from the training parts only: the held-out end must not steer the start of the fit it judges
+            train = [lg if self.holdout == 0 else lg.slice(float(lg.t[0]), float(lg.t[int(round(len(lg.t) * (1 - self.holdout)))]))
+                     for lg in logs]
+            g = initial_guess(m, train, o.free, m.published(), encoder_zero=o.encoder_zero, input_row=o.input_row)
             initial = g.params
             self.guess_notes = g.notes
             if g.values:
