@@ -177,7 +177,6 @@ def main(argv=None):
     print(f"simulated in {time.perf_counter() - t0:.1f} s; twists at power-on: "
           + ", ".join(f"{k} {np.round(r.twist[0], 3)}" for k, r in runs), flush=True)
     ctx = EstimatorContext(model, p, 0.01)
-    full = {}
     enc = {"channels": list(ENCODERS)}
     variants = [
         # case, label, spec
@@ -233,7 +232,7 @@ def main(argv=None):
              "c": f"plant (c): torque offset 0.05 N m, PI on the motor error, 1-sample DAQ delay (range {_rng(rundict['c'])})"}
     if "d" in rundict:
         cases["d"] = f"independent simulator (range {_rng(rundict['d'])})"
-    cases["e"] = f"our plant sliding steadily, no stick-slip (twists constant: no range)"
+    cases["e"] = "our plant sliding steadily, no stick-slip (twists constant: no range)"
     hdr = ("| case | estimator | twist RMSE 12 / 23 [mrad] | RMSE / range | in stick 12 / 23 [mrad] | in stick / range "
            "| NEES (2) | warned | twist observable (4 s windows) | step median [ms] | step p95 [ms] | failures |")
     lines = [
