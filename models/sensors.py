@@ -33,7 +33,7 @@ from models.checks import check_options, option, prefix
 from models.errors import ConfigError
 
 __all__ = ["SensorOptions", "Sensors", "quantise", "encoder_step", "channel_variance", "channel_std", "FLOOR",
-           "ripple_floor", "NOISE_FLOOR_RISK", "DriveLoadSensor", "drive_load_sensor"]
+           "ripple_floor", "NOISE_FLOOR_RISK"]
 
 #: variance floor that keeps noise covariances positive when a channel is ideal
 FLOOR = 1e-12
@@ -60,54 +60,6 @@ class SensorOptions:
 
     def __post_init__(self):
         check_options(self, prefix("sensors"))
-
-
-@dataclass(frozen=True)
-class DriveLoadSensor:
-    """The torque sensor that tells the torque the string loads the drive with (:func:`drive_load_sensor`).
-
-    Attributes
-    ----------
-    sensor : the sensor's spec (its ``channels[0]`` is the reading)
-    sign : +1 or -1: ``T_string = sign * reading`` (a shaft's torque is positive while its first
-        node drives its second, ``between = [a, b]``)
-    at_drive : True for a sensor at the drive (``at = "drive"``: its reading also holds the drive's
-        own inertia and, for a motor's electromagnetic torque, its losses); False for a flange in
-        the shaft at the drive, which reads the string's torque itself
-    """
-
-    sensor: object
-    sign: float
-    at_drive: bool
-
-    @property
-    def channel(self) -> str:
-        return self.sensor.channels[0]
-
-
-def drive_load_sensor(model) -> DriveLoadSensor | None:
-    """The sensor of the torque the string loads the drive with, or None.
-
-    A torque sensor at the drive (``at = "drive"``) comes first.  Otherwise an inline torque
-    flange on the shaft that joins the drive to the string serves: the connection at the drive's
-    node (the drive's body, or ``"drive"`` for a speed drive) when it is the only one there that
-    is not to ``"ground"``; its reading is that torque itself, signed by the shaft's direction.
-    A flange further down the string reads the torque beyond bodies whose inertia and friction
-    the drive also carries: it does not serve (None).
-    """
-    from models.rig.spec import NODE_DRIVE, NODE_GROUND
-    for s in model.sensors:
-        if s.kind == "torque" and s.target == NODE_DRIVE:
-            return DriveLoadSensor(s, 1.0, True)
-    node = model.drive_node
-    at_node = [c for c in model.spec.connections if node in (c.a, c.b) and NODE_GROUND not in (c.a, c.b)]
-    if len(at_node) != 1:
-        return None
-    (c,) = at_node
-    for s in model.sensors:
-        if s.kind == "torque" and s.target == c.name:
-            return DriveLoadSensor(s, 1.0 if c.a == node else -1.0, False)
-    return None
 
 
 def quantise(angle, step):

@@ -24,7 +24,6 @@ from mitigate.controllers.factory import context_for, make_controller
 from mitigate.scenario import load_scenario, make_scenario
 from models import get_model
 from models.errors import ConfigError, SolverFailure
-from models.sensors import drive_load_sensor
 from models.status import Status
 from test_laws_compiled import _check, _twin
 
@@ -65,13 +64,13 @@ def _run(sc):
 def test_which_torque_sensor_tells_the_torque_at_the_drive(tmp_path):
     """At the drive first; else a flange in the one shaft at the drive's node, signed by the shaft's
     direction; a flange further down the string does not serve."""
-    s = drive_load_sensor(get_model("rig3"))
+    s = get_model("rig3").drive_load_sensor()
     assert s.at_drive and s.channel == "motor_torque" and s.sign == 1.0
-    s = drive_load_sensor(get_model(str(_flange(tmp_path))))
+    s = get_model(str(_flange(tmp_path))).drive_load_sensor()
     assert not s.at_drive and s.channel == "torque_shaft1" and s.sign == -1.0       # between = ["up", "mot"]
-    s = drive_load_sensor(get_model("drillstring"))           # a speed drive: "pipe" between "drive" and "bit"
+    s = get_model("drillstring").drive_load_sensor()           # a speed drive: "pipe" between "drive" and "bit"
     assert not s.at_drive and s.channel == "torque_bit" and s.sign == 1.0
-    assert drive_load_sensor(get_model(str(_flange(tmp_path, "shaft2")))) is None
+    assert get_model(str(_flange(tmp_path, "shaft2"))).drive_load_sensor() is None
 
 
 def test_a_flange_beyond_the_first_body_is_refused_in_one_line(tmp_path, capsys):
@@ -202,7 +201,7 @@ def test_a_string_read_at_the_surface_runs_every_industry_law(tmp_path):
     its 4 s under control, compiled, with no fallback."""
     rig = _surface_only(tmp_path)
     m = get_model(str(rig))
-    assert m.speed_channel("bit") is None and drive_load_sensor(m).channel == "torque_bit"
+    assert m.speed_channel("bit") is None and m.drive_load_sensor().channel == "torque_bit"
     text = DRILL.read_text().replace('model = "drillstring_motor"', f'model = "{rig}"')
     for kind in ("softspeed", "ztorque", "doskil"):
         (tmp_path / "sc.toml").write_text(text + f'\n[[controllers]]\nname = "{kind}"\nkind = "{kind}"\n')

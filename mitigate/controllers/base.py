@@ -44,7 +44,7 @@ import numpy as np
 from models import plugins
 from models.errors import ConfigError, PluginError, SolverFailure, quote
 from models.params import ParameterSet
-from models.sensors import SensorOptions, drive_load_sensor
+from models.sensors import SensorOptions
 from models.status import Status
 from mitigate.scenario_fields import ControlSection
 
@@ -222,7 +222,7 @@ class ControlContext:
         for n in needs:
             if n == "drive_speed" and m.speed_channel(drive) is None:
                 out.append(f"the drive's speed (add an encoder or speed sensor on body {drive!r})")
-            elif n == "drive_torque" and drive_load_sensor(m) is None:
+            elif n == "drive_torque" and m.drive_load_sensor() is None:
                 out.append("the torque at the drive (add a torque sensor with at = \"drive\", or on the shaft at "
                            "the drive)")
             elif n == "speed_drive" and not m.drive.sets_speed:

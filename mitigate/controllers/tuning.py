@@ -32,7 +32,6 @@ import numpy as np
 from mitigate.controllers.base import NEEDS, reading
 from models.errors import ConfigError
 from models.modal import stick_slip_frequency
-from models.sensors import drive_load_sensor
 
 __all__ = ["DriveTuning", "string_impedance", "stick_slip_frequency", "drive_inertia", "tuning_for",
            "absorber_frequency", "VirtualDrive"]
@@ -188,9 +187,9 @@ def drive_speed_channel(context) -> str:
 
 def drive_torque_channel(context) -> str:
     """The measured channel of the torque the string loads the drive with (a torque sensor at the
-    drive, or a flange in the shaft at the drive: :func:`models.sensors.drive_load_sensor`), or a
+    drive, or a flange in the shaft at the drive: :meth:`models.rig.RigModel.drive_load_sensor`), or a
     one-line ConfigError."""
-    s = drive_load_sensor(context.model)
+    s = context.model.drive_load_sensor()
     if s is None:
         raise ConfigError(f"{context.where}: needs {NEEDS['drive_torque']}, which rig {context.model.name!r} does not have")
     return s.channel
@@ -209,7 +208,8 @@ class PipeTorque:
     ``ratio KT i`` reads ``T_pipe + ratio^2 Jm w' + ratio (Tf + Cm ratio w)`` (the motor's own
     friction, taken from the nominal parameters); a torque drive's applied torque reads
     ``T_pipe + J_drive w'``; an inline flange in the shaft at the drive reads ``T_pipe`` itself
-    (signed by the shaft's direction: :func:`models.sensors.drive_load_sensor`).  The acceleration is the backward difference of the measured drive
+    (signed by the shaft's direction: :meth:`models.rig.RigModel.drive_load_sensor`).  The acceleration
+    is the backward difference of the measured drive
     speed, low-passed with ``tau_acc`` [s], and the torque passes the same low-pass (matched filters:
     the part of the torque that accelerates the drive cancels exactly, also the command of a torque
     drive, whose torque channel logs it); the result is low-passed with ``tau`` [s].
@@ -221,7 +221,7 @@ class PipeTorque:
         self.torque_ch = drive_torque_channel(context)
         self.dt = context.period
         self.tau, self.tau_acc = tau, tau_acc
-        load = drive_load_sensor(m)
+        load = m.drive_load_sensor()
         #: +1 or -1: the string's torque is ``sign * reading`` (a flange in a shaft whose second node is the drive: -1)
         self.sign = load.sign
         if load.at_drive:

@@ -7,6 +7,7 @@ measurement Functions.  :class:`RigOutputs` is the measurement side of
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 
 import casadi as ca
 
@@ -14,7 +15,30 @@ from models import friction as fr
 from models.errors import ConfigError
 from models.rig.spec import NODE_DRIVE
 
-__all__ = ["RigOutputs"]
+__all__ = ["RigOutputs", "DriveLoadSensor"]
+
+
+@dataclass(frozen=True)
+class DriveLoadSensor:
+    """The torque sensor that tells the torque the string loads the drive with (:meth:`RigOutputs.drive_load_sensor`).
+
+    Attributes
+    ----------
+    sensor : the sensor's spec (its ``channels[0]`` is the reading)
+    sign : +1 or -1: ``T_string = sign * reading`` (a shaft's torque is positive while its first
+        node drives its second, ``between = [a, b]``)
+    at_drive : True for a sensor at the drive (``at = "drive"``: its reading also holds the drive's
+        own inertia and, for a motor's electromagnetic torque, its losses); False for a flange in
+        the shaft at the drive, which reads the string's torque itself
+    """
+
+    sensor: object
+    sign: float
+    at_drive: bool
+
+    @property
+    def channel(self) -> str:
+        return self.sensor.channels[0]
 
 
 class RigOutputs:
@@ -142,3 +166,28 @@ class RigOutputs:
         if missing:
             raise ConfigError(f"{self.name}: unknown output(s) {missing}; expected some of {list(out)}")
         return ca.Function(f"{self.cname}_h", [x, u, p], [ca.vertcat(*[out[n] for n in names])], ["x", "u", "p"], ["y"])
+
+    def drive_load_sensor(self) -> "DriveLoadSensor | None":
+        """The sensor of the torque the string loads the drive with, or None.
+
+        A torque sensor at the drive (``at = "drive"``) comes first.  Otherwise an inline torque
+        flange on the shaft that joins the drive to the string serves: the connection at the drive's
+        node (the drive's body, or ``"drive"`` for a speed drive) when it is the only one there that
+        is not to ``"ground"``; its reading is that torque itself, signed by the shaft's direction.
+        A flange further down the string reads the torque beyond bodies whose inertia and friction
+        the drive also carries: it does not serve (None).
+        """
+        from models.rig.spec import NODE_GROUND
+        model = self
+        for s in model.sensors:
+            if s.kind == "torque" and s.target == NODE_DRIVE:
+                return DriveLoadSensor(s, 1.0, True)
+        node = model.drive_node
+        at_node = [c for c in model.spec.connections if node in (c.a, c.b) and NODE_GROUND not in (c.a, c.b)]
+        if len(at_node) != 1:
+            return None
+        (c,) = at_node
+        for s in model.sensors:
+            if s.kind == "torque" and s.target == c.name:
+                return DriveLoadSensor(s, 1.0 if c.a == node else -1.0, False)
+        return None
