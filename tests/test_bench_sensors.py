@@ -92,7 +92,7 @@ def test_the_flange_reads_the_friction_torque_in_steady_sliding(tmp_path):
     reaction load cell at the drive both find it."""
     expected = 0.035 * 12.0 * 0.32
     for rig in (_flange(tmp_path), PIN):
-        c, r = _run(_scenario(rig, "softspeed", rpm=50, force=12.0, duration=10.0, start=4.0,
+        c, r = _run(_scenario(rig, "softspeed", rpm=50, force=12.0, duration=6.0, start=3.0,
                               implementation="python"))
         assert r.status is Status.OK, r.message
         assert c.pipe.value == pytest.approx(expected, rel=0.02), rig.name

@@ -29,28 +29,16 @@ def test_the_readme_has_from_python_blocks():
 
 
 @pytest.mark.slow
-def test_from_python_blocks_run(tmp_path, monkeypatch, capsys):
-    monkeypatch.chdir(tmp_path)
-    ns: dict = {}
-    for i, code in enumerate(_blocks()):
-        exec(compile(code, f"README.md From Python block {i + 1}", "exec"), ns)   # noqa: S102 - our own README
-    from models import Status
-    assert ns["sim"].status is Status.OK and ns["result"].status is Status.OK
-    assert all(r.status is Status.OK for r in ns["result"].runs)
-    assert (tmp_path / "demo_nmpc.png").stat().st_size > 10_000
-    # what the blocks compute is physically what the README says
-    assert 0.10 < ns["np"].mean(ns["sim"].state("omega_R1")[1000:] == 0.0) < 0.25
-    assert ns["fit"].success
-    assert ns["result"].run("NMPC").metrics["sss_final"] < 0.1 < ns["result"].run("pi").metrics["sss_final"]
-
-
-@pytest.mark.slow
 def test_from_python_blocks_run_as_a_script_file_without_a_main_guard(tmp_path):
-    """The blocks, joined into one script FILE with no ``if __name__ == "__main__":`` guard, run in a
-    fresh interpreter: ``run()`` does not let spawned workers run the script's top level again
-    (mitigate.workers); and read from stdin (``python - < script.py``)."""
+    """The blocks, in order, joined into one script FILE with no ``if __name__ == "__main__":`` guard,
+    run in a fresh interpreter (``run()`` does not let spawned workers run the script's top level
+    again: mitigate.workers), and compute what the README says they do."""
     script = tmp_path / "readme_blocks.py"
-    script.write_text("\n".join(_blocks()) + "\nprint('DONE', result.status.value, [r.status.value for r in result.runs])\n")
+    script.write_text("\n".join(_blocks()) + "\nimport json as _json\n"
+                      "print('DONE', result.status.value, [r.status.value for r in result.runs])\n"
+                      "print('CHECK', _json.dumps({'sim': sim.status.value, 'stuck': float(np.mean(sim.state('omega_R1')[1000:] "
+                      "== 0.0)), 'fit': bool(fit.success), 'nmpc': result.run('NMPC').metrics['sss_final'], "
+                      "'pi': result.run('pi').metrics['sss_final']}))\n")
     root = str(README.parent)
     env = {"PYTHONPATH": root, "PATH": "/usr/bin:/bin", "HOME": str(tmp_path), "MPLBACKEND": "Agg"}
     import os
@@ -60,3 +48,8 @@ def test_from_python_blocks_run_as_a_script_file_without_a_main_guard(tmp_path):
     assert p.returncode == 0, p.stderr[-2000:]
     assert "DONE ok ['ok', 'ok']" in p.stdout, p.stdout[-2000:]
     assert (tmp_path / "demo_nmpc.png").stat().st_size > 10_000
+    # what the blocks compute is physically what the README says
+    import json
+    got = json.loads(p.stdout.split("CHECK ", 1)[1].splitlines()[0])
+    assert got["sim"] == "ok" and 0.10 < got["stuck"] < 0.25 and got["fit"]
+    assert got["nmpc"] < 0.1 < got["pi"]
