@@ -252,7 +252,7 @@ def test_a_dc_motor_rig_whose_gaps_stay_open_ends_on_one_trajectory():
         warnings.simplefilter("ignore")
         fit = identify(c.log(), c.model, c.start, IdentifyOptions(free=c.free, encoder_zero="untwisted",
                                                                   globalise="off"))
-    assert fit.attempts[0].max_gap <= GAP_OK or fit.attempts[-1].method == SS_METHOD, fit.attempts
+    assert fit.attempts[0].max_gap <= GAP_OK or fit.attempts[-1].method.startswith("single shooting (simulation error)"), fit.attempts
     assert fit.structure.max_gap < 1e-6 and fit.success, fit.message
     for n, v, e in zip(fit.names, fit.estimate, fit.error):
         assert abs(v - c.truth[n]) <= 3 * e, (n, v, e, c.truth[n])

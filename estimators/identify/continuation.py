@@ -17,8 +17,12 @@ ends at the lower cost on a consistent trajectory: a fit whose gaps stayed open 
 by single shooting (:mod:`~estimators.identify.single`); of two ends at the same cost the converged one.
 :func:`wants_continuation` says when: the direct fit did not converge (at its iteration limit:
 only if it stalled, the cost falling by less than 0.1 % over five iterations; a budget that cut a
-progressing fit short is the user's), or it converged but its residual shows that the structure
-misses (:mod:`~estimators.identify.diagnostics`).  Never after a warm start (a refit from a
+progressing fit short is the user's), or it converged against a bound or a constraint (a degenerate
+corner: the lab string's v_s = 0 with mu_s = mu_k) and its residual shows that the structure misses
+(:mod:`~estimators.identify.diagnostics`).  A converged fit inside its bounds whose residual misses
+is not repeated: on the zoo's logs of the exact plant (whose regularised model misses the exact
+stick) the continuation spent 20-38 iterations to end at the direct fit's cost (median 22, worst 51
+iterations a fit; benchmarks/results/identify.md, zoo).  Never after a warm start (a refit from a
 solution, a bootstrap replicate stays cheap); ``globalise = "always"`` every time, ``"off"`` never.
 
 Measured on the synthetic lab string of ``tests/lab_drillstring.py`` fitted with the user's 1-DOF
@@ -116,8 +120,9 @@ def wants_continuation(fit, strategy: str, warm: bool) -> str | None:
         if fit.reason != "max_iter" or (fit.attempts and fit.attempts[-1].stalled):
             return f"the direct fit did not converge ({fit.reason})"
         return None
-    if fit.structure is not None and fit.structure.misses:
-        return "the direct fit's residual shows that the structure misses"
+    if fit.structure is not None and fit.structure.misses and (fit.at_bound or fit.active_constraints):
+        held = ", ".join(tuple(fit.at_bound) + tuple(fit.active_constraints))
+        return f"the direct fit's residual shows that the structure misses, and it ended against {held}"
     return None
 
 
