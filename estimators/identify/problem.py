@@ -472,13 +472,6 @@ class IdentificationProblem:
         why = wants_continuation(fit, o.globalise if o.solver == "gn" else "off", warm is not None)
         if why is None:
             return self.consistent(fit)
-        if o.globalise == "auto" and not closed(fit) and fit.status is not Status.FAILED and fit.reason != "max_iter":
-            # gaps open: the single-shooting refinement first; where it converges, that is the fit (the
-            # measured slider's continuation ran for minutes at the raised substeps to no better end)
-            refined = self.consistent(fit)
-            if refined is not fit and refined.success:
-                return replace(refined, method=f"{refined.method} (the direct fit {why[len('the direct fit '):]}; "
-                                               f"its refinement converged: no continuation)")
         return choose(fit, self.fit_once(None, continuation=True), why, self.consistent)
 
     def consistent(self, fit: FitResult) -> FitResult:
