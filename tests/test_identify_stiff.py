@@ -116,7 +116,7 @@ def test_the_measured_slider_k1002_fits_with_the_basic_command_and_predicts_the_
     simulating 2.5 stick-slip periods; the multiple-shooting fit stalls at the slip onsets (gaps open), and
     the single-shooting refinement starts from whichever of its end and the start simulates the log
     better (here the start: the stalled end, v_s at its bound, failed at once).  Measured: mu_s 0.378,
-    mu_k 0.329, period 0.720 s against 0.726 s (-0.9 %), about 50 s."""
+    mu_k 0.329, period 0.720 s against 0.726 s (-0.9 %), about 30 s."""
     import json
     from mitigate import cli
     folder = RIG.parent

@@ -171,8 +171,16 @@ def refine(problem, fit, why: str):
     origin = "the multiple-shooting estimate" if costs[0] <= costs[1] else \
         f"the fit's start (it simulates the logs at cost {costs[1]:.4g}, the multiple-shooting end {costs[0]:.4g})"
     G, h, _ = problem.scaled_constraints()
-    res = solve_gn(ss, v0, G, h, max_iter=o.max_iter, tol=o.tol, trust_radius=o.trust_radius,
-                   admissible=problem.rk4_stable)
+    # the direct fit and the continuation may both be refined from the fit's start: solved once
+    key = (v0.tobytes(), None if deltas is None else np.asarray(deltas, float).tobytes())
+    cache = problem.__dict__.setdefault("_refinements", {})
+    reused = key in cache
+    if not reused:
+        cache[key] = solve_gn(ss, v0, G, h, max_iter=o.max_iter, tol=o.tol, trust_radius=o.trust_radius,
+                              admissible=problem.rk4_stable)
+    res = replace(cache[key], iterations=0) if reused else cache[key]    # (iterations: those that ran)
+    if reused:
+        origin += ", the same refinement as the other fit's (not run again)"
     w = ss.full(res.w)
     gap = fit.structure.max_gap if fit.structure is not None else float("nan")
     how = SS_METHOD.replace("the multiple-shooting estimate", origin)
