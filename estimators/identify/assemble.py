@@ -22,6 +22,7 @@ from estimators.identify.diagnostics import diagnose, gap_locator
 from estimators.identify.result import (FitResult, IdentifiabilityWarning, convergence_message, fit_status,
                                         identifiability_warnings, level_twist_warning)
 from estimators.identify.start import feasible
+from models.sensors import channel_std
 
 __all__ = ["fit_result"]
 
@@ -48,8 +49,10 @@ def fit_result(problem, sh, w, res, *, method: str, attempts: tuple, initial, t_
     theta, z, nodes = sh.split(w)
     theta = feasible(theta, problem.lo, problem.hi, *problem.constraint_rows())
     free = problem.free
-    offs = [(j, problem.noise[c.name]) for j, c in enumerate(problem.channels) if c.kind == "twist" and not c.zero]
-    unc = uncertainty(sh, w, r, Jr, A, free, rse_warn=o.rse_warn, offsets=offs)
+    twists = [(j, c) for j, c in enumerate(problem.channels) if c.kind == "twist" and not c.zero]
+    offs = [(j, problem.noise[c.name]) for j, c in twists]
+    unc = uncertainty(sh, w, r, Jr, A, free, rse_warn=o.rse_warn, offsets=offs,
+                      offset_corr=offset_correlation(problem.model, [c for _, c in twists], problem.dt, o.sensors))
     se, corr = unc.stderr, unc.corr
     tol_b = 1e-6 * sh.th_scale
     lo, hi = problem.lo, problem.hi
@@ -104,3 +107,18 @@ def fit_result(problem, sh, w, res, *, method: str, attempts: tuple, initial, t_
         attempts=attempts, structure=structure, eps=o.eps, eps_source=problem.eps_source, eps_bias=unc.eps_bias,
         offset_error=unc.offset_error if offs else None, zero_corr=unc.zero_corr,
         integration=problem.integration.note)
+
+
+def offset_correlation(model, twists, dt: float, sensors) -> np.ndarray:
+    """Correlation of the constant offsets of angle differences taken as twists: each encoder's phase at
+    power-on is its own independent constant of variance ``q^2 / 12``, and a difference ``a - b`` carries
+    ``a``'s minus ``b``'s, so two differences that share an encoder correlate (``+`` or ``-``)."""
+    encs = sorted({p for c in twists for p in c.parts})
+    var = {e: channel_std(model, e, dt, sensors) ** 2 for e in encs}
+    D = np.zeros((len(twists), len(encs)))
+    for k, c in enumerate(twists):
+        D[k, encs.index(c.parts[0])] += 1.0
+        D[k, encs.index(c.parts[1])] -= 1.0
+    C = (D * np.array([var[e] for e in encs])) @ D.T
+    d = np.sqrt(np.diag(C))
+    return C / np.outer(d, d) if np.all(d > 0) else np.eye(len(twists))
