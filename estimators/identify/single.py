@@ -158,7 +158,7 @@ def refine(problem, fit, why: str):
     deltas = sh.deltas(w_ms) if sh.ne else None
     ss = SimulationError(sh, problem.values_function, [d.nint for d in problem.data], deltas)
     # from the better simulation of two: the multiple-shooting end, or the fit's start (on the measured
-    # paper slider the stalled end, v_s at its bound, simulated at 19 times the start's cost and its
+    # paper slider the stalled end, v_s at its bound, simulated at 6.4 times the start's cost and its
     # refinement failed at once; from the start it converged in 8 iterations)
     starts = [ss.start(w_ms), ss.start(problem.decision_vector(None))]
     costs = []
