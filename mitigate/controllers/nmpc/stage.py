@@ -36,6 +36,8 @@ body) enters the compiled code, so one library serves every tuning.
 
 from __future__ import annotations
 
+import dataclasses
+
 import casadi as ca
 
 from models import friction as fr
@@ -43,7 +45,13 @@ from models.discretise import Integration
 from mitigate.controllers.nmpc.layout import OCPLayout, OCPSpec
 from mitigate.controllers.nmpc.options import WEIGHT_NAMES
 
-__all__ = ["stage_functions", "prediction_rhs"]
+__all__ = ["stage_functions", "prediction_rhs", "FOLD_ABOVE"]
+
+#: more substeps than this: the stage's dynamics and their Jacobians are a loop over one substep (the
+#: chain rule carried along, as identification's sample function does) instead of one expression with
+#: every substep unrolled; unrolled, 22 RK4 substeps of the main scenario's rig made a 107,680-instruction
+#: stage function that gcc took most of a minute to compile at -O2
+FOLD_ABOVE = 4
 
 
 def prediction_rhs(model, eps: float) -> ca.Function:
@@ -115,14 +123,21 @@ def stage_functions(model, spec: OCPSpec):
         if spec.method != "rk4" else ()
     integ = Integration(spec.dt, spec.nsub, model.current_index if spec.quasi_static else None,
                         method=spec.method, stiff=stiff, band=spec.eps, bracket=brk)
-    xe = integ.advance(faug, xa, v, q,
-                       lambda xa_, v_, _q: model.quasi_static_current(xa_[:nx], inputs(xa_, v_), model.unpack(p)))
-    xn = [xe[j] for j in range(nx)]
-    for k in range(L.ns):
-        xn.append(xe[L.i_servo[k]] if taus[k] > 0 else v[L.j_cmd[k]])
-    if L.drive:
-        xn.append(xa[L.i_wprev] + v[0])
-    xn = ca.vertcat(*xn)
+
+    def fast(xa_, v_, _q):
+        return model.quasi_static_current(xa_[:nx], inputs(xa_, v_), model.unpack(p))
+
+    def finish(xe_, xa_, v_):
+        """The interval's end from the integrated augmented state: a servo without lag takes its
+        command, the last drive input its increment."""
+        xn_ = [xe_[j] for j in range(nx)]
+        for k in range(L.ns):
+            xn_.append(xe_[L.i_servo[k]] if taus[k] > 0 else v_[L.j_cmd[k]])
+        if L.drive:
+            xn_.append(xa_[L.i_wprev] + v_[0])
+        return ca.vertcat(*xn_)
+
+    xn = finish(integ.advance(faug, xa, v, q, fast), xa, v)
     name = f"{model.cname}_nmpc"
     F = ca.Function(f"{name}_F", [xa, v, q], [xn], ["xa", "v", "q"], ["xa_next"])
 
@@ -141,11 +156,19 @@ def stage_functions(model, spec: OCPSpec):
     cost = ca.Function(f"{name}_cost", [xa, v, q], [r, lin], ["xa", "v", "q"], ["r", "l"])
     Jx, Jv = ca.jacobian(r, xa), ca.jacobian(r, v)
     d = ca.densify
-    stage = ca.Function(f"{name}_stage", [xa, v, q],
-                        [xn, d(ca.jacobian(xn, xa)), d(ca.jacobian(xn, v)), d(Jx.T @ Jx), d(Jv.T @ Jx), d(Jv.T @ Jv),
-                         d(Jx.T @ r + ca.jacobian(lin, xa).T), d(Jv.T @ r + ca.jacobian(lin, v).T),
-                         0.5 * ca.sumsqr(r) + lin],
-                        ["xa", "v", "q"], ["xn", "A", "B", "Q", "S", "R", "gx", "gv", "c"])
+    blocks = [d(Jx.T @ Jx), d(Jv.T @ Jx), d(Jv.T @ Jv), d(Jx.T @ r + ca.jacobian(lin, xa).T),
+              d(Jv.T @ r + ca.jacobian(lin, v).T), 0.5 * ca.sumsqr(r) + lin]
+    outs = ["xn", "A", "B", "Q", "S", "R", "gx", "gv", "c"]
+    if spec.nsub <= FOLD_ABOVE:
+        stage = ca.Function(f"{name}_stage", [xa, v, q], [xn, d(ca.jacobian(xn, xa)), d(ca.jacobian(xn, v)), *blocks],
+                            ["xa", "v", "q"], outs)
+    else:
+        dyn = _folded_dynamics(dataclasses.replace(integ, dt=spec.dt / spec.nsub, nsub=1), spec.nsub, faug, fast,
+                               finish, xa, v, q, name)
+        gn = ca.Function(f"{name}_gn", [xa, v, q], blocks, ["xa", "v", "q"], outs[3:])
+        xaM, vM, qM = ca.MX.sym("xa", L.nxa), ca.MX.sym("v", L.nv), ca.MX.sym("q", L.nq)
+        stage = ca.Function(f"{name}_stage", [xaM, vM, qM], [*dyn(xaM, vM, qM), *gn(xaM, vM, qM)],
+                            ["xa", "v", "q"], outs)
     # the terminal stage sees the last applied drive input (no decision there)
     uN = [hold[j] for j in range(nu)]
     if L.drive:
@@ -158,3 +181,29 @@ def stage_functions(model, spec: OCPSpec):
     term = ca.Function(f"{name}_term", [xa, q], [d(JN.T @ JN), d(JN.T @ rN), 0.5 * ca.sumsqr(rN), rN],
                        ["xa", "q"], ["Q", "g", "c", "r"])
     return F, cost, stage, term
+
+
+def _folded_dynamics(one, nsub: int, faug, fast, finish, xa, v, q, name: str) -> ca.Function:
+    """``(xa, v, q) -> (xn, A, B)`` as ``nsub`` repetitions of the substep ``one`` (an
+    :class:`~models.discretise.Integration` of one substep of ``dt / nsub``): a ``fold`` over one
+    substep and its Jacobian ``J = d xe' / d(xe, v)``; with ``Z = d xe / d(xa, v)``,
+    ``Z' = J_x Z + [0, J_v]`` from ``Z = [I, 0]``; then the interval's end ``finish(xe, xa, v)`` and
+    its Jacobians by the chain rule.  The same numbers as the unrolled step up to rounding; C code
+    that does not grow with ``nsub``."""
+    nxa, nv = xa.numel(), v.numel()
+    xe1 = one.advance(faug, xa, v, q, fast)
+    J = ca.jacobian(xe1, ca.vertcat(xa, v))
+    Z = ca.SX.sym("Z", nxa, nxa + nv)
+    Zn = J[:, :nxa] @ Z + ca.horzcat(ca.SX(nxa, nxa), J[:, nxa:])
+    sub = ca.Function(f"{name}_substep", [ca.vertcat(xa, ca.vec(Z)), v, q], [ca.vertcat(xe1, ca.vec(Zn))],
+                      ["z", "v", "q"], ["z_next"])
+    xe, Ze = ca.SX.sym("xe", nxa), ca.SX.sym("Ze", nxa, nxa + nv)
+    xn = finish(xe, xa, v)
+    Pe, Pa, Pv = ca.jacobian(xn, xe), ca.jacobian(xn, xa), ca.jacobian(xn, v)
+    end = ca.Function(f"{name}_end", [xe, Ze, xa, v], [xn, ca.densify(Pe @ Ze[:, :nxa] + Pa),
+                                                      ca.densify(Pe @ Ze[:, nxa:] + Pv)])
+    xaM, vM, qM = ca.MX.sym("xa", nxa), ca.MX.sym("v", nv), ca.MX.sym("q", q.numel())
+    z0 = ca.vertcat(xaM, ca.vec(ca.horzcat(ca.MX.eye(nxa), ca.MX(nxa, nv))))
+    zN = sub.fold(nsub)(z0, ca.repmat(vM, 1, nsub), ca.repmat(qM, 1, nsub))
+    xn_, A, B = end(zN[:nxa], ca.reshape(zN[nxa:], nxa, nxa + nv), xaM, vM)
+    return ca.Function(f"{name}_dyn", [xaM, vM, qM], [xn_, A, B], ["xa", "v", "q"], ["xn", "A", "B"])
