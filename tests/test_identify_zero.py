@@ -63,6 +63,12 @@ def test_untwisted_counts_the_encoders_power_on_phase(case):
     assert abs(fit.estimate[1] - 0.3) <= 4 * fit.error[1], (fit.estimate, fit.stderr, fit.error)
     assert abs(fit.estimate[0] - m.published().k0) <= 4 * fit.error[0]
     assert fit.offset_error[1] > 5 * fit.stderr[1] and fit.encoder_zero == ({},)
+    # the phase's share per encoder (two encoders: one difference) adds up to it; the 95 % interval takes it
+    # as the bounded error it is: shorter than 1.96 total errors, longer than the normal parts' 1.96
+    assert fit.phase_parts.shape == (2, 2)
+    np.testing.assert_allclose(np.sqrt(np.sum(fit.phase_parts ** 2, axis=1)), fit.offset_error)
+    normal = np.sqrt(fit.stderr ** 2 + fit.eps_bias ** 2)
+    assert np.all(fit.interval < 1.959 * fit.error) and np.all(fit.interval > 1.96 * normal)
     # the deviation it stands for is the difference's own quantisation level
     assert fit.noise["theta_b0-theta_drive"] == pytest.approx(np.hypot(2 * np.pi / 2048, 2 * np.pi / 1024) / np.sqrt(12))
 
@@ -90,3 +96,24 @@ def test_twists_that_share_an_encoder_share_its_power_on_phase():
     expect = np.triu(expect) + np.triu(expect, 1).T
     assert R == pytest.approx(expect) and R[0, 1] < -0.69          # q_1 = q_2 >> q_3: about -1/sqrt(2)
     assert offset_correlation(m, [tw("theta1", "theta2")], 0.01, SensorOptions()) == pytest.approx(np.eye(1))
+    # the same constants as sums of the encoders' unit phases: each row has unit variance
+    from estimators.identify.assemble import offset_phases
+    M = offset_phases(m, [tw("theta1", "theta2"), tw("theta2", "theta3")], 0.01, SensorOptions())
+    assert M.shape == (2, 3) and np.sum(M ** 2, axis=1) == pytest.approx([1.0, 1.0])
+
+
+def test_the_95_percent_interval_of_a_normal_error_plus_encoder_phases():
+    """``interval_halfwidth``: a normal error alone, 1.95996 standard deviations; one uniform phase alone,
+    95 % of its half-width; two equal ones (a triangle), ``a (1 - sqrt(0.05))``; a mix against 4 million
+    draws (the quantile's own scatter there is about 1e-3)."""
+    from estimators.identify.covariance import interval_halfwidth
+    assert interval_halfwidth(2.0) == pytest.approx(2.0 * 1.959964, rel=1e-6)
+    assert interval_halfwidth(0.0, [1.0]) == pytest.approx(0.95 * np.sqrt(3.0), rel=1e-6)
+    a = 0.3                                              # each phase's half-width a / 2: their sum on [-a, a]
+    assert interval_halfwidth(0.0, [a / 2 / np.sqrt(3.0)] * 2) == pytest.approx(a * (1 - np.sqrt(0.05)), rel=1e-6)
+    rng = np.random.default_rng(7)
+    n = 4_000_000
+    e = rng.normal(0.0, 0.5, n) + rng.uniform(-2.0, 2.0, n) + rng.uniform(-0.7, 0.7, n)
+    h = interval_halfwidth(0.5, [2.0 / np.sqrt(3.0), 0.7 / np.sqrt(3.0)])
+    assert h == pytest.approx(np.quantile(np.abs(e), 0.95), rel=2e-3)
+    assert h < 1.959964 * np.sqrt(0.25 + 4.0 / 3.0 + 0.49 / 3.0)          # shorter than the normal reading

@@ -52,7 +52,7 @@ def fit_result(problem, sh, w, res, *, method: str, attempts: tuple, initial, t_
     twists = [(j, c) for j, c in enumerate(problem.channels) if c.kind == "twist" and not c.zero]
     offs = [(j, problem.noise[c.name]) for j, c in twists]
     unc = uncertainty(sh, w, r, Jr, A, free, rse_warn=o.rse_warn, offsets=offs,
-                      offset_corr=offset_correlation(problem.model, [c for _, c in twists], problem.dt, o.sensors))
+                      offset_phases=offset_phases(problem.model, [c for _, c in twists], problem.dt, o.sensors))
     se, corr = unc.stderr, unc.corr
     tol_b = 1e-6 * sh.th_scale
     lo, hi = problem.lo, problem.hi
@@ -105,20 +105,29 @@ def fit_result(problem, sh, w, res, *, method: str, attempts: tuple, initial, t_
         active_constraints=active, condition=unc.condition, weak_directions=unc.weak,
         input_noise=dict(problem.input_noise), delay=o.extra_delay, guess_notes=problem.guess_notes, method=method,
         attempts=attempts, structure=structure, eps=o.eps, eps_source=problem.eps_source, eps_bias=unc.eps_bias,
-        offset_error=unc.offset_error if offs else None, zero_corr=unc.zero_corr,
+        offset_error=unc.offset_error if offs else None, phase_parts=unc.phase_parts if offs else None,
+        zero_corr=unc.zero_corr,
         integration=problem.integration.note)
 
 
-def offset_correlation(model, twists, dt: float, sensors) -> np.ndarray:
-    """Correlation of the constant offsets of angle differences taken as twists: each encoder's phase at
-    power-on is its own independent constant of variance ``q^2 / 12``, and a difference ``a - b`` carries
-    ``a``'s minus ``b``'s, so two differences that share an encoder correlate (``+`` or ``-``)."""
+def offset_phases(model, twists, dt: float, sensors) -> np.ndarray:
+    """The constant offsets of angle differences taken as twists, each in its own standard deviations,
+    as sums of the encoders' power-on phases, each independent, uniform within a tick, in ITS standard
+    deviations (``q / sqrt(12)``): (len(twists), n_encoders), a difference ``a - b`` carrying ``a``'s
+    phase minus ``b``'s."""
     encs = sorted({p for c in twists for p in c.parts})
-    var = {e: channel_std(model, e, dt, sensors) ** 2 for e in encs}
+    sd = np.array([channel_std(model, e, dt, sensors) for e in encs])
     D = np.zeros((len(twists), len(encs)))
     for k, c in enumerate(twists):
         D[k, encs.index(c.parts[0])] += 1.0
         D[k, encs.index(c.parts[1])] -= 1.0
-    C = (D * np.array([var[e] for e in encs])) @ D.T
-    d = np.sqrt(np.diag(C))
-    return C / np.outer(d, d) if np.all(d > 0) else np.eye(len(twists))
+    M = D * sd
+    d = np.sqrt(np.sum(M ** 2, axis=1))
+    return M / d[:, None] if np.all(d > 0) else np.eye(len(twists))
+
+
+def offset_correlation(model, twists, dt: float, sensors) -> np.ndarray:
+    """Correlation of the constant offsets of angle differences taken as twists (:func:`offset_phases`):
+    two differences that share an encoder correlate (``+`` or ``-``)."""
+    M = offset_phases(model, twists, dt, sensors)
+    return M @ M.T

@@ -51,11 +51,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.signal import fftconvolve
+from scipy.stats import norm
 
 from models.signals import autocorrelation_time
 from estimators.identify.shooting import KKTFactor
 
-__all__ = ["WeakDirection", "Uncertainty", "uncertainty", "direction_text", "sandwich"]
+__all__ = ["WeakDirection", "Uncertainty", "uncertainty", "direction_text", "sandwich", "interval_halfwidth"]
 
 
 @dataclass(frozen=True)
@@ -82,7 +84,8 @@ class Uncertainty:
     n_zeros) the correlations of the parameters with them; ``eps_bias`` (n_free,) the first-order
     bias of the regularisation, ``eps d theta / d eps`` [SI] (0 where the friction is not regularised
     by eps); ``offset_error`` (n_free,) the standard deviation the encoders' unknown power-on phase
-    puts on the estimates [SI] (module docstring).
+    puts on the estimates [SI] (module docstring), ``phase_parts`` (n_free, n_encoders) each encoder's
+    share of it (``offset_error`` is the root sum of squares of a row).
     """
 
     cov: np.ndarray
@@ -97,6 +100,7 @@ class Uncertainty:
     zero_corr: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     eps_bias: np.ndarray = field(default_factory=lambda: np.zeros(0))
     offset_error: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    phase_parts: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
 
 def direction_text(names, v, floor: float = 0.1) -> tuple[str, dict]:
@@ -154,7 +158,7 @@ def sandwich(prob, Jr, r, Z_b, tau: float, demean=()) -> np.ndarray:
     return S
 
 
-def uncertainty(prob, w, r, Jr, A, names, *, rse_warn: float = 0.5, offsets=(), offset_corr=None) -> Uncertainty:
+def uncertainty(prob, w, r, Jr, A, names, *, rse_warn: float = 0.5, offsets=(), offset_phases=None) -> Uncertainty:
     """Covariance, correlations and conditioning at the solution ``w`` (see the module docstring).
 
     Parameters
@@ -166,9 +170,10 @@ def uncertainty(prob, w, r, Jr, A, names, *, rse_warn: float = 0.5, offsets=(), 
     offsets : ``((channel index, sigma), ...)``: angle differences taken as the twists
         (``encoder_zero = "untwisted"``), each off by an unknown constant of standard deviation
         ``sigma`` [rad] (the encoders' phase within a tick at power-on)
-    offset_corr : (len(offsets), len(offsets)) correlation of those constants (None: independent).  Two
-        differences that share an encoder share its phase: ``a - b`` and ``b - c`` correlate by
-        ``-q_b^2 / 12 / (sigma_1 sigma_2)``
+    offset_phases : (len(offsets), n_encoders): each constant, in its own standard deviations, as a sum
+        of the encoders' independent unit-variance phases (``a - b``: ``q_a / sqrt(12) / sigma`` times
+        ``a``'s minus ``q_b / sqrt(12) / sigma`` times ``b``'s; two differences that share an encoder
+        share its phase); None: each constant its own phase
     """
     nf, nb, nw = prob.nf, prob.nb, prob.nw
     n_res = r.size
@@ -250,6 +255,39 @@ def uncertainty(prob, w, r, Jr, A, names, *, rse_warn: float = 0.5, offsets=(), 
                 break
             text, coefs = direction_text(names, V[:, i])
             weak.append(WeakDirection(text, coefs, rse))
-    R = np.eye(dth_off.shape[1]) if offset_corr is None else np.asarray(offset_corr, float)
-    off_err = np.sqrt(np.maximum(np.einsum("ik,kl,il->i", dth_off, R, dth_off), 0.0))
-    return Uncertainty(cov, se, corr, zse, sigma2, tau, dof, cond, tuple(weak), zcorr, eps_bias, off_err)
+    M = np.eye(dth_off.shape[1]) if offset_phases is None else np.asarray(offset_phases, float)
+    parts = dth_off @ M
+    off_err = np.sqrt(np.sum(parts ** 2, axis=1))
+    return Uncertainty(cov, se, corr, zse, sigma2, tau, dof, cond, tuple(weak), zcorr, eps_bias, off_err, parts)
+
+
+def interval_halfwidth(sd: float, uniform_sds=(), level: float = 0.95) -> float:
+    """Half-width ``h`` of the symmetric interval that holds ``level`` of ``e = n + sum_k u_k``: ``n``
+    normal of standard deviation ``sd``, each ``u_k`` uniform (an encoder's phase within a tick) of
+    standard deviation ``uniform_sds[k]``, all independent: their densities convolved on a grid.
+    ``1.95996 sd`` without uniform parts; ``0.95 sqrt(3) s`` for one uniform part ``s`` alone (bounded,
+    short-tailed: 1.96 standard deviations would hold all of it).
+
+    Parameters
+    ----------
+    sd : the normal part's standard deviation [SI]; uniform_sds : the uniform parts' [SI]
+    level : the interval's probability
+    """
+    halfs = [math.sqrt(3.0) * abs(float(u)) for u in uniform_sds if np.isfinite(u) and u != 0]
+    sd = abs(float(sd)) if np.isfinite(sd) else 0.0
+    if not halfs:
+        return float(sd * norm.ppf(0.5 + 0.5 * level))
+    span = 8.0 * sd + sum(halfs)
+    x = np.linspace(-span, span, (1 << 15) + 1)          # odd: x = 0 is the middle cell
+    dx = x[1] - x[0]
+    # each uniform part a box of half-width a (its edge cells weighted by the share they hold), then the normal
+    parts = [np.clip((a - np.abs(x)) / dx + 0.5, 0.0, 1.0) for a in halfs]
+    if sd > 0:
+        parts.append(np.exp(-0.5 * (x / sd) ** 2))
+    dens = None
+    for d in parts:
+        d = d / d.sum()
+        dens = d if dens is None else np.maximum(fftconvolve(dens, d, mode="same"), 0.0)
+    cdf = np.cumsum(dens) - 0.5 * dens                    # F at the cells' centres
+    cdf /= cdf[-1] + 0.5 * dens[-1]
+    return float(np.interp(0.5 + 0.5 * level, cdf, x))

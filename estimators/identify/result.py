@@ -20,6 +20,7 @@ iteration limit is never OK or WARNING.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -27,6 +28,7 @@ import numpy as np
 
 from models.params import ParameterSet
 from models.status import Outcome, Status
+from estimators.identify.covariance import interval_halfwidth
 from estimators.identify.gauss_newton import GAP_OK
 
 __all__ = ["FitResult", "IdentifiabilityWarning", "convergence_message", "fit_status", "identifiability_warnings",
@@ -256,6 +258,8 @@ class FitResult(Outcome):
     offset_error : (n_free,) what the encoders' unknown phase within a tick at power-on can move the
         estimates by (``encoder_zero = "untwisted"``; :mod:`~estimators.identify.covariance`) or None;
         part of :attr:`error`
+    phase_parts : (n_free, n_encoders) each encoder's share of ``offset_error`` (its standard deviation on
+        each estimate; uniform, bounded: :attr:`interval`) or None
     zero_corr : (n_free, n_zeros) correlations of the parameters with the encoder zeros (order of
         ``encoder_zero``'s entries)
     integration : how a sample of the fitted model was integrated, in words (RK4 with its substeps, or
@@ -308,6 +312,7 @@ class FitResult(Outcome):
     eps_source: str = ""
     eps_bias: np.ndarray | None = None
     offset_error: np.ndarray | None = None
+    phase_parts: np.ndarray | None = None
     zero_corr: np.ndarray | None = None
     integration: str = ""
 
@@ -322,6 +327,21 @@ class FitResult(Outcome):
                 tot = tot + np.where(np.isfinite(part), part, 0.0) ** 2
         return np.sqrt(tot)
 
+    @property
+    def interval(self) -> np.ndarray:
+        """Half-width of each estimate's 95 % interval [SI]: :attr:`error`'s parts as they are
+        distributed, the statistical error and the regularisation's (or the refit's) as normal, each
+        encoder's phase (:attr:`phase_parts`) as uniform within a tick
+        (:func:`~estimators.identify.covariance.interval_halfwidth`).  ``1.96 error`` without phase parts;
+        shorter where a bounded phase error dominates."""
+        normal = self.stderr ** 2
+        sys_ = self.syserr if self.syserr is not None else self.eps_bias
+        if sys_ is not None:
+            normal = normal + np.where(np.isfinite(sys_), sys_, 0.0) ** 2
+        parts = self.phase_parts if self.phase_parts is not None else np.zeros((len(self.names), 0))
+        return np.array([interval_halfwidth(math.sqrt(n), row) if np.isfinite(n) else math.nan
+                         for n, row in zip(normal, parts)])
+
     def as_dict(self) -> dict:
         """A JSON-friendly summary."""
         params = {n: {"estimate": float(e), "stderr": float(s), "initial": float(i), "unit": self.params.spec(n).unit}
@@ -333,6 +353,8 @@ class FitResult(Outcome):
             if part is not None:
                 for n, b, t in zip(self.names, part, self.error):
                     params[n].update({key: float(b), "error": float(t)})
+        for n, h in zip(self.names, self.interval):
+            params[n]["interval95"] = float(h)
         v = self.validation
         return {
             "model": self.model,

@@ -335,14 +335,15 @@ def _run(args) -> int:
     elif fit.syserr is None:
         off = fit.offset_error if fit.offset_error is not None else [math.nan] * len(fit.names)
         bias = fit.eps_bias if fit.eps_bias is not None else [math.nan] * len(fit.names)
-        rows = [[n, e, s, b, o, t, i, pub[n], unit[n]] for n, e, s, b, o, t, i in
-                zip(fit.names, fit.estimate, fit.stderr, bias, off, fit.error, fit.initial)]
-        head = ["parameter", "estimate", "std. error", "eps bias", "enc. phase", "total error", "initial", "rig file",
-                "unit"]
+        rows = [[n, e, s, b, o, t, h, i, pub[n], unit[n]] for n, e, s, b, o, t, h, i in
+                zip(fit.names, fit.estimate, fit.stderr, bias, off, fit.error, fit.interval, fit.initial)]
+        head = ["parameter", "estimate", "std. error", "eps bias", "enc. phase", "total error", "95 % +-", "initial",
+                "rig file", "unit"]
     else:
-        rows = [[n, e, s, y, t, i, pub[n], unit[n]] for n, e, s, y, t, i in
-                zip(fit.names, fit.estimate, fit.stderr, fit.syserr, fit.error, fit.initial)]
-        head = ["parameter", "estimate", "std. error", "syst. error", "total error", "initial", "rig file", "unit"]
+        rows = [[n, e, s, y, t, h, i, pub[n], unit[n]] for n, e, s, y, t, h, i in
+                zip(fit.names, fit.estimate, fit.stderr, fit.syserr, fit.error, fit.interval, fit.initial)]
+        head = ["parameter", "estimate", "std. error", "syst. error", "total error", "95 % +-", "initial", "rig file",
+                "unit"]
     print(format_table(head, rows))
     if sources:
         print(f"{model.values_label}: " + "; ".join(f"{n} from {src}" for n, src in sources.items()))
@@ -379,7 +380,8 @@ def _run(args) -> int:
     elif fit.syserr is None:
         print("note: the total error adds to the statistical one the regularisation's first-order bias (eps bias) "
               "and, with --encoder-zero untwisted, what the encoders' unknown phase within a tick at power-on does "
-              "(enc. phase); --bootstrap 6 gives error bars from replicates of the exact plant")
+              "(enc. phase); the 95 % interval takes the phase as the bounded (uniform) error it is; --bootstrap 6 "
+              "gives error bars from replicates of the exact plant")
     for w in fit.warnings:
         print(f"warning: {w}")
     print(f"wrote {out}" + (f" and {plot}" if plot else ""))
