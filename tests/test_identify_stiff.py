@@ -132,3 +132,30 @@ def test_the_measured_slider_k1002_fits_with_the_basic_command_and_predicts_the_
     v = doc["validation"]
     assert v["kind"] == "force" and v["slips_measured"] >= 4 and abs(v["period_error"]) <= 0.15, v
     assert "simulating the log over its first" in " ".join(doc["guess_notes"])
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(os.environ.get("STICKSLIP_LONG_TESTS") != "1",
+                    reason="long (about 100 s alone; STICKSLIP_LONG_TESTS=1 runs it)")
+def test_the_measured_slider_k168_fits_with_the_basic_command_and_predicts_the_held_out_period(tmp_path, capsys):
+    """Issue 28's target on the 168 N/m record: the same basic command.  Its training half holds three
+    slips; the single-shooting refinement's cost is rough (the model promised 1.5 % more and no step gave
+    it) and its last step would move no parameter by more than 0.021 of its standard error: stationary at
+    its error bars' resolution, the best fit within the model.  Measured: mu_s 0.307, mu_k 0.285, held-out
+    period 1.86 s against 1.74 s (+6.6 %), 100 s."""
+    import json
+    from mitigate import cli
+    folder = RIG.parent
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rc = cli.main(["identify", str(folder / "k168Nm_v42.csv"), "--model", str(folder / "slider_k168.toml"),
+                       "--free", "mu_s,mu_k,v_s", "--holdout", "0.5", "--out", str(tmp_path / "fitted.toml"),
+                       "--no-plot", "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert rc == 0 and doc["success"], doc["message"]
+    assert doc["message"].startswith("best fit within the model"), doc["message"]
+    assert "of its standard error" in doc["message"]
+    est = {k: v["estimate"] for k, v in doc["parameters"].items()}
+    assert 0.2 <= est["mu_k"] < est["mu_s"] <= 0.6, est
+    v = doc["validation"]
+    assert v["kind"] == "force" and v["slips_measured"] >= 4 and abs(v["period_error"]) <= 0.15, v

@@ -93,8 +93,16 @@ def fit_result(problem, sh, w, res, *, method: str, attempts: tuple, initial, t_
                          gap_locator=gap_locator([d.nint for d in problem.data], [d.t for d in problem.data], M,
                                                  m.states))
     cost = 0.5 * float(r @ r)
+    history = getattr(res, "history", ())
+    step = dict(history).get("parameter_step")
+    if step is not None and len(step) == len(se):
+        # the Gauss-Newton step left, in the parameters' own standard errors
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = np.abs(np.asarray(step) * sh.th_scale) / se
+        history = tuple(history) + (("step_in_stderr", float(np.max(ratio)) if np.all(np.isfinite(ratio))
+                                     else float("inf")),)
     status, message = fit_status(res.reason, res.success, message, warned=bool(warns), structure=structure,
-                                 history=getattr(res, "history", ()), cost=cost, refined=refined)
+                                 history=history, cost=cost, refined=refined)
     return FitResult(
         problem=problem, model=m.name, names=tuple(free), estimate=theta, stderr=se, initial=np.asarray(initial, float),
         corr=corr, cov=unc.cov, params=fitted, t=tuple(t_l), measured=tuple(meas_l), simulated=tuple(sim_l),

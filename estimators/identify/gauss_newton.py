@@ -307,7 +307,8 @@ def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8
                 reason = "no_further_decrease"
             else:
                 reason = "line_search"
-            diag = (("max_gap", gmax), ("predicted_decrease", pred_full), ("s2", s2), ("step", step_inf))
+            diag = (("max_gap", gmax), ("predicted_decrease", pred_full), ("s2", s2), ("step", step_inf),
+                    ("parameter_step", dw[:nf].copy()))
             break
         # trust-region bookkeeping: actual vs predicted merit decrease along the accepted step
         pred = -(alpha * gdw + 0.5 * alpha * alpha * jdw2) + (0.0 if feasible else alpha * nu_pen * gl1)

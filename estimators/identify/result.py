@@ -10,8 +10,10 @@ A fit whose residual shows that the model's structure misses something in the da
 residual frequency, gaps left at the nodes) is the best fit the model allows, not a model that
 explains the log: its status is WARNING and its message starts with ``"best fit within the model
 (...); structure misses: ..."``.  So is a fit whose solver stopped without meeting its tolerance
-(a failed line search) where the cost would fall by less than 0.1 % more, the structure misses
-and the continuity gaps are closed.  A fit whose gaps stayed open is continued by single shooting
+(a failed line search) where the cost would fall by less than 0.1 % more, or where the step left
+would move no parameter by a tenth of its standard error (a rough cost: stick-slip simulated with a
+tiny eps, every stick ending on a whole step, rejects the steps its Gauss-Newton model promises), the
+structure misses and the continuity gaps are closed.  A fit whose gaps stayed open is continued by single shooting
 (:mod:`~estimators.identify.single`): its parameters then belong to one trajectory, and when that
 refinement converges it is the best fit within the model (its message says how the multiple-shooting
 fit had ended).  Every other unconverged fit is NOT_CONVERGED, with advice; a fit stopped at its
@@ -36,6 +38,9 @@ __all__ = ["FitResult", "IdentifiabilityWarning", "convergence_message", "fit_st
 
 #: how a fit that converged (or stopped stationary) but whose structure misses is reported
 BEST_FIT = "best fit within the model"
+#: a failed line search whose Gauss-Newton step would move no parameter by more than this many of its
+#: standard errors stopped where the estimate stays at the resolution of its error bars (stationary)
+STEP_IN_STDERR = 0.1
 
 
 class IdentifiabilityWarning(UserWarning):
@@ -182,7 +187,8 @@ def fit_status(reason: str, success: bool, message: str, *, warned: bool, struct
     message : :func:`convergence_message` for that end
     warned : identifiability warnings were raised
     structure : :class:`~estimators.identify.diagnostics.StructureDiagnostics` or None
-    history : the solver's diagnostics at a failed line search (``(("predicted_decrease", x), ...)``)
+    history : the solver's diagnostics at a failed line search (``(("predicted_decrease", x), ...)``;
+        ``"step_in_stderr"``: the largest parameter step over its standard error, from the fit)
     cost : ``0.5 |r|^2`` at the end
     refined : "" for a multiple-shooting fit; for a single-shooting refinement
         (:mod:`~estimators.identify.single`) how the multiple-shooting fit before it had ended
@@ -190,12 +196,20 @@ def fit_status(reason: str, success: bool, message: str, *, warned: bool, struct
     misses = tuple(structure.misses) if structure is not None else ()
     gaps_open = structure is not None and structure.max_gap >= GAP_OK
     pred = dict(history).get("predicted_decrease", float("inf"))
+    in_se = dict(history).get("step_in_stderr", float("inf"))
     why = message.split(". Try:")[0]
-    stationary = reason == "line_search" and np.isfinite(cost) and 0 <= pred <= 1e-3 * cost
+    flat = reason == "line_search" and np.isfinite(cost) and 0 <= pred <= 1e-3 * cost
+    # a rough cost (stick-slip simulated with a tiny eps: every stick ends on a whole step) rejects steps its
+    # Gauss-Newton model promises; when that step would move no parameter by a tenth of its standard error,
+    # the estimate is where it stays at the resolution of its own error bars
+    small = reason == "line_search" and in_se <= STEP_IN_STDERR
+    stationary = flat or small
+    still = ("the cost would fall by less than 0.1 % more" if flat else
+             f"the step left would move no parameter by more than {in_se:.2g} of its standard error")
     if refined:
         how = f"the multiple-shooting fit ended: {refined}; continued by single shooting (simulation error)"
         if success or stationary:
-            end = why if success else f"the solver stopped: {why}; the cost would fall by less than 0.1 % more"
+            end = why if success else f"the solver stopped: {why}; {still}"
             if misses:
                 return Status.WARNING, f"{BEST_FIT} ({how}: {end}); structure misses: " + "; ".join(misses)
             return (Status.WARNING if warned else Status.OK), f"{end} ({how})"
@@ -205,8 +219,7 @@ def fit_status(reason: str, success: bool, message: str, *, warned: bool, struct
             return Status.WARNING, f"{BEST_FIT} ({message}); structure misses: " + "; ".join(misses)
         return (Status.WARNING if warned else Status.OK), message
     if misses and stationary and not gaps_open:
-        return Status.WARNING, (f"{BEST_FIT} (the solver stopped: {why}; the cost would fall by less than 0.1 % "
-                                f"more); structure misses: " + "; ".join(misses))
+        return Status.WARNING, f"{BEST_FIT} (the solver stopped: {why}; {still}); structure misses: " + "; ".join(misses)
     return Status.NOT_CONVERGED, message
 
 
