@@ -55,7 +55,7 @@ from models.rig.steady import nominal_operating_point
 from models.rates import stiff_rates, unstable_rate
 from models.sdirk import GAMMA, NEWTON_ITER, NEWTON_SMOOTH, sdirk2
 
-__all__ = ["RHO", "QS_FACTOR", "MAX_SUBSTEPS", "METHODS", "RHO_IMPLICIT", "UNSTABLE_MAX",
+__all__ = ["RHO", "QS_FACTOR", "MAX_SUBSTEPS", "METHODS", "RHO_IMPLICIT", "UNSTABLE_MAX", "FOLD_ABOVE",
            "Integration", "integration", "rk4", "rk4_function"]
 
 #: the integration methods: explicit RK4 with substeps, or the L-stable SDIRK2 (:mod:`models.sdirk`)
@@ -71,6 +71,12 @@ RHO = 2.5
 QS_FACTOR = 4.0
 #: more RK4 substeps per step than this is refused (the rig is too stiff for its step)
 MAX_SUBSTEPS = 2000
+#: more substeps than this: a consumer that needs a step's Jacobians (identification's sample function,
+#: the NMPC's stage, the EKF's step) loops over ONE substep (CasADi ``fold``, the chain rule carried along)
+#: instead of unrolling them: unrolled, the Jacobians' expression grows with the substeps (22 substeps of
+#: a 2-body rig took gcc minutes, 80 of another 7.5 GB of memory; the NMPC's stage on the main scenario
+#: was 107,680 instructions); a loop's C code does not grow
+FOLD_ABOVE = 4
 
 
 @dataclass(frozen=True)

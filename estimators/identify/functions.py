@@ -16,16 +16,12 @@ import numpy as np
 
 from estimators.identify.outputs import output_function
 from estimators.identify.shooting import compiled_or_none, sample_function
-from models.discretise import Integration
+from models.discretise import FOLD_ABOVE, Integration
 from models.rates import rate_jacobian
 from models.params import ParameterSet
 
 __all__ = ["shooting_functions", "folded_sample_function", "StiffRate", "FOLD_ABOVE"]
 
-#: more RK4 substeps than this: the sample function loops over one substep instead of unrolling them.
-#: Unrolled, the sensitivities' expression grows with the substeps: 22 substeps of a 2-body rig took
-#: gcc minutes, 80 of another 7.5 GB of memory; a loop's C code does not grow
-FOLD_ABOVE = 4
 
 
 def shooting_functions(model, integ, channels, avg, free_idx, input_jac: bool, compile_: bool):

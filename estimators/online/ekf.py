@@ -56,8 +56,11 @@ def ekf_step_function(em: EstimationModel) -> ca.Function:
     q = ca.SX.sym("q", nx)
     r = ca.SX.sym("r", ny)
     P = ca.reshape(Pv, nx, nx)
-    xp = em.F(x, uh, p)
-    A = ca.jacobian(xp, x)
+    if em.FA is None:
+        xp = em.F(x, uh, p)
+        A = ca.jacobian(xp, x)
+    else:
+        xp, A = ca.SX.sym("xp", nx), ca.SX.sym("A", nx, nx)
     P = ca.mtimes([A, P, A.T]) + ca.diag(q + em.stick(x, uh, p))
     yi, mi = em.to_internal(y, m)
     xs = ca.SX.sym("xs", nx)
@@ -76,8 +79,16 @@ def ekf_step_function(em: EstimationModel) -> ca.Function:
     if em.project is not None:
         xc = em.project(xc, uh, p)
     P = 0.5 * (P + P.T)
-    return ca.Function(f"{em.model.cname}_ekf_step", [x, Pv, uh, y, m, p, q, r], [xc, ca.reshape(P, nx * nx, 1)],
-                       ["x", "P", "uh", "y", "m", "p", "q", "r"], ["x_next", "P_next"])
+    names = ["x", "P", "uh", "y", "m", "p", "q", "r"]
+    if em.FA is None:
+        return ca.Function(f"{em.model.cname}_ekf_step", [x, Pv, uh, y, m, p, q, r], [xc, ca.reshape(P, nx * nx, 1)],
+                           names, ["x_next", "P_next"])
+    # the prediction as a loop over the substeps (em.FA), the rest as one expression
+    rest = ca.Function(f"{em.model.cname}_ekf_update", [x, Pv, uh, y, m, p, q, r, xp, A],
+                       [xc, ca.reshape(P, nx * nx, 1)])
+    args = [ca.MX.sym(n, *a.shape) for n, a in zip(names, (x, Pv, uh, y, m, p, q, r))]
+    xpM, AM = em.FA(args[0], args[2], args[5])
+    return ca.Function(f"{em.model.cname}_ekf_step", args, list(rest(*args, xpM, AM)), names, ["x_next", "P_next"])
 
 
 class ObservabilityMixin:

@@ -108,7 +108,7 @@ from models.params import ParameterSet
 from models.rig import RigModel
 from estimators.online.channels import angle_combination, angle_node, resolve_augment, resolve_channels, state_units
 from models.sensors import FLOOR, SensorOptions, channel_variance
-from models.discretise import Integration, integration
+from models.discretise import FOLD_ABOVE, Integration, integration
 from estimators.online.options import for_rig
 from estimators.online.projection import projection
 from estimators.online.covariance import prior, process_variances, state_bounds
@@ -129,6 +129,10 @@ class EstimationModel:
     meas_names : internal measurements (whitened angle differences, then the other channels)
     delay : samples of input history the model needs (``uh`` holds ``u_k, u_{k-1}, ...``)
     F : Function ``(x, uh, p) -> x_next`` over one sample (RK4 with substeps)
+    FA : Function ``(x, uh, p) -> (x_next, A = dx_next/dx)``, a loop over one substep carrying the chain
+        rule (CasADi ``fold``) where the step has more than :data:`~models.discretise.FOLD_ABOVE`
+        substeps (the EKF's prediction: C code that does not grow with the substeps); None: ``F`` and
+        its Jacobian as one expression
     integration : how ``F`` integrates the rig (:func:`models.discretise.integration`: substeps,
         a fast motor's current quasi-static); its ``note`` says so
     h : Function ``(x, uh, p) -> y`` internal measurements
@@ -173,6 +177,7 @@ class EstimationModel:
     augment: tuple = ()
     integration: Integration | None = None
     project: ca.Function | None = None
+    FA: ca.Function | None = None
 
     @property
     def nx(self) -> int:
@@ -319,6 +324,9 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
         for d in range(1, D + 1):
             nxt.append(x_rig_at(d - 1))
     F = ca.Function(f"{model.cname}_est_F", [x, uh, p], [ca.vertcat(*nxt)], ["x", "uh", "p"], ["x_next"])
+    FA = None
+    if integ.nsub > FOLD_ABOVE:
+        FA = _folded_step(model, integ, f_rhs, fvec, u0, x, uh, p, nxr, ca.vertcat(*nxt[1:]) if nx > nxr else None)
 
     # ---- measurements
     ys, meas, dep_rows = [], [], []
@@ -399,7 +407,35 @@ def build_estimation_model(model: RigModel, params: ParameterSet, options, dt: f
     return EstimationModel(model, params, dt, names, state_units(model, names), nxr, chans, tuple(meas), D, F, h,
                            to_internal, np.array(dep_rows, bool).reshape(len(meas), len(chans)), q, stick, float(options.eps), r, x0v, P0, lb,
                            ub, np.array([P_num[n] for n in model.param_names]), options.angles, aug, integ,
-                           project)
+                           project, FA)
+
+
+def _folded_step(model, integ, f_rhs, fvec, u0, x, uh, p, nxr: int, rest) -> ca.Function:
+    """``(x, uh, p) -> (x_next, A)``: the rig's ``integ.nsub`` substeps as a ``fold`` over one substep
+    and its Jacobian, ``Z' = J_r Z + J_x`` with ``Z = d xr / dx`` from ``[I, 0]`` (the inputs ``u0``
+    and the load factors ``fvec`` depend on the augmented states, held over the sample); ``rest``
+    (held states and lags, linear in ``x``) or None follows."""
+    import dataclasses
+    nx = x.numel()
+    one = dataclasses.replace(integ, dt=integ.dt / integ.nsub, nsub=1)
+    xr = ca.SX.sym("xr", nxr)
+    xr1 = one.advance(lambda a, b, c: f_rhs(a, b, c, fvec), xr, u0, p,
+                      lambda a, b, c: model.quasi_static_current(a, b, model.unpack(c)))
+    Z = ca.SX.sym("Z", nxr, nx)
+    Zn = ca.jacobian(xr1, xr) @ Z + ca.jacobian(xr1, x)
+    sub = ca.Function(f"{model.cname}_est_substep", [ca.vertcat(xr, ca.vec(Z)), x, uh, p],
+                      [ca.vertcat(xr1, ca.vec(Zn))], ["z", "x", "uh", "p"], ["z_next"])
+    xM, uhM, pM = ca.MX.sym("x", nx), ca.MX.sym("uh", uh.numel()), ca.MX.sym("p", p.numel())
+    n = integ.nsub
+    z0 = ca.vertcat(xM[:nxr], ca.vec(ca.horzcat(ca.MX.eye(nxr), ca.MX(nxr, nx - nxr))))
+    zN = sub.fold(n)(z0, ca.repmat(xM, 1, n), ca.repmat(uhM, 1, n), ca.repmat(pM, 1, n))
+    xrN, ZN = zN[:nxr], ca.reshape(zN[nxr:], nxr, nx)
+    if rest is not None:
+        tail = ca.Function(f"{model.cname}_est_rest", [x], [rest, ca.jacobian(rest, x)])
+        r, Jr = tail(xM)
+        xrN, ZN = ca.vertcat(xrN, r), ca.vertcat(ZN, Jr)
+    return ca.Function(f"{model.cname}_est_FA", [xM, uhM, pM], [xrN, ca.densify(ZN)], ["x", "uh", "p"],
+                       ["x_next", "A"])
 
 
 def _prod(terms):

@@ -41,17 +41,11 @@ import dataclasses
 import casadi as ca
 
 from models import friction as fr
-from models.discretise import Integration
+from models.discretise import FOLD_ABOVE, Integration
 from mitigate.controllers.nmpc.layout import OCPLayout, OCPSpec
 from mitigate.controllers.nmpc.options import WEIGHT_NAMES
 
-__all__ = ["stage_functions", "prediction_rhs", "FOLD_ABOVE"]
-
-#: more substeps than this: the stage's dynamics and their Jacobians are a loop over one substep (the
-#: chain rule carried along, as identification's sample function does) instead of one expression with
-#: every substep unrolled; unrolled, 22 RK4 substeps of the main scenario's rig made a 107,680-instruction
-#: stage function that gcc took most of a minute to compile at -O2
-FOLD_ABOVE = 4
+__all__ = ["stage_functions", "prediction_rhs"]
 
 
 def prediction_rhs(model, eps: float) -> ca.Function:
@@ -139,7 +133,14 @@ def stage_functions(model, spec: OCPSpec):
 
     xn = finish(integ.advance(faug, xa, v, q, fast), xa, v)
     name = f"{model.cname}_nmpc"
-    F = ca.Function(f"{name}_F", [xa, v, q], [xn], ["xa", "v", "q"], ["xa_next"])
+    folded = spec.nsub > FOLD_ABOVE
+    one = dataclasses.replace(integ, dt=spec.dt / spec.nsub, nsub=1) if folded else None
+    if folded:
+        step = _folded_dynamics(one, spec.nsub, faug, fast, finish, xa, v, q, name, values_only=True)
+        xaM, vM, qM = ca.MX.sym("xa", L.nxa), ca.MX.sym("v", L.nv), ca.MX.sym("q", L.nq)
+        F = ca.Function(f"{name}_F", [xaM, vM, qM], [step(xaM, vM, qM)], ["xa", "v", "q"], ["xa_next"])
+    else:
+        F = ca.Function(f"{name}_F", [xa, v, q], [xn], ["xa", "v", "q"], ["xa_next"])
 
     u = inputs(xa, v)
     wb = xa[model.speed_index(spec.body)]
@@ -159,12 +160,11 @@ def stage_functions(model, spec: OCPSpec):
     blocks = [d(Jx.T @ Jx), d(Jv.T @ Jx), d(Jv.T @ Jv), d(Jx.T @ r + ca.jacobian(lin, xa).T),
               d(Jv.T @ r + ca.jacobian(lin, v).T), 0.5 * ca.sumsqr(r) + lin]
     outs = ["xn", "A", "B", "Q", "S", "R", "gx", "gv", "c"]
-    if spec.nsub <= FOLD_ABOVE:
+    if not folded:
         stage = ca.Function(f"{name}_stage", [xa, v, q], [xn, d(ca.jacobian(xn, xa)), d(ca.jacobian(xn, v)), *blocks],
                             ["xa", "v", "q"], outs)
     else:
-        dyn = _folded_dynamics(dataclasses.replace(integ, dt=spec.dt / spec.nsub, nsub=1), spec.nsub, faug, fast,
-                               finish, xa, v, q, name)
+        dyn = _folded_dynamics(one, spec.nsub, faug, fast, finish, xa, v, q, name)
         gn = ca.Function(f"{name}_gn", [xa, v, q], blocks, ["xa", "v", "q"], outs[3:])
         xaM, vM, qM = ca.MX.sym("xa", L.nxa), ca.MX.sym("v", L.nv), ca.MX.sym("q", L.nq)
         stage = ca.Function(f"{name}_stage", [xaM, vM, qM], [*dyn(xaM, vM, qM), *gn(xaM, vM, qM)],
@@ -183,15 +183,24 @@ def stage_functions(model, spec: OCPSpec):
     return F, cost, stage, term
 
 
-def _folded_dynamics(one, nsub: int, faug, fast, finish, xa, v, q, name: str) -> ca.Function:
+def _folded_dynamics(one, nsub: int, faug, fast, finish, xa, v, q, name: str, *,
+                     values_only: bool = False) -> ca.Function:
     """``(xa, v, q) -> (xn, A, B)`` as ``nsub`` repetitions of the substep ``one`` (an
     :class:`~models.discretise.Integration` of one substep of ``dt / nsub``): a ``fold`` over one
     substep and its Jacobian ``J = d xe' / d(xe, v)``; with ``Z = d xe / d(xa, v)``,
     ``Z' = J_x Z + [0, J_v]`` from ``Z = [I, 0]``; then the interval's end ``finish(xe, xa, v)`` and
     its Jacobians by the chain rule.  The same numbers as the unrolled step up to rounding; C code
-    that does not grow with ``nsub``."""
+    that does not grow with ``nsub``.  ``values_only``: ``(xa, v, q) -> xn`` (the same substeps'
+    values, no Jacobians)."""
     nxa, nv = xa.numel(), v.numel()
     xe1 = one.advance(faug, xa, v, q, fast)
+    if values_only:
+        sub = ca.Function(f"{name}_substep_x", [xa, v, q], [xe1], ["xe", "v", "q"], ["xe_next"])
+        xaM, vM, qM = ca.MX.sym("xa", nxa), ca.MX.sym("v", nv), ca.MX.sym("q", q.numel())
+        xe = sub.fold(nsub)(xaM, ca.repmat(vM, 1, nsub), ca.repmat(qM, 1, nsub))
+        xe_s = ca.SX.sym("xe", nxa)
+        end = ca.Function(f"{name}_end_x", [xe_s, xa, v], [finish(xe_s, xa, v)])
+        return ca.Function(f"{name}_dyn_x", [xaM, vM, qM], [end(xe, xaM, vM)], ["xa", "v", "q"], ["xn"])
     J = ca.jacobian(xe1, ca.vertcat(xa, v))
     Z = ca.SX.sym("Z", nxa, nxa + nv)
     Zn = J[:, :nxa] @ Z + ca.horzcat(ca.SX(nxa, nxa), J[:, nxa:])
