@@ -131,10 +131,11 @@ def stage_functions(model, spec: OCPSpec):
             xn_.append(xa_[L.i_wprev] + v_[0])
         return ca.vertcat(*xn_)
 
-    xn = finish(integ.advance(faug, xa, v, q, fast), xa, v)
     name = f"{model.cname}_nmpc"
     folded = spec.nsub > FOLD_ABOVE
     one = dataclasses.replace(integ, dt=spec.dt / spec.nsub, nsub=1) if folded else None
+    # unrolled: the interval's end as one expression (folded: a loop over one substep, below)
+    xn = None if folded else finish(integ.advance(faug, xa, v, q, fast), xa, v)
     if folded:
         step = _folded_dynamics(one, spec.nsub, faug, fast, finish, xa, v, q, name, values_only=True)
         xaM, vM, qM = ca.MX.sym("xa", L.nxa), ca.MX.sym("v", L.nv), ca.MX.sym("q", L.nq)
