@@ -96,6 +96,7 @@ twisted shaft):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -415,7 +416,6 @@ def _folded_step(model, integ, f_rhs, fvec, u0, x, uh, p, nxr: int, rest) -> ca.
     and its Jacobian, ``Z' = J_r Z + J_x`` with ``Z = d xr / dx`` from ``[I, 0]`` (the inputs ``u0``
     and the load factors ``fvec`` depend on the augmented states, held over the sample); ``rest``
     (held states and lags, linear in ``x``) or None follows."""
-    import dataclasses
     nx = x.numel()
     one = dataclasses.replace(integ, dt=integ.dt / integ.nsub, nsub=1)
     xr = ca.SX.sym("xr", nxr)
