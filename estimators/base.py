@@ -200,7 +200,7 @@ class StateEstimator(ABC):
         if not isinstance(est, Estimate):
             raise PluginError(f"TypeError: update must return an Estimate, got {type(est).__name__}")
         try:
-            finite = bool(np.all(np.isfinite(np.asarray(est.x, float))) and np.all(np.isfinite(np.asarray(est.P, float))))
+            finite = bool(np.isfinite(np.asarray(est.x, float)).all() and np.isfinite(np.asarray(est.P, float)).all())
         except (TypeError, ValueError) as exc:
             raise PluginError(f"TypeError: the estimate's x and P must be numbers ({exc})") from None
         if not finite:

@@ -19,6 +19,7 @@ relative to the scenario file), interpolated linearly and held at its ends.
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping
@@ -50,6 +51,8 @@ class Profile:
     values: tuple[float, ...]
 
     def __call__(self, t: float) -> float:
+        if self.kind == "constant":
+            return self.values[0]
         if self.kind == "sine":
             mean, amp, period, phase = self.values
             return mean + amp * math.sin(2 * math.pi * t / period + phase)
@@ -63,7 +66,7 @@ class Profile:
             if t >= t1:
                 return v1
             return v0 + (v1 - v0) * (t - t0) / (t1 - t0)
-        i = int(np.searchsorted(self.times, t, side="right")) - 1
+        i = bisect.bisect_right(self.times, t) - 1      # np.searchsorted(..., side="right") - 1, on a tuple
         return self.values[max(i, 0)]
 
     def scaled(self, factor: float) -> "Profile":

@@ -35,9 +35,10 @@ class Servo:
     def step(self, command: float) -> float:
         """Advance one sample with the held ``command`` [N]; returns the force [N] applied over it."""
         o = self.spec
-        target = float(np.clip(command, o.n_min, o.n_max)) if np.isfinite(command) else self.force
+        # min/max: np.clip's values on scalars, without its call overhead (this runs every sample)
+        target = float(min(max(command, o.n_min), o.n_max)) if math.isfinite(command) else self.force
         alpha = 1.0 - math.exp(-self.dt / o.tau) if o.tau > 0 else 1.0
         delta = alpha * (target - self.force)
         lim = o.rate_max * self.dt
-        self.force += float(np.clip(delta, -lim, lim))
+        self.force += float(min(max(delta, -lim), lim))
         return self.force

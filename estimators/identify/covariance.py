@@ -51,8 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.signal import fftconvolve
-from scipy.stats import norm
+from scipy.special import ndtri
 
 from models.signals import autocorrelation_time
 from estimators.identify.shooting import KKTFactor
@@ -276,7 +275,7 @@ def interval_halfwidth(sd: float, uniform_sds=(), level: float = 0.95) -> float:
     halfs = [math.sqrt(3.0) * abs(float(u)) for u in uniform_sds if np.isfinite(u) and u != 0]
     sd = abs(float(sd)) if np.isfinite(sd) else 0.0
     if not halfs:
-        return float(sd * norm.ppf(0.5 + 0.5 * level))
+        return float(sd * ndtri(0.5 + 0.5 * level))
     span = 8.0 * sd + sum(halfs)
     x = np.linspace(-span, span, (1 << 15) + 1)          # odd: x = 0 is the middle cell
     dx = x[1] - x[0]
@@ -284,6 +283,8 @@ def interval_halfwidth(sd: float, uniform_sds=(), level: float = 0.95) -> float:
     parts = [np.clip((a - np.abs(x)) / dx + 0.5, 0.0, 1.0) for a in halfs]
     if sd > 0:
         parts.append(np.exp(-0.5 * (x / sd) ** 2))
+    from scipy.signal import fftconvolve    # imported here: scipy.signal takes 1-2 s to import
+
     dens = None
     for d in parts:
         d = d / d.sum()

@@ -44,7 +44,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal, stats
+from scipy.special import chdtrc
 
 from models.signals import dominant_frequency, lowpass
 from estimators.identify.gauss_newton import GAP_OK
@@ -156,12 +156,14 @@ def ljung_box(r, lags: int | None = None) -> tuple[float, float]:
         return 0.0, 1.0
     rho = np.array([float(r[:-k] @ r[k:]) / den for k in range(1, m + 1)])
     q = float(n * (n + 2) * np.sum(rho ** 2 / (n - np.arange(1, m + 1))))
-    return q, float(stats.chi2.sf(q, m))
+    return q, float(chdtrc(m, q))          # the chi-square survival function
 
 
 def _welch(x, dt):
     n = len(x)
     nper = int(min(n, max(64, 2 ** int(np.floor(np.log2(max(n // 2, 64)))))))
+    from scipy import signal            # imported here: scipy.signal takes 1-2 s to import
+
     return signal.welch(x - np.mean(x), fs=1.0 / dt, nperseg=nper, detrend="constant")
 
 

@@ -216,8 +216,8 @@ class ObservabilityMixin:
         rep = self.observability
         if rep is not None and not rep.twist_observable:
             warn.append(rep.message)
-        var = np.diag(P)[self._tw_idx]
-        if np.any(var > self._tw_limit):
+        var = np.asarray(P).diagonal()[self._tw_idx]
+        if (var > self._tw_limit).any():
             j = int(np.argmax(var))
             warn.append(f"twist uncertain: {self.em.twist_names[j]} std {np.sqrt(var[j]):.2g} rad")
         if warn:
