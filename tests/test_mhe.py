@@ -46,8 +46,9 @@ def drive(est, t, y, n=None):
 
 
 def mhe(**kw):
-    # compiled (the SX stage and measurement Functions are cached on disk after the first build):
-    # uncompiled, the nonlinear per-node Jacobians take ~40 ms a step
+    # compiled (the whole update is one C call, csrc/ss_mhe.c, cached on disk after the first build):
+    # uncompiled, the nonlinear per-node Jacobians take ~40 ms a step; the tests that look inside the
+    # Python update (its window, arrival prior, an injected failure) ask for compile=False
     kw.setdefault("check_observability", False)
     return MHE(MHEOptions(**kw), CTX)
 
@@ -79,7 +80,7 @@ def test_arrival_prior_is_the_ekf_prediction_of_the_first_node(run3):
     """No measurement of the window enters the arrival prior: it is the EKF's estimate one
     sample before the window, propagated through F with the Riccati step."""
     t, X, y = run3
-    est = mhe(window=5)
+    est = mhe(window=5, compile=False)
     drive(est, t, y, n=12)
     em = est.em
     x_before, P_before = est._XE[0]
@@ -92,7 +93,7 @@ def test_arrival_prior_is_the_ekf_prediction_of_the_first_node(run3):
 
 def test_solver_failure_falls_back_to_the_ekf_and_is_counted(run3):
     t, X, y = run3
-    est = mhe(window=5)
+    est = mhe(window=5, compile=False)
     drive(est, t, y, n=10)
 
     def broken():
@@ -106,6 +107,30 @@ def test_solver_failure_falls_back_to_the_ekf_and_is_counted(run3):
     assert est.counts.failures == 1 and est.counts.fallbacks == 1
     e2 = est.update(t[k + 1], meas(y, k + 1, est.channels), np.array([y[i][k + 1] for i in M.inputs]))
     assert not e2.success and est.counts.failures == 2 and np.all(np.isfinite(e2.x))
+
+
+def test_the_compiled_update_is_the_python_update(run3):
+    """One implementation: the compiled update (csrc/ss_mhe.c with its EKF inside, what an exported
+    library runs) gives the Python update's estimates, covariances, statuses and messages, sample by
+    sample, through the window's filling, a dropout and missing samples (measured: bit-identical)."""
+    t, X, y = run3
+    a, b = mhe(window=5), mhe(window=5, compile=False)
+    assert a._c is not None and a.compile_status.startswith("compiled (") and b._c is None
+    worst = 0.0
+    for k in range(1, 160):
+        m = meas(y, k, a.channels)
+        if 40 <= k < 44:
+            m["omega2"] = float("nan")
+        if k == 60:
+            m = {}
+        u = np.array([y[i][k] for i in M.inputs])
+        ea, eb = a.update(t[k], m, u), b.update(t[k], dict(m), u)
+        assert (ea.status, ea.message, ea.corrected) == (eb.status, eb.message, eb.corrected), k
+        worst = max(worst, np.max(np.abs(ea.x - eb.x) / np.maximum(np.abs(eb.x), 1.0)),
+                    np.max(np.abs(ea.P - eb.P)) / np.max(np.abs(eb.P)))
+    assert worst <= 1e-12, worst
+    assert a.counts.as_dict() == b.counts.as_dict() and a.counts.dropouts == 5
+    assert "window filling" not in ea.message
 
 
 def test_dropouts_are_counted_and_skip_channels(run3):

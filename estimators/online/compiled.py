@@ -1,11 +1,13 @@
-"""The EKF's update as one compiled C call (``csrc/ss_ekf.c``): the workbench's EKF and the exported
-library run the same C.
+"""The EKF's and the MHE's updates as one compiled C call each (``csrc/ss_ekf.c``, ``csrc/ss_mhe.c``):
+the workbench's estimators and the exported library run the same C.
 
 :data:`EKF_CONFIG` declares the configuration once (:class:`models.cbuild.CStruct`);
 :func:`ekf_config` takes its values from a built :class:`~estimators.online.ekf.EKF` (its estimation
 model: parameters, noise, prior, the first sample's speed channels, the delayed encoders' zeros);
 :class:`CompiledEKF` builds the library (cached), lays the filter out in numpy-owned memory and
-calls ``sse_update``.
+calls ``sse_update``.  :data:`MHE_CONFIG`, :func:`mhe_config` and :class:`CompiledMHE` do the same for
+the MHE (``ssm_update``: its EKF alongside, the window, the arrival prior, the Gauss-Newton step, the
+fallback), whose generated window step is :attr:`estimators.online.mhe.MHE.gn_step`.
 """
 
 from __future__ import annotations
@@ -18,7 +20,8 @@ import numpy as np
 from models.cbuild import CSRC, CStruct, build_library, c_view, generate, lay_out, read_source
 from models.errors import SolverFailure
 
-__all__ = ["EKF_CONFIG", "ekf_config", "ekf_files", "CompiledEKF", "EKF_SOURCES"]
+__all__ = ["EKF_CONFIG", "ekf_config", "ekf_files", "CompiledEKF", "EKF_SOURCES", "MHE_CONFIG", "mhe_config", "mhe_files",
+           "CompiledMHE"]
 
 #: the C sources of the EKF's update
 EKF_SOURCES = Path(__file__).resolve().parent / "csrc"
@@ -156,3 +159,133 @@ class CompiledEKF:
 
     def reset(self) -> None:
         self._lib.sse_reset(self._m)
+
+
+# ----------------------------------------------------------------------------- the MHE (csrc/ss_mhe.c)
+MHE_CONFIG = CStruct("ssm_config", [
+    ("nx", "int", None, "estimator states"), ("ny", "int", None, "internal measurements"),
+    ("nc", "int", None, "DAQ channels read"), ("nuh", "int", None, "input history length (nu * (delay + 1))"),
+    ("np", "int", None, "rig parameters"), ("N", "int", None, "window: samples (nodes N + 1)"),
+    ("max_iter", "int", None, "Gauss-Newton iterations per sample"), ("nw", "int", None, "nx * (N + 1)"),
+    ("nxx", "int", None, "nx * nx"), ("nyc", "int", None, "ny * nc"),
+    ("p", "double", "np", "rig parameters"), ("q", "double", "nx", "process noise variances per sample"),
+    ("sr", "double", "ny", "measurement noise standard deviations"),
+    ("lb", "double", "nw", "lower bounds of the window's node states"),
+    ("ub", "double", "nw", "upper bounds of the window's node states"),
+    ("T", "double", "nyc", "channels -> internal measurements (ny x nc, column-major)"),
+    ("dep", "int", "nyc", "1: the internal measurement needs the channel (ny x nc, column-major)"),
+    ("P0", "double", "nxx", "prior covariance (nx x nx, column-major)"),
+])
+
+
+def mhe_config(mhe) -> dict:
+    """The C configuration of a built MHE (every value its Python update uses)."""
+    em = mhe.em
+    N, nx, ny, nc = mhe.N, em.nx, em.ny, len(mhe.channels)
+    dep = np.zeros((ny, nc), dtype=int)
+    for j, ix in enumerate(mhe._mask_idx):
+        dep[j, ix] = 1
+    return dict(nx=nx, ny=ny, nc=nc, nuh=em.nuh, np=len(em.p), N=N, max_iter=mhe.options.max_iter, nw=nx * (N + 1),
+                nxx=nx * nx, nyc=ny * nc, p=em.p, q=em.q, sr=mhe._sr, lb=mhe._lbw, ub=mhe._ubw,
+                T=np.asarray(mhe._T, float).reshape(ny, nc).ravel(order="F"), dep=dep.ravel(order="F"),
+                P0=np.asarray(em.P0, float).ravel(order="F"))
+
+
+def mhe_functions(mhe) -> list:
+    """The generated Functions: the window's Gauss-Newton step, the arrival prior's propagation,
+    then the EKF alongside's (:func:`ekf_functions`)."""
+    return [mhe.gn_step, mhe.arrival] + ekf_functions(mhe.ekf)
+
+
+def mhe_files(mhe, stem: str) -> dict[str, str]:
+    """Every C file of the MHE's update: the MHE and EKF cores, the generated functions, both configs."""
+    src, hdr = generate(mhe_functions(mhe), stem)
+    files = read_source("ss_common.h", "ss_common.c", folder=CSRC)
+    files.update(read_source("ss_ekf.h", "ss_ekf.c", "ss_mhe.h", "ss_mhe.c", folder=EKF_SOURCES))
+    files["ss_ekf_config.h"] = EKF_CONFIG.header()
+    files["ss_mhe_config.h"] = MHE_CONFIG.header()
+    files[f"{stem}.c"], files[f"{stem}_funs.h"] = src, hdr
+    return files
+
+
+class SSM_INFO(ctypes.Structure):
+    """``ssm_info`` (csrc/ss_mhe.h)."""
+
+    _fields_ = [("status", ctypes.c_int), ("filling", ctypes.c_int), ("failed", ctypes.c_int), ("ekf", SSE_INFO)]
+
+
+#: what ``ssm_info.failed`` means (csrc/ss_mhe.h), as the Python MHE's messages say it
+MHE_FAILURES = {1: "EKF alongside failed", 2: "RuntimeError: a generated function of the window's step failed",
+                3: "non-finite Gauss-Newton step", 4: "Gauss-Newton Hessian not positive definite"}
+
+
+class CompiledMHE:
+    """One MHE's update in compiled C, with its EKF alongside (the MHE's ``gn_step`` and
+    ``arrival`` Functions must be SX-built, not externals).
+
+    Raises
+    ------
+    SolverFailure : the library could not be built or the configuration was refused.
+    """
+
+    def __init__(self, mhe):
+        fns = mhe_functions(mhe)
+        stem = f"{fns[0].name()}_c"
+        try:
+            so = build_library(stem, mhe_files(mhe, stem), ["ss_common.c", "ss_ekf.c", "ss_mhe.c", f"{stem}.c"])
+        except RuntimeError as exc:
+            raise SolverFailure(f"building the MHE's compiled update failed: {exc}") from None
+        self.library = so
+        lib = self._lib = ctypes.CDLL(str(so))
+        tables = [ctypes.c_void_p.in_dll(lib, f"{stem}_{f.name()}") for f in fns]
+        self._tables = tables
+        lib.ssm_reset.argtypes = [ctypes.c_void_p]
+        lib.ssm_update.restype = ctypes.c_int
+        lib.ssm_update.argtypes = [ctypes.c_void_p] * 4
+        lib.ssm_ekf.restype = ctypes.c_void_p
+        lib.ssm_ekf.argtypes = [ctypes.c_void_p]
+        for f in ("ssm_x", "ssm_P"):
+            getattr(lib, f).restype = ctypes.c_void_p
+            getattr(lib, f).argtypes = [ctypes.c_void_p]
+        for f in ("sse_x", "sse_P", "sse_x0_used"):
+            getattr(lib, f).restype = ctypes.c_void_p
+            getattr(lib, f).argtypes = [ctypes.c_void_p]
+        self.config = mhe_config(mhe)
+        self.ekf_config = ekf_config(mhe.ekf)
+        self.nx, self.nc, self.nu = self.config["nx"], self.config["nc"], self.ekf_config["nu"]
+        self._cfg, self._keep = MHE_CONFIG.fill(self.config)
+        self._ecfg, self._ekeep = EKF_CONFIG.fill(self.ekf_config)
+        addr = [ctypes.addressof(t) for t in tables] + [None] * (4 - len(tables))
+        self._mem, self._m = lay_out(lib, "ssm", self._cfg, ctypes.addressof(self._ecfg), *addr,
+                                     what="MHE's compiled update")
+        self.y = np.zeros(max(self.nc, 1))
+        self.u = np.zeros(self.nu)
+        self.info = SSM_INFO()
+        nx = self.nx
+        self._x = c_view(lib.ssm_x(self._m), nx)
+        self._P = c_view(lib.ssm_P(self._m), nx * nx)
+        e = lib.ssm_ekf(self._m)
+        self._x0u = c_view(lib.sse_x0_used(e), nx)
+        self._args = (self._m, self.y.ctypes.data, self.u.ctypes.data, ctypes.addressof(self.info))
+
+    def update(self, y, u) -> SSM_INFO:
+        """One sample: ``y`` the channels (NaN: missing), ``u`` the inputs over the sample."""
+        self.y[:self.nc] = y
+        self.u[:] = u
+        self._lib.ssm_update(*self._args)
+        return self.info
+
+    @property
+    def x(self) -> np.ndarray:
+        return self._x.copy()
+
+    @property
+    def P(self) -> np.ndarray:
+        return self._P.reshape(self.nx, self.nx, order="F").copy()
+
+    @property
+    def x0_used(self) -> np.ndarray:
+        return self._x0u.copy()
+
+    def reset(self) -> None:
+        self._lib.ssm_reset(self._m)

@@ -34,10 +34,14 @@ step fails or returns non-finite numbers, the estimate is the EKF's (``Status.FA
 after the window is full, counted).  The reported covariance is the last node's marginal
 of the inverse Gauss-Newton Hessian.
 
-Speed: the shooting-stage and measurement Functions are SX, built with gcc when
-``compile=True`` (cached on disk) and mapped over the window inside one MX Function that
-returns the Gauss-Newton step and the last node's covariance (sparse LDL, no threaded BLAS:
-on a loaded 2-core machine a threaded dense Cholesky made the step 3 ms).
+Speed: the shooting-stage and measurement Functions are SX, mapped over the window inside one MX
+Function that returns the Gauss-Newton step and the last node's covariance (sparse LDL, no
+threaded BLAS: on a loaded 2-core machine a threaded dense Cholesky made the step 3 ms).  With
+``compile=True`` (and ``qpsol = "ldl"``) the whole update -- the EKF alongside, the window, the
+arrival prior, the step, the projection, the fallback -- is one C call (``csrc/ss_mhe.c``,
+:class:`estimators.online.compiled.CompiledMHE`, cached on disk), the same C an exported library
+runs: rig3, window 20, 0.9 ms a sample against 4 ms in Python, its estimates bit-identical
+(tests/test_mhe.py).  With OSQP the stage Functions alone are built with gcc.
 """
 
 from __future__ import annotations
@@ -48,6 +52,7 @@ import casadi as ca
 import numpy as np
 
 from estimators.base import Estimate, EstimatorContext, StateEstimator
+from estimators.online.compiled import MHE_FAILURES, CompiledMHE
 from estimators.online.ekf import EKF, ObservabilityMixin
 from estimators.online.options import MHEOptions, for_rig
 from models.codegen import compile_cached
@@ -56,6 +61,50 @@ from models.sensors import FLOOR
 from models.status import Status
 
 __all__ = ["MHE"]
+
+
+def _window_functions(em, stage: ca.Function, meas: ca.Function, N: int) -> tuple[ca.Function, ca.Function]:
+    """The window's Gauss-Newton Functions of ``stage`` and ``meas`` mapped over ``N`` samples:
+    ``gn`` (w and the data -> the Hessian J'J, gradient J'r, cost, step d, the last node's
+    covariance) and ``gn_step`` (the same -> d, covariance: what the compiled update evaluates)."""
+    nx, ny, nuh, npar = em.nx, em.ny, em.nuh, len(em.p)
+    w = ca.MX.sym("w", nx * (N + 1))
+    xbar, Pbar = ca.MX.sym("xbar", nx), ca.MX.sym("Pbar", nx, nx)
+    UH = ca.MX.sym("UH", nuh, N + 1)
+    Ym, Wm = ca.MX.sym("Y", ny, N + 1), ca.MX.sym("Wm", ny, N + 1)     # Wm = mask / sqrt(r)
+    pm, qm = ca.MX.sym("p", npar), ca.MX.sym("q", nx)
+    X = ca.reshape(w, nx, N + 1)
+    gaps, Jas, iqs = stage.map(N)(X[:, :N], X[:, 1:], UH[:, 1:], ca.repmat(pm, 1, N), ca.repmat(qm, 1, N))
+    Hs, Cs = meas.map(N + 1)(X, UH, ca.repmat(pm, 1, N + 1))
+    r_meas = ca.vec(Wm * (Ym - Hs))
+    Jblocks = ca.horzsplit(Jas, nx)
+    Iblocks = [ca.diag(iqs[:, k]) for k in range(N)]
+    J_dyn = ca.horzcat(ca.diagcat(*Jblocks), ca.MX(nx * N, nx)) + ca.horzcat(ca.MX(nx * N, nx),
+                                                                              ca.diagcat(*Iblocks))
+    Cblocks = ca.horzsplit(Cs, nx)
+    J_meas = ca.diagcat(*[ca.mtimes(ca.diag(Wm[:, k]), Cblocks[k]) for k in range(N + 1)])
+    J = ca.vertcat(J_dyn, -J_meas)
+    r = ca.vertcat(ca.vec(gaps), r_meas)
+    # the arrival term |x_0 - xbar|^2 in the metric Pbar^-1 (an LDL solve, no explicit inverse:
+    # Pbar is nearly singular along exact constraints such as a zero: state and its twist)
+    Pinv = ca.solve(Pbar + FLOOR * ca.DM.eye(nx), ca.DM.eye(nx), "ldl")
+    dx0 = X[:, 0] - xbar
+    E0 = ca.vertcat(ca.DM.eye(nx), ca.DM(nx * N, nx))       # structurally sparse: H stays block-tridiagonal
+    H = ca.mtimes(J.T, J) + ca.mtimes([E0, Pinv, E0.T])
+    g = ca.mtimes(J.T, r) + ca.mtimes(E0, ca.mtimes(Pinv, dx0))
+    cost = 0.5 * (ca.sumsqr(r) + ca.dot(dx0, ca.mtimes(Pinv, dx0)))
+    # the Gauss-Newton step and the last node's covariance by CasADi's sparse LDL: the Hessian
+    # is block-tridiagonal, and no threaded BLAS gets involved (on a loaded 2-core machine a
+    # threaded dense Cholesky took 3 ms, an 11 x 11 triangular solve 5 ms)
+    E = ca.DM.zeros(nx * (N + 1), nx)
+    E[nx * N:, :] = ca.DM.eye(nx)
+    d = -ca.solve(H, g, "ldl")
+    Pn = ca.solve(H, E, "ldl")[nx * N:, :]
+    ins, names = [w, xbar, Pbar, UH, Ym, Wm, pm, qm], ["w", "xbar", "Pbar", "UH", "Y", "Wm", "p", "q"]
+    cname = em.model.cname
+    gn = ca.Function(f"{cname}_mhe_gn", ins, [H, g, cost, d, Pn], names, ["H", "g", "cost", "d", "P"])
+    step = ca.Function(f"{cname}_mhe_step", ins, [d, Pn], names, ["d", "P"])
+    return gn, step
 
 
 def _bind(fn: ca.Function):
@@ -93,7 +142,10 @@ class MHE(ObservabilityMixin, StateEstimator):
         options = for_rig(options, context.model, context.params)      # unit-carrying defaults from the rig
         super().__init__(options, context)
         from dataclasses import replace
-        self.ekf = EKF(replace(options.ekf_options(), check_observability=False), context)
+        # the compiled update runs its own EKF (csrc/ss_mhe.c): this one then only gives its model
+        c_core = options.compile and options.qpsol == "ldl"
+        self.ekf = EKF(replace(options.ekf_options(), check_observability=False,
+                               compile=options.ekf_options().compile and not c_core), context)
         em = self.em = self.ekf.em
         self.names, self.channels = em.names, em.channels
         nx, ny, N, nuh, npar = em.nx, em.ny, options.window, em.nuh, len(em.p)
@@ -111,61 +163,6 @@ class MHE(ObservabilityMixin, StateEstimator):
         hk = em.h(xk, uk, p)
         meas = ca.Function(f"{em.model.cname}_mhe_meas", [xk, uk, p], [hk, ca.jacobian(hk, xk)],
                            ["x", "uh", "p"], ["h", "C"])
-        self.compiled, self.compile_status = False, "not requested"
-        if options.compile:
-            try:
-                so = compile_cached([stage, meas], tag=f"{em.model.cname}_mhe")
-                stage = ca.external(stage.name(), str(so))
-                meas = ca.external(meas.name(), str(so))
-                self.compiled, self.compile_status = True, f"compiled ({so.name})"
-            except Exception as exc:
-                self.compile_status = f"compile failed, using SX: {exc}"
-        self.stage, self.meas = stage, meas
-
-        # one MX Function: w and the data -> Gauss-Newton Hessian J'J, gradient J'r, cost
-        w = ca.MX.sym("w", nx * (N + 1))
-        xbar, Pbar = ca.MX.sym("xbar", nx), ca.MX.sym("Pbar", nx, nx)
-        UH = ca.MX.sym("UH", nuh, N + 1)
-        Ym, Wm = ca.MX.sym("Y", ny, N + 1), ca.MX.sym("Wm", ny, N + 1)     # Wm = mask / sqrt(r)
-        pm, qm = ca.MX.sym("p", npar), ca.MX.sym("q", nx)
-        X = ca.reshape(w, nx, N + 1)
-        gaps, Jas, iqs = stage.map(N)(X[:, :N], X[:, 1:], UH[:, 1:], ca.repmat(pm, 1, N), ca.repmat(qm, 1, N))
-        Hs, Cs = meas.map(N + 1)(X, UH, ca.repmat(pm, 1, N + 1))
-        r_meas = ca.vec(Wm * (Ym - Hs))
-        Jblocks = ca.horzsplit(Jas, nx)
-        Iblocks = [ca.diag(iqs[:, k]) for k in range(N)]
-        J_dyn = ca.horzcat(ca.diagcat(*Jblocks), ca.MX(nx * N, nx)) + ca.horzcat(ca.MX(nx * N, nx),
-                                                                                  ca.diagcat(*Iblocks))
-        Cblocks = ca.horzsplit(Cs, nx)
-        J_meas = ca.diagcat(*[ca.mtimes(ca.diag(Wm[:, k]), Cblocks[k]) for k in range(N + 1)])
-        J = ca.vertcat(J_dyn, -J_meas)
-        r = ca.vertcat(ca.vec(gaps), r_meas)
-        # the arrival term |x_0 - xbar|^2 in the metric Pbar^-1 (an LDL solve, no explicit inverse:
-        # Pbar is nearly singular along exact constraints such as a zero: state and its twist)
-        Pinv = ca.solve(Pbar + FLOOR * ca.DM.eye(nx), ca.DM.eye(nx), "ldl")
-        dx0 = X[:, 0] - xbar
-        E0 = ca.vertcat(ca.DM.eye(nx), ca.DM(nx * N, nx))       # structurally sparse: H stays block-tridiagonal
-        H = ca.mtimes(J.T, J) + ca.mtimes([E0, Pinv, E0.T])
-        g = ca.mtimes(J.T, r) + ca.mtimes(E0, ca.mtimes(Pinv, dx0))
-        cost = 0.5 * (ca.sumsqr(r) + ca.dot(dx0, ca.mtimes(Pinv, dx0)))
-        # the Gauss-Newton step and the last node's covariance by CasADi's sparse LDL: the Hessian
-        # is block-tridiagonal, and no threaded BLAS gets involved (on a loaded 2-core machine a
-        # threaded dense Cholesky took 3 ms, an 11 x 11 triangular solve 5 ms)
-        E = ca.DM.zeros(nx * (N + 1), nx)
-        E[nx * N:, :] = ca.DM.eye(nx)
-        d = -ca.solve(H, g, "ldl")
-        Pn = ca.solve(H, E, "ldl")[nx * N:, :]
-        self.gn = ca.Function(f"{em.model.cname}_mhe_gn", [w, xbar, Pbar, UH, Ym, Wm, pm, qm],
-                              [H, g, cost, d, Pn],
-                              ["w", "xbar", "Pbar", "UH", "Y", "Wm", "p", "q"], ["H", "g", "cost", "d", "P"])
-        if options.qpsol == "ldl":
-            self.qp = None
-        else:
-            self.qp = ca.conic("mhe_qp", options.qpsol, {"h": H.sparsity(), "a": ca.Sparsity(0, nx * (N + 1))},
-                               {"error_on_fail": False, "osqp": {"verbose": False}})
-        self._gn_in, self._gn_out, self._gn_buf, self._gn_eval = _bind(self.gn)
-        self._gn_in[6][:] = em.p
-        self._gn_in[7][:] = em.q
         self._lbw = np.tile(em.lb, N + 1)
         self._ubw = np.tile(em.ub, N + 1)
 
@@ -177,13 +174,43 @@ class MHE(ObservabilityMixin, StateEstimator):
         Pn = ca.mtimes([A, Pa, A.T]) + ca.diag(ca.DM(em.q) + em.stick(xa, ua, pa))
         self.arrival = ca.Function(f"{em.model.cname}_mhe_arrival", [xa, Pa, ua, pa], [xn, 0.5 * (Pn + Pn.T)],
                                    ["x", "P", "uh", "p"], ["x_next", "P_next"])
-        self._ar_in, self._ar_out, self._ar_buf, self._ar_eval = _bind(self.arrival)
-        self._ar_in[3][:] = em.p
         # raw channels -> internal measurements: a linear map, and masks as products
         nc = len(self.channels)
         yr, mr = ca.SX.sym("y", nc), ca.SX.sym("m", nc)
         self._T = np.array(ca.evalf(ca.jacobian(em.to_internal(yr, mr)[0], yr)))
         self._mask_idx = [np.flatnonzero(em.dep[j]) for j in range(ny)]
+
+        # compiled: the whole update (this MHE's window step and its EKF) is one C call (csrc/ss_mhe.c)
+        self._c = None
+        self.compiled, self.compile_status = False, "not requested"
+        if options.compile and options.qpsol == "ldl":
+            self.gn, self.gn_step = _window_functions(em, stage, meas, N)
+            try:
+                self._c = CompiledMHE(self)
+                self.compiled, self.compile_status = True, f"compiled ({self._c.library.name})"
+            except SolverFailure as exc:
+                self.compile_status = f"compile failed, using the CasADi step: {exc}"
+        elif options.compile:
+            try:
+                so = compile_cached([stage, meas], tag=f"{em.model.cname}_mhe")
+                stage = ca.external(stage.name(), str(so))
+                meas = ca.external(meas.name(), str(so))
+                self.compiled, self.compile_status = True, f"compiled ({so.name})"
+            except Exception as exc:
+                self.compile_status = f"compile failed, using SX: {exc}"
+        self.stage, self.meas = stage, meas
+        if self._c is None and not hasattr(self, "gn"):
+            self.gn, self.gn_step = _window_functions(em, stage, meas, N)
+        if options.qpsol == "ldl":
+            self.qp = None
+        else:
+            self.qp = ca.conic("mhe_qp", options.qpsol, {"h": self.gn.sparsity_out(0), "a": ca.Sparsity(0, nx * (N + 1))},
+                               {"error_on_fail": False, "osqp": {"verbose": False}})
+        self._gn_in, self._gn_out, self._gn_buf, self._gn_eval = _bind(self.gn)
+        self._gn_in[6][:] = em.p
+        self._gn_in[7][:] = em.q
+        self._ar_in, self._ar_out, self._ar_buf, self._ar_eval = _bind(self.arrival)
+        self._ar_in[3][:] = em.p
 
         # the last N+1 samples, and the EKF's estimate one sample before the window
         self._Y = deque(maxlen=N + 1)      # internal measurements (NaN-free)
@@ -206,6 +233,8 @@ class MHE(ObservabilityMixin, StateEstimator):
         return yi, mi
 
     def _update_impl(self, t, y, mask, u):
+        if self._c is not None:
+            return self._update_compiled(t, y, mask, u)
         e_ekf = self.ekf.update(t, dict(zip(self.channels, y)), u)     # runs every step (fallback, warm start)
         if e_ekf.status is Status.FALLBACK:
             raise SolverFailure(f"EKF alongside failed: {e_ekf.message}")
@@ -281,8 +310,30 @@ class MHE(ObservabilityMixin, StateEstimator):
         status, msg = self._status(mask, P)
         return Estimate(t, x, P, self.names, status, msg, bool(mask.any()))
 
+    def _update_compiled(self, t, y, mask, u):
+        """The same update as one compiled C call (``csrc/ss_mhe.c``, its EKF inside); a failure raises
+        SolverFailure and :meth:`_fallback` returns the EKF's estimate the C core kept."""
+        c = self._c
+        info = c.update(np.where(mask, y, np.nan), u)
+        self._c_corrected = bool(info.ekf.corrected)
+        if info.failed:
+            why = MHE_FAILURES.get(info.failed, f"failure {info.failed}")
+            if info.failed == 1:
+                why += ": fallback: SolverFailure: non-finite estimate (prediction only)"
+            raise SolverFailure(why)
+        x, P = c.x, c.P
+        status, msg = self._status(mask, P)
+        if info.filling:
+            return Estimate(t, x, P, self.names, status,
+                            f"{msg}; window filling ({info.filling}/{self.N + 1}): EKF estimate", self._c_corrected)
+        self.iterations += self.options.max_iter
+        return Estimate(t, x, P, self.names, status, msg, bool(mask.any()))
+
     def _fallback(self, t, y, mask, u, message):
         """The EKF's estimate of this step (it ran before the MHE's solve)."""
+        if self._c is not None:
+            return Estimate(t, self._c.x, self._c.P, self.names, Status.FALLBACK, f"{message} (EKF estimate)",
+                            getattr(self, "_c_corrected", False))
         e = self.ekf.last
         if e is None or e.t != t:
             e = self.ekf.update(t, dict(zip(self.channels, y)), u)

@@ -94,6 +94,7 @@ void sse_set(sse_mem* m, const double* x, const double* P) {
 const double* sse_x(const sse_mem* m) { return m->x; }
 const double* sse_P(const sse_mem* m) { return m->P; }
 const double* sse_x0_used(const sse_mem* m) { return m->x0_used; }
+const double* sse_uh(const sse_mem* m) { return m->uh; }
 
 /* the fused step: (x, P, uh, y, m, p, q, r) -> (x_next, P_next) */
 static int fused(sse_mem* m, const double* ym, const double* mask) {

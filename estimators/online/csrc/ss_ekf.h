@@ -42,6 +42,8 @@ const double* sse_x(const sse_mem* m);
 const double* sse_P(const sse_mem* m);
 /* the prior mean the first update started from (after the first sample's speeds and zeros) */
 const double* sse_x0_used(const sse_mem* m);
+/* the input history of the last update (nu * (delay + 1): the newest sample's inputs first) */
+const double* sse_uh(const sse_mem* m);
 
 #ifdef __cplusplus
 }
