@@ -124,8 +124,11 @@ def test_bad_exports_are_one_line_refusals_and_write_nothing(tmp_path, capsys):
                                           r"brake$"):
         export_controller(MAIN, "speed supervisor", out)
     sc = load_scenario(MAIN)
-    with pytest.raises(ConfigError, match=r"estimator.kind = 'mhe'; export supports the EKF"):
-        export_controller(replace(sc, estimator={"kind": "mhe"}), "NMPC", out)
+    with pytest.raises(ConfigError, match=r"estimator.kind = 'fd'; export supports the EKF and the MHE$"):
+        export_controller(replace(sc, estimator={"kind": "fd"}), "NMPC", out)
+    with pytest.raises(ConfigError, match=r"the MHE did not compile its update .*; export needs a C compiler and "
+                                          r"qpsol = 'ldl'$"):
+        export_controller(replace(sc, estimator={"kind": "mhe", "qpsol": "osqp"}), "NMPC", out)
     with pytest.raises(ConfigError, match=r"^build_type: expected one of Release, Debug; got 'Fast'$"):
         export_controller(MAIN, "NMPC", out, build_type="Fast")
     assert not out.exists()

@@ -6,9 +6,9 @@ scenario's estimator, a self-contained folder::
 
     include/<prefix>.h      the API: create(params) / step(t, in, out) / reset / destroy, the layout
                             of in[], out[] and params[] with names and units
-    src/                    the C cores (the workbench's own: ss_nmpc.c or ss_laws.c, ss_ekf.c,
-                            ss_common.c), the CasADi-generated functions, the glue with the exported
-                            defaults
+    src/                    the C cores (the workbench's own: ss_nmpc.c or ss_laws.c, ss_ekf.c and
+                            with an MHE ss_mhe.c, ss_common.c), the CasADi-generated functions, the
+                            glue with the exported defaults
     vendor/                 hpipm and blasfeo as the casadi wheel ships them, for the NMPC
                             (mitigate.export.files)
     test/replay.c           the workbench's logged run through the library, checked to 1e-9, with
@@ -21,9 +21,10 @@ scenario's estimator, a self-contained folder::
 Every kind exports through the same glue (:mod:`mitigate.export.glue`): the NMPC with any input set
 (:mod:`mitigate.export.nmpc`), SoftSpeed, Z-Torque, D-OSKIL and the brake
 (:mod:`mitigate.export.laws`) each describe their commands, channels, runtime parameters and a small
-C adapter.  The workbench's controllers and EKF run these very cores (the NMPC's and the laws'
-``implementation = "c"``, the EKF's ``compile = true``), so the exported controller and the
-benchmarked one cannot drift; the reference run checks it.
+C adapter.  The estimator is the scenario's: the EKF, or the MHE with its EKF alongside.  The
+workbench's controllers and estimators run these very cores (the NMPC's and the laws'
+``implementation = "c"``, the EKF's and the MHE's ``compile = true``), so the exported controller
+and the benchmarked one cannot drift; the reference run checks it.
 """
 
 from __future__ import annotations
@@ -120,15 +121,15 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
     Raises
     ------
     ConfigError : an unknown controller, a kind that does not export, an estimator other than the
-        EKF, ``out`` that exists; ``fmu`` without a C compiler and cmake; nothing is written then.
+        EKF or the MHE (with ``qpsol = "ldl"``), ``out`` that exists; ``fmu`` without a C compiler and cmake; nothing is written then.
     RuntimeError : ``fmu`` and the FMU's build failed; nothing is written then.
     """
-    from estimators.online.compiled import EKF_CONFIG, EKF_SOURCES, ekf_functions
+    from estimators.online.compiled import EKF_CONFIG, EKF_SOURCES, MHE_CONFIG
     from mitigate.controllers.factory import context_for, make_controller
     from mitigate.export.driver import write_driver
     from mitigate.export.files import cmake_lists, makefile, readme, replay_program, vendor_hpipm
     from mitigate.export.fmu import fmu_tools, write_fmu
-    from mitigate.export.glue import glue_source
+    from mitigate.export.glue import estimator_functions, estimator_sources, glue_source, is_mhe
     from mitigate.scenario import Scenario, load_scenario
 
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
@@ -138,9 +139,8 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
         raise ConfigError(f"{sc.where}: controller {controller!r} is of kind {spec.kind!r}; export supports "
                           f"{', '.join(EXPORTABLE)}")
     est_kind = (sc.estimator or {}).get("kind", "ekf")
-    if est_kind != "ekf":
-        raise ConfigError(f"{sc.where}: estimator.kind = {est_kind!r}; export supports the EKF (the MHE is not "
-                          f"exported yet)")
+    if est_kind not in ("ekf", "mhe"):
+        raise ConfigError(f"{sc.where}: estimator.kind = {est_kind!r}; export supports the EKF and the MHE")
     check_build_type(build_type)
     if fmu:
         fmu_tools()
@@ -157,26 +157,30 @@ def export_controller(scenario, controller: str, out, *, reference: float | None
                           + ("solver = 'rti' or 'sqp', qp_solver = 'hpipm', compile = true, implementation = 'c')"
                              if spec.kind == "nmpc" else "implementation = 'c' and a C compiler)"))
     ekf = _estimator(sc)
-    if not getattr(ekf, "compiled", False):
-        raise ConfigError(f"{sc.where}: the EKF did not compile ({getattr(ekf, 'compile_status', '')}); export needs "
-                          f"a C compiler")
+    if not getattr(ekf, "compiled", False) or (est_kind == "mhe" and not is_mhe(ekf)):
+        raise ConfigError(f"{sc.where}: the {est_kind.upper()} did not compile its update "
+                          f"({getattr(ekf, 'compile_status', '')}); export needs a C compiler"
+                          + (" and qpsol = 'ldl'" if est_kind == "mhe" else ""))
     if list(ekf.em.p) != list(ctx.params.vector()):
         raise ConfigError("export: the estimator's and the controller's rig parameters differ; export needs one set")
     kind = _kind(spec.kind)(ctrl, ekf)
     funs = f"{prefix}_gen"
-    gen_src, gen_hdr = generate(list(kind.functions) + list(ekf_functions(ekf)), funs)
+    gen_src, gen_hdr = generate(list(kind.functions) + list(estimator_functions(ekf)), funs)
     glue, hdr, itf = glue_source(prefix, kind, sc.model, ctx.params, ekf, sc.control.every, sc.sim.start != "sliding",
                                  funs)
     src = read_source("ss_common.h", "ss_common.c", folder=CSRC)
     src.update(kind.sources)
-    src.update(read_source("ss_ekf.h", "ss_ekf.c", folder=EKF_SOURCES))
+    src.update(read_source(*estimator_sources(ekf), folder=EKF_SOURCES))
     src["ss_ekf_config.h"] = EKF_CONFIG.header()
+    if is_mhe(ekf):
+        src["ss_mhe_config.h"] = MHE_CONFIG.header()
     src[f"{funs}.c"], src[f"{funs}_funs.h"] = gen_src, gen_hdr
     src[f"{prefix}.c"] = glue
     sources = sorted(n for n in src if n.endswith(".c"))
     notes = list(kind.notes) + [
-        f"the EKF: its states ({', '.join(ekf.names)}), noise levels and prior, from the rig file and the "
-        f"scenario's sensors",
+        (f"the MHE (window {ekf.N}, {ekf.options.max_iter} Gauss-Newton iteration(s) a sample) with its EKF alongside: "
+         if is_mhe(ekf) else "the EKF: ")
+        + f"its states ({', '.join(ekf.names)}), noise levels and prior, from the rig file and the scenario's sensors",
         f"the DAQ period {sc.dt:g} s; the controller runs every {sc.control.every} period(s)",
         "changing a rig parameter changes the estimator (and an NMPC's prediction), not the settings derived "
         "from it above: re-export for a rig that changed much"]

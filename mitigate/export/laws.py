@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from mitigate.controllers.compiled import LAW_CONFIG, LAW_SOURCES
-from mitigate.export.glue import KindExport, Layout, c_array
+from mitigate.export.glue import KindExport, Layout, c_array, estimator_title
 from mitigate.export.interface import Port
 from models.cbuild import read_source
 
@@ -100,7 +100,7 @@ def law_export(law, ekf) -> KindExport:
         return _ADAPTER.format(defs=defs, tables=tables, sets=sets,
                                law_default=LAW_CONFIG.c_initialiser("law_default", config))
 
-    what = f"{_TITLES[law.kind]} ({command}) with an EKF on rig {m.name!r}"
+    what = f"{_TITLES[law.kind]} ({command}) with {estimator_title(ekf)} on rig {m.name!r}"
     uses_estimate = (law.kind == "brake" and config["use_estimate"]) or config["est_body"]
     notes = (f"the law's structure: it reads {', '.join(channels)}"
              + (" and the estimate's " + ", ".join(n for n in estimates if n in ekf.em.names) if uses_estimate else "")

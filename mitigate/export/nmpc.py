@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from mitigate.controllers.nmpc.compiled import NMPC_CONFIG, NMPC_SOURCES, channels_read, nmpc_config
 from mitigate.controllers.nmpc.options import WEIGHT_NAMES
-from mitigate.export.glue import KindExport, Layout, c_array
+from mitigate.export.glue import KindExport, Layout, c_array, estimator_title
 from mitigate.export.interface import Port
 from models.cbuild import read_source
 
@@ -69,7 +69,7 @@ def nmpc_export(nmpc, ekf) -> KindExport:
              f"the supervision: stick-slip period {nmpc.stick_slip_period:.4g} s, hold gain {nmpc.cfg.hold_gain:g}, "
              f"speed trim {nmpc.supervisor.trim_tau:.4g} s, force filter {nmpc.cfg.force_filter:.4g} s",
              "the cost's scales (the nominal speed, the servos' n_max at export)")
-    return KindExport(what=f"the NMPC ({', '.join(nmpc.inputs)}) with an EKF on rig {m.name!r}",
+    return KindExport(what=f"the NMPC ({', '.join(nmpc.inputs)}) with {estimator_title(ekf)} on rig {m.name!r}",
                       commands=tuple(nmpc.inputs), channels=channels_read(nmpc), target=True, params=_params(nmpc),
                       functions=(nmpc.ocp.evaluator.fn, nmpc.ocp.F), sources=files, adapter=adapter, qp=True,
                       notes=notes)
