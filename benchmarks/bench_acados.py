@@ -43,7 +43,7 @@ on this machine), cached by content under ``~/.cache/stickslip/acados``.
 
 Examples::
 
-    python benchmarks/bench_acados.py --quick                       # N = 20, 2 s, 1 round (acados if found)
+    python benchmarks/bench_acados.py --quick                       # N = 20, 0.5 s, 1 round (acados if found)
     python benchmarks/bench_acados.py --out benchmarks/results/nmpc_acados.md
     python benchmarks/bench_acados.py --horizons 20 --rounds 3 --qp partial full --cost external conl
     python benchmarks/bench_acados.py --side ours                   # the workbench's side only
@@ -288,7 +288,8 @@ def _machine() -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true",
-                    help="N = 20, 2 s, 1 round, partial condensing (a smoke run for CI; acados only if found)")
+                    help="N = 20, 0.5 s (10 plans), 1 round, partial condensing (a smoke run for CI; acados only "
+                         "if found)")
     ap.add_argument("--horizons", type=int, nargs="+", default=[20, 50])
     ap.add_argument("--duration", type=float, default=8.0, help="closed-loop seconds")
     ap.add_argument("--rounds", type=int, default=2, help="interleaved rounds (ours, acados; the order alternates)")
@@ -317,7 +318,7 @@ def main(argv=None) -> int:
         Path(args.json).write_text(json.dumps(time_ours(args.worker_ours, args.duration, args.qp_tol)))
         return 0
     if args.quick:
-        args.horizons, args.duration, args.rounds, args.qp, args.cost = [20], 2.0, 1, ["partial"], ["external"]
+        args.horizons, args.duration, args.rounds, args.qp, args.cost = [20], 0.5, 1, ["partial"], ["external"]
     from mitigate.controllers.nmpc import MAX_HORIZON
     bad = ([f"--horizons must be 1..{MAX_HORIZON}, got {h}" for h in args.horizons if not 1 <= h <= MAX_HORIZON]
            + ([f"--duration must be >= 0.2 s (a few plans), got {args.duration:g}"] if not args.duration >= 0.2 else [])

@@ -18,7 +18,7 @@ Medians and 95th percentiles over the calls after the first 50 with the controll
 Usage::
 
     python benchmarks/bench_laws.py [--duration 60] [--out benchmarks/results/export.md]
-    python benchmarks/bench_laws.py --quick     # SoftSpeed only, 21 s, prints (CI)
+    python benchmarks/bench_laws.py --quick     # SoftSpeed only, 21 s, a Debug build, prints (CI)
 
 ``--out`` replaces only this script's section of the file (between its markers).
 """
@@ -47,8 +47,8 @@ def _stats(x) -> tuple[float, float]:
     return float(np.median(x)), float(np.percentile(x, 95))
 
 
-def measure(name: str, duration: float, folder: Path) -> dict:
-    """The three timings of one law [us]."""
+def measure(name: str, duration: float, folder: Path, build_type: str = "Release") -> dict:
+    """The three timings of one law [us] (``build_type``: the library's, Release as measured)."""
     from estimators.base import Estimate
     from mitigate.controllers.exported import ExportedLibrary
     from mitigate.controllers.factory import context_for, make_controller
@@ -56,7 +56,7 @@ def measure(name: str, duration: float, folder: Path) -> dict:
     from mitigate.scenario import load_scenario
 
     res = export_controller(MAIN, name, folder / "x", reference=duration)
-    build_export(res.out)
+    build_export(res.out, build_type=build_type)
     lib = ExportedLibrary(res.out)
     data = np.loadtxt(res.out / "test" / "reference.csv", delimiter=",", skiprows=1)
     n_in = len(res.interface.inputs)
@@ -95,7 +95,7 @@ def measure(name: str, duration: float, folder: Path) -> dict:
             "wb_c": _stats(1e6 * np.array(py["c"][skip:])), "wb_py": _stats(1e6 * np.array(py["python"][skip:]))}
 
 
-def table(rows: list[dict], command: str, duration: float) -> str:
+def table(rows: list[dict], command: str, duration: float, build: str = "-O2") -> str:
     head = ("| law | calls | C: the law's call, median / p95 [us] | C: exported step (EKF + law) [us] | "
             "workbench, compiled (ctypes) [us] | workbench, Python reference [us] |\n|---|---|---|---|---|---|\n")
     body = "".join(f"| {r['law']} | {r['calls']} | {r['law_c'][0]:.3f} / {r['law_c'][1]:.3f} | "
@@ -104,7 +104,7 @@ def table(rows: list[dict], command: str, duration: float) -> str:
     return (f"{BEGIN}\n## The laws' compiled steps (SoftSpeed, Z-Torque, D-OSKIL, brake)\n\n"
             f"Command: `{command}`\n\n"
             f"The main scenario's laws exported with its EKF (rig3, 10 ms DAQ), {duration:g} s of the workbench's run "
-            f"replayed through each library built with CMake (-O2); the calls with the controller on, the first 50 "
+            f"replayed through each library built with CMake ({build}); the calls with the controller on, the first 50 "
             f"left out.  \"C\" columns: timed inside the library by its own clock (`last_solve_time`: the clock "
             f"around `ssl_step`, the clock's own cost included; `last_step_time`: the whole step).  Workbench "
             f"columns: `Controller.step` on the same samples, timed with `time.perf_counter` (its Python included).  "
@@ -130,23 +130,29 @@ def main(argv=None) -> int:
     p.add_argument("--duration", type=float, default=60.0, help="seconds of the scenario replayed (default 60)")
     p.add_argument("--laws", nargs="+", default=list(LAWS), choices=LAWS, help="the laws (default: all)")
     p.add_argument("--out", default=None, help="markdown file whose section to (re)write (default: print only)")
-    p.add_argument("--quick", action="store_true", help="SoftSpeed only, 21 s, print (CI smoke run)")
+    p.add_argument("--quick", action="store_true",
+                   help="SoftSpeed only, 21 s, a Debug build (-O0 -g: compiles faster; its times are not the "
+                        "Release ones) on all cores, print (CI smoke run)")
     a = p.parse_args(argv)
     if shutil.which("cmake") is None:
         print("bench_laws: needs cmake and a C compiler", file=sys.stderr)
         return 2
     laws, duration = (["SoftSpeed"], 21.0) if a.quick else (a.laws, a.duration)
+    build_type = "Debug" if a.quick else "Release"
+    if a.quick:
+        os.environ.setdefault("CMAKE_BUILD_PARALLEL_LEVEL", str(os.cpu_count() or 1))  # its files side by side
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_laws_") as tmp:
         for k, name in enumerate(laws):
             folder = Path(tmp) / str(k)
             folder.mkdir()
-            rows.append(measure(name, duration, folder))
+            rows.append(measure(name, duration, folder, build_type))
             print(f"{name}: {rows[-1]}", flush=True)
-    command = "python benchmarks/bench_laws.py" + ("" if a.duration == 60.0 else f" --duration {a.duration:g}") + \
+    command = "python benchmarks/bench_laws.py" + (" --quick" if a.quick else "") + \
+        ("" if a.duration == 60.0 else f" --duration {a.duration:g}") + \
         (f" --laws {' '.join(repr(x) for x in a.laws)}" if tuple(a.laws) != LAWS else "") + \
         (f" --out {a.out}" if a.out else "")
-    text = table(rows, command, duration)
+    text = table(rows, command, duration, "-O0 -g, Debug: --quick" if a.quick else "-O2")
     print(text)
     if a.out and not a.quick:
         write_section(Path(a.out), text)

@@ -11,6 +11,9 @@ Measures
 - the lead-screw step-size check (substep 20 us vs 5 us).
 
 Run:  python benchmarks/bench_sweep.py [--quick] [--out benchmarks/results/sweep.md]
+
+``--quick`` (CI smoke run, every stage on the smallest size): a 3 x 3 grid of 5 s runs (metrics over the
+last 2.5 s), 2 points per per-point baseline, one lead-screw case of 0.1 s.
 """
 
 from __future__ import annotations
@@ -46,17 +49,19 @@ def p95(xs):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true",
-                    help="6 x 6 grid instead of 50 x 50; writes no file unless --out is given (a smoke run for CI)")
+                    help="3 x 3 grid of 5 s runs instead of 50 x 50 of 30 s, 2 points per per-point baseline, one "
+                         "lead-screw case of 0.1 s; writes no file unless --out is given (a smoke run for CI)")
     ap.add_argument("--out", default=None, help="markdown file to write (default: benchmarks/results/sweep.md, "
                                                 "none with --quick)")
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args(argv)
     if args.out is None and not args.quick:
         args.out = str(ROOT / "benchmarks" / "results" / "sweep.md")
-    n = 6 if args.quick else 50
+    n = 3 if args.quick else 50
     sc = load_scenario(ROOT / "scenarios" / "sweep_rig3.toml")
     axes = [parse_axis(f"omega_ref=1:8:{n}"), parse_axis(f"n1=5:40:{n}")]
-    opts = options_from_scenario(sc, start="rest", duration=30.0, settle=15.0)
+    opts = options_from_scenario(sc, start="rest", duration=5.0 if args.quick else 30.0,
+                                 settle=2.5 if args.quick else 15.0)
     plan = plan_sweep(sc, axes, opts)
     npts = plan.n_points
     rows = []
@@ -115,7 +120,8 @@ def main(argv=None) -> int:
                      per * npts / chunk_pts, per, None, npts))
 
     # --- per-point baselines on a subset
-    idx = np.linspace(0, npts - 1, 6).astype(int)
+    idx = np.linspace(0, npts - 1, 2 if args.quick else 6).astype(int)
+    n_ivp = 2 if args.quick else 4
     times = []
     for j in idx:
         tt = time.perf_counter()
@@ -123,13 +129,14 @@ def main(argv=None) -> int:
                  sensors=None)
         times.append(time.perf_counter() - tt)
     t_sim = statistics.median(times)
-    rows.append(("per-point loop, models.plant.simulate (6 pts, extrapolated)", t_sim * npts, t_sim, p95(times), npts))
+    rows.append((f"per-point loop, models.plant.simulate ({len(idx)} pts, extrapolated)", t_sim * npts, t_sim,
+                 p95(times), npts))
 
     from scipy.integrate import solve_ivp
     f = model.ode()
     times = []
     amp_ivp = []
-    for j in idx[:4]:
+    for j in idx[:n_ivp]:
         u = plan.point_input(j)
         p = plan.P[j]
         fun = lambda t, x, u=u, p=p: np.asarray(f(x, u, p)).ravel()  # noqa: E731
@@ -139,18 +146,20 @@ def main(argv=None) -> int:
         times.append(time.perf_counter() - tt)
         amp_ivp.append(mx.amplitude(sol.y[model.speed_index('R1'), opts.settle_steps + 1:]))
     t_ivp = statistics.median(times)
-    rows.append(("per-point loop, scipy solve_ivp LSODA, regularised model (4 pts, extrapolated)",
+    rows.append((f"per-point loop, scipy solve_ivp LSODA, regularised model ({n_ivp} pts, extrapolated)",
                  t_ivp * npts, t_ivp, p95(times), npts))
 
     # --- lead-screw step-size check
     ls = get_model("leadscrew")
     lp = ls.published()
     conv = []
-    for (w, R) in ((40.3, 314.3), (80.0, 350.0), (20.0, 350.0)):
+    ls_cases = ((40.3, 314.3),) if args.quick else ((40.3, 314.3), (80.0, 350.0), (20.0, 350.0))
+    ls_dur = 0.1 if args.quick else 0.5     # s; metrics over the second half
+    for (w, R) in ls_cases:
         a = []
         for dt, nsub in ((2e-4, 10), (5e-5, 10)):
-            r = simulate(ls, lp, np.array([w, R]), 0.5, SimOptions(dt=dt, nsub=nsub), sensors=None)
-            s = r.t > 0.25
+            r = simulate(ls, lp, np.array([w, R]), ls_dur, SimOptions(dt=dt, nsub=nsub), sensors=None)
+            s = r.t > ls_dur / 2
             a.append((mx.amplitude(r.x[s, 0]), mx.dominant_frequency(r.x[s, 1], dt)))
         conv.append((w, R, a[0], a[1]))
 
@@ -158,8 +167,9 @@ def main(argv=None) -> int:
     lines = [
         "# Sweep benchmark (`mitigate sweep`)",
         "",
-        f"Grid: rig3, {n} x {n} points (omega_ref 1-8 rad/s x N1 5-40 N), 30 s per run at dt = 10 ms, nsub = 10 "
-        f"(1 ms exact stick/slip RK4 substeps), from rest; metrics over the last 15 s. "
+        f"Grid: rig3, {n} x {n} points (omega_ref 1-8 rad/s x N1 5-40 N), {opts.duration:g} s per run at dt = 10 ms, "
+        f"nsub = 10 (1 ms exact stick/slip RK4 substeps), from rest; metrics over the last "
+        f"{opts.duration - opts.settle:g} s. "
         f"Load average at start: {load0:.1f} on {os.cpu_count()} cores (shared machine: other jobs were running). "
         f"Compile/load of the plant step: {t_compile:.2f} s (cached on disk after the first build).",
         "",
@@ -176,7 +186,8 @@ def main(argv=None) -> int:
         "the median by the number of points (chunks); the full-grid row is measured end to end (process start, "
         "CSV chunk writes and assembly included, no stability overlay).",
         "The solve_ivp baseline integrates the regularised (tanh, eps = 0.05 rad/s) model, i.e. not the exact "
-        f"stick/slip plant; its amplitudes at the 4 timed points: {', '.join(f'{a:.3g}' for a in amp_ivp)} rad/s.",
+        f"stick/slip plant; its amplitudes at the {n_ivp} timed points: "
+        f"{', '.join(f'{a:.3g}' for a in amp_ivp)} rad/s.",
         "",
         "## Lead-screw step size (seed 002 model, K and c of Fig. 9.23)",
         "",

@@ -4,7 +4,7 @@ of benchmarks/results/identify.md and the raw fits to benchmarks/results/identif
 Run from the repository root::
 
     PYTHONPATH=. python benchmarks/identify_coverage.py                 # 3 rigs x 50 seeds (hours: run it niced)
-    PYTHONPATH=. python benchmarks/identify_coverage.py --quick         # CI: 1 rig x 4 seeds, prints only
+    PYTHONPATH=. python benchmarks/identify_coverage.py --quick         # CI: 1 rig x 2 seeds, 6 s logs, prints only
     PYTHONPATH=. python benchmarks/identify_coverage.py --help
 
 For each rig (``benchmarks/_zoo_rigs.py``: zoo rigs and the user's rig) and each seed: a log of the
@@ -101,7 +101,8 @@ def summarise(rows) -> list[str]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="1 rig, 4 seeds, 10 s logs; prints only")
+    ap.add_argument("--quick", action="store_true",
+                    help="1 rig, 2 seeds (the fewest with a spread), 6 s logs; prints only")
     ap.add_argument("--seeds", type=int, default=50, help="logs per rig (default 50)")
     ap.add_argument("--rigs", default=",".join(RIGS), help=f"comma-separated cases (default {','.join(RIGS)})")
     ap.add_argument("--duration", type=float, default=20.0, help="log length [s] (default 20)")
@@ -109,7 +110,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-write", action="store_true", help="print the section only")
     args = ap.parse_args(argv)
     rigs = tuple(r.strip() for r in args.rigs.split(",") if r.strip())
-    seeds, duration = (4, 10.0) if args.quick else (args.seeds, args.duration)
+    seeds, duration = (2, 6.0) if args.quick else (args.seeds, args.duration)
     if args.quick:
         rigs = rigs[:1]
     if seeds < 2 or not duration > 2.0:

@@ -30,7 +30,7 @@ NMPC variants' median residual over the better of SoftSpeed and Z-Torque (target
 
 Usage::
 
-    python benchmarks/nmpc_residual.py --quick                       # 1 suite scenario, 1 phase, 1 seed
+    python benchmarks/nmpc_residual.py --quick                       # established, cut at 26 s; 1 phase, 1 seed
     python benchmarks/nmpc_residual.py --phases 3 --seeds 2          # suite + held-out
     python benchmarks/nmpc_residual.py --only suite --controllers nmpc nmpc_motor softspeed ztorque
     python benchmarks/nmpc_residual.py --scenarios scenarios/benchmark/drillstring.toml --nmpc horizon=40
@@ -48,6 +48,7 @@ import platform
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -119,15 +120,16 @@ def build(path: Path, *, seed: int | None = None, start: float | None = None, es
     return parse_scenario(data, str(path))
 
 
-def stick_slip_period(path: Path) -> tuple[float, float]:
-    """(period [s] of the uncontrolled stick-slip before the control start, control start [s])."""
+def stick_slip_period(path: Path, duration: float | None = None) -> tuple[float, float]:
+    """(period [s] of the uncontrolled stick-slip before the control start, control start [s]);
+    ``duration`` cuts the uncontrolled run of a scenario whose control starts after 0 s (``--quick``)."""
     import numpy as np
 
     from mitigate.closedloop import run_closed_loop
     from mitigate.controllers.factory import context_for, make_controller
     from models.signals import dominant_frequency, stick_slip_cycles
 
-    base = build(path, estimator="fd", controller=("PI only", "pi", {}))
+    base = build(path, estimator="fd", controller=("PI only", "pi", {}), duration=duration)
     start = base.control.start
     if start <= 0:
         # prevention from rest: the stick-slip the uncontrolled run develops over 30 s
@@ -189,13 +191,13 @@ def run_metrics(res, sc, period: float) -> dict:
 
 
 def job(args) -> dict:
-    path, cname, kind, opts, seed, start, estimator, period, latency = args
+    path, cname, kind, opts, seed, start, estimator, period, latency, duration = args
     from mitigate.closedloop import run_closed_loop
     from mitigate.controllers.factory import context_for, make_controller
     t0 = time.perf_counter()
     try:
         sc = build(Path(path), seed=seed, start=start, estimator=estimator, controller=(cname, kind, opts),
-                   latency=latency)
+                   latency=latency, duration=duration)
         res = run_closed_loop(sc, make_controller(sc.controllers[0], context_for(sc, 0)))
         met = run_metrics(res, sc, period)
     except Exception as exc:  # noqa: BLE001 - a failed build or run is a result of its own
@@ -276,7 +278,9 @@ def main(argv=None) -> int:
     ap.add_argument("--latency", help="[control] latency for every run: 'measured' (each answer applied after "
                                       "its measured computation time) or a time such as '3 ms'")
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--quick", action="store_true", help="established only, 1 phase, 1 seed, NMPC motor vs SoftSpeed")
+    ap.add_argument("--quick", action="store_true",
+                    help="established only, cut at 26 s (control from 20 s), 1 phase, 1 seed, NMPC motor vs "
+                         "SoftSpeed, one worker process")
     ap.add_argument("--json", action="store_true", help="one JSON document on stdout")
     ap.add_argument("--out", type=Path, help="write the markdown tables here")
     args = ap.parse_args(argv)
@@ -285,8 +289,11 @@ def main(argv=None) -> int:
         return 2
     files = args.scenarios or scenario_files(args.only)
     ctrls = args.controllers
+    duration = None   # each file's own
     if args.quick:
         files, ctrls, args.phases, args.seeds = [SUITE / "established.toml"], ["nmpc_motor", "softspeed"], 1, 1
+        duration = 26.0   # control from 20 s: 6 s of it (a 3 s residual window)
+        args.jobs = 1     # one worker process: one start-up instead of two for three runs
     for f in files:
         if not Path(f).is_file():
             print(f"nmpc_residual: scenario file {f} not found", file=sys.stderr)
@@ -295,7 +302,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     ctx = get_context("spawn")
     with ProcessPoolExecutor(max_workers=args.jobs, mp_context=ctx) as ex:
-        periods = dict(zip(files, ex.map(stick_slip_period, files)))
+        periods = dict(zip(files, ex.map(partial(stick_slip_period, duration=duration), files)))
         jobs = []
         for f in files:
             T, start = periods[f]
@@ -309,7 +316,7 @@ def main(argv=None) -> int:
                 for s in range(args.seeds):
                     for st in starts:
                         jobs.append((str(f), name, kind, opts, base_seed + s, round(st, 6), args.estimator, T,
-                                     args.latency))
+                                     args.latency, duration))
         from tqdm import tqdm
         rows = list(tqdm(ex.map(job, jobs), total=len(jobs), desc="runs", disable=args.json or None, leave=False))
     elapsed = time.perf_counter() - t0
