@@ -134,8 +134,10 @@ class ObservabilityMixin:
         n = max(int(round(self.options.observability_window / em.dt)), 2)
         X = np.empty((n, em.nx))
         X[0] = em.x0
-        for k in range(1, n):
-            X[k] = np.array(em.F(X[k - 1], uh, em.p)).ravel()
+        # one call for the whole start-up (the same steps as a loop of F's calls, without their
+        # per-call conversions: 5000 samples of a 0.05 ms rig took 1.5 s that way)
+        X[1:] = np.array(em.F.mapaccum(n - 1)(em.x0, np.tile(uh[:, None], (1, n - 1)),
+                                              np.tile(np.asarray(em.p, float)[:, None], (1, n - 1)))).T
         if not np.all(np.isfinite(X)):
             raise ConfigError(f"{self.context.where}: the estimator's model diverges at the operating point "
                               f"{dict(zip(em.model.inputs, u))}; cannot check observability "

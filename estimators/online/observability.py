@@ -233,10 +233,14 @@ def observability(em, X, UH, *, min_gain: float = MIN_GAIN, lin: ca.Function | N
     rows, drows = [], []
     # a constant trajectory (steady sliding) has constant Jacobians: linearise once
     steady = bool(np.all(X == X[0]) and np.all(UH == UH[0]))
+    N = X.shape[0]
     if steady:
         A0, C0 = (np.array(v) for v in lin(X[0], X[0], UH[0], em.p))
-    for k in range(X.shape[0]):
-        A, C = (A0, C0) if steady else (np.array(v) for v in lin(X[k - 1] if k else X[0], X[k], UH[k], em.p))
+    else:      # every sample's Jacobians in one call (the per-call conversions were most of the time)
+        Xp = np.vstack([X[:1], X[:-1]])
+        AA, CC = (np.array(v) for v in lin.map(N)(Xp.T, X.T, UH.T, np.tile(np.asarray(em.p, float)[:, None], (1, N))))
+    for k in range(N):
+        A, C = (A0, C0) if steady else (AA[:, k * n:(k + 1) * n], CC[:, k * n:(k + 1) * n])
         if k:
             Phi = A @ Phi
             V = A @ V
