@@ -23,9 +23,11 @@ Also here: :mod:`estimators.twostep` (seed 002's two-step identification) and
 :mod:`estimators.thesis_id` (the thesis' own identification, recomputed from its raw data).
 """
 
+import importlib
+import sys
+import types
+
 from estimators.base import Estimate, EstimatorContext, StateEstimator
-from estimators.identify import (BootstrapOptions, BootstrapResult, FitResult, IdentificationProblem,
-                                 IdentifyOptions, LinearConstraint, bootstrap, identify, initial_guess)
 from estimators.online.ekf import EKF
 from estimators.online.factory import ESTIMATOR_KINDS, make_estimator
 from estimators.online.fd import FiniteDifference
@@ -41,3 +43,27 @@ __all__ = [
     "EKF", "MHE", "FiniteDifference", "EKFOptions", "MHEOptions", "FDOptions", "make_estimator", "ESTIMATOR_KINDS",
     "observability", "ObservabilityReport", "estimate_log", "EstimationResult",
 ]
+
+#: identification's names, imported on first use (PEP 562): a process that only runs a closed loop
+#: (every worker of `mitigate run` and `mitigate benchmark`) does not pay for importing it (0.2 s)
+_IDENTIFY = ("BootstrapOptions", "BootstrapResult", "FitResult", "IdentificationProblem", "IdentifyOptions",
+             "LinearConstraint", "bootstrap", "identify", "initial_guess")
+
+
+def __getattr__(name: str):
+    if name in _IDENTIFY:
+        return getattr(importlib.import_module("estimators.identify"), name)
+    raise AttributeError(f"module 'estimators' has no attribute {name!r}")
+
+
+class _Package(types.ModuleType):
+    """``estimators.identify`` is the function, as it was when this package imported it eagerly: the
+    import system binds the subpackage of that name here when it is first imported; keep the function."""
+
+    def __setattr__(self, name, value):
+        if name == "identify" and isinstance(value, types.ModuleType):
+            value = value.identify
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

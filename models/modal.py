@@ -48,7 +48,6 @@ from functools import cached_property
 
 import casadi as ca
 import numpy as np
-import scipy.linalg
 
 from models.errors import ConfigError
 from models.params import ParameterSet
@@ -306,6 +305,8 @@ def _modes_from_A(A: np.ndarray, dof_index: list[int], dof_names, model, variant
                   zero_tol: float = 1e-6) -> ModalResult:
     """One mode per complex pair (Im > 0) and per real eigenvalue; the zero cluster is one
     rigid-body mode."""
+    import scipy.linalg          # here: importing it costs every process that never asks for modes 0.4 s
+
     lam, V = scipy.linalg.eig(A)
     order = np.argsort(np.abs(lam), kind="stable")
     lam, V = lam[order], V[:, order]
