@@ -117,6 +117,18 @@ class EstimatorCounts:
         return dict(steps=self.steps, dropouts=self.dropouts, failures=self.failures, fallbacks=self.fallbacks)
 
 
+def _with_solve_time(est: Estimate, seconds: float) -> Estimate:
+    """``dataclasses.replace(est, solve_time=seconds)``; for an :class:`Estimate` itself (it has no
+    ``__post_init__``) without the generated ``__init__``'s field-by-field frozen assignments: this
+    runs every sample."""
+    if type(est) is not Estimate:
+        return replace(est, solve_time=seconds)
+    new = object.__new__(Estimate)
+    new.__dict__.update(est.__dict__)
+    new.__dict__["solve_time"] = seconds
+    return new
+
+
 class StateEstimator(ABC):
     """Template: :meth:`update` guards, times and counts; subclasses implement ``_update_impl``.
 
@@ -191,7 +203,7 @@ class StateEstimator(ABC):
             self._check_estimate(est)
         if est.status is Status.FALLBACK:
             self.counts.fallbacks += 1
-        est = replace(est, solve_time=time.perf_counter() - t0)
+        est = _with_solve_time(est, time.perf_counter() - t0)
         self.last = est
         return est
 

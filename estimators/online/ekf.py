@@ -347,7 +347,7 @@ class EKF(ObservabilityMixin, StateEstimator):
         first = self._uh is None
         self._push_input(u)
         c = self._c
-        info = c.update(np.where(mask, y, np.nan), u)
+        info = c.update(y, u)          # y is NaN where missing (StateEstimator.update); the core skips non-finite
         if first:
             self.x0_used = c.x0_used
         self.x, self.P = c.x, c.P
