@@ -279,7 +279,10 @@ class FastFunction:
         c = self._c
         if c is not None:
             for buf, a in zip(c.inputs, args):
-                buf[:] = np.ravel(np.asarray(a, dtype=float), order="F")
+                if type(a) is float or (type(a) is np.ndarray and a.ndim <= 1):
+                    buf[:] = a                      # the same values, without the ravel (every sample)
+                else:
+                    buf[:] = np.ravel(np.asarray(a, dtype=float), order="F")
             c()
             return [o.copy() for o in c.outputs]
         out = self.fn(*args)
