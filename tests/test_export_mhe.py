@@ -1,7 +1,8 @@
 """The MHE leaves the workbench too (issue 26): a scenario whose ``[estimator]`` is the MHE exports
 its controller with the MHE's compiled update (csrc/ss_mhe.c with its EKF alongside: the C the
 workbench's MHE runs with ``compile = true``).  Built with CMake, the library replays the workbench's
-own run -- commands and the MHE's estimates -- bit for bit, without allocating after ``create``."""
+own run -- commands and the MHE's estimates -- bit for bit, without allocating after ``create``; its
+FMU (the same sources) passes fmpy's validation and gives the library's outputs on that run."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import subprocess
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mitigate.export import build_export, export_controller
@@ -23,11 +25,11 @@ pytestmark = pytest.mark.skipif(shutil.which("cmake") is None or shutil.which("c
 
 
 @pytest.mark.slow
-def test_a_law_with_the_mhe_exports_and_replays_the_workbench_bit_for_bit(tmp_path):
+def test_a_law_with_the_mhe_exports_replays_the_workbench_bit_for_bit_and_its_fmu_agrees(tmp_path):
     sc = load_scenario(MAIN)
     sc = replace(sc, estimator={"kind": "mhe", "window": 10})
     # 24 s of the main scenario: stick-slip, the MHE's window filling and running, SoftSpeed from 20 s
-    res = export_controller(sc, "SoftSpeed", tmp_path / "x", reference=24.0)
+    res = export_controller(sc, "SoftSpeed", tmp_path / "x", reference=24.0, fmu=True, build_type="Debug")
     assert "ss_mhe.c" in " ".join(res.files) and "an MHE (window 10)" in (res.out / "README.md").read_text()
     so = build_export(res.out, build_type="Debug")
     r = subprocess.run([str(so.parent / f"{res.prefix}_replay"), str(res.out / "test" / "reference.csv")],
@@ -39,3 +41,16 @@ def test_a_law_with_the_mhe_exports_and_replays_the_workbench_bit_for_bit(tmp_pa
     assert out["allocations_after_create"] == "0" and out["failed"] == "0"
     outs = [p.name for p in res.interface.outputs]
     assert outs[0] == "omega_ref" and any(n.startswith("estimate:twist") for n in outs)
+    # the FMU: validated and simulated by fmpy on the reference run's inputs (tests/test_fmu.py's reading)
+    fmpy = pytest.importorskip("fmpy")
+    from fmpy.validation import validate_fmu
+    from test_fmu import _fmu_outputs, _inputs
+    fmu = res.out / f"{res.prefix}.fmu"
+    assert validate_fmu(str(fmu)) == []
+    ref = np.loadtxt(res.out / "test" / "reference.csv", delimiter=",", skiprows=1)
+    r = fmpy.simulate_fmu(str(fmu), start_time=0.0, stop_time=ref[-1, 0], output_interval=sc.dt,
+                          input=_inputs(res, ref), output=_fmu_outputs(res))
+    n_in = len(res.interface.inputs)
+    worst = max(float(np.max(np.abs(r[name][1:] - ref[:-1, 1 + n_in + j]) / np.maximum(np.abs(ref[:-1, 1 + n_in + j]), 1.0)))
+                for j, name in enumerate(_fmu_outputs(res)))
+    assert len(r) == len(ref) and worst <= 1e-9, worst
