@@ -1,5 +1,5 @@
 """The MHE leaves the workbench too (issue 26): a scenario whose ``[estimator]`` is the MHE exports
-its controller with the MHE's compiled update (csrc/ss_mhe.c with its EKF alongside: the C the
+its controller (here the NMPC, both inputs) with the MHE's compiled update (csrc/ss_mhe.c with its EKF alongside: the C the
 workbench's MHE runs with ``compile = true``).  Built with CMake, the library replays the workbench's
 own run -- commands and the MHE's estimates -- bit for bit, without allocating after ``create``; its
 FMU (the same sources) passes fmpy's validation and gives the library's outputs on that run."""
@@ -25,11 +25,11 @@ pytestmark = pytest.mark.skipif(shutil.which("cmake") is None or shutil.which("c
 
 
 @pytest.mark.slow
-def test_a_law_with_the_mhe_exports_replays_the_workbench_bit_for_bit_and_its_fmu_agrees(tmp_path):
+def test_nmpc_with_the_mhe_exports_replays_the_workbench_bit_for_bit_and_its_fmu_agrees(tmp_path):
     sc = load_scenario(MAIN)
     sc = replace(sc, estimator={"kind": "mhe", "window": 10})
-    # 24 s of the main scenario: stick-slip, the MHE's window filling and running, SoftSpeed from 20 s
-    res = export_controller(sc, "SoftSpeed", tmp_path / "x", reference=24.0, fmu=True, build_type="Debug")
+    # 24 s of the main scenario: stick-slip, the MHE's window filling and running, the NMPC from 20 s
+    res = export_controller(sc, "NMPC", tmp_path / "x", reference=24.0, fmu=True, build_type="Debug")
     assert "ss_mhe.c" in " ".join(res.files) and "an MHE (window 10)" in (res.out / "README.md").read_text()
     so = build_export(res.out, build_type="Debug")
     r = subprocess.run([str(so.parent / f"{res.prefix}_replay"), str(res.out / "test" / "reference.csv")],
@@ -40,7 +40,7 @@ def test_a_law_with_the_mhe_exports_replays_the_workbench_bit_for_bit_and_its_fm
     assert out["rows"] == "2401" and out["mismatches"] == "0" and out["worst_relative"] == "0"
     assert out["allocations_after_create"] == "0" and out["failed"] == "0"
     outs = [p.name for p in res.interface.outputs]
-    assert outs[0] == "omega_ref" and any(n.startswith("estimate:twist") for n in outs)
+    assert outs[:2] == ["omega_ref", "n2"] and any(n.startswith("estimate:twist") for n in outs)
     # the FMU: validated and simulated by fmpy on the reference run's inputs (tests/test_fmu.py's reading)
     fmpy = pytest.importorskip("fmpy")
     from fmpy.validation import validate_fmu
