@@ -20,8 +20,8 @@ import numpy as np
 from models.cbuild import CSRC, CStruct, build_library, c_view, generate, lay_out, read_source
 from models.errors import SolverFailure
 
-__all__ = ["EKF_CONFIG", "ekf_config", "ekf_files", "CompiledEKF", "EKF_SOURCES", "MHE_CONFIG", "mhe_config", "mhe_files",
-           "CompiledMHE"]
+__all__ = ["EKF_CONFIG", "ekf_config", "ekf_files", "CompiledEKF", "EKF_SOURCES", "MHE_CONFIG", "mhe_config",
+           "mhe_files", "CompiledMHE"]
 
 #: the C sources of the EKF's update
 EKF_SOURCES = Path(__file__).resolve().parent / "csrc"

@@ -205,7 +205,8 @@ class MHE(ObservabilityMixin, StateEstimator):
         if options.qpsol == "ldl":
             self.qp = None
         else:
-            self.qp = ca.conic("mhe_qp", options.qpsol, {"h": self.gn.sparsity_out(0), "a": ca.Sparsity(0, nx * (N + 1))},
+            self.qp = ca.conic("mhe_qp", options.qpsol,
+                               {"h": self.gn.sparsity_out(0), "a": ca.Sparsity(0, nx * (N + 1))},
                                {"error_on_fail": False, "osqp": {"verbose": False}})
         self._gn_in, self._gn_out, self._gn_buf, self._gn_eval = _bind(self.gn)
         self._gn_in[6][:] = em.p
