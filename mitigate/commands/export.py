@@ -9,7 +9,8 @@ from models.errors import ConfigError
 EPILOG = """\
 Writes DIR: include/<name>.h (create / step / reset / destroy; the layout of in[], out[] and the
 runtime parameters with their units), src/ (plain C: the workbench's own cores -- the NMPC's or the
-law's (softspeed, ztorque, doskil, brake) -- and the EKF's, the CasADi-generated rig functions, the
+law's (softspeed, ztorque, doskil, brake) -- and the scenario's estimator's (the EKF's, or the MHE's
+with its EKF alongside), the CasADi-generated rig functions, the
 exported defaults), vendor/ (the NMPC: hpipm and blasfeo as the casadi wheel ships them, with their
 BSD-2 licences), CMakeLists.txt and a Makefile, README.md (the API),
 test/replay.c with test/reference.csv: the workbench's own run of the scenario, which the built
