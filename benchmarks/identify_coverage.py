@@ -142,13 +142,15 @@ def main(argv=None) -> int:
     lines = ["## Error bars that cover: a coverage study", "",
              f"Command: `PYTHONPATH=. nice -n 10 python {cmd}` ({len(rigs)} rig(s) x {seeds} seeds, {duration:g} s "
              f"logs, {(time.perf_counter() - t_start) / 60:.0f} min on 2 shared cores, 1-min load average at the end "
-             f"{os.getloadavg()[0]:.1f}; raw fits: `benchmarks/results/identify_coverage.csv`).  Each seed draws the "
+             f"{os.getloadavg()[0]:.1f}" + ("; raw fits: `benchmarks/results/identify_coverage.csv`" if write else "")
+             + ").  Each seed draws the "
              "sensors' noise and encoder phases of a log of the exact plant; the fit starts 20 % off (the user rig: from the "
              "data-derived guess).  Covered: |estimate - truth| <= the stated 95 % interval (`fit.interval`: the "
              "encoders' phase as the bounded, uniform error it is), beside 1.96 x the total error.", ""] + summarise(rows)
-    print("\n".join(lines))
     bi.S.results = (args.out or bi.RESULTS) if write else None
-    bi.replace_section("coverage" + ("_quick" if args.quick else ""), lines)
+    bi.replace_section("coverage" + ("_quick" if args.quick else ""), lines)     # prints it when not writing
+    if write:
+        print("\n".join(lines))
     return 0
 
 
