@@ -35,6 +35,19 @@ void ss_fn_layout(ss_call* c, const ss_fn* fn, char** p) {
 
 int ss_fn_eval(ss_call* c) { return c->fn->eval(c->arg, c->res, c->iw, c->w, 0); }
 
+size_t ss_block_up(size_t n) { return (n + SS_BLOCK_ALIGN - 1) / SS_BLOCK_ALIGN * SS_BLOCK_ALIGN; }
+
+void* ss_take(ss_bump* b, size_t bytes) {
+    size_t a;
+    char* base;
+    if (b->count) { b->n += SS_BLOCK_ALIGN + ss_block_up(bytes); return NULL; }   /* the worst alignment */
+    base = b->p;
+    a = (size_t)((SS_BLOCK_ALIGN - ((size_t)base % SS_BLOCK_ALIGN)) % SS_BLOCK_ALIGN);
+    b->p = base + a + ss_block_up(bytes);
+    b->n += a + ss_block_up(bytes);
+    return (void*)(base + a);
+}
+
 double ss_clock(void) {
 #ifdef _WIN32
     LARGE_INTEGER f, c;

@@ -36,6 +36,15 @@ void ss_fn_layout(ss_call* c, const ss_fn* fn, char** p);
 /* evaluate: the first arguments/results are set by the caller in c->arg / c->res */
 int ss_fn_eval(ss_call* c);
 
+/* One memory block laid out by successive ss_take() calls, each SS_BLOCK_ALIGN-aligned (the cores'
+ * memsize/init pattern: no allocation after init).  With count = 1 the bump only measures: ss_take
+ * returns NULL and adds the worst case to n; with count = 0 it hands out p and advances it. */
+#define SS_BLOCK_ALIGN 64
+typedef struct { char* p; size_t n; int count; } ss_bump;
+/* n rounded up to whole SS_BLOCK_ALIGN units */
+size_t ss_block_up(size_t n);
+void* ss_take(ss_bump* b, size_t bytes);
+
 /* a monotonic clock [s] */
 double ss_clock(void);
 

@@ -5,7 +5,7 @@
 #include <math.h>
 #include <string.h>
 
-#define ALIGN 64
+#define ALIGN SS_BLOCK_ALIGN
 
 struct sse_mem {
     sse_config c;
@@ -16,31 +16,16 @@ struct sse_mem {
     double *x0_used;
 };
 
-typedef struct { char* p; size_t n; int count; } bump;
-
-static size_t up(size_t n) { return (n + ALIGN - 1) / ALIGN * ALIGN; }
-
-static void* take(bump* b, size_t bytes) {
-    size_t a;
-    char* base;
-    if (b->count) { b->n += ALIGN + up(bytes); return NULL; }
-    base = b->p;
-    a = (size_t)((ALIGN - ((size_t)base % ALIGN)) % ALIGN);
-    b->p = base + a + up(bytes);
-    b->n += a + up(bytes);
-    return (void*)(base + a);
-}
-
-#define COPY_ARR(b, m, cfg, f, T, n) do { T* d_ = (T*)take((b), sizeof(T) * (size_t)((n) > 0 ? (n) : 1)); \
+#define COPY_ARR(b, m, cfg, f, T, n) do { T* d_ = (T*)ss_take((b), sizeof(T) * (size_t)((n) > 0 ? (n) : 1)); \
     if (d_) { memcpy(d_, (cfg)->f, sizeof(T) * (size_t)(n)); (m)->c.f = d_; } } while (0)
-#define D(f, n) do { double* t_ = (double*)take(b, sizeof(double) * (size_t)((n) > 0 ? (n) : 1)); if (m) m->f = t_; } while (0)
+#define D(f, n) do { double* t_ = (double*)ss_take(b, sizeof(double) * (size_t)((n) > 0 ? (n) : 1)); if (m) m->f = t_; } while (0)
 
 static int valid(const sse_config* c) {
     return c->nx >= 1 && c->nc >= 0 && c->nu >= 1 && c->delay >= 0 && c->n_rig >= 1 && c->n_rig <= c->nx;
 }
 
-static sse_mem* layout(bump* b, const sse_config* cfg, const ss_fn* step, const ss_fn* ode) {
-    sse_mem* m = (sse_mem*)take(b, sizeof(sse_mem));
+static sse_mem* layout(ss_bump* b, const sse_config* cfg, const ss_fn* step, const ss_fn* ode) {
+    sse_mem* m = (sse_mem*)ss_take(b, sizeof(sse_mem));
     const int nx = cfg->nx, nc = cfg->nc, nuh = cfg->nu * (cfg->delay + 1);
     if (m) { memset(m, 0, sizeof(*m)); m->c = *cfg; }
     COPY_ARR(b, m, cfg, p, double, cfg->np);
@@ -53,8 +38,8 @@ static sse_mem* layout(bump* b, const sse_config* cfg, const ss_fn* step, const 
     COPY_ARR(b, m, cfg, zero_state, int, cfg->n_zero);
     COPY_ARR(b, m, cfg, zero_twist, int, cfg->n_zero);
     {
-        char* p1 = (char*)take(b, ss_fn_memsize(step));
-        char* p2 = ode ? (char*)take(b, ss_fn_memsize(ode)) : NULL;
+        char* p1 = (char*)ss_take(b, ss_fn_memsize(step));
+        char* p2 = ode ? (char*)ss_take(b, ss_fn_memsize(ode)) : NULL;
         if (m) {
             ss_fn_layout(&m->step, step, &p1);
             if (ode) { ss_fn_layout(&m->ode, ode, &p2); m->has_ode = 1; }
@@ -66,14 +51,14 @@ static sse_mem* layout(bump* b, const sse_config* cfg, const ss_fn* step, const 
 }
 
 size_t sse_memsize(const sse_config* cfg, const ss_fn* step, const ss_fn* ode) {
-    bump b = {NULL, 0, 1};
+    ss_bump b = {NULL, 0, 1};
     if (!valid(cfg) || (cfg->n_zero > 0 && !ode)) return 0;
     layout(&b, cfg, step, ode);
     return b.n + ALIGN;
 }
 
 sse_mem* sse_init(void* mem, size_t size, const sse_config* cfg, const ss_fn* step, const ss_fn* ode) {
-    bump b = {(char*)mem, 0, 0};
+    ss_bump b = {(char*)mem, 0, 0};
     sse_mem* m;
     if (!mem || size < sse_memsize(cfg, step, ode)) return NULL;
     m = layout(&b, cfg, step, ode);

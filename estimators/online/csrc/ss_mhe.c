@@ -5,7 +5,7 @@
 #include <math.h>
 #include <string.h>
 
-#define ALIGN 64
+#define ALIGN SS_BLOCK_ALIGN
 
 struct ssm_mem {
     ssm_config c;
@@ -20,24 +20,9 @@ struct ssm_mem {
     double *w, *wn, *Wm, *xbar, *Pbar, *d, *Pw, *yi, *mi, *x, *P;
 };
 
-typedef struct { char* p; size_t n; int count; } bump;
-
-static size_t up(size_t n) { return (n + ALIGN - 1) / ALIGN * ALIGN; }
-
-static void* take(bump* b, size_t bytes) {
-    size_t a;
-    char* base;
-    if (b->count) { b->n += ALIGN + up(bytes); return NULL; }
-    base = b->p;
-    a = (size_t)((ALIGN - ((size_t)base % ALIGN)) % ALIGN);
-    b->p = base + a + up(bytes);
-    b->n += a + up(bytes);
-    return (void*)(base + a);
-}
-
-#define COPY_ARR(b, m, cfg, f, T, n) do { T* d_ = (T*)take((b), sizeof(T) * (size_t)((n) > 0 ? (n) : 1)); \
+#define COPY_ARR(b, m, cfg, f, T, n) do { T* d_ = (T*)ss_take((b), sizeof(T) * (size_t)((n) > 0 ? (n) : 1)); \
     if (d_) { memcpy(d_, (cfg)->f, sizeof(T) * (size_t)(n)); (m)->c.f = d_; } } while (0)
-#define D(f, n) do { double* t_ = (double*)take(b, sizeof(double) * (size_t)((n) > 0 ? (n) : 1)); if (m) m->f = t_; } while (0)
+#define D(f, n) do { double* t_ = (double*)ss_take(b, sizeof(double) * (size_t)((n) > 0 ? (n) : 1)); if (m) m->f = t_; } while (0)
 
 static int valid(const ssm_config* c, const sse_config* e) {
     return c->nx >= 1 && c->N >= 2 && c->max_iter >= 1 && c->ny >= 0 && c->nc >= 0 && c->nuh >= 1
@@ -45,9 +30,9 @@ static int valid(const ssm_config* c, const sse_config* e) {
         && e->nx == c->nx && e->nc == c->nc && e->nu * (e->delay + 1) == c->nuh;
 }
 
-static ssm_mem* layout(bump* b, const ssm_config* cfg, const sse_config* ecfg, const ss_fn* gn, const ss_fn* ar,
+static ssm_mem* layout(ss_bump* b, const ssm_config* cfg, const sse_config* ecfg, const ss_fn* gn, const ss_fn* ar,
                        const ss_fn* es, const ss_fn* eo) {
-    ssm_mem* m = (ssm_mem*)take(b, sizeof(ssm_mem));
+    ssm_mem* m = (ssm_mem*)ss_take(b, sizeof(ssm_mem));
     const int nx = cfg->nx, ny = cfg->ny, N = cfg->N, nuh = cfg->nuh, nxx = cfg->nxx;
     size_t esize = sse_memsize(ecfg, es, eo);
     if (m) { memset(m, 0, sizeof(*m)); m->c = *cfg; }
@@ -60,9 +45,9 @@ static ssm_mem* layout(bump* b, const ssm_config* cfg, const sse_config* ecfg, c
     COPY_ARR(b, m, cfg, dep, int, cfg->nyc);
     COPY_ARR(b, m, cfg, P0, double, nxx);
     {
-        char* p1 = (char*)take(b, ss_fn_memsize(gn));
-        char* p2 = (char*)take(b, ss_fn_memsize(ar));
-        void* pe = take(b, esize);
+        char* p1 = (char*)ss_take(b, ss_fn_memsize(gn));
+        char* p2 = (char*)ss_take(b, ss_fn_memsize(ar));
+        void* pe = ss_take(b, esize);
         if (m) {
             ss_fn_layout(&m->gn, gn, &p1);
             ss_fn_layout(&m->arrival, ar, &p2);
@@ -78,7 +63,7 @@ static ssm_mem* layout(bump* b, const ssm_config* cfg, const sse_config* ecfg, c
 
 size_t ssm_memsize(const ssm_config* cfg, const sse_config* ekf_cfg, const ss_fn* gn, const ss_fn* arrival,
                    const ss_fn* ekf_step, const ss_fn* ekf_ode) {
-    bump b = {NULL, 0, 1};
+    ss_bump b = {NULL, 0, 1};
     if (!valid(cfg, ekf_cfg) || sse_memsize(ekf_cfg, ekf_step, ekf_ode) == 0) return 0;
     layout(&b, cfg, ekf_cfg, gn, arrival, ekf_step, ekf_ode);
     return b.n + ALIGN;
@@ -86,7 +71,7 @@ size_t ssm_memsize(const ssm_config* cfg, const sse_config* ekf_cfg, const ss_fn
 
 ssm_mem* ssm_init(void* mem, size_t size, const ssm_config* cfg, const sse_config* ekf_cfg, const ss_fn* gn,
                   const ss_fn* arrival, const ss_fn* ekf_step, const ss_fn* ekf_ode) {
-    bump b = {(char*)mem, 0, 0};
+    ss_bump b = {(char*)mem, 0, 0};
     ssm_mem* m;
     if (!mem || size < ssm_memsize(cfg, ekf_cfg, gn, arrival, ekf_step, ekf_ode)) return NULL;
     m = layout(&b, cfg, ekf_cfg, gn, arrival, ekf_step, ekf_ode);

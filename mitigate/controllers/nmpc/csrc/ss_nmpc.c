@@ -20,7 +20,7 @@
 #include "hpipm_d_ocp_qp_ipm.h"
 #include "hpipm_d_ocp_qp_sol.h"
 
-#define ALIGN 64
+#define ALIGN SS_BLOCK_ALIGN
 
 struct ssn_mem {
     ssn_config c;                 /* the configuration (arrays point into this memory) */
@@ -77,27 +77,12 @@ struct ssn_mem {
 };
 
 /* ------------------------------------------------------------------ memory layout */
-typedef struct { char* p; size_t n; int count; } bump;   /* count: only measure */
-
-static size_t up(size_t n) { return (n + ALIGN - 1) / ALIGN * ALIGN; }
-
-static void* take(bump* b, size_t bytes) {
-    size_t a;
-    char* base;
-    if (b->count) { b->n += ALIGN + up(bytes); return NULL; }   /* the worst alignment */
-    base = b->p;
-    a = (size_t)((ALIGN - ((size_t)base % ALIGN)) % ALIGN);
-    b->p = base + a + up(bytes);
-    b->n += a + up(bytes);
-    return (void*)(base + a);
-}
-
-#define DOUBLES(b, n) ((double*)take((b), sizeof(double) * (size_t)((n) > 0 ? (n) : 1)))
-#define INTS(b, n) ((int*)take((b), sizeof(int) * (size_t)((n) > 0 ? (n) : 1)))
-#define PTRS(b, T, n) ((T**)take((b), sizeof(T*) * (size_t)((n) > 0 ? (n) : 1)))
+#define DOUBLES(b, n) ((double*)ss_take((b), sizeof(double) * (size_t)((n) > 0 ? (n) : 1)))
+#define INTS(b, n) ((int*)ss_take((b), sizeof(int) * (size_t)((n) > 0 ? (n) : 1)))
+#define PTRS(b, T, n) ((T**)ss_take((b), sizeof(T*) * (size_t)((n) > 0 ? (n) : 1)))
 
 /* copy the configuration's arrays into the controller's memory */
-#define COPY_ARR(b, m, cfg, f, T, n) do { T* d_ = (T*)take((b), sizeof(T) * (size_t)((n) > 0 ? (n) : 1)); \
+#define COPY_ARR(b, m, cfg, f, T, n) do { T* d_ = (T*)ss_take((b), sizeof(T) * (size_t)((n) > 0 ? (n) : 1)); \
     if (d_) { memcpy(d_, (cfg)->f, sizeof(T) * (size_t)(n)); (m)->c.f = d_; } } while (0)
 
 static int valid(const ssn_config* c) {
@@ -107,8 +92,8 @@ static int valid(const ssn_config* c) {
 }
 
 /* lay everything out; with b->p == NULL only count */
-static ssn_mem* layout(bump* b, const ssn_config* cfg, const ss_fn* stages, const ss_fn* forward) {
-    ssn_mem* m = (ssn_mem*)take(b, sizeof(ssn_mem));
+static ssn_mem* layout(ss_bump* b, const ssn_config* cfg, const ss_fn* stages, const ss_fn* forward) {
+    ssn_mem* m = (ssn_mem*)ss_take(b, sizeof(ssn_mem));
     const int N = cfg->N, nxa = cfg->nxa, nv = cfg->nv, ns = cfg->ns, nu = cfg->nu, nq = cfg->nq;
     const int nfc = cfg->nfc, nbx = cfg->drives ? 1 : 0, ng = ns, N1 = N + 1;
     int k;
@@ -133,8 +118,8 @@ static ssn_mem* layout(bump* b, const ssn_config* cfg, const ss_fn* stages, cons
     COPY_ARR(b, m, cfg, q0, double, nq);
     {   /* the generated functions' work memory */
         size_t n1 = ss_fn_memsize(stages), n2 = ss_fn_memsize(forward);
-        char* p1 = (char*)take(b, n1);
-        char* p2 = (char*)take(b, n2);
+        char* p1 = (char*)ss_take(b, n1);
+        char* p2 = (char*)ss_take(b, n2);
         if (m) { ss_fn_layout(&m->stages, stages, &p1); ss_fn_layout(&m->forward, forward, &p2); }
     }
 #define D(f, n) do { double* t_ = DOUBLES(b, n); if (m) m->f = t_; } while (0)
@@ -164,7 +149,7 @@ static ssn_mem* layout(bump* b, const ssn_config* cfg, const ss_fn* stages, cons
 #undef P
     /* hpipm's structures */
     {
-        void* dmem = take(b, d_ocp_qp_dim_memsize(N));
+        void* dmem = ss_take(b, d_ocp_qp_dim_memsize(N));
         if (m) {
             for (k = 0; k <= N; k++) {
                 m->nx_s[k] = nxa; m->nu_s[k] = k < N ? nv : 0; m->nbx_s[k] = k == 0 ? nxa : nbx;
@@ -207,15 +192,15 @@ static size_t hpipm_bytes(const ssn_config* cfg) {
         int it = cfg->qp_iter_max;
         d_ocp_qp_ipm_arg_set_default((enum hpipm_mode)cfg->hpipm_mode, &arg);
         d_ocp_qp_ipm_arg_set_iter_max(&it, &arg);   /* the workspace keeps per-iteration statistics */
-        n = up(d_ocp_qp_memsize(&dim)) + up(d_ocp_qp_sol_memsize(&dim)) + up(na)
-          + up(d_ocp_qp_ipm_ws_memsize(&dim, &arg)) + 5 * ALIGN;
+        n = ss_block_up(d_ocp_qp_memsize(&dim)) + ss_block_up(d_ocp_qp_sol_memsize(&dim)) + ss_block_up(na)
+          + ss_block_up(d_ocp_qp_ipm_ws_memsize(&dim, &arg)) + 5 * ALIGN;
     }
     free(amem); free(dmem); free(dims);
     return n;
 }
 
 size_t ssn_memsize(const ssn_config* cfg, const ss_fn* stages, const ss_fn* forward) {
-    bump b = {NULL, 0, 1};
+    ss_bump b = {NULL, 0, 1};
     size_t h;
     if (!valid(cfg)) return 0;
     layout(&b, cfg, stages, forward);
@@ -274,16 +259,16 @@ static void set_pointers(ssn_mem* m) {
 }
 
 ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* stages, const ss_fn* forward) {
-    bump b = {(char*)mem, 0, 0};
+    ss_bump b = {(char*)mem, 0, 0};
     ssn_mem* m;
     void *qmem, *smem, *amem, *wmem;
     int it = cfg->qp_iter_max;
     double tol = cfg->qp_tol;
     if (!mem || !valid(cfg) || size < ssn_memsize(cfg, stages, forward)) return NULL;
     m = layout(&b, cfg, stages, forward);
-    qmem = take(&b, d_ocp_qp_memsize(&m->dim));
-    smem = take(&b, d_ocp_qp_sol_memsize(&m->dim));
-    amem = take(&b, d_ocp_qp_ipm_arg_memsize(&m->dim));
+    qmem = ss_take(&b, d_ocp_qp_memsize(&m->dim));
+    smem = ss_take(&b, d_ocp_qp_sol_memsize(&m->dim));
+    amem = ss_take(&b, d_ocp_qp_ipm_arg_memsize(&m->dim));
     d_ocp_qp_create(&m->dim, &m->qp, qmem);
     d_ocp_qp_sol_create(&m->dim, &m->sol, smem);
     d_ocp_qp_ipm_arg_create(&m->dim, &m->arg, amem);
@@ -293,7 +278,7 @@ ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* st
     d_ocp_qp_ipm_arg_set_tol_eq(&tol, &m->arg);
     d_ocp_qp_ipm_arg_set_tol_ineq(&tol, &m->arg);
     d_ocp_qp_ipm_arg_set_tol_comp(&tol, &m->arg);
-    wmem = take(&b, d_ocp_qp_ipm_ws_memsize(&m->dim, &m->arg));
+    wmem = ss_take(&b, d_ocp_qp_ipm_ws_memsize(&m->dim, &m->arg));
     if (b.n > size) return NULL;
     d_ocp_qp_ipm_ws_create(&m->dim, &m->arg, &m->ws, wmem);
     set_pointers(m);
