@@ -41,8 +41,11 @@ threaded BLAS: on a loaded 2-core machine a threaded dense Cholesky made the ste
 arrival prior, the step, the projection, the fallback -- is one C call (``csrc/ss_mhe.c``,
 :class:`estimators.online.compiled.CompiledMHE`, cached on disk), the same C an exported library
 runs: rig3, window 20, a median 0.74 ms a sample against 1.16 ms for the Python update over
-gcc-built stage Functions and 4 ms uncompiled (both cores busy), its estimates bit-identical to the
-Python update's (tests/test_mhe.py).  With OSQP the stage Functions alone are built with gcc.
+gcc-built stage Functions and 4 ms uncompiled (both cores busy).  Its estimates equal the Python
+update's bit for bit on rig3 (tests/test_mhe.py) and the drill string; on the four-disc rig they part
+at rounding level (1e-12 at the 41st sample) and the differences grow to 1.8e-6 relative in the
+covariance along a poorly observable twist (the window's Hessian is ill-conditioned there), with the
+same statuses and messages.  With OSQP the stage Functions alone are built with gcc.
 """
 
 from __future__ import annotations
