@@ -187,6 +187,37 @@ class Integration:
             return (out, 0.0) if quad is None else (*out, 0.0)
         return out
 
+    def advance_jacobian(self, f, x, u, p, fast_value=None, *, wrt=("x", "u")):
+        """``x_next`` (as :meth:`advance`, on symbols) and its Jacobians with respect to the
+        arguments named in ``wrt`` (``"x"``, ``"u"``, ``"p"``; each a pure symbol).
+
+        RK4 differentiates its expression; the implicit step takes the implicit function theorem at
+        its converged stages (:func:`models.sdirk.sdirk2`'s ``jac``), substep by substep by the chain
+        rule, instead of differentiating its unrolled Newton iterations (the same matrices once they
+        have converged; a fraction of the operations and of the generated code).
+
+        Returns
+        -------
+        ``(x_next, [d x_next / d arg for arg in wrt])``
+        """
+        args = {"x": x, "u": u, "p": p}
+        if not self.implicit:
+            xn = self.advance(f, x, u, p, fast_value)
+            return xn, [ca.jacobian(xn, args[n]) for n in wrt]
+        names = tuple(dict.fromkeys(("x", *wrt)))
+        xk, D = x, None
+        for _ in range(self.nsub):
+            out = sdirk2(f, xk, u, p, self.dt / self.nsub, stiff=self.stiff, band=self.band, bracket=self.bracket,
+                         newton=self.iterations, jac=names)
+            step = dict(zip(names, out[1:]))
+            Sx = step["x"]
+            if D is None:
+                D = dict(step)
+            else:
+                D = {n: (Sx @ D[n] if n == "x" else Sx @ D[n] + step[n]) for n in names}
+            xk = out[0]
+        return xk, [D[n] for n in wrt]
+
     def _implicit(self, f, x, u, p, quad, dt, band, residual):
         """``nsub`` SDIRK2 substeps (:func:`models.sdirk.sdirk2`) on expressions."""
         band = self.band if band is None else band

@@ -84,7 +84,7 @@ def _split(lo, hi, floor):
 
 
 def sdirk2(f, x, u, p, h, *, stiff=(), band=None, bracket=(), newton: int = NEWTON_ITER, quad=None,
-           residual: bool = False):
+           residual: bool = False, jac: tuple = ()):
     """One SDIRK2 step of ``xdot = f(x, u, p)`` over ``h`` (symbolic), input held.
 
     Parameters
@@ -102,10 +102,17 @@ def sdirk2(f, x, u, p, h, *, stiff=(), band=None, bracket=(), newton: int = NEWT
     quad : optional callable ``(x, u, p) -> g``: also return ``int g dt`` over the step by the method's
         quadrature (``h ((1 - gamma) g(Z1) + gamma g(Z2))``)
     residual : also return the largest stage residual ``|Z - base - gamma h f(Z)|`` after the iterations
+    jac : names among ``"x"``, ``"u"``, ``"p"`` (each argument a pure symbol): also return
+        ``d x_next / d arg`` for each, by the implicit function theorem at the last iterates
+        (:func:`_ift_jacobians`), not by differentiating the unrolled Newton iterations: the same
+        matrix once they have converged, at the cost of one Newton iteration instead of twelve
+        differentiated (an NMPC stage on a stiff DC-motor rig: 864,569 SX instructions, 23 MB of C
+        that gcc -O2 did not finish in 17 minutes)
 
     Returns
     -------
-    x_next, or ``(x_next, q)`` with ``quad``, with the residual appended when asked
+    x_next, or ``(x_next, q)`` with ``quad``, with the residual appended when asked, then the
+    Jacobians asked in ``jac``
     """
     kind = ca.MX if isinstance(x, ca.MX) else ca.SX
     n = x.numel()
@@ -205,4 +212,40 @@ def sdirk2(f, x, u, p, h, *, stiff=(), band=None, bracket=(), newton: int = NEWT
         r1 = z1 - x - gh * f_at(z1)
         r2 = z2 - base2 - gh * f_at(z2)
         out.append(ca.fmax(ca.norm_inf(r1), ca.norm_inf(r2)))
+    if jac:
+        out += _ift_jacobians(f, x, u, p, gh, z1, z2, jac)
     return out[0] if len(out) == 1 else tuple(out)
+
+
+def _ift_jacobians(f, x, u, p, gh, z1, z2, names) -> list:
+    """``d z2 / d arg`` for ``arg`` named in ``names`` (``"x"``, ``"u"``, ``"p"``), by the implicit function
+    theorem at the stages' values ``z1``, ``z2`` (expressions of the arguments).
+
+    The stages solve ``z1 = x + gh f(z1)`` and ``z2 = b + gh f(z2)`` with ``b = x + c (z1 - x)``,
+    ``c = (1 - gamma) / gamma`` (the step's own form of ``x + (1 - gamma) h k1``), so with
+    ``M_i = I - gh df/dz (z_i)``::
+
+        M1 dz1 = dx + gh df/darg (z1) darg,    M2 dz2 = (1 - c) dx + c dz1 + gh df/darg (z2) darg
+
+    Built on fresh symbols of the stages and substituted afterwards: no derivative flows through the
+    Newton iterations that computed ``z1``, ``z2``."""
+    kind = ca.MX if isinstance(x, ca.MX) else ca.SX
+    n = x.numel()
+    args = {"x": x, "u": u, "p": p}
+    a1, a2 = kind.sym("a1", n), kind.sym("a2", n)
+    f1, f2 = f(a1, u, p), f(a2, u, p)
+    eye = kind.eye(n)
+    M1 = eye - gh * ca.jacobian(f1, a1)
+    M2 = eye - gh * ca.jacobian(f2, a2)
+    c = (1.0 - GAMMA) / GAMMA
+    outs = []
+    for name in names:
+        a = args[name]
+        if name == "x":
+            d1 = ca.solve(M1, eye)
+            d2 = ca.solve(M2, (1.0 - c) * eye + c * d1)
+        else:
+            d1 = ca.solve(M1, gh * ca.jacobian(f1, a))
+            d2 = ca.solve(M2, c * d1 + gh * ca.jacobian(f2, a))
+        outs.append(d2)
+    return [ca.substitute(d, ca.vertcat(a1, a2), ca.vertcat(z1, z2)) for d in outs]

@@ -9,6 +9,7 @@ and the analytic Coulomb cycle of one disc on an undamped spring (tests/test_cou
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import casadi as ca
@@ -146,6 +147,39 @@ def test_jacobian_agrees_with_finite_differences(disc):
             zm[j] -= hj
             fd = (np.array(F(zp[:2], uv, zp[2:])[0]) - np.array(F(zm[:2], uv, zm[2:])[0])).ravel() / (2 * hj)
             np.testing.assert_allclose(Jc[:, j], fd, rtol=1e-4, atol=1e-6 * max(1.0, np.max(np.abs(fd))))
+
+
+def test_implicit_function_theorem_jacobians_equal_the_differentiated_step(disc):
+    """``Integration.advance_jacobian`` (what the NMPC's stages use): the implicit step's Jacobians
+    with respect to the state, the inputs and the parameters by the implicit function theorem at the
+    converged stages, chained over two substeps, equal those obtained by differentiating the unrolled
+    Newton iterations and central differences, with a fraction of the operations."""
+    m, p = disc
+    eps = 1e-4
+    integ = dataclasses.replace(integration(m, p, 0.01, u=np.array([OMEGA, N]), eps=eps), nsub=2)
+    assert integ.implicit
+    f = m.ode(eps)
+    x, u, q = ca.SX.sym("x", m.nx), ca.SX.sym("u", m.nu), ca.SX.sym("p", m.n_p)
+    xn = integ.advance(lambda a, b, c: f(a, b, c), x, u, q)
+    ad = ca.Function("ad", [x, u, q], [xn, ca.jacobian(xn, x), ca.jacobian(xn, u), ca.jacobian(xn, q)])
+    xi, jacs = integ.advance_jacobian(lambda a, b, c: f(a, b, c), x, u, q, wrt=("x", "u", "p"))
+    ift = ca.Function("ift", [x, u, q], [xi, *jacs])
+    assert ift.n_instructions() < 0.5 * ad.n_instructions()
+    pv, uv = p.vector(), np.array([OMEGA, N])
+    for x0 in (np.array([0.2, 0.5]), np.array([-0.1, 2.0]), np.array([0.05, 3 * eps])):
+        a, b = ad(x0, uv, pv), ift(x0, uv, pv)
+        np.testing.assert_array_equal(np.array(a[0]), np.array(b[0]))
+        for Ja, Jb in zip(a[1:], b[1:]):
+            Ja, Jb = np.array(Ja), np.array(Jb)
+            np.testing.assert_allclose(Jb, Ja, rtol=1e-7, atol=1e-9 * max(1.0, np.max(np.abs(Ja))))
+        # and central differences in the inputs (the NMPC's decisions)
+        for j in range(m.nu):
+            hj = 1e-7 * max(abs(uv[j]), 1e-3)
+            up, um = uv.copy(), uv.copy()
+            up[j] += hj
+            um[j] -= hj
+            fd = (np.array(ift(x0, up, pv)[0]) - np.array(ift(x0, um, pv)[0])).ravel() / (2 * hj)
+            np.testing.assert_allclose(np.array(b[2])[:, j], fd, rtol=1e-4, atol=1e-6 * max(1.0, np.max(np.abs(fd))))
 
 
 def test_l_stable_limit():

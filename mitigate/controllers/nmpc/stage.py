@@ -161,7 +161,13 @@ def stage_functions(model, spec: OCPSpec):
     blocks = [d(Jx.T @ Jx), d(Jv.T @ Jx), d(Jv.T @ Jv), d(Jx.T @ r + ca.jacobian(lin, xa).T),
               d(Jv.T @ r + ca.jacobian(lin, v).T), 0.5 * ca.sumsqr(r) + lin]
     outs = ["xn", "A", "B", "Q", "S", "R", "gx", "gv", "c"]
-    if not folded:
+    if not folded and integ.implicit:
+        # the implicit step's Jacobians by the implicit function theorem (models.sdirk), not by
+        # differentiating its unrolled Newton iterations (8x the instructions, C that does not build)
+        xe, (Ex, Ev) = integ.advance_jacobian(faug, xa, v, q, fast)
+        A, B = _finish_jacobians(finish, xe, Ex, Ev, xa, v)
+        stage = ca.Function(f"{name}_stage", [xa, v, q], [xn, d(A), d(B), *blocks], ["xa", "v", "q"], outs)
+    elif not folded:
         stage = ca.Function(f"{name}_stage", [xa, v, q], [xn, d(ca.jacobian(xn, xa)), d(ca.jacobian(xn, v)), *blocks],
                             ["xa", "v", "q"], outs)
     else:
@@ -194,15 +200,20 @@ def _folded_dynamics(one, nsub: int, faug, fast, finish, xa, v, q, name: str, *,
     that does not grow with ``nsub``.  ``values_only``: ``(xa, v, q) -> xn`` (the same substeps'
     values, no Jacobians)."""
     nxa, nv = xa.numel(), v.numel()
-    xe1 = one.advance(faug, xa, v, q, fast)
     if values_only:
+        xe1 = one.advance(faug, xa, v, q, fast)
         sub = ca.Function(f"{name}_substep_x", [xa, v, q], [xe1], ["xe", "v", "q"], ["xe_next"])
         xaM, vM, qM = ca.MX.sym("xa", nxa), ca.MX.sym("v", nv), ca.MX.sym("q", q.numel())
         xe = sub.fold(nsub)(xaM, ca.repmat(vM, 1, nsub), ca.repmat(qM, 1, nsub))
         xe_s = ca.SX.sym("xe", nxa)
         end = ca.Function(f"{name}_end_x", [xe_s, xa, v], [finish(xe_s, xa, v)])
         return ca.Function(f"{name}_dyn_x", [xaM, vM, qM], [end(xe, xaM, vM)], ["xa", "v", "q"], ["xn"])
-    J = ca.jacobian(xe1, ca.vertcat(xa, v))
+    if one.implicit:
+        xe1, (Jx, Jv) = one.advance_jacobian(faug, xa, v, q, fast)
+        J = ca.horzcat(Jx, Jv)
+    else:
+        xe1 = one.advance(faug, xa, v, q, fast)
+        J = ca.jacobian(xe1, ca.vertcat(xa, v))
     Z = ca.SX.sym("Z", nxa, nxa + nv)
     Zn = J[:, :nxa] @ Z + ca.horzcat(ca.SX(nxa, nxa), J[:, nxa:])
     sub = ca.Function(f"{name}_substep", [ca.vertcat(xa, ca.vec(Z)), v, q], [ca.vertcat(xe1, ca.vec(Zn))],
@@ -217,3 +228,11 @@ def _folded_dynamics(one, nsub: int, faug, fast, finish, xa, v, q, name: str, *,
     zN = sub.fold(nsub)(z0, ca.repmat(vM, 1, nsub), ca.repmat(qM, 1, nsub))
     xn_, A, B = end(zN[:nxa], ca.reshape(zN[nxa:], nxa, nxa + nv), xaM, vM)
     return ca.Function(f"{name}_dyn", [xaM, vM, qM], [xn_, A, B], ["xa", "v", "q"], ["xn", "A", "B"])
+
+
+def _finish_jacobians(finish, xe, Ex, Ev, xa, v):
+    """``d finish(xe, xa, v) / d(xa, v)`` by the chain rule, given ``xe``'s Jacobians ``Ex``, ``Ev``."""
+    xe_s = ca.SX.sym("xe", xe.numel())
+    xn = finish(xe_s, xa, v)
+    Pe, Pa, Pv = (ca.substitute(ca.jacobian(xn, a), xe_s, xe) for a in (xe_s, xa, v))
+    return Pe @ Ex + Pa, Pe @ Ev + Pv
