@@ -238,9 +238,18 @@ class CompiledStep:
             src += [names.index(k) if k in names and names.index(k) < xe.size else -1 for k in self.load_keys]
             self._src = np.array([i if i >= 0 else 0 for i in src], dtype=np.intp)
             self._missing = np.array([i < 0 for i in src], dtype=bool)
-        np.take(xe, self._src, out=self.xe)
-        if self._missing.any():
+            # the missing entries are NaN from here on (only this method writes the buffer); the usual
+            # estimate (the rig's states first, in order) is then one slice copy
             self.xe[self._missing] = np.nan
+            have = np.flatnonzero(~self._missing)
+            self._have, self._from = have, self._src[have]
+            k = have.size
+            self._prefix = k if np.array_equal(have, np.arange(k)) and np.array_equal(self._from, np.arange(k)) else -1
+        k = self._prefix
+        if k >= 0:
+            self.xe[:k] = xe[:k]
+        else:
+            self.xe[self._have] = xe[self._from]
         return True, xe.size > self.i_speed, 2 if self._bad else 0
 
     def step(self, t: float, measurement, estimate, u_prog, target: float, inject: bool = False) -> NMPC_INFO:

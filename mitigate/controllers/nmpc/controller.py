@@ -403,7 +403,7 @@ class NMPC(Controller):
         if info.failure:
             self.counts.failures += 1
         status = Status.HOLD if info.status == 1 else Status.FALLBACK if info.status == 2 else Status.OK
-        u = {n: float(v) for n, v in zip(self.inputs, self.compiled.u)} if info.n_u else {}
+        u = dict(zip(self.inputs, self.compiled.u.tolist())) if info.n_u else {}
         if status is Status.HOLD:
             held = Status.FALLBACK if info.held_status == 2 else Status.OK
             return Action(u, Status.HOLD, f"hold: {held.value}: {self._message}" if self._message else "hold")
