@@ -374,8 +374,30 @@ def test_held_normal_force_filters_the_load_cell_noise_and_follows_the_programme
 
 
 def test_too_stiff_a_rig_for_the_interval_is_a_config_error():
-    """The lead screw (seed 002) at dt = 0.05 s would need tens of thousands of RK4 substeps."""
+    """The lead screw (seed 002) at dt = 0.05 s would need tens of thousands of RK4 substeps, and as
+    many implicit ones (its friction falls steeply with speed: the implicit substep must resolve it)."""
     m = get_model("leadscrew")
-    with pytest.raises(ConfigError, match=r"^nmpc\.substeps: rig 'leadscrew' needs \d+ RK4 substeps per 0.05 s "
-                                          r"interval .* the limit is 200"):
+    with pytest.raises(ConfigError, match=r"^nmpc\.substeps: rig 'leadscrew' needs \d+ implicit \(SDIRK2\) substeps "
+                                          r"per 0.05 s interval .* the limit is 200"):
         make_controller({"kind": "nmpc", "compile": False, "dt": 0.05}, _ctx(model=m, programme=[40.3, 314.3]))
+
+
+def test_a_rig_beyond_the_rk4_limit_gets_the_implicit_step():
+    """A generated benchmark rig (tests/data/gen_1_5_rig.toml, 1 body on the bit-rock law) whose
+    prediction needs 212 RK4 substeps per interval, more than MAX_SUBSTEPS: the NMPC predicts with
+    the implicit step (its stage's Jacobians by the implicit function theorem) instead of being
+    'not applicable', as it was in the generated set of 2026-11-28."""
+    from pathlib import Path
+    m = get_model(str(Path(__file__).parent / "data" / "gen_1_5_rig.toml"))
+    c = make_controller({"kind": "nmpc", "compile": False},
+                        _ctx(model=m, programme=[0.4372436599306485, 104157.96083718371], dt=0.002731362210862317))
+    assert c.integration.method == "sdirk2" and c.nsub <= 4, c.integration.note
+    assert "explicit RK4 would need 2" in c.integration.note
+    assert c.ocp.stage_fn.n_instructions() < 200_000
+
+
+def test_substeps_asked_beyond_the_limit_are_refused():
+    m = get_model("leadscrew")
+    with pytest.raises(ConfigError, match=r"substeps must be <= 200, got 201"):
+        make_controller({"kind": "nmpc", "compile": False, "dt": 0.05, "substeps": 201},
+                        _ctx(model=m, programme=[40.3, 314.3]))

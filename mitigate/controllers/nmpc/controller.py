@@ -154,7 +154,8 @@ class NMPC(Controller):
         self.integration = self._integration(u0, nom0, taus)
         self.nsub = self.integration.nsub
         if self.nsub > MAX_SUBSTEPS:
-            raise ConfigError(f"{where}.substeps: rig {m.name!r} needs {self.nsub} RK4 substeps per {cfg.dt} s "
+            how = "implicit (SDIRK2)" if self.integration.implicit else "RK4"
+            raise ConfigError(f"{where}.substeps: rig {m.name!r} needs {self.nsub} {how} substeps per {cfg.dt} s "
                               f"interval to be stable (stiff friction or springs); the limit is {MAX_SUBSTEPS}: shorten "
                               f"dt, or widen eps where the friction law uses it")
         self.spec = OCPSpec(horizon=o.horizon, dt=cfg.dt, nsub=self.nsub, eps=cfg.eps, body=self.body,
@@ -199,8 +200,11 @@ class NMPC(Controller):
             elif m.input_kinds[j] == "force":
                 umax[j] = 2.0 * abs(u0[j])  # a held normal force may double (load factor, ramps)
         speed = abs(nom0) + (0.0 if self._torque_drive else cfg.setpoint_band)
+        # beyond MAX_SUBSTEPS RK4 substeps the rule takes the implicit step (its stages' Jacobians by the
+        # implicit function theorem keep the stage's code small); substeps asked in the options stay RK4
         return integration(m, self.params, cfg.dt, u=umax, eps=cfg.eps, speed=speed if speed > 0 else 1.0,
-                           nsub=self.options.substeps or None, rates=[1.0 / t for t in taus if t > 0], max_nsub=None)
+                           nsub=self.options.substeps or None, rates=[1.0 / t for t in taus if t > 0],
+                           max_nsub=MAX_SUBSTEPS)
 
     def tuning_values(self) -> dict[str, float]:
         """The settings the NMPC runs with (given, or derived from the rig: :mod:`.defaults`), for
