@@ -17,7 +17,9 @@ a library of its own.  This module is what they share:
   blasfeo) are staged in the cache by content (:func:`stage_libraries`) and found by a run path
   relative to the library, so neither the key nor the library depends on the environment that built
   it (a fresh virtual environment reuses the build; before, the NMPC's step was built again in each).
-- :func:`hpipm_paths`: the hpipm and blasfeo headers and libraries the casadi wheel ships.
+- :func:`hpipm_paths`: the hpipm and blasfeo headers and libraries the casadi wheel ships; the
+  wheel's blasfeo is the generic build, and :data:`BLASFEO_ENV` (``STICKSLIP_BLASFEO``) names one
+  built for the target CPU for an export to vendor (:func:`blasfeo_override`).
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ import numpy as np
 
 from models.codegen import compiler, opt_flags, reproducible, store_built, trusted_cache_dir, verify_library
 
-__all__ = ["CStruct", "generate", "build_library", "stage_libraries", "hpipm_paths", "lay_out", "read_channels", "c_view", "CSRC", "C_FLAGS", "c_flags"]
+__all__ = ["CStruct", "generate", "build_library", "stage_libraries", "hpipm_paths", "blasfeo_override", "BLASFEO_ENV", "lay_out", "read_channels", "c_view", "CSRC", "C_FLAGS", "c_flags"]
 
 #: the shared C sources (ss_common.h/.c)
 CSRC = Path(__file__).resolve().parent / "csrc"
@@ -253,6 +255,36 @@ def _files_digest(files) -> str:
     for f in files:
         h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
     return h.hexdigest()[:16]
+
+
+#: environment variable naming a ``libblasfeo.so`` built for the target CPU (blasfeo's X64_AUTOMATIC or
+#: HASWELL target, e.g. acados' ``install/lib/libblasfeo.so``) that ``mitigate export`` vendors instead
+#: of the casadi wheel's generic build (the same ABI).  Not for the workbench's own compiled step: its
+#: process has loaded the wheel's hpipm and blasfeo through casadi before the step, and the step binds
+#: to those; there ``LD_PRELOAD=<that library>`` puts it first (the NMPC's feedback 1.8x faster with
+#: an AVX2/FMA build, BENCHMARKS.md)
+BLASFEO_ENV = "STICKSLIP_BLASFEO"
+
+
+def blasfeo_override() -> Path | None:
+    """The ``libblasfeo.so`` named by :data:`BLASFEO_ENV`, or None when it is unset.
+
+    Raises
+    ------
+    RuntimeError : it names no file, or a file that is not a blasfeo library (one line).
+    """
+    v = os.environ.get(BLASFEO_ENV, "").strip()
+    if not v:
+        return None
+    f = Path(v).expanduser()
+    if not f.is_file():
+        raise RuntimeError(f"{BLASFEO_ENV}: expected the path of a libblasfeo.so file; got {v!r} (no such file)")
+    try:
+        ctypes.CDLL(str(f)).blasfeo_processor_library_string   # noqa: B018 - the symbol must exist
+    except (OSError, AttributeError) as exc:
+        raise RuntimeError(f"{BLASFEO_ENV}: expected a blasfeo shared library; got {v!r} "
+                           f"({type(exc).__name__}: {str(exc).splitlines()[0][:120]})") from None
+    return f
 
 
 def stage_libraries(libs: Sequence[str], libdirs: Sequence[Path]) -> Path:

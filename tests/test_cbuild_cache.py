@@ -48,3 +48,37 @@ def test_a_library_built_in_one_environment_is_reused_and_loads_from_another(tmp
 def test_a_library_that_is_nowhere_is_one_line(tmp_path):
     with pytest.raises(RuntimeError, match=r"^libnope\.so not found in "):
         stage_libraries(["nope"], [tmp_path])
+
+
+def test_an_export_vendors_the_blasfeo_named_by_the_environment(tmp_path, monkeypatch):
+    """STICKSLIP_BLASFEO names a blasfeo built for the target CPU (the wheel's is the generic build):
+    ``mitigate export`` vendors it as ``lib/libblasfeo.so.0`` (hpipm's name for it) and says so in
+    PLATFORM; unset, the wheel's is vendored."""
+    from mitigate.export.files import vendor_hpipm
+    from models.cbuild import BLASFEO_ENV, blasfeo_override
+    _, lib = hpipm_paths()
+    monkeypatch.delenv(BLASFEO_ENV, raising=False)
+    assert blasfeo_override() is None
+    vendor_hpipm(tmp_path / "plain")
+    assert (tmp_path / "plain" / "lib" / "libblasfeo.so.0").read_bytes() == (lib / "libblasfeo.so.0").read_bytes()
+    # "another build": the wheel's bytes with a trailer (an ELF loader ignores trailing bytes)
+    other = tmp_path / "libblasfeo.so"
+    other.write_bytes((lib / "libblasfeo.so").read_bytes() + b"another build\0")
+    monkeypatch.setenv(BLASFEO_ENV, str(other))
+    assert blasfeo_override() == other
+    vendor_hpipm(tmp_path / "opt")
+    assert (tmp_path / "opt" / "lib" / "libblasfeo.so.0").read_bytes() == other.read_bytes()
+    assert (tmp_path / "opt" / "lib" / "libhpipm.so").read_bytes() == (lib / "libhpipm.so").read_bytes()
+    assert f"blasfeo from {other} (STICKSLIP_BLASFEO)" in (tmp_path / "opt" / "PLATFORM").read_text()
+
+
+@pytest.mark.parametrize("what, match", [
+    ("nothing", r"^STICKSLIP_BLASFEO: expected the path of a libblasfeo\.so file; got '.*nothing' \(no such file\)$"),
+    ("text", r"^STICKSLIP_BLASFEO: expected a blasfeo shared library; got '.*libblasfeo\.so' \(OSError: "),
+])
+def test_a_wrong_blasfeo_override_is_one_line(what, match, tmp_path, monkeypatch):
+    from models.cbuild import BLASFEO_ENV, blasfeo_override
+    (tmp_path / "libblasfeo.so").write_text("not a library\n")
+    monkeypatch.setenv(BLASFEO_ENV, str(tmp_path / what if what == "nothing" else tmp_path / "libblasfeo.so"))
+    with pytest.raises(RuntimeError, match=match):
+        blasfeo_override()

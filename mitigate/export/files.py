@@ -16,7 +16,7 @@ import platform
 import shutil
 from pathlib import Path
 
-from models.cbuild import hpipm_paths
+from models.cbuild import BLASFEO_ENV, blasfeo_override, hpipm_paths
 # the build types of an export and their C flags (one declaration, models.codegen.BUILD_TYPES):
 # Release is the build measured in BENCHMARKS.md; Debug compiles the generated C about 3-4x faster,
 # unoptimised, with the same results (no fast-math, no contraction into fused multiply-adds)
@@ -57,8 +57,9 @@ def vendor_hpipm(dest: Path) -> list[str]:
         shutil.copy2(h, dest / "include" / h.name)
         out.append(f"include/{h.name}")
     shutil.copy2(lib / "libhpipm.so", dest / "lib" / "libhpipm.so")
-    blas = lib / "libblasfeo.so.0"
-    shutil.copy2(blas if blas.exists() else lib / "libblasfeo.so", dest / "lib" / "libblasfeo.so.0")
+    blas = blasfeo_override()            # STICKSLIP_BLASFEO: a blasfeo built for the target CPU
+    wheel = lib / "libblasfeo.so.0"
+    shutil.copy2(blas or (wheel if wheel.exists() else lib / "libblasfeo.so"), dest / "lib" / "libblasfeo.so.0")
     link = dest / "lib" / "libblasfeo.so"
     if link.exists() or link.is_symlink():
         link.unlink()
@@ -69,7 +70,8 @@ def vendor_hpipm(dest: Path) -> list[str]:
         if src.exists():
             shutil.copy2(src, dest / "LICENSES" / f"{name}.txt")
             out.append(f"LICENSES/{name}.txt")
-    (dest / "PLATFORM").write_text(f"{platform.system()} {platform.machine()} (from the casadi wheel)\n")
+    where = f"blasfeo from {blas} ({BLASFEO_ENV}), hpipm from the casadi wheel" if blas else "from the casadi wheel"
+    (dest / "PLATFORM").write_text(f"{platform.system()} {platform.machine()} ({where})\n")
     return out
 
 
