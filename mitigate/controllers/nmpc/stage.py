@@ -134,8 +134,16 @@ def stage_functions(model, spec: OCPSpec):
     name = f"{model.cname}_nmpc"
     folded = spec.nsub > FOLD_ABOVE
     one = dataclasses.replace(integ, dt=spec.dt / spec.nsub, nsub=1) if folded else None
-    # unrolled: the interval's end as one expression (folded: a loop over one substep, below)
-    xn = None if folded else finish(integ.advance(faug, xa, v, q, fast), xa, v)
+    # unrolled: the interval's end as one expression (folded: a loop over one substep, below); the
+    # implicit step's Jacobians by the implicit function theorem (models.sdirk), from the same Newton
+    # iterates as its values, not by differentiating them (8x the instructions, C that does not build)
+    xn = Ex = Ev = None
+    if not folded:
+        if integ.implicit:
+            xe, (Ex, Ev) = integ.advance_jacobian(faug, xa, v, q, fast)
+        else:
+            xe = integ.advance(faug, xa, v, q, fast)
+        xn = finish(xe, xa, v)
     if folded:
         step = _folded_dynamics(one, spec.nsub, faug, fast, finish, xa, v, q, name, values_only=True)
         xaM, vM, qM = ca.MX.sym("xa", L.nxa), ca.MX.sym("v", L.nv), ca.MX.sym("q", L.nq)
@@ -162,9 +170,6 @@ def stage_functions(model, spec: OCPSpec):
               d(Jv.T @ r + ca.jacobian(lin, v).T), 0.5 * ca.sumsqr(r) + lin]
     outs = ["xn", "A", "B", "Q", "S", "R", "gx", "gv", "c"]
     if not folded and integ.implicit:
-        # the implicit step's Jacobians by the implicit function theorem (models.sdirk), not by
-        # differentiating its unrolled Newton iterations (8x the instructions, C that does not build)
-        xe, (Ex, Ev) = integ.advance_jacobian(faug, xa, v, q, fast)
         A, B = _finish_jacobians(finish, xe, Ex, Ev, xa, v)
         stage = ca.Function(f"{name}_stage", [xa, v, q], [xn, d(A), d(B), *blocks], ["xa", "v", "q"], outs)
     elif not folded:
