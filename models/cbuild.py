@@ -271,18 +271,19 @@ def blasfeo_override() -> Path | None:
 
     Raises
     ------
-    RuntimeError : it names no file, or a file that is not a blasfeo library (one line).
+    ConfigError : it names no file, or a file that is not a blasfeo library (one line: bad input).
     """
+    from models.errors import ConfigError
     v = os.environ.get(BLASFEO_ENV, "").strip()
     if not v:
         return None
     f = Path(v).expanduser()
     if not f.is_file():
-        raise RuntimeError(f"{BLASFEO_ENV}: expected the path of a libblasfeo.so file; got {v!r} (no such file)")
+        raise ConfigError(f"{BLASFEO_ENV}: expected the path of a libblasfeo.so file; got {v!r} (no such file)")
     try:
         ctypes.CDLL(str(f)).blasfeo_processor_library_string   # noqa: B018 - the symbol must exist
     except (OSError, AttributeError) as exc:
-        raise RuntimeError(f"{BLASFEO_ENV}: expected a blasfeo shared library; got {v!r} "
+        raise ConfigError(f"{BLASFEO_ENV}: expected a blasfeo shared library; got {v!r} "
                            f"({type(exc).__name__}: {str(exc).splitlines()[0][:120]})") from None
     return f
 

@@ -78,7 +78,25 @@ def test_an_export_vendors_the_blasfeo_named_by_the_environment(tmp_path, monkey
 ])
 def test_a_wrong_blasfeo_override_is_one_line(what, match, tmp_path, monkeypatch):
     from models.cbuild import BLASFEO_ENV, blasfeo_override
+    from models.errors import ConfigError
     (tmp_path / "libblasfeo.so").write_text("not a library\n")
     monkeypatch.setenv(BLASFEO_ENV, str(tmp_path / what if what == "nothing" else tmp_path / "libblasfeo.so"))
-    with pytest.raises(RuntimeError, match=match):
+    with pytest.raises(ConfigError, match=match):
         blasfeo_override()
+
+
+def test_mitigate_export_refuses_a_wrong_blasfeo_in_one_line(tmp_path):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, STICKSLIP_BLASFEO=str(tmp_path / "nothing.so"))
+    out = tmp_path / "export"
+    r = subprocess.run([sys.executable, "-m", "mitigate.cli", "export", str(root / "scenarios" / "stick_slip_30rpm.toml"),
+                        "--controller", "NMPC", "--out", str(out)], capture_output=True, text=True, env=env, cwd=root,
+                       timeout=300)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "STICKSLIP_BLASFEO: expected the path of a libblasfeo.so file" in lines[0]
+    assert not out.exists()
