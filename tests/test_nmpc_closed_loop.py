@@ -206,3 +206,38 @@ def test_torque_drive_follows_the_scenarios_control_speed():
     w, acts, _ = _closed_loop(c, plant, 0.0, 800, u_prog=u0, model=m)
     assert np.mean(w[-200:]) == pytest.approx(0.7, abs=0.02) and severity(w[-200:]) < 0.05
     assert c.counts.failures == 0
+
+
+# ----------------------------------------------------------------------------- the programme's force band
+def _pin_only_with_programme(opts, n=200):
+    """rig3 with N2 programmed at 10 N (a servo force that is a job, like a weight on bit), the pin-only
+    NMPC from established stick-slip; the Python reference and the compiled step on the same loop."""
+    u = np.array([W0, 20.0, 10.0])
+    base = Plant(M, P, SimOptions(seed=0), sensors=None, u0=u)
+    for _ in range(1000):
+        base.step(u)
+    out = {}
+    for impl in ("python", "c"):
+        c = make_controller({"kind": "nmpc", "inputs": "pin", "horizon": 15, "compile": impl == "c",
+                             "implementation": impl, **opts}, _ctx(programme=u))
+        assert (c.compiled is not None) == (impl == "c")
+        plant = Plant(M, P, SimOptions(seed=0), sensors=None, x0=base.x, u0=u)
+        _, acts, _ = _closed_loop(c, plant, base.t, n, u_prog=u)
+        assert c.counts.failures == 0 and c.counts.fallbacks == 0
+        out[impl] = np.array([a.u["n2"] for a in acts])
+    return out
+
+
+def test_a_programmed_servo_force_stays_in_its_band_in_c_and_python():
+    """A servo force with a positive programme stays within NMPCOptions.force_band (default: the
+    metrics' band, 0.8-1.25 of the programme) at every sample, so no window's mean can leave the band
+    the benchmark judges; the compiled step bounds it as the Python reference does.  Without the band
+    ([0, inf]) the same NMPC presses beyond it (it would suppress with 38 N): the band binds."""
+    banded = _pin_only_with_programme({})
+    for cmd in banded.values():
+        assert cmd.min() >= 8.0 - 1e-9 and cmd.max() <= 12.5 + 1e-9
+        assert cmd.min() < 8.0 + 1e-6 or cmd.max() > 12.5 - 1e-6      # and it uses the band to its edge
+    np.testing.assert_allclose(banded["c"], banded["python"], rtol=1e-9, atol=1e-9)
+    free = _pin_only_with_programme({"force_band": [0.0, float("inf")]}, n=100)
+    assert free["python"].max() > 20.0
+    np.testing.assert_allclose(free["c"], free["python"], rtol=1e-9, atol=1e-9)

@@ -3,7 +3,7 @@
 The adapter (:mod:`mitigate.export.glue`) holds the NMPC's exported defaults (the C core's
 configuration, written by :meth:`models.cbuild.CStruct.c_initialiser` from the workbench's own
 resolved controller), applies the runtime parameters (the rig's, the cost's weights, the set-point's
-band and rate, the servos' ranges and rates, a torque drive's limit) and hands the core the
+band and rate, the servos' force band, ranges and rates, a torque drive's limit) and hands the core the
 estimate in its canonical layout (the rig's states, then the load factors the estimator has).
 """
 
@@ -27,6 +27,11 @@ def _params(nmpc) -> tuple[Port, ...]:
     if nmpc.drives:
         pars.append(Port("setpoint_band", drive.unit, cfg.setpoint_band, doc="the set-point stays within the programme +- this"))
         pars.append(Port("setpoint_rate", drive.rate_unit, cfg.setpoint_rate, doc="the set-point's rate limit"))
+    if nmpc.servos:
+        pars += [Port("force_band_low", "-", nmpc.force_band[0],
+                      doc="a servo force with a positive programme stays above this x programme"),
+                 Port("force_band_high", "-", nmpc.force_band[1],
+                      doc="a servo force with a positive programme stays below this x programme")]
     for a, n in zip(nmpc.start.acts, nmpc.servos):
         pars += [Port(f"{n}:n_min", "N", float(a.n_min), doc="servo range"),
                  Port(f"{n}:n_max", "N", float(a.n_max), doc="servo range"),
@@ -54,6 +59,7 @@ def nmpc_export(nmpc, ekf) -> KindExport:
             f"#define SB_PAR {par.index('setpoint_band') if 'setpoint_band' in par else -1}",
             f"#define SR_PAR {par.index('setpoint_rate') if 'setpoint_rate' in par else -1}",
             f"#define TM_PAR {par.index('torque_max') if 'torque_max' in par else -1}",
+            f"#define FB_PAR {par.index('force_band_low') if 'force_band_low' in par else -1}",
         ])
         tables = "\n".join([
             c_array("nmpc_ch", [lay.inputs.index(c) for c in channels_read(ctrl)]),
@@ -102,6 +108,7 @@ static void configure(nmpc_setup* b, const double* par) {{
     if (SB_PAR >= 0) b->c.setpoint_band = par[SB_PAR];
     if (SR_PAR >= 0) b->rate[0] = par[SR_PAR];
     if (TM_PAR >= 0) b->c.torque_max = par[TM_PAR];
+    if (FB_PAR >= 0) {{ b->c.force_lo = par[FB_PAR]; b->c.force_hi = par[FB_PAR + 1]; }}
     for (i = 0; i < NSERVO; i++) {{
         int j = DRIVES + i;
         b->nmin[i] = b->lo[j] = par[servo_par[3 * i]];

@@ -17,8 +17,8 @@ import numpy as np
 from models.checks import check_options, option, where_field
 from models.errors import ConfigError
 
-__all__ = ["MetricOptions", "contact_work", "solve_time_stats", "programmed_speed", "measured_stuck_speed", "rig_period",
-           "force_roles", "windows"]
+__all__ = ["FORCE_BAND", "MetricOptions", "contact_work", "solve_time_stats", "programmed_speed", "measured_stuck_speed", "rig_period",
+           "force_roles", "straddles_one", "windows"]
 
 
 def contact_work(model, params, x: np.ndarray, u: np.ndarray, contact: str, dt: float, *,
@@ -68,7 +68,12 @@ def solve_time_stats(times: np.ndarray) -> dict[str, float]:
     return {"median": float(np.median(t)), "p95": float(np.percentile(t, 95)), "max": float(np.max(t))}
 
 
-def _straddles_one(band: tuple[float, float], where: str) -> None:
+#: the driller's band of a programmed normal force (the weight on bit), ratios to the programme: the
+#: default of :attr:`MetricOptions.force_band` and of the NMPC's ``force_band``
+FORCE_BAND = (0.8, 1.25)
+
+
+def straddles_one(band: tuple[float, float], where: str) -> None:
     """A band of ratios to the programme holds the programme: ``low < 1 <= high``."""
     if not band[0] < 1 <= band[1]:
         raise ConfigError(f"{where} must have low < 1 <= high, got [{band[0]:g}, {band[1]:g}]")
@@ -122,13 +127,13 @@ class MetricOptions:
     suppress_threshold: float = option(0.1, lo=0.0, lo_open=True)
     stuck_speed: float | None = option(None, lo=0.0, lo_open=True, unit="rad/s", none=True)
     stuck_speed_measured: float | None = option(None, lo=0.0, lo_open=True, unit="rad/s", none=True)
-    force_band: tuple = option((0.8, 1.25), items=2, lo=0.0, what="[low, high] (ratios to the programme)",
-                               check=_straddles_one)
+    force_band: tuple = option(FORCE_BAND, items=2, lo=0.0, what="[low, high] (ratios to the programme)",
+                               check=straddles_one)
     speed_band: tuple = option((0.95, 1.05), items=2, lo=0.0, what="[low, high] (ratios to the programme)",
-                               check=_straddles_one)
+                               check=straddles_one)
     band_periods: float = option(1.0, lo=0.0, lo_open=True)
     moving_speed_band: tuple = option((0.85, 1.15), items=2, lo=0.0, what="[low, high] (ratios to the programme)",
-                                      check=_straddles_one)
+                                      check=straddles_one)
     band_after: float = option(1.0, lo=0.0)
     stuck_limit: float = option(0.5, lo=0.0, hi=1.0, hi_open=True, why="a fraction of the residual window")
     where: str = where_field("metrics")

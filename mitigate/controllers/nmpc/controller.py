@@ -44,6 +44,7 @@ from mitigate.controllers.nmpc.options import MAX_SUBSTEPS, WEIGHT_NAMES, NMPCOp
 from mitigate.controllers.nmpc.solvers import make_ocp_solver
 from mitigate.controllers.nmpc.start import PlanStart
 from mitigate.controllers.nmpc.supervision import Decision, Supervisor
+from mitigate.metrics.quantities import FORCE_BAND
 from mitigate.tunables import Tunable
 from models.discretise import integration
 from models.errors import ConfigError, SolverFailure
@@ -173,6 +174,8 @@ class NMPC(Controller):
         self._rate = np.array(([cfg.setpoint_rate] if self.drives else []) + [a.rate_max for a in acts], float)
         self._lo = np.array(([0.0] if self.drives else []) + [a.n_min for a in acts], float)
         self._hi = np.array(([0.0] if self.drives else []) + [a.n_max for a in acts], float)
+        #: the programme's band of a commanded servo force, ratios (``NMPCOptions.force_band``)
+        self.force_band = tuple(float(v) for v in (o.force_band if o.force_band is not None else FORCE_BAND))
         self.stick_slip_period = cfg.period
         self.start = PlanStart(m, self.params, self.inputs, self.dt_daq, cfg.force_filter, o.use_load_estimate)
         # the trim moves the speed the drive's set-point aims at: without the drive, nothing to trim
@@ -262,8 +265,16 @@ class NMPC(Controller):
     def _bounds(self, u_prog):
         """Bounds of the commanded inputs: the set-point within the programme's band (a speed
         set-point does not reverse the rotation; a torque drive within its limit), the servos'
-        ranges."""
+        ranges, each servo with a positive programme within ``force_band`` of it."""
         lo, hi = self._lo.copy(), self._hi.copy()
+        b_lo, b_hi = self.force_band
+        for j, k in zip(self.layout.j_cmd, self.layout.u_servo):
+            p = float(u_prog[k])
+            if p > 0:
+                a, b = max(lo[j], b_lo * p), min(hi[j], b_hi * p)
+                if a > b:               # the band lies outside the servo's range: the range's nearest force
+                    a = b = min(max(p, lo[j]), hi[j])
+                lo[j], hi[j] = a, b
         if self.drives:
             c = float(u_prog[self.layout.u_drive])
             band = self.cfg.setpoint_band

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from models.checks import check_options, option, options_from_mapping, where_field
 from models.errors import ConfigError
 from mitigate.controllers.nmpc.qp import QP_SOLVERS
+from mitigate.metrics.quantities import straddles_one
 
 __all__ = ["NMPCOptions", "NMPCWeights", "MAX_HORIZON", "MAX_SUBSTEPS", "INPUT_MODES", "SOLVERS", "WEIGHT_NAMES"]
 
@@ -108,6 +109,11 @@ class NMPCOptions:
         set-point, so a speed set-point stays in [0, 2 w_prog])
     setpoint_rate : rate limit of the set-point [rad/s^2, or N m/s] (None: 15 bands per
         stick-slip period)
+    force_band : ``(low, high)``: a commanded servo force whose programme is positive (a weight on
+        bit) stays within ``[low, high]`` times the programme at every sample, inside the servo's
+        range, so every window's mean keeps the driller's band that the metrics judge (None:
+        :data:`mitigate.metrics.quantities.FORCE_BAND`, the default of ``MetricOptions.force_band``;
+        ``[0, inf]``: the servo's whole range).  A zero programme (a brake) has no band
     solver : "rti" (one Gauss-Newton QP per plan), "sqp" (Gauss-Newton to convergence), "ipopt"
         (exact Hessian; the reference)
     compile : compile the stage function with gcc (cached on disk) for rti/sqp
@@ -152,6 +158,8 @@ class NMPCOptions:
     weights: NMPCWeights = option(NMPCWeights(), table=NMPCWeights, what="a table of weights")
     setpoint_band: float | None = option(None, lo=0.0, none=True)
     setpoint_rate: float | None = option(None, lo=0.0, lo_open=True, none=True)
+    force_band: tuple[float, float] | None = option(None, items=2, lo=0.0, finite=False, none=True, check=straddles_one,
+                                                    what="[low, high] (ratios to the programme)")
     solver: str = option("rti", choices=SOLVERS)
     compile: bool = option(True)
     qp_solver: str = option("hpipm", choices=QP_SOLVERS)

@@ -672,6 +672,14 @@ static void command_bounds(ssn_mem* m, const double* u_prog) {
             m->lo[0] = dmax(m->lo[0], -c->torque_max); m->hi[0] = dmin(m->hi[0], c->torque_max);
         }
     }
+    for (j = 0; j < c->ns; j++) {  /* a servo force with a positive programme stays in its band */
+        int jc = c->j_cmd[j];
+        double p = u_prog[c->u_servo[j]], a, b;
+        if (!(p > 0)) continue;
+        a = dmax(m->lo[jc], c->force_lo * p); b = dmin(m->hi[jc], c->force_hi * p);
+        if (a > b) a = b = dmin(dmax(p, m->lo[jc]), m->hi[jc]);   /* the band is outside the servo's range */
+        m->lo[jc] = a; m->hi[jc] = b;
+    }
 }
 
 /* ------------------------------------------------------------------ the step */
