@@ -7,6 +7,7 @@ The tiny suite of tests/test_benchmark.py (2 s drill-string scenarios) keeps mos
 needs a real scenario is marked slow."""
 
 import copy
+import dataclasses
 import gzip
 import json
 import math
@@ -18,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mitigate.benchmark import load_suite, run_benchmark
+from mitigate.benchmark import load_suite, run_benchmark, write_benchmark
 from mitigate.benchmark.entry import VARYING, read_entry, schema, validate
 from mitigate.benchmark.freeze import check, fingerprint, lock_path
 from mitigate.benchmark.plan import make_tasks, reference_run
@@ -211,6 +212,12 @@ def test_the_entry_is_schema_valid_and_names_its_suite_compute_model_and_code(ti
     assert doc["suite"]["compute"] == "period" and "one control period" in doc["suite"]["compute_model"]
     assert doc["metrics_version"] == METRICS_VERSION and len(doc["records"]) == 3
     assert doc["provenance"]["commit"] and doc["provenance"]["packages"]["casadi"]
+    assert doc["provenance"] == res.provenance          # taken when the runs started, not when written
+    # what is written is the provenance the runs started with (a commit made while they ran does not count)
+    then = dataclasses.replace(res, provenance={**res.provenance, "commit": "0" * 40})
+    write_benchmark(then, tmp_path / "w", command="mitigate benchmark x")
+    written = json.loads((tmp_path / "w" / "results.json").read_text())["provenance"]
+    assert written["commit"] == "0" * 40 and written["command"] == "mitigate benchmark x"
     broken = copy.deepcopy(doc)
     broken["records"][0]["status"] = "fine"
     with pytest.raises(DataError, match=r"^results\.json: records/0/status: 'fine' is not one of") as ei:

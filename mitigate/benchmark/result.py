@@ -42,6 +42,8 @@ class BenchmarkResult(Outcome):
     tuned : ``{(scenario, controller): options}`` when the controllers were tuned (``mode == "tuned"``)
     tuning : how they were tuned (budget, sampler, tuning phases and seeds; empty for the defaults)
     metrics_version : :data:`mitigate.metrics.METRICS_VERSION` of the code that scored the runs
+    provenance : where the runs were made (:func:`mitigate.benchmark.entry.provenance`), taken when the
+        benchmark STARTED: the commit whose code the workers imported, not the one when it wrote
     status : :meth:`Status.worst` of the runs (FAILED if a run failed -- the others' results stand --,
         WARNING if a run warned), and WARNING when a suppression scenario has no stick-slip at its switch-on
     """
@@ -62,6 +64,7 @@ class BenchmarkResult(Outcome):
     computed: int = 0
     tuning: dict = field(default_factory=dict)
     metrics_version: str = ""
+    provenance: dict = field(default_factory=dict, repr=False)
 
     def entry(self, scenario: str, controller: str) -> Entry:
         try:
@@ -72,9 +75,10 @@ class BenchmarkResult(Outcome):
     def as_dict(self, provenance: Mapping | None = None) -> dict[str, Any]:
         """The results as a submittable entry (:func:`mitigate.benchmark.entry.entry_document`: every
         run's record, the suite's version and compute model, ``provenance``), which the results' JSON
-        Schema accepts; everything but its ``timing`` and ``provenance`` is the same on any machine."""
+        Schema accepts; everything but its ``timing`` and ``provenance`` is the same on any machine.
+        ``provenance`` None: the one taken when the runs started (:attr:`provenance`)."""
         from mitigate.benchmark.entry import entry_document
-        return entry_document(self, provenance)
+        return entry_document(self, provenance if provenance is not None else (self.provenance or None))
 
 
 def references(suite: Suite, jobs: int = 1) -> dict[str, Reference]:
@@ -137,7 +141,7 @@ def definition(suite: Suite, phases: int, seeds: int, tuned: Mapping | None = No
 def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None = None, jobs: int = 2,
                   store: str | Path | None = None, force: bool = False, scheduler: str | None = None, client=None,
                   progress: bool = False, tuned: Mapping | None = None, refs: Mapping | None = None,
-                  tuning: Mapping | None = None) -> BenchmarkResult:
+                  tuning: Mapping | None = None, provenance: Mapping | None = None) -> BenchmarkResult:
     """Run every controller of ``suite`` on every scenario at ``phases`` switch-on instants and
     ``seeds`` noise seeds, and rank them.
 
@@ -150,12 +154,16 @@ def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None 
     tuned : ``{(scenario, controller): options}`` replacing the suite's options (the tuned mode)
     refs : precomputed ``{scenario: Reference}``
     tuning : how ``tuned`` was made (:func:`mitigate.tune.tune_suite`'s ``settings``), stored with the results
+    provenance : where the runs are made (None: :func:`mitigate.benchmark.entry.provenance` now, before
+        the first run; a caller that tuned first passes the one it took before tuning)
 
     Returns
     -------
     BenchmarkResult
     """
+    from mitigate.benchmark.entry import provenance as where_made
     t0 = time.perf_counter()
+    prov = dict(provenance) if provenance is not None else where_made()
     phases = suite.phases if phases is None else phases
     seeds = suite.seeds if seeds is None else seeds
     refs = dict(refs) if refs is not None else references(suite, jobs if client is None and not scheduler else 1)
@@ -165,11 +173,12 @@ def run_benchmark(suite: Suite, *, phases: int | None = None, seeds: int | None 
     recs = execute(tasks, store=st, jobs=jobs, scheduler=scheduler, client=client, progress=progress,
                    desc=f"benchmark {suite.name}", on_record=computed.append)
     return assemble(suite, refs, list(recs.values()), phases=phases, seeds=seeds, tuned=tuned, tuning=tuning,
-                    elapsed=time.perf_counter() - t0, computed=len(computed))
+                    elapsed=time.perf_counter() - t0, computed=len(computed), provenance=prov)
 
 
 def assemble(suite: Suite, refs: Mapping, records: list, *, phases: int, seeds: int, tuned: Mapping | None = None,
-             tuning: Mapping | None = None, elapsed: float = 0.0, computed: int = 0) -> BenchmarkResult:
+             tuning: Mapping | None = None, elapsed: float = 0.0, computed: int = 0,
+             provenance: Mapping | None = None) -> BenchmarkResult:
     """A :class:`BenchmarkResult` from every run's record (:func:`run_benchmark` once its runs are done,
     or a store's records read back): the entries, their ranks, the class tables, the status."""
     from mitigate.metrics import METRICS_VERSION
@@ -204,5 +213,6 @@ def assemble(suite: Suite, refs: Mapping, records: list, *, phases: int, seeds: 
     status = Status.worst(runs + ([Status.WARNING] if no_slip else []))
     return BenchmarkResult(suite, dict(refs), records, entries, tables, phases, seeds,
                            "tuned" if tuned else "defaults", dict(tuned or {}), elapsed, status, "; ".join(notes) or "ok",
-                           computed=computed, tuning=dict(tuning or {}), metrics_version=METRICS_VERSION)
+                           computed=computed, tuning=dict(tuning or {}), metrics_version=METRICS_VERSION,
+                           provenance=dict(provenance or {}))
 

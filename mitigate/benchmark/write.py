@@ -78,7 +78,9 @@ def write_benchmark(res, out, *, force: bool = False, command: str = "") -> dict
     w.write_text(n["entries"], _entries_csv(res))
     res = dataclasses.replace(res, files=files)
     from mitigate.benchmark.entry import provenance
-    w.write_text(n["json"], json.dumps(res.as_dict(provenance(command)), indent=2) + "\n")
+    prov = dict(res.provenance) if res.provenance else provenance()     # taken when the runs started
+    prov["command"] = command
+    w.write_text(n["json"], json.dumps(res.as_dict(prov), indent=2) + "\n")
     plot_heatmap(res, w.path(n["png"]))
     plot_distribution(res, w.path(n["distribution"]))
     return files

@@ -180,6 +180,8 @@ def run(args) -> int:
     command = "mitigate benchmark " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if len(sys.argv) > 2 else ""
     phases, seeds = (1, 1) if args.quick else (args.phases, args.seeds)
     # locked for the whole benchmark (the run store in DIR/runs/ too), the report written as one set
+    from mitigate.benchmark.entry import provenance
+    prov = provenance(command)                       # the code the workers import: before anything runs
     with output_set(out, BENCHMARK_FILES.values(), force=args.force) as w:
         client = None
         if args.scheduler:
@@ -196,7 +198,8 @@ def run(args) -> int:
                                    progress=not args.json, grid=grid, phases=tp)
                 how = settings(args.budget, tp, 1, grid)
             res = run_benchmark(suite, phases=phases, seeds=seeds, jobs=args.jobs, store=out, force=args.force,
-                                client=client, progress=not args.json, tuned=tuned, refs=refs, tuning=how)
+                                client=client, progress=not args.json, tuned=tuned, refs=refs, tuning=how,
+                                provenance=prov)
         finally:
             if client is not None:
                 client.close()
