@@ -3,7 +3,8 @@
 ``mitigate benchmark SUITE --generated N --seed S`` replaces the suite's scenarios by N scenarios
 drawn from S, written as files (a rig file and a scenario file each, and a suite file that lists them
 with the suite's controllers, metrics and compute model) under ``DIR/generated/``, then benchmarks
-them.  The same N and S give the same files on any machine (:func:`generate`).
+them.  The same N and S give the same files on any machine (:func:`generate`): the values computed
+with LAPACK or a root finder (the period, the operating point) are rounded to 12 digits first.
 
 Each scenario is drawn, from ``numpy.random.default_rng([S, k, attempt])``:
 
@@ -65,6 +66,14 @@ def _toml(v: Any) -> str:
     raise ConfigError(f"cannot write {v!r} ({type(v).__name__}) to a generated suite file")
 
 
+def _portable(x: float) -> float:
+    """``x`` to 12 significant digits.  The period (an eigenvalue) and the operating point (a root) come
+    from LAPACK and scipy, whose last bits depend on the CPU's kernels (two x86_64 hosts with the same
+    packages gave periods 2 ulp apart, and so different files); every value derived from them is
+    written from the rounded one, so the same N and S give the same files on either."""
+    return float(f"{float(x):.12g}")
+
+
 def _draw(k: int, seed: int, attempt: int, where: Path) -> tuple[str, str, dict]:
     """(rig text, scenario text, what was drawn) of scenario ``k``."""
     from mitigate.metrics import rig_period
@@ -84,8 +93,8 @@ def _draw(k: int, seed: int, attempt: int, where: Path) -> tuple[str, str, dict]
     frac = float(rng.uniform(*SPEED_FRACTION))
     force = float(rng.uniform(*FORCE_FACTOR))
     u, _ = operating_point(m, p, omega=frac * m.nominal_speed())
-    inputs = {n: float(v) for n, v in zip(m.inputs, u)}
-    inputs[z.normal_input] *= force
+    inputs = {n: _portable(v) for n, v in zip(m.inputs, u)}
+    inputs[z.normal_input] = _portable(inputs[z.normal_input] * force)
     mism = {}
     for i in range(z.n_bodies):
         mism[f"k{i}"] = float(rng.uniform(*MISMATCH))
@@ -93,7 +102,7 @@ def _draw(k: int, seed: int, attempt: int, where: Path) -> tuple[str, str, dict]
     level = float(rng.uniform(*MISMATCH))
     for q in _LEVEL[z.law]:
         mism[q] = level
-    T = rig_period(m, p)
+    T = _portable(rig_period(m, p))
     dt = T / _SAMPLES_PER_PERIOD
     start = _PERIODS_BEFORE * T
     drawn = {"rig": z.describe(), "speed_fraction": frac, "force_factor": force, "friction_level": level,
