@@ -23,6 +23,8 @@ Also here: :mod:`estimators.twostep` (seed 002's two-step identification) and
 :mod:`estimators.thesis_id` (the thesis' own identification, recomputed from its raw data).
 """
 
+import models.portable  # noqa: F401 - first: it pins OpenBLAS's kernels before numpy loads them
+
 import importlib
 import sys
 import types

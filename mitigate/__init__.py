@@ -9,6 +9,8 @@ The Python API (the ``mitigate`` CLI is a thin layer over it)::
     result.run("NMPC").metrics["sss"]
 """
 
+import models.portable  # noqa: F401 - first: it pins OpenBLAS's kernels before numpy loads them
+
 from mitigate.benchmark import BenchmarkResult, Suite, load_suite, run_benchmark, write_benchmark
 from mitigate.closedloop import ClosedLoopResult, run_closed_loop
 from mitigate.controllers.base import Action, ControlContext, Controller

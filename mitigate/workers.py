@@ -46,6 +46,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from models.errors import ConfigError
 from models.plugins import describe
+from models.portable import pin as pin_blas
 
 __all__ = ["WorkerPool", "Finished", "report", "die_with_parent"]
 
@@ -228,6 +229,7 @@ class WorkerPool:
         # that fell in the window (tests/test_faults_processes.py sends one there).  The spawn context's
         # resource tracker, started with the first process, unblocks SIGINT when it is up: started first.
         resource_tracker.ensure_running()
+        pin_blas()                      # the worker loads OpenBLAS with the portable kernels (models/portable.py)
         sigmask = getattr(signal, "pthread_sigmask", None)
         mask = sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if sigmask is not None else None
         try:

@@ -9,7 +9,11 @@ The Python API::
     modes("rig3", p, "clamped").freq_hz
 """
 
-from models.errors import ConfigError, DataError, PluginError, SolverFailure
+from models import portable as _portable
+
+_portable.pin()        # one OpenBLAS kernel on every machine, before numpy loads it (models/portable.py)
+
+from models.errors import ConfigError, DataError, PluginError, SolverFailure  # noqa: E402
 from models.friction import FrictionLaw, LAWS, LawState, Param, get_law, register
 from models import friction_state as _friction_state  # noqa: F401 - the laws with state register themselves
 from models.logs import Log, read_csv

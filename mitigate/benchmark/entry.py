@@ -59,8 +59,11 @@ def provenance(command: str = "") -> dict[str, Any]:
             versions[p] = metadata.version(p)
         except metadata.PackageNotFoundError:
             versions[p] = None
+    from models.portable import blas_core
     machine = {"system": platform.system(), "release": platform.release(), "machine": platform.machine(),
-               "processor": platform.processor() or "", "cpus": os.cpu_count() or 0, "node": platform.node()}
+               "processor": platform.processor() or "", "cpus": os.cpu_count() or 0, "node": platform.node(),
+               # the OpenBLAS kernels of this process and the pin its workers inherit (models/portable.py)
+               "blas_core": blas_core(), "blas_pin": os.environ.get("OPENBLAS_CORETYPE")}
     return {"commit": commit, "dirty": dirty, "packages": versions, "machine": machine, "command": command}
 
 
