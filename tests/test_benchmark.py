@@ -13,7 +13,7 @@ import pytest
 
 from mitigate.benchmark import load_suite, render_ranking, run_benchmark, write_benchmark
 from mitigate.benchmark.plan import make_tasks, reference_run, run_seed
-from mitigate.benchmark.stats import Entry, interval, rank
+from mitigate.benchmark.stats import Entry, clearly_better, interval, rank
 from models.errors import ConfigError
 from models.rig import RIGS_DIR
 from models.status import Status
@@ -242,6 +242,13 @@ def test_ranks_declare_ties_where_intervals_overlap():
     y = entry("y", 0.0, 0.0, 0.0, violations=3)
     assert rank([a, c, x, y]) == {"a": 1, "c": 2, "x": 3, "y": 4}
     assert not x.job_done and not y.job_done and a.job_done
+    # "clearly better" is not transitive: q beats p (suppression time), r beats q (oscillation), p beats r
+    # (torque peak).  The three tie first; c, beaten by each of them, is fourth
+    p = entry("p", 0.01, 0.02, 0.03, tts=(1.0, 1.1, 1.2), torque=(1.2, 1.3, 1.4))
+    q = entry("q", 0.025, 0.035, 0.045, tts=(0.5, 0.6, 0.7), torque=(1.2, 1.3, 1.4))
+    r = entry("r", 0.005, 0.01, 0.02, tts=(0.9, 1.0, 1.1), torque=(1.8, 1.9, 2.1))
+    assert clearly_better(q, p) and clearly_better(r, q) and clearly_better(p, r)
+    assert rank([p, q, r, c]) == {"p": 1, "q": 1, "r": 1, "c": 4}
 
 
 def test_bootstrap_interval_is_seeded_and_handles_never():

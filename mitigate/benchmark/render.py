@@ -148,7 +148,8 @@ def how_to_read() -> str:
             + " A rank is one plus the number of controllers clearly better: one that did the job beats one that "
             "did not (two that did not: fewer failed runs); otherwise, in the order above, at the first ranked "
             "column whose intervals do not overlap, the one whose interval lies entirely on the better side. "
-            "Overlapping intervals share a rank; an entry with a failed run is never counted first. The true "
+            "Overlapping intervals share a rank, and so do entries that beat each other round a cycle (A before B "
+            "before C before A, each on another column); an entry with a failed run is never counted first. The true "
             "speed's residual (*true what stays*), the overshoot the controller added, the drive energy and the "
             "brake wear are shown beside the ranks, never folded into them. Wall-clock call times are this "
             "machine's and are reported apart.")

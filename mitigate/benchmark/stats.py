@@ -200,9 +200,21 @@ def deciding(a: Entry, b: Entry) -> str:
 
 
 def rank(entries: Iterable[Entry]) -> dict[str, int]:
-    """``{controller: rank}``: one plus the number of entries clearly better (ties share a rank)."""
+    """``{controller: rank}``: one plus the number of entries clearly better (ties share a rank).
+
+    "Clearly better" compares two entries at the first ranked column whose intervals do not overlap,
+    and that relation need not be transitive: A beats B on one column, B beats C on another, C beats A
+    on a third (measured on a tuned scenario: no entry was first).  Entries on such a cycle (a strongly
+    connected component of the relation) tie: only entries outside their cycle count against them."""
+    from scipy.sparse.csgraph import connected_components
+
     es = [e for e in entries if e.applicable]
-    return {e.controller: 1 + sum(clearly_better(o, e) for o in es if o is not e) for e in es}
+    if not es:
+        return {}
+    beats = np.array([[i != j and clearly_better(a, b) for j, b in enumerate(es)] for i, a in enumerate(es)], bool)
+    _, cycle = connected_components(beats, directed=True, connection="strong")
+    return {b.controller: 1 + int(sum(beats[i, j] and cycle[i] != cycle[j] for i in range(len(es))))
+            for j, b in enumerate(es)}
 
 
 def class_tables(entries: Mapping[tuple, Entry], scenarios, controllers) -> dict[str, list[dict]]:
