@@ -45,6 +45,8 @@ from nmpc_setup import M, P, U0, W0, apply_action as _apply, context as _ctx, es
     ({"inputs": ["n2", "omega_ref", "speed"]}, r"^controllers\[3\]\.inputs: rig 'rig3' cannot set 'speed'"),
     ({"body": "R9"}, r"^controllers\[3\]\.body must be a body of rig 'rig3' \(R1, R2, R3\), got 'R9'$"),
     ({"dt": 0.005}, r"^controllers\[3\]\.dt must be >= the DAQ period 0.01 s, got 0.005$"),
+    ({"force_band": [1.2, 1.5]}, r"^controllers\[3\]\.force_band must have low < 1 <= high, got \[1.2, 1.5\]$"),
+    ({"force_band": [0.8]}, r"^controllers\[3\]\.force_band must be \[low, high\] \(ratios to the programme\), got"),
 ])
 def test_bad_options_name_the_field(opts, match):
     with pytest.raises(ConfigError, match=match):
