@@ -144,9 +144,17 @@ def test_bad_exports_are_one_line_refusals_and_write_nothing(tmp_path, capsys):
 @pytest.mark.parametrize("inputs", ["motor", "pin"])
 def test_every_input_set_exports_and_replays(inputs, tmp_path):
     """The motor-only and the pin-only NMPC export too (issue 26): 25 s of the main scenario (5 s of
-    control) replay bit for bit without allocation."""
-    sc = load_scenario(MAIN)
-    ctrls = tuple(replace(c, options={**dict(c.options), "inputs": inputs}) if c.name == "NMPC" else c
+    control) replay bit for bit without allocation.  The pin-only one with N2 programmed at 10 N (a
+    job, like a weight on bit) and a force window of rig3's period, so the band on the moving mean
+    runs in the library too."""
+    path = MAIN
+    if inputs == "pin":
+        path = tmp_path / "pin10.toml"
+        path.write_text(MAIN.read_text().replace("n2 = 0.0", "n2 = 10.0"))
+    sc = load_scenario(path)
+    assert sc.inputs["n2"](0.0) == (10.0 if inputs == "pin" else 0.0)
+    extra = {"force_window": 2.33} if inputs == "pin" else {}
+    ctrls = tuple(replace(c, options={**dict(c.options), "inputs": inputs, **extra}) if c.name == "NMPC" else c
                   for c in sc.controllers)
     res = export_controller(replace(sc, controllers=ctrls), "NMPC", tmp_path / inputs, reference=25.0,
                             prefix=f"nmpc_{inputs}")
@@ -155,3 +163,6 @@ def test_every_input_set_exports_and_replays(inputs, tmp_path):
     code, out = _replay(so.parent / f"{res.prefix}_replay", res.out / "test" / "reference.csv")
     assert code == 0 and out["rows"] == "2501" and out["mismatches"] == "0", out
     assert out["allocations_after_create"] == "0" and int(out["ok"]) > 0
+    if inputs == "pin":
+        par = {p.name: p for p in res.interface.params}
+        assert par["force_window"].value == pytest.approx(2.33)

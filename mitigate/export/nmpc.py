@@ -31,7 +31,9 @@ def _params(nmpc) -> tuple[Port, ...]:
         pars += [Port("force_band_low", "-", nmpc.force_band[0],
                       doc="a servo force with a positive programme stays above this x programme"),
                  Port("force_band_high", "-", nmpc.force_band[1],
-                      doc="a servo force with a positive programme stays below this x programme")]
+                      doc="a servo force with a positive programme stays below this x programme"),
+                 Port("force_window", "s", nmpc.force_window,
+                      doc="the band holds the mean force over every window this long (0: every command)")]
     for a, n in zip(nmpc.start.acts, nmpc.servos):
         pars += [Port(f"{n}:n_min", "N", float(a.n_min), doc="servo range"),
                  Port(f"{n}:n_max", "N", float(a.n_max), doc="servo range"),
@@ -108,7 +110,11 @@ static void configure(nmpc_setup* b, const double* par) {{
     if (SB_PAR >= 0) b->c.setpoint_band = par[SB_PAR];
     if (SR_PAR >= 0) b->rate[0] = par[SR_PAR];
     if (TM_PAR >= 0) b->c.torque_max = par[TM_PAR];
-    if (FB_PAR >= 0) {{ b->c.force_lo = par[FB_PAR]; b->c.force_hi = par[FB_PAR + 1]; }}
+    if (FB_PAR >= 0) {{
+        b->c.force_lo = par[FB_PAR]; b->c.force_hi = par[FB_PAR + 1];
+        b->c.force_n = par[FB_PAR + 2] > 0 ? (int)ss_round(par[FB_PAR + 2] / b->c.dt_daq) : 0;
+        if (par[FB_PAR + 2] > 0 && b->c.force_n < 1) b->c.force_n = 1;
+    }}
     for (i = 0; i < NSERVO; i++) {{
         int j = DRIVES + i;
         b->nmin[i] = b->lo[j] = par[servo_par[3 * i]];

@@ -36,6 +36,7 @@ from typing import Mapping
 import numpy as np
 
 from mitigate.controllers.base import Action, ControlContext, Controller
+from mitigate.controllers.nmpc.band import window_bounds
 from mitigate.controllers.nmpc.defaults import resolve as resolve_defaults
 from mitigate.controllers.nmpc.layout import OCPSpec
 from mitigate.controllers.nmpc.compiled import FAILURES, CompiledStep
@@ -177,7 +178,19 @@ class NMPC(Controller):
         #: the programme's band of a commanded servo force, ratios (``NMPCOptions.force_band``)
         self.force_band = tuple(float(v) for v in (o.force_band if o.force_band is not None else FORCE_BAND))
         self.stick_slip_period = cfg.period
-        self.start = PlanStart(m, self.params, self.inputs, self.dt_daq, cfg.force_filter, o.use_load_estimate)
+        #: the moving window of the force band [s] and its DAQ samples (0: every command in the band)
+        self.force_window = float(o.force_window)
+        self.force_window_n = max(1, int(round(self.force_window / self.dt_daq))) if self.force_window > 0 else 0
+        #: the servos' arithmetic (:func:`.band.window_bounds`) and the samples it looks ahead: one OCP
+        #: interval, the servo's time across its range and three lags
+        self._servo_steps = [(float(a.n_min), float(a.n_max), 1.0 - math.exp(-self.dt_daq / a.tau) if a.tau > 0 else 1.0,
+                              float(a.rate_max) * self.dt_daq) for a in acts]
+        self._look_n = [max(1, int(round(cfg.dt / self.dt_daq)))
+                        + (int(math.ceil((a.n_max - a.n_min) / (a.rate_max * self.dt_daq))) if math.isfinite(a.rate_max)
+                           and a.rate_max > 0 else 0)
+                        + int(math.ceil(3.0 * a.tau / self.dt_daq)) for a in acts]
+        self.start = PlanStart(m, self.params, self.inputs, self.dt_daq, cfg.force_filter, o.use_load_estimate,
+                               self.force_window_n if self.servos else 0)
         # the trim moves the speed the drive's set-point aims at: without the drive, nothing to trim
         self.supervisor = Supervisor(cfg.period, self.call_period, o.calm_band, cfg.hold_gain,
                                      cfg.speed_trim if self.drives else 0.0, self.drives)
@@ -265,16 +278,24 @@ class NMPC(Controller):
     def _bounds(self, u_prog):
         """Bounds of the commanded inputs: the set-point within the programme's band (a speed
         set-point does not reverse the rotation; a torque drive within its limit), the servos'
-        ranges, each servo with a positive programme within ``force_band`` of it."""
+        ranges, each servo with a positive programme within ``force_band`` of it: its mean over every
+        ``force_window`` (:func:`.band.window_bounds`), or each command (no window)."""
         lo, hi = self._lo.copy(), self._hi.copy()
         b_lo, b_hi = self.force_band
-        for j, k in zip(self.layout.j_cmd, self.layout.u_servo):
+        hist = self.start.history
+        for i, (j, k) in enumerate(zip(self.layout.j_cmd, self.layout.u_servo)):
             p = float(u_prog[k])
-            if p > 0:
-                a, b = max(lo[j], b_lo * p), min(hi[j], b_hi * p)
-                if a > b:               # the band lies outside the servo's range: the range's nearest force
-                    a = b = min(max(p, lo[j]), hi[j])
-                lo[j], hi[j] = a, b
+            if not p > 0:
+                continue
+            if hist is not None and hist.filled:
+                f, pp = hist.newest_first(i)
+                lo[j], hi[j] = window_bounds(f, pp, float(f[0]), p, self._servo_steps[i], self._look_n[i],
+                                             self.force_band, float(lo[j]), float(hi[j]))
+                continue
+            a, b = max(lo[j], b_lo * p), min(hi[j], b_hi * p)
+            if a > b:               # the band lies outside the servo's range: the range's nearest force
+                a = b = min(max(p, lo[j]), hi[j])
+            lo[j], hi[j] = a, b
         if self.drives:
             c = float(u_prog[self.layout.u_drive])
             band = self.cfg.setpoint_band

@@ -110,10 +110,16 @@ class NMPCOptions:
     setpoint_rate : rate limit of the set-point [rad/s^2, or N m/s] (None: 15 bands per
         stick-slip period)
     force_band : ``(low, high)``: a commanded servo force whose programme is positive (a weight on
-        bit) stays within ``[low, high]`` times the programme at every sample, inside the servo's
-        range, so every window's mean keeps the driller's band that the metrics judge (None:
+        bit) stays within ``[low, high]`` times the programme at every sample (or, with a
+        ``force_window``, on its mean over every such window), inside the servo's range: the
+        driller's band that the metrics judge (None:
         :data:`mitigate.metrics.quantities.FORCE_BAND`, the default of ``MetricOptions.force_band``;
         ``[0, inf]``: the servo's whole range).  A zero programme (a brake) has no band
+    force_window : 0: every command within ``force_band`` (no window the metrics may judge can
+        leave it); > 0: the moving window [s] whose mean applied force the band keeps, counting
+        the servo's lag and rate limit (:mod:`mitigate.controllers.nmpc.band`).  Safe only where
+        the judged window is known and this long (docs/nmpc.md: it lost job-done runs where the
+        benchmark's window, the measured period, differed from the rig's estimate)
     solver : "rti" (one Gauss-Newton QP per plan), "sqp" (Gauss-Newton to convergence), "ipopt"
         (exact Hessian; the reference)
     compile : compile the stage function with gcc (cached on disk) for rti/sqp
@@ -160,6 +166,7 @@ class NMPCOptions:
     setpoint_rate: float | None = option(None, lo=0.0, lo_open=True, none=True)
     force_band: tuple[float, float] | None = option(None, items=2, lo=0.0, finite=False, none=True, check=straddles_one,
                                                     what="[low, high] (ratios to the programme)")
+    force_window: float = option(0.0, lo=0.0, unit="s")
     solver: str = option("rti", choices=SOLVERS)
     compile: bool = option(True)
     qp_solver: str = option("hpipm", choices=QP_SOLVERS)

@@ -3,7 +3,9 @@ friction factors, from the measurements, the estimate and the NMPC's own command
 
 **Servo forces.**  A servo's force comes from a replica of the rig's servo model
 (:class:`models.actuators.Servo`) driven by the controller's own commands, started from the
-servo's load-cell reading.
+servo's load-cell reading.  With a force window (``window_n`` > 0) the replicas' forces and the
+programme of the last ``window_n`` DAQ samples are kept (:class:`.band.ForceHistory`) for the
+programme's band on the moving mean (:mod:`mitigate.controllers.nmpc.band`).
 
 **Held inputs.**  Inputs the NMPC does not set are held over the horizon: the drive at the
 programme's value; a normal force at the programme's value plus the low-passed difference between
@@ -32,6 +34,7 @@ import numpy as np
 
 from models.actuators import Servo
 from models.errors import SolverFailure
+from mitigate.controllers.nmpc.band import ForceHistory
 from mitigate.controllers.nmpc.supervision import SLIDING_FRACTION
 
 __all__ = ["PlanStart", "LOAD_FACTOR_RANGE"]
@@ -50,9 +53,11 @@ class PlanStart:
     dt_daq : the DAQ period [s] (the servo replicas' step)
     force_filter : the held forces' low-pass time constant [s] (0: the raw reading)
     use_load_estimate : take ``load:<contact>`` states from the estimate
+    window_n : DAQ samples of the servo forces' history (0: none kept)
     """
 
-    def __init__(self, model, params, inputs, dt_daq: float, force_filter: float, use_load_estimate: bool):
+    def __init__(self, model, params, inputs, dt_daq: float, force_filter: float, use_load_estimate: bool,
+                 window_n: int = 0):
         m = model
         self.model, self.params = m, params
         self.dt_daq, self.tau = float(dt_daq), float(force_filter)
@@ -65,6 +70,8 @@ class PlanStart:
         #: ``{input index: (channel, offset, gain)}`` of the load cell measuring each non-drive input
         self.readers = {j: self._reader(n) for j, n in enumerate(m.inputs) if n != drive}
         self.load_keys = {f"load:{c}": i for i, names in enumerate(m.contact_names) for c in names}
+        self.u_servo = [m.inputs.index(n) for n in self.servos]
+        self.window_n = int(window_n)
         self.reset()
 
     def _reader(self, name: str):
@@ -81,6 +88,9 @@ class PlanStart:
 
     def reset(self) -> None:
         self.servo_replicas = None     # replicas of the commanded servos
+        #: the replicas' forces and the programme over the last window_n samples (None: not kept)
+        self.history = ForceHistory(len(self.servos), self.window_n) if self.window_n > 0 else None
+        self._p_last = None            # the servos' programme at the last call
         self.deviation = {}            # low-passed (reading - programme) of each held measured input
         self.friction = np.ones(len(self.model.contacts))   # the plan's friction factors
         self._names_seen = None
@@ -103,17 +113,23 @@ class PlanStart:
 
     def servo_forces(self, steps: int, measurement, u_prog, u_prev) -> np.ndarray:
         """The commanded servos' forces now [N]: the replicas advanced ``steps`` DAQ periods with the
-        last commands ``u_prev`` (started from the load cells' readings at the first call)."""
+        last commands ``u_prev`` (started from the load cells' readings at the first call).  Each
+        step's force enters the history with the programme of the last call."""
         m = self.model
+        p_now = np.array([float(u_prog[j]) for j in self.u_servo])
         if self.servo_replicas is None:
-            self.servo_replicas = [Servo(a, self.dt_daq, self.measured(m.inputs.index(n), measurement,
-                                                                       u_prog[m.inputs.index(n)]))
-                                   for a, n in zip(self.acts, self.servos)]
+            self.servo_replicas = [Servo(a, self.dt_daq, self.measured(j, measurement, u_prog[j]))
+                                   for a, j in zip(self.acts, self.u_servo)]
+            if self.history is not None:
+                self.history.fill([s.force for s in self.servo_replicas], p_now)
         else:
             j0 = 1 if self.drives else 0
             for _ in range(max(0, steps)):
                 for i, s in enumerate(self.servo_replicas):
                     s.step(u_prev[j0 + i])
+                if self.history is not None:
+                    self.history.push([s.force for s in self.servo_replicas], self._p_last)
+        self._p_last = p_now
         return np.array([s.force for s in self.servo_replicas])
 
     def held_inputs(self, elapsed: float, measurement, u_prog) -> np.ndarray:

@@ -38,6 +38,12 @@ struct ssn_mem {
     double *fc;                   /* [nfc] the plan's friction factors */
     double *hold;                 /* [nu] held inputs of this call */
     double *forces;               /* [ns] */
+    /* the force band's window (mitigate/controllers/nmpc/band.py) */
+    double *fw_f, *fw_p;          /* [ns force_n] applied forces and programmes, ring buffers */
+    double *fw_sf, *fw_sp;        /* [force_n] their sums, newest first */
+    double *fw_new;               /* [max look_n + 1] sums of the coming samples */
+    double *p_last;               /* [ns] the servos' programme at the last call */
+    int fw_head, fw_filled;
     /* supervision */
     double *win_speed, *win_nom;  /* [window_n] */
     long win_count;
@@ -86,7 +92,10 @@ struct ssn_mem {
     if (d_) { memcpy(d_, (cfg)->f, sizeof(T) * (size_t)(n)); (m)->c.f = d_; } } while (0)
 
 static int valid(const ssn_config* c) {
+    int k;
     if (c->N < 1 || c->nx < 1 || c->nxa < c->nx || c->nv < 1 || c->nu < 1 || c->window_n < 2) return 0;
+    if (c->force_n < 0) return 0;
+    for (k = 0; k < c->ns; k++) if (c->look_n[k] < 1) return 0;
     if (c->nq < c->q_fc + c->nfc || c->ns != c->nv - (c->drives ? 1 : 0)) return 0;
     return 1;
 }
@@ -101,6 +110,7 @@ static ssn_mem* layout(ss_bump* b, const ssn_config* cfg, const ss_fn* stages, c
     COPY_ARR(b, m, cfg, u_servo, int, ns);
     COPY_ARR(b, m, cfg, i_servo, int, ns);
     COPY_ARR(b, m, cfg, j_cmd, int, ns);
+    COPY_ARR(b, m, cfg, look_n, int, ns);
     COPY_ARR(b, m, cfg, held, int, nu);
     COPY_ARR(b, m, cfg, reader_ch, int, nu);
     COPY_ARR(b, m, cfg, load_contact, int, cfg->n_load);
@@ -125,6 +135,12 @@ static ssn_mem* layout(ss_bump* b, const ssn_config* cfg, const ss_fn* stages, c
 #define D(f, n) do { double* t_ = DOUBLES(b, n); if (m) m->f = t_; } while (0)
 #define I(f, n) do { int* t_ = INTS(b, n); if (m) m->f = t_; } while (0)
     D(u_prev, nv); D(servo, ns); D(dev, nu); I(has_dev, nu); D(fc, nfc); D(hold, nu); D(forces, ns);
+    {
+        int look = 1;
+        for (k = 0; k < ns; k++) if (cfg->look_n[k] > look) look = cfg->look_n[k];
+        D(fw_f, ns * cfg->force_n); D(fw_p, ns * cfg->force_n); D(fw_sf, cfg->force_n); D(fw_sp, cfg->force_n);
+        D(fw_new, look + 1); D(p_last, ns);
+    }
     D(win_speed, cfg->window_n); D(win_nom, cfg->window_n); D(act_u, nv);
     D(X, N1 * nxa); D(V, N * nv); D(Xn, N * nxa); D(q, nq); D(prep_q, nq); D(plan_u, N * nv); D(xa0, nxa);
     D(lo, nv); D(hi, nv); D(lo1, nv); D(hi1, nv); D(u0, nv); D(tail, nv); D(lbv, nv); D(ubv, nv); D(lbw, N); D(ubw, N); D(dg, ns); D(reach, N);
@@ -296,6 +312,7 @@ void ssn_reset(ssn_mem* m) {
     m->started = m->has_t_call = m->has_t_solve = m->has_t_plan = m->has_action = 0;
     m->prep_pending = m->has_plan = m->has_t_moving = m->servo_init = 0;
     m->has_X = m->prepared = 0;
+    m->fw_head = m->fw_filled = 0;
     for (k = 0; k < c->nu; k++) { m->dev[k] = 0.0; m->has_dev[k] = 0; }
     for (k = 0; k < c->nfc; k++) m->fc[k] = 1.0;
     for (k = 0; k < c->window_n; k++) { m->win_speed[k] = NAN; m->win_nom[k] = NAN; }
@@ -345,17 +362,28 @@ static void servo_forces(ssn_mem* m, long steps, const double* y, const double* 
     const ssn_config* c = &m->c;
     int k, j0 = c->drives ? 1 : 0;
     long s;
+    const int W = c->force_n;
     if (!m->servo_init) {
         for (k = 0; k < c->ns; k++) {
-            int j = c->u_servo[k];
+            int j = c->u_servo[k], i;
             m->servo[k] = clip(measured(m, j, y, u_prog[j]), c->servo_nmin[k], c->servo_nmax[k]);
+            for (i = 0; i < W; i++) { m->fw_f[k * W + i] = m->servo[k]; m->fw_p[k * W + i] = u_prog[j]; }
         }
+        m->fw_head = 0; m->fw_filled = W > 0;
         m->servo_init = 1;
     } else {
-        for (s = 0; s < steps; s++)
+        for (s = 0; s < steps; s++) {
             for (k = 0; k < c->ns; k++) servo_step(c, k, &m->servo[k], m->u_prev[j0 + k], c->dt_daq);
+            if (W > 0) {   /* band.ForceHistory.push */
+                m->fw_head = (m->fw_head + 1) % W;
+                for (k = 0; k < c->ns; k++) {
+                    m->fw_f[k * W + m->fw_head] = m->servo[k];
+                    m->fw_p[k * W + m->fw_head] = m->p_last[k];
+                }
+            }
+        }
     }
-    for (k = 0; k < c->ns; k++) m->forces[k] = m->servo[k];
+    for (k = 0; k < c->ns; k++) { m->forces[k] = m->servo[k]; m->p_last[k] = u_prog[c->u_servo[k]]; }
 }
 
 static void held_inputs(ssn_mem* m, double elapsed, const double* y, const double* u_prog) {
@@ -659,6 +687,61 @@ static void prepare(ssn_mem* m) {
     m->prepared = 1;
 }
 
+/* mitigate/controllers/nmpc/band.py: every window ending in the next look_n samples keeps its force's
+   sum at least (upper: at most) ratio x its programme's sum, the command c held */
+static int window_ok(ssn_mem* m, int k, double c0, double s0, double p, double ratio, int upper) {
+    const ssn_config* c = &m->c;
+    const int w = c->force_n;
+    double alpha = c->servo_tau[k] > 0 ? 1.0 - exp(-c->dt_daq / c->servo_tau[k]) : 1.0;
+    double step = c->servo_rate[k] * c->dt_daq;
+    double target = clip(c0, c->servo_nmin[k], c->servo_nmax[k]), s = s0;
+    int j;
+    m->fw_new[0] = 0.0;
+    for (j = 1; j <= c->look_n[k]; j++) {
+        int n_new = j < w ? j : w, n_old = w - n_new;
+        double f, tot;
+        s += clip(alpha * (target - s), -step, step);
+        m->fw_new[j] = m->fw_new[j - 1] + s;
+        f = (n_old > 0 ? m->fw_sf[n_old - 1] : 0.0) + (m->fw_new[j] - m->fw_new[j - n_new]);
+        tot = (n_old > 0 ? m->fw_sp[n_old - 1] : 0.0) + (double)n_new * p;
+        if (upper ? f > ratio * tot : f < ratio * tot) return 0;
+    }
+    return 1;
+}
+
+#define BISECTIONS 52
+
+/* band._end: from the near end of the range towards the far one, the first command that keeps every
+   window on the right side of ratio x its programme (the far end when none does) */
+static double window_end(ssn_mem* m, int k, double s0, double p, double ratio, int upper, double near, double far) {
+    double a = near, b = far, mid;
+    int it;
+    if (window_ok(m, k, near, s0, p, ratio, upper)) return near;
+    if (!window_ok(m, k, far, s0, p, ratio, upper)) return far;
+    for (it = 0; it < BISECTIONS; it++) {
+        mid = 0.5 * (a + b);
+        if (window_ok(m, k, mid, s0, p, ratio, upper)) b = mid; else a = mid;
+    }
+    return b;
+}
+
+static void window_bounds(ssn_mem* m, int k, double p, double* lo, double* hi) {
+    const ssn_config* c = &m->c;
+    const int w = c->force_n;
+    double s0, acc_f = 0.0, acc_p = 0.0, c_lo, c_hi = *hi;
+    int i;
+    for (i = 0; i < w; i++) {   /* newest first */
+        int idx = (m->fw_head - i + w) % w;
+        acc_f += m->fw_f[k * w + idx]; m->fw_sf[i] = acc_f;
+        acc_p += m->fw_p[k * w + idx]; m->fw_sp[i] = acc_p;
+    }
+    s0 = m->fw_f[k * w + m->fw_head];
+    c_lo = window_end(m, k, s0, p, c->force_lo, 0, *lo, *hi);
+    if (isfinite(c->force_hi)) c_hi = window_end(m, k, s0, p, c->force_hi, 1, *hi, *lo);
+    if (c_lo > c_hi) c_lo = c_hi = 0.5 * (c_lo + c_hi);
+    *lo = c_lo; *hi = c_hi;
+}
+
 static void command_bounds(ssn_mem* m, const double* u_prog) {
     const ssn_config* c = &m->c;
     int j;
@@ -676,6 +759,7 @@ static void command_bounds(ssn_mem* m, const double* u_prog) {
         int jc = c->j_cmd[j];
         double p = u_prog[c->u_servo[j]], a, b;
         if (!(p > 0)) continue;
+        if (c->force_n > 0 && m->fw_filled) { window_bounds(m, j, p, &m->lo[jc], &m->hi[jc]); continue; }
         a = dmax(m->lo[jc], c->force_lo * p); b = dmin(m->hi[jc], c->force_hi * p);
         if (a > b) a = b = dmin(dmax(p, m->lo[jc]), m->hi[jc]);   /* the band is outside the servo's range */
         m->lo[jc] = a; m->hi[jc] = b;
