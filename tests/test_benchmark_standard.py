@@ -339,6 +339,37 @@ def test_the_generated_set_is_the_same_from_the_same_seed(tmp_path):
     assert sc.dt == T / 100 and all(float(f"{v:.12g}") == v for v in sc.programme(0.0))
 
 
+def _programme_alone_stalls(sc, metrics) -> bool:
+    """The metrics' own ``stalled`` on a closed-loop run of the programme alone (PI only)."""
+    from mitigate.closedloop import run_closed_loop
+    from mitigate.controllers.factory import context_for
+    from mitigate.controllers.pi import PIOnly, PIOptions
+    from mitigate.metrics.closed_loop import closed_loop_metrics
+    run = run_closed_loop(sc.replace(controllers=()), PIOnly(PIOptions(), context_for(sc)))
+    ref = reference_run(sc, metrics)
+    return bool(closed_loop_metrics(run, sc, dataclasses.replace(metrics, period=ref.period))["stalled"])
+
+
+@pytest.mark.slow
+def test_a_slipping_generated_set_replaces_draws_the_programme_alone_stalls(tmp_path, capsys):
+    """--slipping: the first scenario of seed 1 as drawn stalls under the programme alone (no drive-only
+    controller can do that job); the slipping set's first scenario is a later draw that does not
+    stall, judged by the metrics on a closed-loop run (not by the generator's own test)."""
+    from mitigate.benchmark.generate import generate
+    from mitigate.cli import main
+    metrics = load_suite(SUITE).metrics
+    plain = load_suite(generate(SUITE, 1, 1, tmp_path / "plain")).scenarios[0]
+    slip_path = generate(SUITE, 1, 1, tmp_path / "slip", slipping=True)
+    slip = load_suite(slip_path).scenarios[0]
+    drawn = json.loads((slip_path.parent / "generated.json").read_text())
+    assert drawn["slipping"] is True and drawn["scenarios"]["gen_1_0"]["attempt"] > 0
+    assert load_suite(slip_path).name == "stickslip-benchmark-generated-slipping"
+    assert _programme_alone_stalls(plain, metrics)
+    assert not _programme_alone_stalls(slip, metrics) and reference_run(slip, metrics).stick_slip
+    assert main(["benchmark", str(SUITE), "--slipping", "--out", str(tmp_path / "x")]) == 2
+    assert "--slipping chooses generated scenarios" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_the_tuned_and_generated_modes_from_the_command_line(tmp_path, capsys):
     """--generated N --seed S writes the scenarios and their suite and benchmarks them; --tuned stores the

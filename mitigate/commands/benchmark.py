@@ -32,7 +32,8 @@ benchmark.png, distribution.png. With --tuned, every controller is first tuned o
 with the same --budget (Optuna TPE; studies in DIR/tuning/) on phases and seeds the ranking does not
 use, scored in the ranking's order, and the tuned values are stored with the results. With
 --generated N --seed S the suite's scenarios are replaced by N scenarios generated from S (rig zoo
-rigs, operating points, mismatches; written to DIR/generated/).
+rigs, operating points, mismatches; written to DIR/generated/); with --slipping only draws whose
+uncontrolled body does not stall (where a drive-only controller can do the job).
 
 Submit your own controller (a Controller subclass in an importable module) with --controller
 module:Class (or NAME=KIND[,option=value,...]) and --alone: DIR/results.json is your entry.
@@ -48,6 +49,7 @@ examples:
   mitigate benchmark leaderboard entries --out out/leaderboard
   mitigate benchmark scenarios/benchmark/suite.toml --tuned --budget 50 --out out/tuned
   mitigate benchmark scenarios/benchmark/suite.toml --generated 10 --seed 1 --out out/generated
+  mitigate benchmark scenarios/benchmark/suite.toml --generated 10 --seed 1 --slipping --out out/slipping
   mitigate benchmark scenarios/benchmark/suite.toml --scheduler tcp://10.0.0.5:8786 --out out/benchmark
 """
 
@@ -66,6 +68,9 @@ def register(sub) -> None:
     p.add_argument("--generated", type=int, default=None, metavar="N",
                    help="replace the suite's scenarios by N generated from --seed (written to DIR/generated/)")
     p.add_argument("--seed", type=int, default=None, metavar="S", help="the seed of --generated")
+    p.add_argument("--slipping", action="store_true",
+                   help="(--generated) only scenarios whose uncontrolled body does not stall (stuck beyond the "
+                   "suite's stuck_limit): every class can do the job")
     p.add_argument("--reference", action="append", default=None, metavar="DIR",
                    help="(leaderboard) folders of reference entries (default: benchmarks/results/reference if it "
                         "exists; repeatable)")
@@ -155,6 +160,8 @@ def run(args) -> int:
         raise ConfigError("--quick is 1 phase and 1 seed; give either --quick or --phases/--seeds")
     if (args.generated is None) != (args.seed is None):
         raise ConfigError("--generated N and --seed S go together")
+    if args.slipping and args.generated is None:
+        raise ConfigError("--slipping chooses generated scenarios: give it with --generated N --seed S")
     if args.seed is not None and args.seed < 0:
         raise ConfigError(f"--seed must be an integer >= 0, got {args.seed}")
     if args.alone and not args.controller:
@@ -164,7 +171,7 @@ def run(args) -> int:
     load_suite(suite_path, extra_controllers=extra, only=args.only)     # every problem before anything is drawn
     if args.generated is not None:
         from mitigate.benchmark.generate import generate
-        suite_path = generate(suite_path, args.generated, args.seed, out / "generated")
+        suite_path = generate(suite_path, args.generated, args.seed, out / "generated", slipping=args.slipping)
     suite = load_suite(suite_path, extra_controllers=extra, only=args.only if args.generated is None else None)
     if args.alone:
         import dataclasses
