@@ -19,7 +19,11 @@ rest; a median pruner stops a trial whose running mean is worse than the median 
 the same run.  The study lives in a journal file under ``out``
 (:class:`optuna.storages.JournalStorage`): an interrupted tuning continues where it stopped, and
 ``n_jobs`` processes share it (each with its own sampler seed; with one process the study is
-reproducible, with several the order of the trials depends on timing).  The result is then reported on HELD-OUT seeds that neither the
+reproducible, with several the order of the trials depends on timing).  With one process the
+sampler is seeded again before every trial by the seed and the trials finished so far, so a study
+that was interrupted and continued proposes what it would have proposed uninterrupted.
+:func:`tune_suite` (``mitigate benchmark --tuned``) runs every study in one process, and several
+studies at a time: its tuned values are the same on any machine and load.  The result is then reported on HELD-OUT seeds that neither the
 tuning nor the benchmark (seeds 0 .. S-1) uses, at the benchmark's own phases.
 
 Each tunable is a multiple of its natural unit on the rig (:mod:`mitigate.tunables`); the tuned
@@ -166,6 +170,15 @@ class _Objective:
         return total / len(self.tasks)
 
 
+def _sampler(seed: int, finished: int, budget: int):
+    """Optuna's TPE sampler for the next trial of a study that has ``finished`` trials: multivariate,
+    a fifth of the budget random start-up trials (:func:`startup_trials`), seeded by ``seed`` and
+    ``finished`` (the same proposals whether or not the study was interrupted)."""
+    optuna = _optuna()
+    return optuna.samplers.TPESampler(seed=(int(seed) * 100003 + int(finished)) & 0xFFFFFFFF,
+                                      n_startup_trials=startup_trials(budget), multivariate=True)
+
+
 def _study(storage_path: str | None, name: str, seed: int, definition_hash: str, force: bool, budget: int = 50):
     optuna = _optuna()
     from optuna.storages import JournalStorage
@@ -173,7 +186,7 @@ def _study(storage_path: str | None, name: str, seed: int, definition_hash: str,
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     storage = JournalStorage(JournalFileBackend(storage_path)) if storage_path else None
-    sampler = optuna.samplers.TPESampler(seed=seed, n_startup_trials=startup_trials(budget), multivariate=True)
+    sampler = _sampler(seed, 0, budget)
     pruner = optuna.pruners.MedianPruner(n_startup_trials=5, n_warmup_steps=0)
     study = optuna.create_study(storage=storage, study_name=name, sampler=sampler, pruner=pruner,
                                 direction="minimize", load_if_exists=True)
@@ -240,7 +253,8 @@ def _tasks(sc, spec, ref: Reference, mo: MetricOptions, fractions, seeds: int, o
 
 def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, held_out_seeds: int = 2,
          metrics: MetricOptions | None = None, out=None, n_jobs: int = 1, seed: int = 0, force: bool = False,
-         progress: bool = False, reference: Reference | None = None, grid: int = DEFAULT_GRID) -> TuneResult:
+         progress: bool = False, reference: Reference | None = None, grid: int = DEFAULT_GRID,
+         on_trial=None) -> TuneResult:
     """Tune a controller's declared tunables on a scenario (module docstring).
 
     Parameters
@@ -254,8 +268,9 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
     grid : the benchmark's switch-on phases (the tuning's lie between them)
     metrics : MetricOptions (its period is set from the scenario's uncontrolled run)
     out : folder of the study's journal file (None: in memory)
-    n_jobs : processes sharing the study
+    n_jobs : processes sharing the study (1: the trials one after another, reproducible)
     seed : the sampler's seed
+    on_trial : called with the number of finished trials after each (``n_jobs = 1``; a heartbeat)
 
     Raises
     ------
@@ -307,7 +322,15 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
                disable=not progress)
     try:
         if remaining and n_jobs == 1:
-            study.optimize(objective, n_trials=remaining, callbacks=[lambda s, t: bar.update()])
+            def tick(_s, _t):
+                bar.update()
+                if on_trial is not None:
+                    on_trial(_finished(study))
+            for _ in range(remaining):
+                # the sampler seeded by the trials finished so far: a study interrupted and continued
+                # proposes what it would have proposed uninterrupted (its history is the same)
+                study.sampler = _sampler(seed, _finished(study), budget)
+                study.optimize(objective, n_trials=1, callbacks=[tick])
         elif remaining:
             shares = [remaining // n_jobs + (i < remaining % n_jobs) for i in range(n_jobs)]
             jobs = [((path, name, seed + i, h, objective, n, budget),) for i, n in enumerate(shares) if n]
@@ -381,19 +404,30 @@ def _start_params(ctrl, spec, space) -> dict:
     return out
 
 
+def _tune_study(sc, spec, kw) -> tuple[dict, dict]:
+    """A worker's job: one study, its trials one after another (a heartbeat per trial)."""
+    from mitigate.workers import report
+    r = tune(sc, spec, n_jobs=1, progress=False, on_trial=report, **kw)
+    return r.best_options, r.as_dict()
+
+
 def tune_suite(suite, *, budget: int, out, refs: Mapping | None = None, jobs: int = 1, progress: bool = False,
                phases: int = 2, seeds: int = 1, grid: int | None = None) -> dict[tuple, dict]:
     """Tune every controller of a suite on every scenario with the same ``budget`` (controllers with
     no tunables, or that a rig cannot host, keep their options); ``{(scenario, controller): options}``.
     ``grid``: the benchmark's phases (the suite's by default; the tuning's phases lie between them).
-    Each study is kept under ``out``; ``out/tuning.json`` lists the results and :func:`settings`."""
+    Each study is kept under ``out``; ``out/tuning.json`` lists the results and :func:`settings`.
+
+    Every study runs its trials one after another, so the tuned values are the same on any machine
+    and load; ``jobs`` processes run that many studies at a time."""
     import json
 
+    from mitigate.benchmark.execute import pool
     from mitigate.controllers.factory import context_for, make_controller
     from mitigate.tunables import tunables_of
     from models.files import atomic_write_text
 
-    tuned, results = {}, []
+    studies = []
     for sc in suite.scenarios:
         ref = (refs or {}).get(sc.name) or reference_run(sc, suite.metrics)
         for i, spec in enumerate(sc.controllers):
@@ -401,13 +435,34 @@ def tune_suite(suite, *, budget: int, out, refs: Mapping | None = None, jobs: in
                 has = bool(tunables_of(make_controller(spec, context_for(sc, i))))
             except ConfigError:
                 has = False
-            if not has:
-                continue
-            # no held-out report here: the benchmark that follows scores the tuned values on its own seeds
-            r = tune(sc, spec, budget=budget, phases=phases, seeds=seeds, held_out_seeds=0, metrics=suite.metrics,
-                     out=out, n_jobs=jobs, progress=progress, reference=ref, grid=grid or suite.phases)
-            tuned[(sc.name, spec.name)] = r.best_options
-            results.append(r.as_dict())
+            if has:
+                # no held-out report here: the benchmark that follows scores the tuned values on its own seeds
+                kw = dict(budget=budget, phases=phases, seeds=seeds, held_out_seeds=0, metrics=suite.metrics,
+                          out=out, reference=ref, grid=grid or suite.phases)
+                studies.append((sc, spec, kw))
+    found: dict[int, tuple[dict, dict]] = {}
+    if jobs <= 1 or len(studies) <= 1:
+        for k, (sc, spec, kw) in enumerate(studies):
+            r = tune(sc, spec, n_jobs=1, progress=progress, **kw)
+            found[k] = (r.best_options, r.as_dict())
+    else:
+        from tqdm import tqdm
+        bar = tqdm(total=len(studies), desc=f"tune {len(studies)} studies ({budget} trials each)", unit="study",
+                   disable=not progress)
+        try:
+            with pool(min(jobs, len(studies))) as p:
+                for done in p.map(_tune_study, studies):
+                    sc, spec, _kw = studies[done.index]
+                    if not done.ok:
+                        raise ConfigError(f"tuning {spec.name!r} on {sc.name!r} failed: {done.error}")
+                    found[done.index] = done.value
+                    bar.update()
+        finally:
+            bar.close()
+    tuned, results = {}, []
+    for k, (sc, spec, _kw) in enumerate(studies):
+        tuned[(sc.name, spec.name)] = found[k][0]
+        results.append(found[k][1])
     how = settings(budget, phases, seeds, grid or suite.phases)
     atomic_write_text(Path(out) / "tuning.json", json.dumps({"settings": how, "studies": results}, indent=2) + "\n",
                       overwrite=True)

@@ -138,3 +138,44 @@ def test_the_tuned_benchmark_mode_tunes_every_controller_with_the_same_budget(dr
     assert res.mode == "tuned" and res.tuned == tuned and res.as_dict()["tuning"]["budget"] == 3
     assert {r.run.controller: r.run.options for r in res.records}["SS"] == tuned[("drill", "SS")]
     assert "## Tuned values" in render_ranking(res) and "f_t = " in render_ranking(res)
+
+
+@pytest.mark.slow
+def test_a_continued_study_proposes_what_an_uninterrupted_one_does(drill, tmp_path):
+    """One process: the sampler is seeded by the trials finished so far, so 3 trials then 3 more give
+    the very trials (values and parameters) of 6 in one go."""
+    spec = {"name": "DK", "kind": "doskil"}
+    kw = dict(phases=1, seeds=1, held_out_seeds=0)
+    tune(drill, spec, budget=3, out=tmp_path / "a", **kw)
+    a = tune(drill, spec, budget=6, out=tmp_path / "a", **kw)
+    b = tune(drill, spec, budget=6, out=tmp_path / "b", **kw)
+    assert a.n_trials == b.n_trials == 6
+    assert a.best_params == b.best_params and a.best_value == b.best_value
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    def trials(folder):
+        st = optuna.load_study(study_name="drill__dk",
+                               storage=JournalStorage(JournalFileBackend(str(folder / "drill__dk.journal"))))
+        return [(t.params, t.value, t.state.name) for t in st.trials]
+    assert trials(tmp_path / "a") == trials(tmp_path / "b")
+
+
+@pytest.mark.slow
+def test_the_tuned_benchmark_mode_gives_the_same_values_with_two_processes(drill, tmp_path):
+    """tune_suite runs each study in one process and several studies at a time: --jobs 2 tunes to the
+    very values of --jobs 1 (the order of the trials never depends on timing)."""
+    from mitigate.benchmark import load_suite
+    from mitigate.tune import tune_suite
+    (tmp_path / "drill.toml").write_text(drill.read_text())
+    (tmp_path / "suite.toml").write_text('[suite]\nname = "t"\nscenarios = ["drill.toml"]\n'
+                                         '[[controllers]]\nname = "SS"\nkind = "softspeed"\n'
+                                         '[[controllers]]\nname = "DK"\nkind = "doskil"\n')
+    suite = load_suite(tmp_path / "suite.toml")
+    one = tune_suite(suite, budget=4, out=tmp_path / "one", phases=1, jobs=1)
+    two = tune_suite(suite, budget=4, out=tmp_path / "two", phases=1, jobs=2)
+    assert one == two and set(one) == {("drill", "SS"), ("drill", "DK")}
+    s1 = json.loads((tmp_path / "one" / "tuning.json").read_text())["studies"]
+    s2 = json.loads((tmp_path / "two" / "tuning.json").read_text())["studies"]
+    assert [s["best_value"] for s in s1] == [s["best_value"] for s in s2]
