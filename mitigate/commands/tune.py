@@ -13,7 +13,9 @@ scores the mean of the score that follows the benchmark's ranking order (the job
 sees, the time to suppress, the hardware loads, the effort: mitigate.benchmark.score). Optuna's
 seeded TPE sampler proposes the values (the first trial is the controller's own options; a fifth of
 the budget random start-up trials), a median pruner stops poor trials early. The study is kept in DIR/<scenario>__<controller>.journal: run the same command again
-to continue it, or with a larger --budget to extend it; --jobs processes share it. The tuned values
+to continue it, or with a larger --budget to extend it (with --jobs 1 a continued study proposes
+what an uninterrupted one would: the same values on any machine); --jobs processes share it, and
+then the order of the trials depends on timing. The tuned values
 are then compared with the defaults on --held-out-seeds seeds that neither the tuning nor the
 benchmark uses, at the benchmark's phases. Written to DIR: the journal and tune_<scenario>__<controller>.json.
 
@@ -40,7 +42,7 @@ def register(sub) -> None:
                    help="the benchmark's switch-on phases the tuning's lie between (default 6, the suite's)")
     p.add_argument("--held-out-seeds", type=int, default=2, metavar="H",
                    help="held-out seeds per phase for the report (default 2; 0: none)")
-    p.add_argument("--jobs", type=int, default=1, metavar="N", help="processes sharing the study (default 1)")
+    p.add_argument("--jobs", type=int, default=1, metavar="N", help="processes sharing the study (default 1: reproducible; more: faster, the trials' order depends on timing)")
     p.add_argument("--seed", type=int, default=0, help="the sampler's seed (default 0)")
     add_common(p, default_out="out/tune")
     p.set_defaults(func=run)
