@@ -19,7 +19,8 @@ a library of its own.  This module is what they share:
   it (a fresh virtual environment reuses the build; before, the NMPC's step was built again in each).
 - :func:`hpipm_paths`: the hpipm and blasfeo headers and libraries the casadi wheel ships; the
   wheel's blasfeo is the generic build, and :data:`BLASFEO_ENV` (``STICKSLIP_BLASFEO``) names one
-  built for the target CPU for an export to vendor (:func:`blasfeo_override`).
+  built for the target CPU for an export to vendor (:func:`blasfeo_override`) and for the
+  workbench's compiled NMPC step to link (:func:`stage_optimised`, :func:`load_library`).
 """
 
 from __future__ import annotations
@@ -210,7 +211,12 @@ def build_library(tag: str, files: Mapping[str, str], sources: Sequence[str], *,
     if cc is None:
         raise RuntimeError("no C compiler (gcc/cc) found")
     d = trusted_cache_dir()
-    staged = stage_libraries(libs, libdirs) if libs and libdirs else None
+    blas = blasfeo_override() if "blasfeo" in libs and "hpipm" in libs else None
+    if blas is not None:                 # STICKSLIP_BLASFEO: hpipm and that blasfeo under names of their own
+        staged = stage_optimised(blas, next(Path(p) for p in libdirs if (Path(p) / "libhpipm.so").is_file()))
+        libs = [OPTIMISED_NAMES.get(x, x) for x in libs]
+    else:
+        staged = stage_libraries(libs, libdirs) if libs and libdirs else None
     flags = c_flags()
     h = hashlib.sha256((ca.__version__ + " ".join(flags)).encode())
     for name in sorted(files):
@@ -259,10 +265,10 @@ def _files_digest(files) -> str:
 
 #: environment variable naming a ``libblasfeo.so`` built for the target CPU (blasfeo's X64_AUTOMATIC or
 #: HASWELL target, e.g. acados' ``install/lib/libblasfeo.so``) that ``mitigate export`` vendors instead
-#: of the casadi wheel's generic build (the same ABI).  Not for the workbench's own compiled step: its
-#: process has loaded the wheel's hpipm and blasfeo through casadi before the step, and the step binds
-#: to those; there ``LD_PRELOAD=<that library>`` puts it first (the NMPC's feedback 1.8x faster with
-#: an AVX2/FMA build, BENCHMARKS.md)
+#: of the casadi wheel's generic build (the same ABI), and that the workbench's own compiled NMPC step
+#: links: the process has loaded the wheel's hpipm and blasfeo through casadi, so the step links copies
+#: renamed (:func:`stage_optimised`) and is loaded with its own libraries first
+#: (:func:`load_library`; the NMPC's feedback 1.8x faster with an AVX2/FMA build, BENCHMARKS.md)
 BLASFEO_ENV = "STICKSLIP_BLASFEO"
 
 
@@ -286,6 +292,85 @@ def blasfeo_override() -> Path | None:
         raise ConfigError(f"{BLASFEO_ENV}: expected a blasfeo shared library; got {v!r} "
                            f"({type(exc).__name__}: {str(exc).splitlines()[0][:120]})") from None
     return f
+
+
+def rename_dynamic(data: bytes, names: Mapping[str, str]) -> bytes:
+    """A copy of the ELF shared library ``data`` whose ``DT_SONAME`` and ``DT_NEEDED`` entries named
+    in ``names`` are renamed (``{old: new}``, ``new`` no longer than ``old``: written in place in the
+    dynamic string table, padded with NUL).  64-bit little-endian ELF only.
+
+    Raises
+    ------
+    ValueError : not such an ELF file, no dynamic section, a new name longer than the old, or a name
+        whose bytes another string of the table shares.
+    """
+    import struct
+    if data[:4] != b"\x7fELF" or data[4] != 2 or data[5] != 1:
+        raise ValueError("not a 64-bit little-endian ELF file")
+    shoff, = struct.unpack_from("<Q", data, 0x28)
+    shentsize, shnum = struct.unpack_from("<HH", data, 0x3A)
+    sections = [struct.unpack_from("<IIQQQQIIQQ", data, shoff + i * shentsize) for i in range(shnum)]
+    dyn = next((sec for sec in sections if sec[1] == 6), None)          # SHT_DYNAMIC
+    if dyn is None:
+        raise ValueError("no dynamic section")
+    strtab = sections[dyn[6]]                                           # sh_link: its string table
+    str_off = strtab[4]
+    out = bytearray(data)
+    for k in range(dyn[5] // 16):
+        tag, val = struct.unpack_from("<qQ", data, dyn[4] + 16 * k)
+        if tag not in (1, 14):                                          # DT_NEEDED, DT_SONAME
+            continue
+        start = str_off + val
+        end = data.index(b"\0", start)
+        old = data[start:end].decode()
+        if old not in names:
+            continue
+        new = names[old].encode()
+        if len(new) > len(old):
+            raise ValueError(f"{names[old]!r} is longer than {old!r}")
+        if val > 0 and data[start - 1] != 0:
+            raise ValueError(f"{old!r} shares its bytes with another string")
+        out[start:end] = new + b"\0" * (len(old) - len(new))
+    return bytes(out)
+
+
+#: the names the optimised blasfeo and the hpipm linked to it take (as long as the wheel's or shorter):
+#: the process already holds the wheel's ``libhpipm.so`` and ``libblasfeo.so.0`` (through casadi), and the
+#: dynamic loader would hand those to a library that asks for them by name
+OPTIMISED_NAMES = {"hpipm": "hpipX", "blasfeo": "blasfeX"}
+
+
+def stage_optimised(blasfeo: Path, hpipm_dir: Path) -> Path:
+    """The wheel's hpipm and the optimised ``blasfeo`` staged under names of their own
+    (:data:`OPTIMISED_NAMES`: ``libhpipX.so`` needing ``libblasfeX.so``), in a folder of the
+    compiled-code cache named by their content: a library linked to them (``-lhpipX -lblasfeX``)
+    uses that blasfeo even in a process that has loaded the wheel's."""
+    src = Path(hpipm_dir) / "libhpipm.so"
+    h = rename_dynamic(src.read_bytes(), {"libhpipm.so": "libhpipX.so", "libblasfeo.so.0": "libblasfeX.so",
+                                          "libblasfeo.so": "libblasfeX.so"})
+    b = Path(blasfeo).read_bytes()
+    b = rename_dynamic(b, {"libblasfeo.so.0": "libblasfeX.so", "libblasfeo.so": "libblasfeX.so"})
+    digest = hashlib.sha256(h + b"\0" + b).hexdigest()[:16]
+    d = trusted_cache_dir()
+    dest = d / f"libs_opt_{digest}"
+    if (dest / "libhpipX.so").is_file() and (dest / "libblasfeX.so").is_file():
+        return dest
+    tmp = Path(tempfile.mkdtemp(prefix=f".libs_opt_{digest}.", dir=d))
+    (tmp / "libhpipX.so").write_bytes(h)
+    (tmp / "libblasfeX.so").write_bytes(b)
+    try:
+        os.rename(tmp, dest)
+    except OSError:                      # another process staged it meanwhile
+        shutil.rmtree(tmp, ignore_errors=True)
+    return dest
+
+
+def load_library(path, own_first: bool = False) -> ctypes.CDLL:
+    """``ctypes.CDLL(path)``; ``own_first``: its own dependencies ahead of what the process has
+    loaded, where the platform can (glibc's ``RTLD_DEEPBIND``), so that a step linked to renamed
+    hpipm and blasfeo (:func:`stage_optimised`) binds to them, not to the casadi wheel's."""
+    mode = ctypes.DEFAULT_MODE | (getattr(os, "RTLD_DEEPBIND", 0) if own_first else 0)
+    return ctypes.CDLL(str(path), mode=mode)
 
 
 def stage_libraries(libs: Sequence[str], libdirs: Sequence[Path]) -> Path:

@@ -100,3 +100,67 @@ def test_mitigate_export_refuses_a_wrong_blasfeo_in_one_line(tmp_path):
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "STICKSLIP_BLASFEO: expected the path of a libblasfeo.so file" in lines[0]
     assert not out.exists()
+
+
+def _dynamic_names(path):
+    """(SONAME, NEEDED...) of an ELF library as `readelf -d` prints them (an independent reader)."""
+    import re
+    import subprocess
+    out = subprocess.run(["readelf", "-d", str(path)], capture_output=True, text=True, check=True).stdout
+    return (re.findall(r"\(SONAME\)\s+Library soname: \[(.*)\]", out),
+            re.findall(r"\(NEEDED\)\s+Shared library: \[(.*)\]", out))
+
+
+@pytest.mark.skipif(shutil.which("readelf") is None, reason="needs readelf (binutils)")
+def test_renamed_copies_of_hpipm_and_blasfeo_need_each_other_by_their_new_names(tmp_path):
+    """stage_optimised: hpipm's copy is libhpipX.so and needs libblasfeX.so; the blasfeo's copy is
+    libblasfeX.so; nothing else in them changed (the same size, the same bytes outside the names)."""
+    from models.cbuild import rename_dynamic, stage_optimised
+    _, lib = hpipm_paths()
+    d = stage_optimised(lib / "libblasfeo.so", lib)
+    assert _dynamic_names(d / "libhpipX.so") == (["libhpipX.so"], ["libblasfeX.so", "libc.so.6"])
+    assert _dynamic_names(d / "libblasfeX.so")[0] == ["libblasfeX.so"]
+    a, b = (lib / "libhpipm.so").read_bytes(), (d / "libhpipX.so").read_bytes()
+    assert len(a) == len(b) and sum(x != y for x, y in zip(a, b)) <= len("libblasfeo.so.0") + len("libhpipm.so")
+    with pytest.raises(ValueError, match="is longer than"):
+        rename_dynamic(a, {"libhpipm.so": "libhpipm_longer.so"})
+    with pytest.raises(ValueError, match="not a 64-bit little-endian ELF"):
+        rename_dynamic(b"#!/bin/sh\n", {})
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("cc") is None and shutil.which("gcc") is None, reason="needs a C compiler")
+def test_the_workbench_nmpc_step_links_the_blasfeo_named_by_the_environment(tmp_path):
+    """With STICKSLIP_BLASFEO the workbench's compiled NMPC step links that blasfeo (renamed copies:
+    the process has the wheel's loaded through casadi) and the process maps it; pointed at a copy of
+    the wheel's own build, the actions are bit for bit the default's (the same kernels)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    _, lib = hpipm_paths()
+    other = tmp_path / "libblasfeo.so"
+    other.write_bytes((lib / "libblasfeo.so").read_bytes() + b"another build\0")
+    script = (
+        "import sys, numpy as np\n"
+        "sys.path.insert(0, 'tests')\n"
+        "from test_nmpc_closed_loop import _closed_loop, _ctx, M, P, W0\n"
+        "from models.plant import Plant, SimOptions\n"
+        "from mitigate.controllers.factory import make_controller\n"
+        "u = np.array([W0, 20.0, 0.0])\n"
+        "c = make_controller({'kind': 'nmpc', 'horizon': 10}, _ctx(programme=u))\n"
+        "plant = Plant(M, P, SimOptions(seed=0), sensors=None, u0=u)\n"
+        "_, acts, _ = _closed_loop(c, plant, 0.0, 200, u_prog=u)\n"
+        "maps = open('/proc/self/maps').read()\n"
+        "print('blasfeX' if 'libblasfeX.so' in maps else 'wheel', c.counts.failures)\n"
+        "print(repr([a.u.get('omega_ref') for a in acts]))\n")
+    runs = {}
+    for label, extra in (("default", {}), ("override", {"STICKSLIP_BLASFEO": str(other)})):
+        env = {k: v for k, v in os.environ.items() if k != "STICKSLIP_BLASFEO"} | extra
+        r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, cwd=root,
+                           timeout=600)
+        assert r.returncode == 0, r.stderr[-2000:]
+        runs[label] = r.stdout.splitlines()
+    assert runs["default"][0] == "wheel 0" and runs["override"][0] == "blasfeX 0"
+    assert runs["default"][1] == runs["override"][1]

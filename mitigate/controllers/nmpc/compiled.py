@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from models.cbuild import CSRC, CStruct, build_library, c_view, generate, hpipm_paths, lay_out, read_channels, read_source
+from models.cbuild import (CSRC, CStruct, blasfeo_override, build_library, c_view, generate, hpipm_paths, lay_out,
+                           load_library, read_channels, read_source)
 from models.errors import SolverFailure
 from mitigate.controllers.nmpc.start import LOAD_FACTOR_RANGE
 from mitigate.controllers.nmpc.supervision import SLIDING_FRACTION, TRIM_DEADBAND, TRIM_LIMIT
@@ -190,13 +191,15 @@ class CompiledStep:
         stem = f"{ev.fn.name()}_step"
         files = nmpc_files(nmpc, stem)
         try:
+            #: STICKSLIP_BLASFEO: the step links that blasfeo (models.cbuild.stage_optimised)
+            self.blasfeo = blasfeo_override()
             inc, lib = hpipm_paths()
             so = build_library(stem, files, ["ss_common.c", "ss_nmpc.c", f"{stem}.c"], include=[inc],
                                libs=["hpipm", "blasfeo"], libdirs=[lib])
         except RuntimeError as exc:
             raise SolverFailure(f"building the NMPC's compiled step failed: {exc}") from None
         self.library = so
-        self._lib = lib_ = ctypes.CDLL(str(so))
+        self._lib = lib_ = load_library(so, own_first=self.blasfeo is not None)
         fn_t = ctypes.c_void_p
         self._stages = fn_t.in_dll(lib_, f"{stem}_{ev.fn.name()}")
         self._forward = fn_t.in_dll(lib_, f"{stem}_{nmpc.ocp.F.name()}")
