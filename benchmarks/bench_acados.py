@@ -388,12 +388,15 @@ def main(argv=None) -> int:
 
 def _report(args, argv, runs, agree, builds, versions, note, load, took, ca_version) -> str:
     cmd = "python " + " ".join(["benchmarks/bench_acados.py"] + list(argv if argv is not None else sys.argv[1:]))
+    from models.cbuild import blasfeo_override
+    blas = blasfeo_override()
     lines = ["# The NMPC's RTI beside acados' SQP_RTI on the same OCP (issue 26)", "",
              f"Command: `{cmd}` ({took / 60:.1f} min)", "",
              f"Machine: {_machine()}; load average (1 min) before / after each round: "
              + " / ".join(f"{lv[0]:.2f}" for lv in load) + " (a shared machine: other engineers' jobs run beside)",
-             f"Ours: Python {platform.python_version()}, casadi {ca_version}, numpy {np.__version__}; hpipm and "
-             f"blasfeo as the casadi wheel ships them.",
+             f"Ours: Python {platform.python_version()}, casadi {ca_version}, numpy {np.__version__}; "
+             + (f"hpipm as the casadi wheel ships it, blasfeo from {blas} (STICKSLIP_BLASFEO)."
+                if blas is not None else "hpipm and blasfeo as the casadi wheel ships them."),
              ("acados: comma-deps-acados {acados} (its own venv, Python {python}, its vendored casadi {casadi}); "
               "libacados, hpipm and blasfeo as that wheel ships them ({acados_dir})".format(**versions)
               if versions else f"acados: not run ({note or 'side = ours'})"),
@@ -459,7 +462,8 @@ NOTES = """\
   controller against either.
 - Compiled code: acados' generated functions at `--cflags` (acados' default -O2); ours at -O1
   (models.codegen). acados' wheel ships blasfeo built with AVX2/FMA kernels; the casadi wheel's
-  blasfeo that ours calls is the generic C target (its hpipm itself uses AVX).
+  blasfeo is the generic C target (its hpipm itself uses AVX); ours calls the wheel's unless
+  STICKSLIP_BLASFEO names another (the "Ours:" line above says which).
 - acados' preparation does the linearisation (and, with full condensing, the condensing); its
   feedback embeds x0 and solves the QP. With full condensing the QP is hpipm's dense solver.
 """
