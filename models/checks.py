@@ -160,6 +160,28 @@ def names(v: Any, where: str, *, what: str = "names", nonempty: bool = False, un
     return out
 
 
+def _in_unit(v: str, unit: str, where: str) -> Any:
+    """A quantity ``"<number> <unit>"`` (``"500 ms"``, ``"0.5 rpm"``) given for a number option whose
+    SI unit is ``unit``, converted to it, as rig and scenario files take quantities; ``v`` unchanged
+    when it is no quantity or ``unit`` is no unit (:func:`number` then refuses it)."""
+    from models.units import convert, parse_quantity, parse_unit
+    try:
+        parse_unit(unit)
+    except ConfigError:
+        return v
+    q = parse_quantity(v)
+    if q is None:
+        return v
+    value, given = q
+    if not given:
+        return value
+    try:
+        return convert(value, given, unit, where)
+    except ConfigError:
+        raise ConfigError(f"{where} must be a number in {unit} or a quantity that converts to {unit}, "
+                          f"got {quote(v)}") from None
+
+
 #: what :func:`option` can check; inferred from the keywords and the default when ``kind`` is not given
 KINDS = ("number", "integer", "flag", "choice", "text", "names", "numbers", "table", "any")
 
@@ -216,6 +238,8 @@ class Check:
         k = self.kind
         rng = dict(lo=self.lo, hi=self.hi, unit=self.unit, why=self.why)
         if k == "number":
+            if isinstance(v, str) and self.unit:
+                v = _in_unit(v, self.unit, where)
             return number(v, where, lo_open=self.lo_open, hi_open=self.hi_open, finite=self.finite, **rng)
         if k == "integer":
             return integer(v, where, **rng)

@@ -205,3 +205,17 @@ def test_every_options_class_declares_its_fields_with_option():
         assert not undeclared, f"{cls.__name__}: {undeclared} not declared with option()"
         own = getattr(cls, "from_mapping", None)
         assert own is None or own.__func__ is options_from_mapping, f"{cls.__name__} has its own from_mapping"
+
+
+def test_a_number_option_with_a_unit_takes_a_quantity_as_files_do():
+    """An option declared with an SI unit takes "<number> <unit>" and converts it (as rig and scenario
+    files take quantities); a quantity of another dimension is one line naming the field."""
+    from mitigate.controllers.nmpc import NMPCOptions
+    o = NMPCOptions.from_mapping({"force_window": "500 ms", "force_filter": "2 s", "eps": "0.5 rpm", "dt": "50 ms"}, "c")
+    assert (o.force_window, o.force_filter, o.dt) == (0.5, 2.0, 0.05) and o.eps == pytest.approx(0.5 * 2 * math.pi / 60)
+    assert NMPCOptions.from_mapping({"force_window": 2.5}, "c").force_window == 2.5
+    with pytest.raises(ConfigError, match=r"^c\.force_window must be a number in s or a quantity that converts to s, "
+                                          r"got '2 N'$"):
+        NMPCOptions.from_mapping({"force_window": "2 N"}, "c")
+    with pytest.raises(ConfigError, match=r"^c\.force_window must be >= 0 s, got -1\.0$"):
+        NMPCOptions.from_mapping({"force_window": "-1 s"}, "c")
