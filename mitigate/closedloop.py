@@ -51,7 +51,10 @@ from models.plant import Plant, Trajectory
 from models.status import Status
 from mitigate.controllers.base import Action
 
-__all__ = ["ClosedLoopResult", "run_closed_loop", "model_twists", "setpoint_chatter", "FALLBACK_WARN_FRACTION"]
+#: the column of a command whose input has a measured channel of the same name (:meth:`ClosedLoopResult.to_log`)
+COMMAND_PREFIX = "command_"
+
+__all__ = ["COMMAND_PREFIX", "ClosedLoopResult", "run_closed_loop", "model_twists", "setpoint_chatter", "FALLBACK_WARN_FRACTION"]
 
 #: fallbacks on more than this fraction of a controller's (or estimator's) calls make the run a WARNING
 FALLBACK_WARN_FRACTION = 0.01
@@ -73,7 +76,8 @@ class ClosedLoopResult(Trajectory):
         differences, also when the plant splits a shaft into elements) [rad]
     y : measured channels, each (m,) (what the DAQ recorded)
     xhat : (m, nxe) state estimates; ``xhat_names`` their names
-    u : (m, nu) inputs applied to the plant (servo outputs; names in ``inputs``)
+    u : (m, nu) inputs applied to the plant (servo outputs; names in ``inputs``); servo_inputs: the
+        inputs a servo sets
     commands : ``{input: (m,)}`` what the loop sent for each input (programme or controller)
     controller_active : (m,) bool, the controller was in charge
     controller_ok : (m,) bool, the held action did not come from a fallback
@@ -109,6 +113,7 @@ class ClosedLoopResult(Trajectory):
     objective_body: str = ""
     states: tuple = ()
     inputs: tuple = ()
+    servo_inputs: tuple = ()
     control_start: float = 0.0
     observability: object = None
     status: Status = Status.OK
@@ -126,18 +131,32 @@ class ClosedLoopResult(Trajectory):
         return self.state(f"omega_{self.objective_body}")
 
     def to_log(self) -> Log:
-        """Measured channels, the commands sent, plus the TRUE twists, speeds and drive quantities as
-        ``true_twist_<spring>`` / ``true_omega_<body>`` / ``true_<drive quantity>`` columns
-        (:data:`models.logs.TRUTH_PREFIX`; a DC motor's ``true_current [A]`` and ``true_voltage [V]``,
-        a torque drive's ``true_drive_torque [N m]``), as a log."""
+        """Measured channels, the commands sent, plus the TRUE twists, speeds, servo forces and drive
+        quantities as ``true_twist_<spring>`` / ``true_omega_<body>`` / ``true_<servo input>`` /
+        ``true_<drive quantity>`` columns (:data:`models.logs.TRUTH_PREFIX`; the force a servo applied,
+        its lagged output, beside its command; a DC motor's ``true_current [A]`` and ``true_voltage [V]``,
+        a torque drive's ``true_drive_torque [N m]``), as a log.  A command whose input has a measured
+        channel of the same name (a load cell named after the force it reads) is ``command_<input>``:
+        the channel keeps its name, as in an open-loop log and a real DAQ's."""
         chans = dict(self.y)
-        chans.update(self.commands)
+        units = {}
+        for n, v in self.commands.items():
+            key = COMMAND_PREFIX + n if n in self.y else n
+            chans[key] = v
+            if n in self.units:
+                units[key] = self.units[n]
+        if self.u is not None:
+            for n in self.servo_inputs:
+                if n in self.inputs:
+                    chans[TRUTH_PREFIX + n] = self.u[:, self.inputs.index(n)]
+                    if n in self.units:
+                        units[TRUTH_PREFIX + n] = self.units[n]
         for n, v in self.twists.items():
             chans[TRUTH_PREFIX + n] = v
         for j, n in enumerate(self.states):
             if n.startswith("omega_"):
                 chans[TRUTH_PREFIX + n] = self.x[:, j]
-        units = {k: self.units[k] for k in chans if k in self.units}
+        units.update({k: self.units[k] for k in chans if k in self.units and k not in units})
         for n, v in self.drive.items():
             chans[TRUTH_PREFIX + n] = v
             units[TRUTH_PREFIX + n] = self.units[n]
@@ -376,7 +395,7 @@ def run_closed_loop(scenario, controller, *, estimator=None, progress=None, plan
         estimator_times=est_times[:m], controller_counts=controller.counts.as_dict(),
         estimator_counts=estimator.counts.as_dict(), controller=getattr(controller, "name", type(controller).__name__),
         model=model.name, objective_body=model.objective_body, states=pm.states, inputs=pm.inputs,
-        control_start=float(k_start * dt), observability=getattr(estimator, "observability", None),
+        servo_inputs=tuple(pm.servo_inputs), control_start=float(k_start * dt), observability=getattr(estimator, "observability", None),
         status=status, message=message, units={**pm.output_units(), **model.output_units(), **pm.drive.signal_units()},
         drive=pm.drive.signals(pm, scenario.plant_params, X[:m], U[:m]))
 

@@ -79,7 +79,10 @@ def test_torque_drive_logs_its_torque_and_a_saturated_run_is_at_its_limit(tmp_pa
     log = r.to_log()
     assert log.units["true_drive_torque"] == "N m"
     np.testing.assert_allclose(log["true_drive_torque"][:-1], 0.3)          # applied, not the 0.4 commanded
-    np.testing.assert_allclose(log["motor_torque"], 0.4)                    # the command column
+    np.testing.assert_allclose(log["command_motor_torque"], 0.4)            # the command column
+    # the channel of the same name keeps what the DAQ measured (not overwritten by the command)
+    np.testing.assert_array_equal(log["motor_torque"], r.y["motor_torque"])
+    assert not np.array_equal(log["motor_torque"], log["command_motor_torque"])
     met = closed_loop_metrics(r, sc)
     assert met["drive_load_peak"] == pytest.approx(1.0, abs=1e-12)
     assert drive_limit_note(sc, met) == "Drive: at its limit: peak |drive_torque| 0.3 N m (the rig's limit 0.3 N m)."

@@ -191,7 +191,8 @@ def generate(suite_path, n: int, seed: int, out, *, slipping: bool = False) -> P
     if base.version:
         lines.append(f"version = {_toml(base.version)}")
     kind = ", the programme alone not stalling" if slipping else ""
-    lines += [f"description = {_toml(f'{n} scenarios generated from seed {seed} (rig zoo rigs, operating points, mismatches{kind}): nobody tuned on them')}",
+    plural = "s" if n != 1 else ""
+    lines += [f"description = {_toml(f'{n} scenario{plural} generated from seed {seed} (rig zoo rigs, operating points, mismatches{kind}): nobody tuned on them')}",
               f"scenarios = {_toml(files)}", f"phases = {base.phases}", f"seeds = {base.seeds}",
               f"compute = {_toml(base.compute)}", "", "[metrics]"]
     lines += [f"{k} = {_toml(v)}" for k, v in raw.get("metrics", {}).items()]

@@ -225,18 +225,24 @@ class NMPC(Controller):
     def tuning_values(self) -> dict[str, float]:
         """The settings the NMPC runs with (given, or derived from the rig: :mod:`.defaults`), for
         the report: dt [s], horizon [-], eps [rad/s], setpoint_band and setpoint_rate [rad/s, rad/s^2
-        or N m, N m/s], force_filter [s], hold_gain [-], speed_trim [s]."""
+        or N m, N m/s], force_filter [s], hold_gain [-], speed_trim [s]; force_window [s] when set."""
         c = self.cfg
-        return {"dt": c.dt, "horizon": float(self.spec.horizon), "eps": c.eps,
-                "setpoint_band": c.setpoint_band, "setpoint_rate": c.setpoint_rate,
-                "force_filter": c.force_filter, "hold_gain": c.hold_gain, "speed_trim": c.speed_trim}
+        out = {"dt": c.dt, "horizon": float(self.spec.horizon), "eps": c.eps,
+               "setpoint_band": c.setpoint_band, "setpoint_rate": c.setpoint_rate,
+               "force_filter": c.force_filter, "hold_gain": c.hold_gain, "speed_trim": c.speed_trim}
+        if self.force_window_n:          # the force band on a moving mean (not the default): say so
+            out["force_window"] = self.force_window
+        return out
 
     @property
     def derived_units(self) -> dict[str, str]:
         """The unit of each :meth:`tuning_values` entry (a torque drive's set-point is a torque)."""
         sp, rate = self.model.drive.unit, self.model.drive.rate_unit
-        return {"dt": "s", "horizon": "-", "eps": "rad/s", "setpoint_band": sp, "setpoint_rate": rate,
-                "force_filter": "s", "hold_gain": "-", "speed_trim": "s"}
+        out = {"dt": "s", "horizon": "-", "eps": "rad/s", "setpoint_band": sp, "setpoint_rate": rate,
+               "force_filter": "s", "hold_gain": "-", "speed_trim": "s"}
+        if self.force_window_n:
+            out["force_window"] = "s"
+        return out
 
     def _nominal(self, t: float, u_prog) -> float:
         """Nominal speed of the objective body [rad/s]."""
