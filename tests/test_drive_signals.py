@@ -122,3 +122,23 @@ def test_a_speed_drive_reports_nothing_and_the_drive_kinds_declare_their_units()
     assert set(sig) == set(rig3.drive.signal_units()) == {"current", "voltage"}
     assert rig3.drive.limit(p.as_dict()) == ("current", 10.0)
     assert rig3.drive.signals(rig3, p, X[:0], U[:0])["voltage"].shape == (0,)
+
+
+def test_a_closed_loop_log_keeps_the_load_cells_and_the_servos_applied_force(tmp_path):
+    """rig3 under the brake: the n2 column is what the DAQ read (its load cell), the brake's command
+    is command_n2 and the force the servo applied (lagged, rate-limited) is true_n2; written and read
+    back as CSV, the three stay apart."""
+    sc = make_scenario(name="brk", model="rig3", duration=3.0, inputs={"omega_ref": "30 rpm", "n1": 20.0},
+                       controllers=["brake"], estimator="fd", control_start=1.0)
+    r = _run(sc)
+    assert r.success, r.message
+    log = r.to_log()
+    j = r.inputs.index("n2")
+    np.testing.assert_array_equal(log["n2"], r.y["n2"])
+    np.testing.assert_array_equal(log["command_n2"], r.commands["n2"])
+    np.testing.assert_array_equal(log["true_n2"], r.u[:, j])
+    assert np.max(np.abs(log["command_n2"] - log["true_n2"])) > 0.1          # the servo lags its command
+    assert log.units["command_n2"] == log.units["true_n2"] == "N"
+    log.write_csv(tmp_path / "log.csv")
+    back = read_csv(tmp_path / "log.csv")
+    np.testing.assert_allclose(back["true_n2"], r.u[:, j], rtol=1e-8, atol=1e-9)
