@@ -345,11 +345,15 @@ def stage_optimised(blasfeo: Path, hpipm_dir: Path) -> Path:
     (:data:`OPTIMISED_NAMES`: ``libhpipX.so`` needing ``libblasfeX.so``), in a folder of the
     compiled-code cache named by their content: a library linked to them (``-lhpipX -lblasfeX``)
     uses that blasfeo even in a process that has loaded the wheel's."""
+    from models.errors import ConfigError
     src = Path(hpipm_dir) / "libhpipm.so"
     h = rename_dynamic(src.read_bytes(), {"libhpipm.so": "libhpipX.so", "libblasfeo.so.0": "libblasfeX.so",
                                           "libblasfeo.so": "libblasfeX.so"})
-    b = Path(blasfeo).read_bytes()
-    b = rename_dynamic(b, {"libblasfeo.so.0": "libblasfeX.so", "libblasfeo.so": "libblasfeX.so"})
+    try:
+        b = rename_dynamic(Path(blasfeo).read_bytes(), {"libblasfeo.so.0": "libblasfeX.so", "libblasfeo.so": "libblasfeX.so"})
+    except ValueError as exc:
+        raise ConfigError(f"{BLASFEO_ENV}: expected a 64-bit ELF blasfeo library the workbench can link; got "
+                          f"{str(blasfeo)!r} ({exc})") from None
     digest = hashlib.sha256(h + b"\0" + b).hexdigest()[:16]
     d = trusted_cache_dir()
     dest = d / f"libs_opt_{digest}"

@@ -126,6 +126,11 @@ def test_renamed_copies_of_hpipm_and_blasfeo_need_each_other_by_their_new_names(
         rename_dynamic(a, {"libhpipm.so": "libhpipm_longer.so"})
     with pytest.raises(ValueError, match="not a 64-bit little-endian ELF"):
         rename_dynamic(b"#!/bin/sh\n", {})
+    from models.errors import ConfigError
+    (tmp_path / "libblasfeo.so").write_bytes(b"#!/bin/sh\n")
+    with pytest.raises(ConfigError, match=r"^STICKSLIP_BLASFEO: expected a 64-bit ELF blasfeo library the workbench "
+                                          r"can link; got '.*libblasfeo\.so' \(not a 64-bit little-endian ELF file\)$"):
+        stage_optimised(tmp_path / "libblasfeo.so", lib)
 
 
 @pytest.mark.slow
