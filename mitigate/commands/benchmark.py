@@ -70,7 +70,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=None, metavar="S", help="the seed of --generated")
     p.add_argument("--slipping", action="store_true",
                    help="(--generated) only scenarios whose uncontrolled body does not stall (stuck beyond the "
-                   "suite's stuck_limit): every class can do the job")
+                   "suite's stuck_limit; up to 40 draws a scenario): every class can do the job")
     p.add_argument("--reference", action="append", default=None, metavar="DIR",
                    help="(leaderboard) folders of reference entries (default: benchmarks/results/reference if it "
                         "exists; repeatable)")

@@ -42,7 +42,8 @@ def register(sub) -> None:
                    help="the benchmark's switch-on phases the tuning's lie between (default 6, the suite's)")
     p.add_argument("--held-out-seeds", type=int, default=2, metavar="H",
                    help="held-out seeds per phase for the report (default 2; 0: none)")
-    p.add_argument("--jobs", type=int, default=1, metavar="N", help="processes sharing the study (default 1: reproducible; more: faster, the trials' order depends on timing)")
+    p.add_argument("--jobs", type=int, default=1, metavar="N", help="processes sharing the study (default 1: reproducible; more: faster, but the trials' order, and so the "
+                   "tuned values, depend on timing)")
     p.add_argument("--seed", type=int, default=0, help="the sampler's seed (default 0)")
     add_common(p, default_out="out/tune")
     p.set_defaults(func=run)
