@@ -7,6 +7,9 @@ stderr and exit code 2; there is never a traceback for bad input.  A controller 
 estimator that broke its contract outside a run (``PluginError``) is one line and exit 1;
 inside ``run``/``benchmark`` it fails only its run, and the command exits 1.  Ctrl-C and
 SIGTERM end the command cleanly (workers stopped, no half-written output), exit 130 / 143.
+With ``--json`` every such ending is also one JSON document on stdout (:func:`error_document`:
+``{"command", "status": "error", "kind", "exit_code", "message"}``), so that a script reading
+stdout never gets an empty document; the line on stderr stays.
 Set ``MITIGATE_DEBUG=1`` to see tracebacks of internal errors.
 """
 
@@ -14,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import os
 import signal
 import sys
@@ -28,12 +32,44 @@ from models.errors import QUOTE_LIMIT, ConfigError, DataError, PluginError, Solv
 COMMANDS = ("simulate", "modal", "identify", "estimate", "run", "sweep", "benchmark", "tune", "export")
 
 
+#: the command line asked for ``--json``, and the sub-command it names (set by :func:`main` before
+#: parsing, so that argparse's own refusals are documents too)
+_json_wanted = False
+_named_command: str | None = None
+
+
+def error_document(command: str | None, kind: str, exit_code: int, message: str) -> dict:
+    """The JSON document of a command that ended without a result (``--json``).
+
+    Parameters
+    ----------
+    command : the sub-command (None: the command line named none)
+    kind : ``"usage"`` (argparse), ``"input"`` (bad input or a solver failure), ``"plugin"``,
+        ``"interrupted"``, ``"terminated"``, ``"internal"``
+    exit_code : the process's exit code
+    message : the one line written on stderr
+    """
+    return {"command": command, "status": "error", "kind": kind, "exit_code": exit_code, "message": message}
+
+
+def _fail(command: str | None, kind: str, exit_code: int, line: str) -> int:
+    """Write ``line`` on stderr and, with ``--json``, its document on stdout; return the exit code."""
+    sys.stderr.write(line + "\n")
+    if _json_wanted:
+        try:
+            json.dump(error_document(command, kind, exit_code, line), sys.stdout, indent=2)
+            sys.stdout.write("\n")
+            sys.stdout.flush()
+        except (BrokenPipeError, ValueError):   # the reader went away, or stdout is closed
+            pass
+    return exit_code
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors and exit code 2."""
 
     def error(self, message):  # noqa: D401
-        sys.stderr.write(f"{self.prog}: error: {message} (see --help)\n")
-        sys.exit(2)
+        sys.exit(_fail(_named_command, "usage", 2, f"{self.prog}: error: {message} (see --help)"))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -78,6 +114,10 @@ def _on_sigterm(signum, frame):
 
 
 def main(argv=None) -> int:
+    global _json_wanted, _named_command
+    words = sys.argv[1:] if argv is None else list(argv)
+    _json_wanted = "--json" in words
+    _named_command = next((w for w in words if w in COMMANDS), None)
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -99,15 +139,12 @@ def _dispatch(args) -> int:
     try:
         return int(args.func(args) or 0)
     except (ConfigError, DataError, SolverFailure) as exc:
-        sys.stderr.write(f"mitigate {args.command}: error: {_line(cli_words(str(exc)))}\n")
-        return 2
+        return _fail(args.command, "input", 2, f"mitigate {args.command}: error: {_line(cli_words(str(exc)))}")
     except PluginError as exc:
-        sys.stderr.write(f"mitigate {args.command}: failed: {_line(str(exc))}\n")
-        return 1
+        return _fail(args.command, "plugin", 1, f"mitigate {args.command}: failed: {_line(str(exc))}")
     except KeyboardInterrupt as exc:
-        terminated = isinstance(exc, _Terminated)
-        sys.stderr.write(f"mitigate {args.command}: {'terminated' if terminated else 'interrupted'}\n")
-        return 143 if terminated else 130
+        kind = "terminated" if isinstance(exc, _Terminated) else "interrupted"
+        return _fail(args.command, kind, 143 if kind == "terminated" else 130, f"mitigate {args.command}: {kind}")
     except BrokenPipeError:   # the reader went away (``mitigate modal --json | head``): not an error of ours
         try:
             sys.stdout = open(os.devnull, "w")
@@ -117,9 +154,8 @@ def _dispatch(args) -> int:
     except Exception as exc:  # an internal error: one line unless debugging
         if os.environ.get("MITIGATE_DEBUG"):
             raise
-        sys.stderr.write(f"mitigate {args.command}: internal error: {type(exc).__name__}: {_line(str(exc))} "
-                         f"(set MITIGATE_DEBUG=1 for a traceback)\n")
-        return 1
+        return _fail(args.command, "internal", 1, f"mitigate {args.command}: internal error: {type(exc).__name__}: "
+                                                   f"{_line(str(exc))} (set MITIGATE_DEBUG=1 for a traceback)")
 
 
 def _line(text: str) -> str:
