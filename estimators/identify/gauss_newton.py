@@ -21,6 +21,12 @@ Robustness on real logs (Levenberg-Marquardt / trust region):
 - ``mu`` (relative to the largest diagonal entry of ``J^T J``) and a trust radius on the scaled
   parameter step adapt to the ratio of the actual to the predicted decrease of the l1 merit
   function ``0.5 |r|^2 + nu |g|_1``;
+- a step whose parameter part leaves the trust radius is first damped (``mu`` raised for that
+  step, a decade at a time up to :data:`LM_RADIUS_MAX`, the search starting two decades below the
+  last step's damping), and only then shortened to the radius: the undamped Gauss-Newton direction
+  of a log that leaves states unmeasured is dominated by ill-conditioned node moves (steps of 70
+  state ranges), and shortening it to the radius crawled (zoo example_3: 35 iterations, not
+  converged);
 - the step length comes from a backtracking line search on that merit, with one second-order
   correction (Nocedal & Wright 18.3) against the Maratos effect;
 - when no step decreases the merit, ``mu`` is raised (shorter, more gradient-like steps) and the
@@ -29,7 +35,10 @@ Robustness on real logs (Levenberg-Marquardt / trust region):
   by the cost alone: its actual change may not exceed the GN model's for that step length (closing
   the last gaps may cost a little), and the gaps must stay below GAP_OK; the l1 merit's gap
   multipliers, huge in stiff (stuck) intervals, would trade real cost for gap changes far below
-  the noise;
+  the noise; a problem without gaps (single shooting, :mod:`~estimators.identify.single`) has no
+  gaps to close and takes a sufficient decrease of the cost (Armijo): asking it for the GN model's
+  whole predicted decrease rejected every step of a simulation more curved than its model (the
+  refinements ended on failed line searches with the cost still falling);
 - the solver keeps the lowest-cost iterate whose scaled gaps are below GAP_OK, and counts a failed
   line search there as
   converged when the step would lower the cost by less than ``0.02 s^2`` (``s^2`` the residual
@@ -58,6 +67,13 @@ CONVERGED = ("small_step", "no_predicted_decrease", "no_further_decrease")
 #: scaled continuity gaps below this are far below any sensor's noise (the states are scaled by
 #: their range): such an iterate counts as feasible
 GAP_OK = 1e-4
+#: the largest Levenberg-Marquardt parameter (relative to the largest diagonal entry of ``J^T J``) that a
+#: step whose parameters leave the trust radius is damped to; beyond it the step is shortened to the
+#: radius (zoo example_3, a lead screw read at the motor only: the shortened undamped steps crawled, 35
+#: iterations and not converged; damped it converged in 22.  Damping up to 1e-2 sent zoo example_1,
+#: one encoder on a bit, to a cost of 291 instead of 0.37: the steps then turn into gradient steps
+#: in the scaled nodes and close the gaps in the first basin they meet)
+LM_RADIUS_MAX = 1e-5
 
 
 @dataclass(frozen=True)
@@ -184,6 +200,7 @@ def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8
         return GNResult(w, 0, "non_finite_start", False, (), float("inf"))
     nu_pen = 1.0
     lm = 1e-10
+    lm_tr = 0.0         # the damping the last step needed to fit the trust radius
     radius = float(trust_radius)
     active = [i for i in range(G.shape[0]) if G[i] @ w[:nb] >= h[i] - 1e-10 * max(1.0, abs(h[i]))]
     reason = "max_iter"
@@ -202,7 +219,19 @@ def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8
         mu = lm * max(1.0, float(H.diagonal().max()))
         ng = A.shape[0]
         try:
+            # a parameter step beyond the trust radius is damped (the Levenberg-Marquardt trust-region
+            # step) rather than shortened along the Gauss-Newton direction, whose long part can be all
+            # ill-conditioned node moves: the damping search starts two decades below the damping the
+            # last step needed (lm itself follows the line search)
+            lm_r = max(lm, min(lm_tr / 100, LM_RADIUS_MAX))
+            mu = lm_r * max(1.0, float(H.diagonal().max()))
             dw, lam, active, fac, Aall = _kkt_solve(prob, H, mu, grad, A, g, G, h, w, active, ng)
+            while nf and float(np.max(np.abs(dw[:nf]))) > radius and lm_r < LM_RADIUS_MAX:
+                lm_r = min(lm_r * 10, LM_RADIUS_MAX)
+                mu = lm_r * max(1.0, float(H.diagonal().max()))
+                dw, lam, active, fac, Aall = _kkt_solve(prob, H, mu, grad, A, g, G, h, w, active, ng)
+            damped = lm_r > lm
+            lm_tr = lm_r if damped else 0.0
         except (RuntimeError, ValueError):
             reason = "singular"
             break
@@ -262,6 +291,9 @@ def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8
             if not (np.all(np.isfinite(rt)) and np.all(np.isfinite(gt))):
                 return False, np.inf
             ft = 0.5 * float(rt @ rt)
+            if feasible and not ng:
+                # no gaps at all (single shooting): sufficient decrease of the cost (Armijo)
+                return ft <= f + 1e-4 * a * min(gdw, 0.0), ft
             if feasible:
                 # the actual cost change may not exceed the GN model's for this step length (which
                 # may be an increase: closing the last gaps can cost a little), plus a sufficient
@@ -313,7 +345,7 @@ def solve_gn(prob, w0, G=None, h=None, *, max_iter: int = 100, tol: float = 1e-8
         # trust-region bookkeeping: actual vs predicted merit decrease along the accepted step
         pred = -(alpha * gdw + 0.5 * alpha * alpha * jdw2) + (0.0 if feasible else alpha * nu_pen * gl1)
         rho = ((f if feasible else phi0) - phit) / pred if pred > 0 else 1.0
-        if rho > 0.75 and capped and alpha >= t_max:
+        if rho > 0.75 and (capped or damped) and alpha >= t_max:
             radius = min(2 * radius, 1e3)
         elif rho < 0.25:
             radius = max(0.25 * radius, 1e-3)
