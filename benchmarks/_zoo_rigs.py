@@ -2,7 +2,12 @@
 
 The zoo's generator is a hypothesis strategy; here it is drawn deterministically, as
 ``tests/test_rig_zoo.py`` draws it: the four CI corners (``CORNERS``, each at its seed) and the first
-derandomised examples of up to 3 bodies.  :func:`case` turns a rig into an identification case: a
+derandomised examples of up to 3 bodies.  **The benchmarks read the drawn rigs from files**
+(``benchmarks/zoo/``, :func:`zoo`): hypothesis (6.170) mines literal constants from the modules
+loaded in the process, so the same derandomised draw gave other examples 3-5 depending on what had
+been imported (``bench_identify_zoo.py`` and ``identify_coverage.py`` drew different ``example_4``s);
+the files are the rigs of the published tables, written with ``python benchmarks/_zoo_rigs.py
+--freeze`` in ``bench_identify_zoo.py``'s import state.  :func:`case` turns a rig into an identification case: a
 60 s log of the exact plant (the rig's sensors and their noise) from rest at the operating point,
 up to 6 free parameters (the first spring's stiffness and damping, the second spring's stiffness,
 the contact's kinetic and static levels) started 20 % off.  A user's rig file
@@ -47,12 +52,40 @@ def _draw(strategy, seed=None, n: int = 1) -> list[ZooRig]:
     return got
 
 
-def zoo(examples: int = 6) -> dict[str, ZooRig]:
-    """The corners (their CI seeds) and the first ``examples`` derandomised rigs of up to 3 bodies."""
+FROZEN = ROOT / "benchmarks" / "zoo"
+
+
+def draw_zoo(examples: int = 6) -> dict[str, ZooRig]:
+    """Draw the corners (their CI seeds) and the first ``examples`` derandomised rigs of up to 3 bodies
+    (hypothesis: what it draws depends on the modules loaded, module docstring)."""
     out = {name: _draw(zoo_rigs(max_bodies=3, **kw), seed=i + 18)[0] for i, (name, kw) in enumerate(CORNERS.items())}
     for i, z in enumerate(_draw(zoo_rigs(max_bodies=3), n=examples) if examples > 0 else []):
         out[f"example_{i}"] = z
     return out
+
+
+def freeze(rigs: dict[str, ZooRig], folder: Path = FROZEN) -> None:
+    """Write each rig's TOML (``NAME.toml``) and what it was drawn from (``index.json``)."""
+    import dataclasses
+    import json
+    folder.mkdir(parents=True, exist_ok=True)
+    index = {}
+    for name, z in rigs.items():
+        (folder / f"{name}.toml").write_text(z.text)
+        index[name] = {k: v for k, v in dataclasses.asdict(z).items() if k != "text"}
+    (folder / "index.json").write_text(json.dumps(index, indent=1) + "\n")
+
+
+def zoo(examples: int = 6) -> dict[str, ZooRig]:
+    """The frozen rigs (``benchmarks/zoo/``): the four corners and the first ``examples`` examples."""
+    import json
+    index = json.loads((FROZEN / "index.json").read_text())
+    names = [n for n in index if not n.startswith("example_")] + [f"example_{i}" for i in range(examples)]
+    missing = [n for n in names if n not in index]
+    if missing:
+        raise ValueError(f"benchmarks/zoo/ holds no rig {missing[0]!r} (frozen: {', '.join(index)})")
+    return {n: ZooRig(text=(FROZEN / f"{n}.toml").read_text(), **{k: tuple(v) if isinstance(v, list) else v
+                                                                   for k, v in index[n].items()}) for n in names}
 
 
 @dataclass
@@ -137,3 +170,14 @@ def rel_errors(fit, truth) -> dict:
 
 def finite(x) -> bool:
     return bool(np.isfinite(x))
+
+
+if __name__ == "__main__":
+    import argparse
+    ap = argparse.ArgumentParser(description="Freeze the zoo's drawn rigs into benchmarks/zoo/ (as bench_identify_zoo "
+                                             "draws them).", epilog="Example: python benchmarks/_zoo_rigs.py --freeze")
+    ap.add_argument("--freeze", action="store_true", help="draw and write the rigs (overwrites benchmarks/zoo/)")
+    if ap.parse_args().freeze:
+        import bench_identify_zoo  # noqa: F401 - the benchmark's import state: the published tables' rigs
+        freeze(draw_zoo())
+        print(f"wrote {FROZEN}")
