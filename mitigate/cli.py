@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import os
 import signal
 import sys
@@ -56,9 +55,9 @@ def _fail(command: str | None, kind: str, exit_code: int, line: str) -> int:
     """Write ``line`` on stderr and, with ``--json``, its document on stdout; return the exit code."""
     sys.stderr.write(line + "\n")
     if _json_wanted:
+        from mitigate.cliutil import emit_json   # the commands' own writer (numpy: imported only here)
         try:
-            json.dump(error_document(command, kind, exit_code, line), sys.stdout, indent=2)
-            sys.stdout.write("\n")
+            emit_json(error_document(command, kind, exit_code, line))
             sys.stdout.flush()
         except (BrokenPipeError, ValueError):   # the reader went away, or stdout is closed
             pass
