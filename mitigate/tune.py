@@ -26,6 +26,14 @@ that was interrupted and continued proposes what it would have proposed uninterr
 studies at a time: its tuned values are the same on any machine and load.  The result is then reported on HELD-OUT seeds that neither the
 tuning nor the benchmark (seeds 0 .. S-1) uses, at the benchmark's own phases.
 
+With ``validate = V > 0`` the choice is not the best tuning score: the :data:`VALIDATION_CANDIDATES`
+best trials and the shipped options are run at ``V`` VALIDATION phases (quarter points of the grid,
+:func:`validation_phases`, disjoint from the benchmark's and the tuning's) on their own seeds
+(:data:`VALIDATION_SEED_OFFSET`), and the candidate with the lowest mean score there wins; a tie keeps
+the shipped options.  Tuning on two runs over-fits: a law that beats the shipped one only in the
+score's tie-break terms can sit at the edge of the speed band (measured on the suite, BENCHMARKS.md);
+the validation runs see that edge, the tuning runs cannot.
+
 Each tunable is a multiple of its natural unit on the rig (:mod:`mitigate.tunables`); the tuned
 options are stored in SI, the multiples beside them.
 """
@@ -47,11 +55,15 @@ from mitigate.record import RunRecord
 from mitigate.tunables import set_option
 
 __all__ = ["TuneResult", "tune", "tune_suite", "startup_trials", "tuning_phases", "settings", "TUNING_SEED_OFFSET",
-           "HELD_OUT_SEED_OFFSET", "FAILED_SCORE", "DEFAULT_GRID"]
+           "HELD_OUT_SEED_OFFSET", "FAILED_SCORE", "DEFAULT_GRID", "validation_phases", "VALIDATION_SEED_OFFSET",
+           "VALIDATION_CANDIDATES"]
 
 #: seed indices of the tuning runs and of the held-out report (the benchmark uses 0 .. S-1)
 TUNING_SEED_OFFSET = 100
 HELD_OUT_SEED_OFFSET = 200
+VALIDATION_SEED_OFFSET = 150
+#: the best trials (by tuning score) that the validation runs beside the shipped options
+VALIDATION_CANDIDATES = 3
 #: the score of a run the rig cannot host (:data:`mitigate.benchmark.score.NOT_APPLICABLE`)
 FAILED_SCORE = 10.0
 #: the benchmark's switch-on phases the tuning keeps away from when none are given (the suite's default)
@@ -78,13 +90,35 @@ def tuning_phases(phases: int, grid: int) -> list[float]:
     return [(math.floor(k * grid / phases) + 0.5) / grid for k in range(phases)]
 
 
-def settings(budget: int, phases: int, seeds: int, grid: int, seed: int = 0) -> dict:
+def validation_phases(n: int, grid: int) -> list[float]:
+    """The validation's switch-on phases as fractions of the stick-slip period: ``n`` of the quarter
+    points ``(m + 1/4) / grid`` and ``(m + 3/4) / grid``, spread evenly (never a benchmark phase
+    ``k / grid`` nor a tuning phase ``(m + 1/2) / grid``).
+
+    Raises
+    ------
+    ConfigError : more validation phases than the grid has quarter points (``2 grid``).
+    """
+    pts = sorted((m + q) / grid for m in range(grid) for q in (0.25, 0.75))
+    if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= len(pts):
+        raise ConfigError(f"validate must be an integer from 0 to {len(pts)} (twice the benchmark's {grid} phases), "
+                          f"got {n!r}")
+    return [pts[math.floor(k * len(pts) / n)] for k in range(n)]
+
+
+def settings(budget: int, phases: int, seeds: int, grid: int, seed: int = 0, validate: int = 0) -> dict:
     """How a suite was tuned (stored with the results)."""
     from mitigate.benchmark.score import describe
-    return {"budget": budget, "sampler": f"Optuna TPE (seed {seed}, multivariate, {startup_trials(budget)} random "
-                                         f"start-up trials; the first trial the shipped options; median pruning)",
-            "phases": phases, "seeds": seeds, "phase_fractions": tuning_phases(phases, grid),
-            "seed_offset": TUNING_SEED_OFFSET, "score": describe()}
+    out = {"budget": budget, "sampler": f"Optuna TPE (seed {seed}, multivariate, {startup_trials(budget)} random "
+                                        f"start-up trials; the first trial the shipped options; median pruning)",
+           "phases": phases, "seeds": seeds, "phase_fractions": tuning_phases(phases, grid),
+           "seed_offset": TUNING_SEED_OFFSET, "score": describe()}
+    if validate:
+        out["validation"] = {"phases": validate, "phase_fractions": validation_phases(validate, grid),
+                             "seed_offset": VALIDATION_SEED_OFFSET, "candidates": VALIDATION_CANDIDATES,
+                             "rule": "the best candidates by tuning score and the shipped options, run at the "
+                                     "validation phases; the lowest mean score there wins, a tie keeps the shipped"}
+    return out
 
 
 @dataclass(frozen=True)
@@ -97,7 +131,9 @@ class TuneResult(Outcome):
     budget : trials asked for; n_trials / n_complete / n_pruned : what the study holds
     tunables : ``{name: {"low", "high", "log", "unit"}}`` (range in multiples of ``unit`` on this rig)
     best_params : ``{name: multiple}``; best_options : the options table with the tuned values (SI)
-    best_value, default_value : mean score on the tuning runs, tuned and shipped
+    best_value, default_value : mean score on the tuning runs, tuned (the chosen trial) and shipped
+    validation : ``{"phases": [fractions], "candidates": [{"trial", "params", "tuning", "validation"}],
+        "chosen": trial}`` when the choice was validated (``validate > 0``), else empty
     held_out : ``{"defaults" | "tuned": {"n_runs", "failed", "violations", "score", <ranked metric>:
         {"median", "ci_low", "ci_high"}}}`` on held-out seeds at the benchmark's phases (medians over
         the runs that did the job)
@@ -114,6 +150,7 @@ class TuneResult(Outcome):
     best_value: float
     default_value: float
     held_out: dict = field(default_factory=dict)
+    validation: dict = field(default_factory=dict)
     n_trials: int = 0
     n_complete: int = 0
     n_pruned: int = 0
@@ -254,7 +291,7 @@ def _tasks(sc, spec, ref: Reference, mo: MetricOptions, fractions, seeds: int, o
 def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, held_out_seeds: int = 2,
          metrics: MetricOptions | None = None, out=None, n_jobs: int = 1, seed: int = 0, force: bool = False,
          progress: bool = False, reference: Reference | None = None, grid: int = DEFAULT_GRID,
-         on_trial=None) -> TuneResult:
+         on_trial=None, validate: int = 0) -> TuneResult:
     """Tune a controller's declared tunables on a scenario (module docstring).
 
     Parameters
@@ -271,6 +308,8 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
     n_jobs : processes sharing the study (1: the trials one after another, reproducible)
     seed : the sampler's seed
     on_trial : called with the number of finished trials after each (``n_jobs = 1``; a heartbeat)
+    validate : validation phases (0: the best tuning score wins; module docstring); each runs
+        ``seeds`` seeds for each of the :data:`VALIDATION_CANDIDATES` best trials and the shipped options
 
     Raises
     ------
@@ -287,6 +326,7 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
                         ("held_out_seeds", held_out_seeds, 0), ("n_jobs", n_jobs, 1), ("grid", grid, 1)):
         if isinstance(v, bool) or not isinstance(v, int) or v < lo:
             raise ConfigError(f"{name} must be an integer >= {lo}, got {v!r}")
+    vfractions = validation_phases(validate, grid)
     t0 = time.perf_counter()
     sc, spec = _resolve(scenario, controller)
     ctrl = make_controller(spec, context_for(sc, 0))
@@ -354,6 +394,11 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
         raise ConfigError(f"tuning {spec.name!r} on {sc.name!r}: no trial completed out of {len(study.trials)}")
     best = min(complete, key=lambda t: t.value)
     first = next((t for t in complete if t.number == 0), None)
+    validation = {}
+    if vfractions:
+        best, validation = _validate(objective, complete, first,
+                                     _tasks(sc, spec, ref, mo, vfractions, seeds, VALIDATION_SEED_OFFSET))
+        validation = {"phases": vfractions} | validation
     best_options = objective.options(best.params)
     held = {}
     if held_out_seeds:
@@ -372,8 +417,25 @@ def tune(scenario, controller, *, budget: int, phases: int = 2, seeds: int = 1, 
     return TuneResult(sc.name, spec.name, spec.kind, budget,
                       {n: {"low": lo, "high": hi, "log": log, "unit": u} for n, (lo, hi, log, _i, u) in space.items()},
                       dict(best.params), best_options, float(best.value),
-                      float(first.value) if first is not None else math.nan, held, len(study.trials), len(complete),
-                      n_pruned, path or "", time.perf_counter() - t0)
+                      float(first.value) if first is not None else math.nan, held, validation, len(study.trials),
+                      len(complete), n_pruned, path or "", time.perf_counter() - t0)
+
+
+def _validate(objective: _Objective, complete: list, first, tasks: list[RunTask]):
+    """The candidate the validation runs choose (module docstring) and the record of the choice."""
+    from mitigate.benchmark.execute import run_task
+    cands = sorted(complete, key=lambda t: (t.value, t.number))[:VALIDATION_CANDIDATES]
+    if first is not None and first not in cands:
+        cands.append(first)
+    rows = []
+    for t in cands:
+        opts = objective.options(t.params)
+        v = sum(_score(run_task(dataclasses.replace(task, options=opts))) for task in tasks) / len(tasks)
+        rows.append({"trial": t.number, "params": dict(t.params), "tuning": float(t.value), "validation": float(v)})
+    # lowest validation score; a tie keeps the shipped options (trial 0), then the better tuning score
+    k = min(range(len(cands)), key=lambda i: (rows[i]["validation"], cands[i].number != 0, rows[i]["tuning"],
+                                              cands[i].number))
+    return cands[k], {"candidates": rows, "chosen": cands[k].number}
 
 
 def _start_params(ctrl, spec, space) -> dict:
@@ -412,10 +474,11 @@ def _tune_study(sc, spec, kw) -> tuple[dict, dict]:
 
 
 def tune_suite(suite, *, budget: int, out, refs: Mapping | None = None, jobs: int = 1, progress: bool = False,
-               phases: int = 2, seeds: int = 1, grid: int | None = None) -> dict[tuple, dict]:
+               phases: int = 2, seeds: int = 1, grid: int | None = None, validate: int = 0) -> dict[tuple, dict]:
     """Tune every controller of a suite on every scenario with the same ``budget`` (controllers with
     no tunables, or that a rig cannot host, keep their options); ``{(scenario, controller): options}``.
-    ``grid``: the benchmark's phases (the suite's by default; the tuning's phases lie between them).
+    ``grid``: the benchmark's phases (the suite's by default; the tuning's phases lie between them);
+    ``validate``: validation phases of each study's choice (:func:`tune`).
     Each study is kept under ``out``; ``out/tuning.json`` lists the results and :func:`settings`.
 
     Every study runs its trials one after another, so the tuned values are the same on any machine
@@ -438,7 +501,7 @@ def tune_suite(suite, *, budget: int, out, refs: Mapping | None = None, jobs: in
             if has:
                 # no held-out report here: the benchmark that follows scores the tuned values on its own seeds
                 kw = dict(budget=budget, phases=phases, seeds=seeds, held_out_seeds=0, metrics=suite.metrics,
-                          out=out, reference=ref, grid=grid or suite.phases)
+                          out=out, reference=ref, grid=grid or suite.phases, validate=validate)
                 studies.append((sc, spec, kw))
     found: dict[int, tuple[dict, dict]] = {}
     if jobs <= 1 or len(studies) <= 1:
@@ -463,7 +526,7 @@ def tune_suite(suite, *, budget: int, out, refs: Mapping | None = None, jobs: in
     for k, (sc, spec, _kw) in enumerate(studies):
         tuned[(sc.name, spec.name)] = found[k][0]
         results.append(found[k][1])
-    how = settings(budget, phases, seeds, grid or suite.phases)
+    how = settings(budget, phases, seeds, grid or suite.phases, validate=validate)
     atomic_write_text(Path(out) / "tuning.json", json.dumps({"settings": how, "studies": results}, indent=2) + "\n",
                       overwrite=True)
     return tuned

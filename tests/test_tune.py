@@ -179,3 +179,51 @@ def test_the_tuned_benchmark_mode_gives_the_same_values_with_two_processes(drill
     s1 = json.loads((tmp_path / "one" / "tuning.json").read_text())["studies"]
     s2 = json.loads((tmp_path / "two" / "tuning.json").read_text())["studies"]
     assert [s["best_value"] for s in s1] == [s["best_value"] for s in s2]
+
+
+def test_validation_phases_avoid_the_benchmarks_and_the_tunings():
+    from mitigate.tune import tuning_phases, validation_phases
+    for grid in (1, 3, 6):
+        bench = {k / grid for k in range(grid)}
+        for n in range(1, 2 * grid + 1):
+            v = validation_phases(n, grid)
+            assert len(set(v)) == n and all(0 < f < 1 for f in v)
+            assert not set(v) & bench and not set(v) & set(tuning_phases(grid, grid))
+    assert validation_phases(0, 3) == []
+    with pytest.raises(ConfigError, match=r"^validate must be an integer from 0 to 6 \(twice the benchmark's 3 phases\), got 7$"):
+        validation_phases(7, 3)
+
+
+@pytest.mark.slow
+def test_a_validated_choice_is_the_lowest_validation_score_among_the_best_trials_and_the_shipped(drill, tmp_path):
+    from mitigate.tune import VALIDATION_CANDIDATES
+    r = tune(drill, {"name": "SS", "kind": "softspeed", "kp_factor": 2.0}, budget=6, phases=1, seeds=1,
+             held_out_seeds=0, out=tmp_path, validate=2, grid=3)
+    v = r.validation
+    assert v["phases"] == [1 / 12, 7 / 12]
+    trials = [c["trial"] for c in v["candidates"]]
+    assert 0 in trials and VALIDATION_CANDIDATES <= len(trials) <= VALIDATION_CANDIDATES + 1
+    # the candidates are the best by tuning score (and the shipped options), the chosen the lowest on validation
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+    study = optuna.load_study(study_name="drill__ss", storage=JournalStorage(JournalFileBackend(r.study)))
+    values = sorted(t.value for t in study.trials if t.state.name == "COMPLETE")
+    assert [c["tuning"] for c in v["candidates"][:VALIDATION_CANDIDATES]] == values[:VALIDATION_CANDIDATES]
+    chosen = next(c for c in v["candidates"] if c["trial"] == v["chosen"])
+    assert chosen["validation"] == min(c["validation"] for c in v["candidates"])
+    assert r.best_params == chosen["params"] and r.best_value == chosen["tuning"]
+    # reproducible: the same study validated again chooses the same, with the same scores
+    again = tune(drill, {"name": "SS", "kind": "softspeed", "kp_factor": 2.0}, budget=6, phases=1, seeds=1,
+                 held_out_seeds=0, out=tmp_path, validate=2, grid=3)
+    assert again.validation == v
+    # without validation the same study picks its best tuning score
+    plain = tune(drill, {"name": "SS", "kind": "softspeed", "kp_factor": 2.0}, budget=6, phases=1, seeds=1,
+                 held_out_seeds=0, out=tmp_path, grid=3)
+    assert plain.validation == {} and plain.best_value == min(c["tuning"] for c in v["candidates"])
+
+
+def test_validate_goes_with_tuned(capsys):
+    from mitigate.cli import main
+    assert main(["benchmark", "scenarios/benchmark/suite.toml", "--validate", "2", "--quick"]) == 2
+    assert "--validate chooses tuned values: give it with --tuned" in capsys.readouterr().err

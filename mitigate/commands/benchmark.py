@@ -30,7 +30,8 @@ set: ranking.md, results.csv (one row per run), entries.csv, results.json (the e
 record, the suite version, the commit; its JSON Schema is mitigate/benchmark/results.schema.json),
 benchmark.png, distribution.png. With --tuned, every controller is first tuned on every scenario
 with the same --budget (Optuna TPE; studies in DIR/tuning/) on phases and seeds the ranking does not
-use, scored in the ranking's order, and the tuned values are stored with the results. With
+use, scored in the ranking's order, and the tuned values are stored with the results; --validate V
+chooses each tuned value on V validation phases (the 3 best trials and the shipped options). With
 --generated N --seed S the suite's scenarios are replaced by N scenarios generated from S (rig zoo
 rigs, operating points, mismatches; written to DIR/generated/); with --slipping only draws whose
 uncontrolled body does not stall (where a drive-only controller can do the job).
@@ -48,6 +49,7 @@ examples:
   mitigate benchmark scenarios/benchmark/suite.toml --controller my_module:MyController --alone --out entries/mine
   mitigate benchmark leaderboard entries --out out/leaderboard
   mitigate benchmark scenarios/benchmark/suite.toml --tuned --budget 50 --out out/tuned
+  mitigate benchmark scenarios/benchmark/suite.toml --tuned --validate 4 --phases 3 --out out/tuned_v
   mitigate benchmark scenarios/benchmark/suite.toml --generated 10 --seed 1 --out out/generated
   mitigate benchmark scenarios/benchmark/suite.toml --generated 10 --seed 1 --slipping --out out/slipping
   mitigate benchmark scenarios/benchmark/suite.toml --scheduler tcp://10.0.0.5:8786 --out out/benchmark
@@ -89,6 +91,9 @@ def register(sub) -> None:
     p.add_argument("--tuned", action="store_true", help="tune every controller per scenario first (same --budget)")
     p.add_argument("--budget", type=int, default=50, metavar="N",
                    help="trials per controller and scenario (--tuned; default 50, the reference's)")
+    p.add_argument("--validate", type=int, default=0, metavar="V",
+                   help="(--tuned) choose each tuned value on V validation phases (the 3 best trials and the shipped "
+                        "options; default 0: the best tuning score)")
     add_common(p, default_out="out/benchmark")
     p.set_defaults(func=run)
 
@@ -156,6 +161,8 @@ def run(args) -> int:
         v = getattr(args, flag)
         if v is not None and v < 1:
             raise ConfigError(f"--{flag} must be an integer >= 1, got {v}")
+    if args.validate and not args.tuned:
+        raise ConfigError("--validate chooses tuned values: give it with --tuned")
     if args.quick and (args.phases is not None or args.seeds is not None):
         raise ConfigError("--quick is 1 phase and 1 seed; give either --quick or --phases/--seeds")
     if (args.generated is None) != (args.seed is None):
@@ -186,6 +193,9 @@ def run(args) -> int:
             options_of(controller_class(c.kind, where), c.options, where)
     command = "mitigate benchmark " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if len(sys.argv) > 2 else ""
     phases, seeds = (1, 1) if args.quick else (args.phases, args.seeds)
+    if args.validate:
+        from mitigate.tune import validation_phases
+        validation_phases(args.validate, phases or suite.phases)     # a bad --validate before anything runs
     # locked for the whole benchmark (the run store in DIR/runs/ too), the report written as one set
     from mitigate.benchmark.entry import provenance
     prov = provenance(command)                       # the code the workers import: before anything runs
@@ -202,8 +212,8 @@ def run(args) -> int:
                 grid = phases or suite.phases
                 tp = min(2, grid)            # tuning phases: between the benchmark's, at most one per gap
                 tuned = tune_suite(suite, budget=args.budget, out=out / "tuning", refs=refs, jobs=args.jobs,
-                                   progress=not args.json, grid=grid, phases=tp)
-                how = settings(args.budget, tp, 1, grid)
+                                   progress=not args.json, grid=grid, phases=tp, validate=args.validate)
+                how = settings(args.budget, tp, 1, grid, validate=args.validate)
             res = run_benchmark(suite, phases=phases, seeds=seeds, jobs=args.jobs, store=out, force=args.force,
                                 client=client, progress=not args.json, tuned=tuned, refs=refs, tuning=how,
                                 provenance=prov)

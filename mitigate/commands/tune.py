@@ -18,6 +18,9 @@ what an uninterrupted one would: the same values on any machine); --jobs process
 then the order of the trials depends on timing. The tuned values
 are then compared with the defaults on --held-out-seeds seeds that neither the tuning nor the
 benchmark uses, at the benchmark's phases. Written to DIR: the journal and tune_<scenario>__<controller>.json.
+With --validate V the choice is made on V validation phases (quarter points of the grid, on their own
+seeds) among the 3 best trials and the shipped options: tuning on 2 runs over-fits (a law at the edge
+of the speed band can win on tie-breaks); a tie keeps the shipped options.
 
 The tunables and their ranges are declared by each controller class (multiples of a natural unit
 on the rig where the option has one: SoftSpeed's Kp in multiples of Z, f_t of the rig's lowest mode).
@@ -26,6 +29,7 @@ examples:
   mitigate tune scenarios/benchmark/established.toml --controller softspeed --budget 30 --out out/tune
   mitigate tune scenarios/stick_slip_30rpm.toml --controller NMPC --budget 40 --jobs 2 --out out/tune
   mitigate tune scenarios/benchmark/drillstring.toml --controller "D=doskil,gain_factor=3" --budget 20 --json
+  mitigate tune scenarios/benchmark/established.toml --controller softspeed --budget 30 --validate 4 --out out/tune
 """
 
 
@@ -45,6 +49,9 @@ def register(sub) -> None:
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="processes sharing the study (default 1: reproducible; more: faster, but the trials' order, and so the "
                    "tuned values, depend on timing)")
     p.add_argument("--seed", type=int, default=0, help="the sampler's seed (default 0)")
+    p.add_argument("--validate", type=int, default=0, metavar="V",
+                   help="choose on V validation phases among the 3 best trials and the shipped options (default 0: "
+                        "the best tuning score)")
     add_common(p, default_out="out/tune")
     p.set_defaults(func=run)
 
@@ -67,7 +74,7 @@ def run(args) -> int:
     ctrl = parse_controller(args.controller) if "=" in args.controller else args.controller
     res = tune(sc, ctrl, budget=args.budget, phases=args.phases, seeds=args.seeds,
                held_out_seeds=args.held_out_seeds, out=args.out, n_jobs=args.jobs, seed=args.seed, force=args.force,
-               progress=not args.json, grid=args.grid)
+               progress=not args.json, grid=args.grid, validate=args.validate)
     from mitigate.benchmark.plan import slug
     path = Path(args.out) / f"tune_{slug(res.scenario)}__{slug(res.controller)}.json"
     atomic_write_text(path, json.dumps(res.as_dict(), indent=2) + "\n", overwrite=True)
@@ -86,5 +93,11 @@ def run(args) -> int:
         print(f"held-out, {label}: score {h['score']:.4g}; {first} {m['median']:.3g} [{m['ci_low']:.3g}, "
               f"{m['ci_high']:.3g}] over the runs that did the job; {h['n_runs']} runs ({h['failed']} failed, "
               f"{h['violations']} outside the bands or stalled)")
+    if res.validation:
+        rows = [[c["trial"], f"{c['tuning']:.4g}", f"{c['validation']:.4g}", "chosen" if c["trial"] == res.validation["chosen"]
+                 else ""] for c in res.validation["candidates"]]
+        print(f"\nvalidation at phases {', '.join(f'{f:.3g}' for f in res.validation['phases'])} of the period "
+              "(trial 0: the shipped options):")
+        print(format_table(["trial", "tuning score", "validation score", ""], rows))
     print(f"study: {res.study}; result: {path}")
     return 0
