@@ -90,18 +90,19 @@ def tuning_phases(phases: int, grid: int) -> list[float]:
     return [(math.floor(k * grid / phases) + 0.5) / grid for k in range(phases)]
 
 
-def validation_phases(n: int, grid: int) -> list[float]:
+def validation_phases(n: int, grid: int, what: str = "validate") -> list[float]:
     """The validation's switch-on phases as fractions of the stick-slip period: ``n`` of the quarter
     points ``(m + 1/4) / grid`` and ``(m + 3/4) / grid``, spread evenly (never a benchmark phase
     ``k / grid`` nor a tuning phase ``(m + 1/2) / grid``).
 
     Raises
     ------
-    ConfigError : more validation phases than the grid has quarter points (``2 grid``).
+    ConfigError : more validation phases than the grid has quarter points (``2 grid``); ``what``
+        names the argument in the message.
     """
     pts = sorted((m + q) / grid for m in range(grid) for q in (0.25, 0.75))
     if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= len(pts):
-        raise ConfigError(f"validate must be an integer from 0 to {len(pts)} (twice the benchmark's {grid} phases), "
+        raise ConfigError(f"{what} must be an integer from 0 to {len(pts)} (twice the benchmark's {grid} phases), "
                           f"got {n!r}")
     return [pts[math.floor(k * len(pts) / n)] for k in range(n)]
 

@@ -227,3 +227,7 @@ def test_validate_goes_with_tuned(capsys):
     from mitigate.cli import main
     assert main(["benchmark", "scenarios/benchmark/suite.toml", "--validate", "2", "--quick"]) == 2
     assert "--validate chooses tuned values: give it with --tuned" in capsys.readouterr().err
+    assert main(["tune", "scenarios/benchmark/established.toml", "--controller", "softspeed", "--budget", "2",
+                 "--grid", "3", "--validate", "9"]) == 2
+    assert ("--validate must be an integer from 0 to 6 (twice the benchmark's 3 phases), got 9"
+            in capsys.readouterr().err)

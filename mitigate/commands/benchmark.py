@@ -195,7 +195,7 @@ def run(args) -> int:
     phases, seeds = (1, 1) if args.quick else (args.phases, args.seeds)
     if args.validate:
         from mitigate.tune import validation_phases
-        validation_phases(args.validate, phases or suite.phases)     # a bad --validate before anything runs
+        validation_phases(args.validate, phases or suite.phases, "--validate")     # a bad one before anything runs
     # locked for the whole benchmark (the run store in DIR/runs/ too), the report written as one set
     from mitigate.benchmark.entry import provenance
     prov = provenance(command)                       # the code the workers import: before anything runs

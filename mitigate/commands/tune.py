@@ -70,6 +70,8 @@ def run(args) -> int:
             raise ConfigError(f"--{flag} must be an integer >= 1, got {getattr(args, flag)}")
     if args.held_out_seeds < 0:
         raise ConfigError(f"--held-out-seeds must be an integer >= 0, got {args.held_out_seeds}")
+    from mitigate.tune import validation_phases
+    validation_phases(args.validate, args.grid, "--validate")
     sc = load_scenario(args.scenario)
     ctrl = parse_controller(args.controller) if "=" in args.controller else args.controller
     res = tune(sc, ctrl, budget=args.budget, phases=args.phases, seeds=args.seeds,
