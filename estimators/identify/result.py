@@ -54,6 +54,7 @@ _WHY = {
     "max_iter": "stopped at the iteration limit",
     "line_search": "the line search failed: no step along the Gauss-Newton direction reduced the cost",
     "stalled": "stalled: over five iterations neither the cost nor the largest continuity gap moved",
+    "diverging": "diverging: the continuity gaps did not close while the cost grew tenfold",
     "singular": "the KKT matrix was singular: the information matrix is singular (parameters not identifiable)",
     "non_finite_start": "the model gave non-finite values at the initial guess",
 }
@@ -87,7 +88,7 @@ def convergence_message(reason: str, success: bool, *, iterations: int, max_iter
     if max_gap > 1e-4:
         why += f"; continuity gaps remain (largest {max_gap:.2g}, scaled)"
         hints.append(f"a shorter shooting interval (shoot_every {max(1, shoot_every // 2)}, CLI --shoot-every)")
-    if reason in ("line_search", "non_finite_start", "max_iter", "stalled"):
+    if reason in ("line_search", "non_finite_start", "max_iter", "stalled", "diverging"):
         hints.append("a better initial guess (initial=None derives one from the data; CLI --params or --guess auto)")
         hints.append(f"a larger regularisation (eps {2 * eps:g}, CLI --eps) or more substeps (--nsub)")
         if reason == "line_search":
