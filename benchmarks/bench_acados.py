@@ -47,6 +47,7 @@ Examples::
     python benchmarks/bench_acados.py --out benchmarks/results/nmpc_acados.md
     python benchmarks/bench_acados.py --horizons 20 --rounds 3 --qp partial full --cost external conl
     python benchmarks/bench_acados.py --side ours                   # the workbench's side only
+    python benchmarks/bench_acados.py --qp partial full --ours-qp none full   # ours condensed too
 
 ``--acados-python`` (default ``$ACADOS_PYTHON`` or /work/venv-acados/bin/python) names acados'
 interpreter; without it, the acados side is skipped with a one-line note.
@@ -75,7 +76,7 @@ DEFAULT_ACADOS_PYTHON = os.environ.get("ACADOS_PYTHON", "/work/venv-acados/bin/p
 
 
 # ----------------------------------------------------------------------------- the closed loop
-def _nmpc(horizon: int, qp_tol=None, implementation: str = "c"):
+def _nmpc(horizon: int, qp_tol=None, implementation: str = "c", qp_condensing: str = "none"):
     """The rig, the programme and the NMPC of the main scenario (``bench_nmpc.py``'s); the default
     options but ``qp_tol`` if given.  ``implementation``: "c" (the compiled step, what is timed) or
     "python" (the reference of the same step, whose OCP calls the recording reads; the two agree to
@@ -88,6 +89,8 @@ def _nmpc(horizon: int, qp_tol=None, implementation: str = "c"):
     u_prog = np.array([W0, N1, 0.0])
     ctx = ControlContext(m, m.published(), DT, lambda t: u_prog, where="bench")
     extra = {} if qp_tol is None else {"qp_tol": float(qp_tol)}
+    if qp_condensing != "none":
+        extra["qp_condensing"] = qp_condensing
     return m, u_prog, NMPC(NMPCOptions(horizon=horizon, inputs="both", implementation=implementation, **extra), ctx)
 
 
@@ -126,11 +129,11 @@ def _loop(m, u_prog, c, duration: float):
     return plans, prep, plans_cpu, prep_cpu, c_plans, c_prep
 
 
-def time_ours(horizon: int, duration: float, qp_tol=None) -> dict:
+def time_ours(horizon: int, duration: float, qp_tol=None, qp_condensing: str = "none") -> dict:
     """Our side, timed: the workbench NMPC's plan (feedback) and first held (preparation) calls,
     through Python (``Action.solve_time``, wall) and inside C (the compiled step's own
     ``step_time``: the whole NMPC step, supervision and fallbacks included) [s]."""
-    m, u_prog, c = _nmpc(horizon, qp_tol)
+    m, u_prog, c = _nmpc(horizon, qp_tol, qp_condensing=qp_condensing)
     plans, prep, plans_cpu, prep_cpu, c_plans, c_prep = _loop(m, u_prog, c, duration)
     return dict(feedback=plans[1:], preparation=prep[1:], feedback_c=c_plans[1:], preparation_c=c_prep[1:],
                 feedback_cpu=plans_cpu[1:], preparation_cpu=prep_cpu[1:], failures=c.counts.failures,
@@ -225,10 +228,10 @@ def _run_acados(python: str, data: Path, qp: str, cost: str, cflags: str, out: P
     return json.loads(out.read_text())
 
 
-def _run_ours(horizon: int, duration: float, qp_tol, out: Path) -> dict:
+def _run_ours(horizon: int, duration: float, qp_tol, out: Path, cond: str = "none") -> dict:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE.parent)] + os.environ.get("PYTHONPATH", "").split(os.pathsep)))
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker-ours", str(horizon), "--duration", str(duration),
-           "--json", str(out)] + ([] if qp_tol is None else ["--qp-tol", str(qp_tol)])
+           "--json", str(out), "--ours-qp", cond] + ([] if qp_tol is None else ["--qp-tol", str(qp_tol)])
     r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=3600)
     if r.returncode != 0:
         raise RuntimeError(f"our side failed: {r.stderr.strip()[-2000:]}")
@@ -294,6 +297,9 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=8.0, help="closed-loop seconds")
     ap.add_argument("--rounds", type=int, default=2, help="interleaved rounds (ours, acados; the order alternates)")
     ap.add_argument("--side", choices=("both", "ours", "acados"), default="both")
+    ap.add_argument("--ours-qp", nargs="+", choices=("none", "full"), default=["none"],
+                    help="our compiled step's QP: none (hpipm's Riccati IPM on the OCP QP, the default) and/or full "
+                         "(NMPCOptions.qp_condensing = \"full\": condensed in the preparation, hpipm's dense IPM)")
     ap.add_argument("--qp", nargs="+", choices=("partial", "full"), default=["partial", "full"],
                     help="acados' QP: partial condensing with cond_N = N (hpipm's OCP QP, as ours) and/or full "
                          "condensing (hpipm's dense QP)")
@@ -315,7 +321,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default="", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker_ours is not None:
-        Path(args.json).write_text(json.dumps(time_ours(args.worker_ours, args.duration, args.qp_tol)))
+        Path(args.json).write_text(json.dumps(time_ours(args.worker_ours, args.duration, args.qp_tol, args.ours_qp[0])))
         return 0
     if args.quick:
         args.horizons, args.duration, args.rounds, args.qp, args.cost = [20], 0.5, 1, ["partial"], ["external"]
@@ -360,12 +366,12 @@ def main(argv=None) -> int:
                 time.sleep(15)
             load[-1] = os.getloadavg()
         for N in args.horizons:
-            tasks = ([("ours", None)] if args.side != "acados" else []) + [("acados", v) for v in variants]
+            tasks = ([("ours", c) for c in args.ours_qp] if args.side != "acados" else []) + [("acados", v) for v in variants]
             for kind, v in (tasks if r % 2 == 0 else tasks[::-1]):
-                out = work / f"round{r}_{kind}_N{N}{'' if v is None else '_' + '_'.join(v)}.json"
+                out = work / f"round{r}_{kind}_N{N}_{v if kind == 'ours' else '_'.join(v)}.json"
                 if kind == "ours":
-                    res = _run_ours(N, args.duration, args.qp_tol, out)
-                    key = ("ours", N)
+                    res = _run_ours(N, args.duration, args.qp_tol, out, v)
+                    key = ("ours" if v == "none" else "ours, full condensing", N)
                 else:
                     res = _run_acados(args.acados_python, data[N], v[0], v[1], args.cflags, out)
                     key = (f"acados {v[0]} condensing, {v[1]} cost", N)
@@ -412,10 +418,10 @@ def _report(args, argv, runs, agree, builds, versions, note, load, took, ca_vers
               "thrashing only ever add time).", "",
               "| side | N | phase | measure | median | per-round medians | p10 | p95 | samples |",
               "|---|---|---|---|---|---|---|---|---|"]
-    for (kind, N), rs in sorted(runs.items(), key=lambda kv: (kv[0][1], kv[0][0] != "ours", kv[0][0])):
+    for (kind, N), rs in sorted(runs.items(), key=lambda kv: (kv[0][1], not kv[0][0].startswith("ours"), kv[0][0])):
         series = {}
         for res in rs:
-            for phase, measure, s in _series("ours" if kind == "ours" else "acados", res):
+            for phase, measure, s in _series("ours" if kind.startswith("ours") else "acados", res):
                 series.setdefault((phase, measure), []).append(s[np.isfinite(s)])
         for (phase, measure), ss in sorted(series.items(), key=lambda kv: kv[0][0] != "feedback"):
             allv = np.concatenate(ss)
@@ -424,7 +430,7 @@ def _report(args, argv, runs, agree, builds, versions, note, load, took, ca_vers
                          f"{min(meds):.3f} - {max(meds):.3f} | {np.percentile(allv, 10):.3f} "
                          f"| {np.percentile(allv, 95):.3f} | {allv.size} |")
     lines.append("")
-    acad = [(k, rs) for k, rs in runs.items() if k[0] != "ours"]
+    acad = [(k, rs) for k, rs in runs.items() if not k[0].startswith("ours")]
     if acad:
         lines += ["acados' C timers in detail (medians of the first round) and its status:", ""]
         for (kind, N), rs in sorted(acad, key=lambda kv: (kv[0][1], kv[0][0])):

@@ -47,6 +47,9 @@ from nmpc_setup import M, P, U0, W0, apply_action as _apply, context as _ctx, es
     ({"dt": 0.005}, r"^controllers\[3\]\.dt must be >= the DAQ period 0.01 s, got 0.005$"),
     ({"force_band": [1.2, 1.5]}, r"^controllers\[3\]\.force_band must have low < 1 <= high, got \[1.2, 1.5\]$"),
     ({"force_band": [0.8]}, r"^controllers\[3\]\.force_band must be \[low, high\] \(ratios to the programme\), got"),
+    ({"qp_condensing": "partial"}, r"^controllers\[3\]\.qp_condensing must be one of none, full, got 'partial'$"),
+    ({"qp_condensing": "full", "implementation": "python"},
+     r"^controllers\[3\]\.qp_condensing: \"full\" needs the compiled C step .*implementation 'python'"),
 ])
 def test_bad_options_name_the_field(opts, match):
     with pytest.raises(ConfigError, match=match):
@@ -286,6 +289,42 @@ def test_estimate_of_another_rig_is_a_failure_not_a_wrong_plan():
     est = Estimate(0.0, M.steady_sliding(U0, P), None, ("phi12", "phi23", "omega1", "omega2", "omega3", "i", "z"))
     a = c.step(0.0, {"n1": 20.0}, est)
     assert a.status is Status.FALLBACK and "are not the rig's" in a.message
+
+
+def test_full_condensing_moves_like_the_structured_qp():
+    """qp_condensing = "full" (the QP condensed onto the inputs in the preparation, hpipm's dense IPM in
+    the feedback) plans the same first moves as hpipm's Riccati IPM on the OCP QP, to the QP's tolerance
+    (the bar of the tight-solve test above), from states in stick-slip; and in a short closed loop."""
+    x0 = M.steady_sliding(U0, P)
+    meas = {"n1": 20.0, "n2": 0.0}
+    for w1, phi12 in ((0.0, 0.25), (5.0, -0.1)):
+        x = x0.copy()
+        x[2], x[0] = w1, x0[0] + phi12
+        moves = []
+        for cond in ("none", "full"):
+            c = _nmpc({"horizon": 20, "qp_condensing": cond, "compile": True})
+            a = c.step(0.0, meas, _est(0.0, x))
+            assert a.status is Status.OK, a.message
+            assert c.compiled.info.qp_iterations > 0
+            moves.append((a.u["omega_ref"], a.u["n2"]))
+        (w_s, n_s), (w_c, n_c) = moves
+        assert abs(w_s - w_c) < 3e-3 and abs(n_s - n_c) < 0.04
+        assert abs(w_s - W0) > 1e-3 or n_s > 1e-3  # a real move
+    x0[2] = 1.0
+    acts = {}
+    for cond in ("none", "full"):
+        c = _nmpc({"horizon": 20, "qp_condensing": cond, "compile": True})
+        plant = Plant(M, P, SimOptions(seed=0), sensors=None, x0=x0, u0=U0)
+        out = []
+        for k in range(40):
+            a = c.step(k * 0.01, plant.measure(), _est(k * 0.01, plant.x))
+            out.append((a.u["omega_ref"], a.u["n2"]))
+            plant.step(_apply(M, U0, a))
+        assert c.counts.failures == 0
+        acts[cond] = np.array(out)
+    assert np.ptp(acts["none"][:, 0]) > 1e-3
+    assert np.max(np.abs(acts["none"][:, 0] - acts["full"][:, 0])) < 1e-2
+    assert np.max(np.abs(acts["none"][:, 1] - acts["full"][:, 1])) < 0.1
 
 
 def test_preparation_split_gives_the_same_plans():

@@ -166,6 +166,10 @@ class NMPC(Controller):
                             setpoint_scale=(cfg.setpoint_band if self._torque_drive else w_s) or 1.0,
                             force_scales=tuple(float(a.n_max) for a in acts), weights=weights.as_tuple())
         use_c = o.implementation == "c" and o.compile and o.solver in ("rti", "sqp") and o.qp_solver == "hpipm"
+        if o.qp_condensing != "none" and not use_c:
+            raise ConfigError(f"{where}.qp_condensing: \"{o.qp_condensing}\" needs the compiled C step "
+                              f"(implementation \"c\", compile true, solver rti or sqp, qp_solver hpipm); got "
+                              f"implementation {o.implementation!r}, solver {o.solver!r}, qp_solver {o.qp_solver!r}")
         # the compiled step has the stages in its own library: the Python solver's own build is not needed then
         self.ocp = make_ocp_solver(m, self.spec, solver=o.solver, compile=o.compile and not use_c, qp_solver=o.qp_solver,
                                    qp_tol=o.qp_tol, sqp_max_iter=o.sqp_max_iter)

@@ -19,6 +19,8 @@ from mitigate.metrics.quantities import straddles_one
 
 __all__ = ["NMPCOptions", "NMPCWeights", "MAX_HORIZON", "MAX_SUBSTEPS", "INPUT_MODES", "SOLVERS", "WEIGHT_NAMES"]
 
+#: QP condensing of the compiled step (``qp_condensing``)
+QP_CONDENSING = ("none", "full")
 #: OCP solvers (:func:`mitigate.controllers.nmpc.solvers.make_ocp_solver`)
 SOLVERS = ("rti", "sqp", "ipopt")
 #: implementations of the step: the compiled C core, the Python reference
@@ -127,6 +129,10 @@ class NMPCOptions:
     qp_tol : QP tolerance.  hpipm ("speed_abs" mode) at 1e-7 moves the first input by < 3e-3
         rad/s and < 0.04 N against an exact active-set solve (tests/test_nmpc.py), in about 4
         interior-point iterations; "sqp" uses min(qp_tol, sqp_tol / 10)
+    qp_condensing : "none": hpipm's Riccati interior point on the OCP QP; "full": the QP condensed onto
+        the inputs (and x0), its matrices in the RTI preparation, hpipm's dense interior point in the
+        feedback (as acados' full condensing).  The compiled C step only (``implementation = "c"``);
+        not the default: its plans equal the structured solve's only to the QP's tolerance
     sqp_max_iter : Gauss-Newton iterations of "sqp"
     model_servo : predict each servo's first-order lag (tau of the rig's actuator); without it
         the servo force is the previous command and the rate limit acts per interval
@@ -171,6 +177,7 @@ class NMPCOptions:
     compile: bool = option(True)
     qp_solver: str = option("hpipm", choices=QP_SOLVERS)
     qp_tol: float = option(1e-7, lo=0.0, lo_open=True)
+    qp_condensing: str = option("none", choices=QP_CONDENSING)
     sqp_max_iter: int = option(20, lo=1)
     model_servo: bool = option(True)
     prepare_ahead: bool = option(True)

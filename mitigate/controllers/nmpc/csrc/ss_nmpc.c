@@ -19,6 +19,11 @@
 #include "hpipm_d_ocp_qp_dim.h"
 #include "hpipm_d_ocp_qp_ipm.h"
 #include "hpipm_d_ocp_qp_sol.h"
+#include "hpipm_d_cond.h"
+#include "hpipm_d_dense_qp.h"
+#include "hpipm_d_dense_qp_dim.h"
+#include "hpipm_d_dense_qp_sol.h"
+#include "hpipm_d_dense_qp_ipm.h"
 
 #define ALIGN SS_BLOCK_ALIGN
 
@@ -80,6 +85,15 @@ struct ssn_mem {
     struct d_ocp_qp_sol sol;
     struct d_ocp_qp_ipm_arg arg;
     struct d_ocp_qp_ipm_ws ws;
+    /* full condensing (qp_cond): the dense QP of the inputs and x0; its left-hand side is built in the
+       preparation (d_cond_qp_cond_lhs), its right-hand side, the dense IPM and the expansion in the feedback */
+    struct d_dense_qp_dim ddim;
+    struct d_dense_qp dqp;
+    struct d_dense_qp_sol dsol;
+    struct d_dense_qp_ipm_arg darg;
+    struct d_dense_qp_ipm_ws dws;
+    struct d_cond_qp_arg carg;
+    struct d_cond_qp_ws cws;
 };
 
 /* ------------------------------------------------------------------ memory layout */
@@ -178,6 +192,34 @@ static ssn_mem* layout(ss_bump* b, const ssn_config* cfg, const ss_fn* stages, c
     return m;
 }
 
+/* the condensed (dense) QP's memory for an OCP QP of dimension dim (temporary allocations: sizing only) */
+static size_t dense_bytes(const ssn_config* cfg, struct d_ocp_qp_dim* dim) {
+    struct d_dense_qp_dim ddim;
+    struct d_dense_qp_ipm_arg darg;
+    struct d_cond_qp_arg carg;
+    size_t n = 0, nd = d_dense_qp_dim_memsize(), nc = d_cond_qp_arg_memsize(), na;
+    void *dm = malloc(nd + ALIGN), *cm = malloc(nc + ALIGN), *am = NULL;
+    int it = cfg->qp_iter_max;
+    if (dm && cm) {
+        d_dense_qp_dim_create(&ddim, (void*)(((size_t)dm + ALIGN - 1) / ALIGN * ALIGN));
+        d_cond_qp_compute_dim(dim, &ddim);
+        d_cond_qp_arg_create(&carg, (void*)(((size_t)cm + ALIGN - 1) / ALIGN * ALIGN));
+        d_cond_qp_arg_set_default(&carg);
+        na = d_dense_qp_ipm_arg_memsize(&ddim);
+        am = malloc(na + ALIGN);
+        if (am) {
+            d_dense_qp_ipm_arg_create(&ddim, &darg, (void*)(((size_t)am + ALIGN - 1) / ALIGN * ALIGN));
+            d_dense_qp_ipm_arg_set_default((enum hpipm_mode)cfg->hpipm_mode, &darg);
+            d_dense_qp_ipm_arg_set_iter_max(&it, &darg);
+            n = ss_block_up(nd) + ss_block_up(nc) + ss_block_up(d_cond_qp_ws_memsize(dim, &carg))
+              + ss_block_up(d_dense_qp_memsize(&ddim)) + ss_block_up(d_dense_qp_sol_memsize(&ddim)) + ss_block_up(na)
+              + ss_block_up(d_dense_qp_ipm_ws_memsize(&ddim, &darg)) + 7 * ALIGN;
+        }
+    }
+    free(am); free(cm); free(dm);
+    return n;
+}
+
 /* hpipm's memory after the dimension (the workspace's size needs an argument, which needs memory:
    sized here with a temporary allocation; ssn_memsize is part of creating a controller, never of a step) */
 static size_t hpipm_bytes(const ssn_config* cfg) {
@@ -210,6 +252,10 @@ static size_t hpipm_bytes(const ssn_config* cfg) {
         d_ocp_qp_ipm_arg_set_iter_max(&it, &arg);   /* the workspace keeps per-iteration statistics */
         n = ss_block_up(d_ocp_qp_memsize(&dim)) + ss_block_up(d_ocp_qp_sol_memsize(&dim)) + ss_block_up(na)
           + ss_block_up(d_ocp_qp_ipm_ws_memsize(&dim, &arg)) + 5 * ALIGN;
+        if (cfg->qp_cond) {
+            size_t nc = dense_bytes(cfg, &dim);
+            n = nc ? n + nc : 0;
+        }
     }
     free(amem); free(dmem); free(dims);
     return n;
@@ -297,6 +343,31 @@ ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* st
     wmem = ss_take(&b, d_ocp_qp_ipm_ws_memsize(&m->dim, &m->arg));
     if (b.n > size) return NULL;
     d_ocp_qp_ipm_ws_create(&m->dim, &m->arg, &m->ws, wmem);
+    if (cfg->qp_cond) {
+        void* p = ss_take(&b, d_dense_qp_dim_memsize());
+        d_dense_qp_dim_create(&m->ddim, p);
+        d_cond_qp_compute_dim(&m->dim, &m->ddim);
+        p = ss_take(&b, d_cond_qp_arg_memsize());
+        d_cond_qp_arg_create(&m->carg, p);
+        d_cond_qp_arg_set_default(&m->carg);
+        p = ss_take(&b, d_cond_qp_ws_memsize(&m->dim, &m->carg));
+        d_cond_qp_ws_create(&m->dim, &m->carg, &m->cws, p);
+        p = ss_take(&b, d_dense_qp_memsize(&m->ddim));
+        d_dense_qp_create(&m->ddim, &m->dqp, p);
+        p = ss_take(&b, d_dense_qp_sol_memsize(&m->ddim));
+        d_dense_qp_sol_create(&m->ddim, &m->dsol, p);
+        p = ss_take(&b, d_dense_qp_ipm_arg_memsize(&m->ddim));
+        d_dense_qp_ipm_arg_create(&m->ddim, &m->darg, p);
+        d_dense_qp_ipm_arg_set_default((enum hpipm_mode)cfg->hpipm_mode, &m->darg);
+        d_dense_qp_ipm_arg_set_iter_max(&it, &m->darg);
+        d_dense_qp_ipm_arg_set_tol_stat(&tol, &m->darg);
+        d_dense_qp_ipm_arg_set_tol_eq(&tol, &m->darg);
+        d_dense_qp_ipm_arg_set_tol_ineq(&tol, &m->darg);
+        d_dense_qp_ipm_arg_set_tol_comp(&tol, &m->darg);
+        p = ss_take(&b, d_dense_qp_ipm_ws_memsize(&m->ddim, &m->darg));
+        if (b.n > size) return NULL;
+        d_dense_qp_ipm_ws_create(&m->ddim, &m->darg, &m->dws, p);
+    }
     set_pointers(m);
     /* the structure once: the bounds' indices, the servo rows, no slacks (the data are set per solve) */
     d_ocp_qp_set_all(m->pA, m->pB, m->pb, m->pQ, m->pS, m->pR, m->pq, m->pr, m->pidxbx, m->plbx, m->pubx,
@@ -559,6 +630,8 @@ static int linearise(ssn_mem* m, const double* q) {
             m->b[(size_t)k * nxa + i] = m->Xn[(size_t)k * nxa + i] - m->X[(size_t)(k + 1) * nxa + i];
     m->cost = m->cstage[0] + m->cterm[0];
     pack_data(m);
+    /* full condensing: the dense Hessian and constraint matrices now, in the preparation */
+    if (c->qp_cond) d_cond_qp_cond_lhs(&m->qp, &m->dqp, &m->carg, &m->cws);
     return SSF_NONE;
 }
 
@@ -613,9 +686,17 @@ static int qp_step(ssn_mem* m, ssn_info* info) {
     if (c->drives)
         for (k = 1; k <= N; k++) { m->lbx_all[(size_t)k * nxa] = m->lbx[k - 1]; m->ubx_all[(size_t)k * nxa] = m->ubx[k - 1]; }
     pack_bounds(m);
-    d_ocp_qp_ipm_solve(&m->qp, &m->sol, &m->arg, &m->ws);
-    d_ocp_qp_ipm_get_status(&m->ws, &st);
-    d_ocp_qp_ipm_get_iter(&m->ws, &it);
+    if (c->qp_cond) {
+        d_cond_qp_cond_rhs(&m->qp, &m->dqp, &m->carg, &m->cws);
+        d_dense_qp_ipm_solve(&m->dqp, &m->dsol, &m->darg, &m->dws);
+        d_dense_qp_ipm_get_status(&m->dws, &st);
+        d_dense_qp_ipm_get_iter(&m->dws, &it);
+        if (st == 0) d_cond_qp_expand_sol(&m->qp, &m->dsol, &m->sol, &m->carg, &m->cws);
+    } else {
+        d_ocp_qp_ipm_solve(&m->qp, &m->sol, &m->arg, &m->ws);
+        d_ocp_qp_ipm_get_status(&m->ws, &st);
+        d_ocp_qp_ipm_get_iter(&m->ws, &it);
+    }
     info->qp_iterations = it;
     if (st != 0) { info->fail_detail = st; return SSF_QP; }
     d_ocp_qp_sol_get_all(&m->sol, m->pu, m->px, m->pnull, m->pnull, m->ppi, m->plam_lb, m->plam_ub, m->plam_lg,
