@@ -17,6 +17,7 @@ Medians and 95th percentiles in microseconds.  Usage::
 
     python benchmarks/bench_export.py --quick                 # N = 20, 21 s of the run, one round (CI)
     python benchmarks/bench_export.py --horizons 20 50 --rounds 3
+    python benchmarks/bench_export.py --horizons 20 --qp-condensing full   # the condensed QP exported
 """
 
 from __future__ import annotations
@@ -63,11 +64,12 @@ int main(int argc, char** argv) {
 """
 
 
-def export_horizon(N: int, seconds: float, work: Path):
+def export_horizon(N: int, seconds: float, work: Path, qp_condensing: str = "none"):
     from mitigate.export import build_export, export_controller
     from mitigate.scenario import load_scenario
     sc = load_scenario(MAIN)
-    ctrls = tuple(replace(c, options={**dict(c.options), "horizon": N}) if c.name == "NMPC" else c
+    extra = {} if qp_condensing == "none" else {"qp_condensing": qp_condensing}
+    ctrls = tuple(replace(c, options={**dict(c.options), "horizon": N, **extra}) if c.name == "NMPC" else c
                   for c in sc.controllers)
     sc = replace(sc, controllers=ctrls)
     out = work / f"nmpc_N{N}"
@@ -163,6 +165,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=60.0, help="seconds of the reference run (default 60)")
     ap.add_argument("--rounds", type=int, default=3, help="replays per side, interleaved (default 3)")
     ap.add_argument("--keep", metavar="DIR", help="keep the exports in DIR")
+    ap.add_argument("--qp-condensing", choices=("none", "full"), default="none",
+                    help="the NMPC's qp_condensing (full: condensed in the preparation, hpipm's dense IPM)")
     args = ap.parse_args(argv)
     if args.quick:
         args.horizons, args.seconds, args.rounds = [20], 21.0, 1
@@ -176,7 +180,7 @@ def main(argv=None) -> int:
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, load average {load:.2f}")
     print("median / p95 [us] per call       feedback        preparation     hold         EKF alone")
     for N in args.horizons:
-        sc, res, so = export_horizon(N, args.seconds, work)
+        sc, res, so = export_horizon(N, args.seconds, work, args.qp_condensing)
         c, py = {}, {}
         for r in range(args.rounds):           # interleaved: C, Python, C, Python, ...
             for k, v in time_c(res, so, work, 1).items():
