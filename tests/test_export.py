@@ -141,12 +141,14 @@ def test_bad_exports_are_one_line_refusals_and_write_nothing(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("inputs", ["motor", "pin"])
+@pytest.mark.parametrize("inputs", ["motor", "pin", "both_condensed"])
 def test_every_input_set_exports_and_replays(inputs, tmp_path):
     """The motor-only and the pin-only NMPC export too (issue 26): 25 s of the main scenario (5 s of
     control) replay bit for bit without allocation.  The pin-only one with N2 programmed at 10 N (a
     job, like a weight on bit) and a force window of rig3's period, so the band on the moving mean
-    runs in the library too."""
+    runs in the library too.  "both_condensed": both inputs with ``qp_condensing = "full"`` (the QP
+    condensed in the preparation, hpipm's dense IPM in the feedback) replays the workbench's run of
+    the same option bit for bit too."""
     path = MAIN
     if inputs == "pin":
         path = tmp_path / "pin10.toml"
@@ -154,11 +156,13 @@ def test_every_input_set_exports_and_replays(inputs, tmp_path):
     sc = load_scenario(path)
     assert sc.inputs["n2"](0.0) == (10.0 if inputs == "pin" else 0.0)
     extra = {"force_window": 2.33} if inputs == "pin" else {}
+    if inputs == "both_condensed":
+        inputs, extra = "both", {"qp_condensing": "full"}
     ctrls = tuple(replace(c, options={**dict(c.options), "inputs": inputs, **extra}) if c.name == "NMPC" else c
                   for c in sc.controllers)
     res = export_controller(replace(sc, controllers=ctrls), "NMPC", tmp_path / inputs, reference=25.0,
                             prefix=f"nmpc_{inputs}")
-    assert [p.name for p in res.interface.outputs][:1] == (["omega_ref"] if inputs == "motor" else ["n2"])
+    assert [p.name for p in res.interface.outputs][:1] == (["n2"] if inputs == "pin" else ["omega_ref"])
     so = build_export(res.out, build_type=BUILD)
     code, out = _replay(so.parent / f"{res.prefix}_replay", res.out / "test" / "reference.csv")
     assert code == 0 and out["rows"] == "2501" and out["mismatches"] == "0", out
