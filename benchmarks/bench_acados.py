@@ -47,7 +47,7 @@ Examples::
     python benchmarks/bench_acados.py --out benchmarks/results/nmpc_acados.md
     python benchmarks/bench_acados.py --horizons 20 --rounds 3 --qp partial full --cost external conl
     python benchmarks/bench_acados.py --side ours                   # the workbench's side only
-    python benchmarks/bench_acados.py --qp partial full --ours-qp none full   # ours condensed too
+    python benchmarks/bench_acados.py --qp partial full --ours-qp none full partial   # ours condensed too
 
 ``--acados-python`` (default ``$ACADOS_PYTHON`` or /work/venv-acados/bin/python) names acados'
 interpreter; without it, the acados side is skipped with a one-line note.
@@ -297,9 +297,10 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=8.0, help="closed-loop seconds")
     ap.add_argument("--rounds", type=int, default=2, help="interleaved rounds (ours, acados; the order alternates)")
     ap.add_argument("--side", choices=("both", "ours", "acados"), default="both")
-    ap.add_argument("--ours-qp", nargs="+", choices=("none", "full"), default=["none"],
-                    help="our compiled step's QP: none (hpipm's Riccati IPM on the OCP QP, the default) and/or full "
-                         "(NMPCOptions.qp_condensing = \"full\": condensed in the preparation, hpipm's dense IPM)")
+    ap.add_argument("--ours-qp", nargs="+", choices=("none", "full", "partial"), default=["none"],
+                    help="our compiled step's QP (NMPCOptions.qp_condensing): none (hpipm's Riccati IPM on the OCP "
+                         "QP, the default), full (condensed in the preparation, hpipm's dense IPM), partial (condensed "
+                         "to ceil(N / 5) stages, Riccati on those)")
     ap.add_argument("--qp", nargs="+", choices=("partial", "full"), default=["partial", "full"],
                     help="acados' QP: partial condensing with cond_N = N (hpipm's OCP QP, as ours) and/or full "
                          "condensing (hpipm's dense QP)")
@@ -371,7 +372,7 @@ def main(argv=None) -> int:
                 out = work / f"round{r}_{kind}_N{N}_{v if kind == 'ours' else '_'.join(v)}.json"
                 if kind == "ours":
                     res = _run_ours(N, args.duration, args.qp_tol, out, v)
-                    key = ("ours" if v == "none" else "ours, full condensing", N)
+                    key = ("ours" if v == "none" else f"ours, {v} condensing", N)
                 else:
                     res = _run_acados(args.acados_python, data[N], v[0], v[1], args.cflags, out)
                     key = (f"acados {v[0]} condensing, {v[1]} cost", N)

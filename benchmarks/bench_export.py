@@ -165,8 +165,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=60.0, help="seconds of the reference run (default 60)")
     ap.add_argument("--rounds", type=int, default=3, help="replays per side, interleaved (default 3)")
     ap.add_argument("--keep", metavar="DIR", help="keep the exports in DIR")
-    ap.add_argument("--qp-condensing", choices=("none", "full"), default="none",
-                    help="the NMPC's qp_condensing (full: condensed in the preparation, hpipm's dense IPM)")
+    ap.add_argument("--qp-condensing", choices=("none", "full", "partial"), default="none",
+                    help="the NMPC's qp_condensing (full: condensed in the preparation, hpipm's dense IPM; partial: "
+                         "condensed to ceil(N / 5) stages)")
     args = ap.parse_args(argv)
     if args.quick:
         args.horizons, args.seconds, args.rounds = [20], 21.0, 1

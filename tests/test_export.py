@@ -141,14 +141,14 @@ def test_bad_exports_are_one_line_refusals_and_write_nothing(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("inputs", ["motor", "pin", "both_condensed"])
+@pytest.mark.parametrize("inputs", ["motor", "pin", "both_full", "both_partial"])
 def test_every_input_set_exports_and_replays(inputs, tmp_path):
     """The motor-only and the pin-only NMPC export too (issue 26): 25 s of the main scenario (5 s of
     control) replay bit for bit without allocation.  The pin-only one with N2 programmed at 10 N (a
     job, like a weight on bit) and a force window of rig3's period, so the band on the moving mean
-    runs in the library too.  "both_condensed": both inputs with ``qp_condensing = "full"`` (the QP
-    condensed in the preparation, hpipm's dense IPM in the feedback) replays the workbench's run of
-    the same option bit for bit too."""
+    runs in the library too.  "both_full" / "both_partial": both inputs with ``qp_condensing = "full"``
+    (the QP condensed in the preparation, hpipm's dense IPM in the feedback) or ``"partial"`` (condensed
+    to ceil(N / 5) stages) replay the workbench's run of the same option bit for bit too."""
     path = MAIN
     if inputs == "pin":
         path = tmp_path / "pin10.toml"
@@ -156,8 +156,8 @@ def test_every_input_set_exports_and_replays(inputs, tmp_path):
     sc = load_scenario(path)
     assert sc.inputs["n2"](0.0) == (10.0 if inputs == "pin" else 0.0)
     extra = {"force_window": 2.33} if inputs == "pin" else {}
-    if inputs == "both_condensed":
-        inputs, extra = "both", {"qp_condensing": "full"}
+    if inputs.startswith("both_"):
+        inputs, extra = "both", {"qp_condensing": inputs[5:]}
     ctrls = tuple(replace(c, options={**dict(c.options), "inputs": inputs, **extra}) if c.name == "NMPC" else c
                   for c in sc.controllers)
     res = export_controller(replace(sc, controllers=ctrls), "NMPC", tmp_path / inputs, reference=25.0,

@@ -47,7 +47,8 @@ from nmpc_setup import M, P, U0, W0, apply_action as _apply, context as _ctx, es
     ({"dt": 0.005}, r"^controllers\[3\]\.dt must be >= the DAQ period 0.01 s, got 0.005$"),
     ({"force_band": [1.2, 1.5]}, r"^controllers\[3\]\.force_band must have low < 1 <= high, got \[1.2, 1.5\]$"),
     ({"force_band": [0.8]}, r"^controllers\[3\]\.force_band must be \[low, high\] \(ratios to the programme\), got"),
-    ({"qp_condensing": "partial"}, r"^controllers\[3\]\.qp_condensing must be one of none, full, got 'partial'$"),
+    ({"qp_condensing": "dense"}, r"^controllers\[3\]\.qp_condensing must be one of none, full, partial, got 'dense'$"),
+    ({"qp_blocks": 0}, r"^controllers\[3\]\.qp_blocks must be >= 1, got 0$"),
     ({"qp_condensing": "full", "implementation": "python"},
      r"^controllers\[3\]\.qp_condensing: \"full\" needs the compiled C step .*implementation 'python'"),
 ])
@@ -291,18 +292,20 @@ def test_estimate_of_another_rig_is_a_failure_not_a_wrong_plan():
     assert a.status is Status.FALLBACK and "are not the rig's" in a.message
 
 
-def test_full_condensing_moves_like_the_structured_qp():
+@pytest.mark.parametrize("cond", ["full", "partial"])
+def test_condensing_moves_like_the_structured_qp(cond):
     """qp_condensing = "full" (the QP condensed onto the inputs in the preparation, hpipm's dense IPM in
-    the feedback) plans the same first moves as hpipm's Riccati IPM on the OCP QP, to the QP's tolerance
-    (the bar of the tight-solve test above), from states in stick-slip; and in a short closed loop."""
+    the feedback) and "partial" (condensed to ceil(N / 5) = 4 stages, Riccati on those) plan the same
+    first moves as hpipm's Riccati IPM on the OCP QP, to the QP's tolerance (the bar of the tight-solve
+    test above), from states in stick-slip; and in a short closed loop."""
     x0 = M.steady_sliding(U0, P)
     meas = {"n1": 20.0, "n2": 0.0}
     for w1, phi12 in ((0.0, 0.25), (5.0, -0.1)):
         x = x0.copy()
         x[2], x[0] = w1, x0[0] + phi12
         moves = []
-        for cond in ("none", "full"):
-            c = _nmpc({"horizon": 20, "qp_condensing": cond, "compile": True})
+        for how in ("none", cond):
+            c = _nmpc({"horizon": 20, "qp_condensing": how, "compile": True})
             a = c.step(0.0, meas, _est(0.0, x))
             assert a.status is Status.OK, a.message
             assert c.compiled.info.qp_iterations > 0
@@ -312,8 +315,8 @@ def test_full_condensing_moves_like_the_structured_qp():
         assert abs(w_s - W0) > 1e-3 or n_s > 1e-3  # a real move
     x0[2] = 1.0
     acts = {}
-    for cond in ("none", "full"):
-        c = _nmpc({"horizon": 20, "qp_condensing": cond, "compile": True})
+    for how in ("none", cond):
+        c = _nmpc({"horizon": 20, "qp_condensing": how, "compile": True})
         plant = Plant(M, P, SimOptions(seed=0), sensors=None, x0=x0, u0=U0)
         out = []
         for k in range(40):
@@ -321,10 +324,10 @@ def test_full_condensing_moves_like_the_structured_qp():
             out.append((a.u["omega_ref"], a.u["n2"]))
             plant.step(_apply(M, U0, a))
         assert c.counts.failures == 0
-        acts[cond] = np.array(out)
+        acts[how] = np.array(out)
     assert np.ptp(acts["none"][:, 0]) > 1e-3
-    assert np.max(np.abs(acts["none"][:, 0] - acts["full"][:, 0])) < 1e-2
-    assert np.max(np.abs(acts["none"][:, 1] - acts["full"][:, 1])) < 0.1
+    assert np.max(np.abs(acts["none"][:, 0] - acts[cond][:, 0])) < 1e-2
+    assert np.max(np.abs(acts["none"][:, 1] - acts[cond][:, 1])) < 0.1
 
 
 def test_preparation_split_gives_the_same_plans():

@@ -27,6 +27,7 @@ from models.cbuild import (CSRC, CStruct, blasfeo_override, build_library, c_vie
 from models.errors import SolverFailure
 from mitigate.controllers.nmpc.start import LOAD_FACTOR_RANGE
 from mitigate.controllers.nmpc.supervision import SLIDING_FRACTION, TRIM_DEADBAND, TRIM_LIMIT
+from mitigate.controllers.nmpc.options import QP_CONDENSING, qp_blocks
 
 __all__ = ["NMPC_CONFIG", "NMPC_INFO", "nmpc_config", "CompiledStep", "NMPC_SOURCES", "FAILURES", "REASONS"]
 
@@ -49,7 +50,8 @@ NMPC_CONFIG = CStruct("ssn_config", [
     ("use_load", "int", None, "take load factors from the estimate"),
     ("iterate", "int", None, "SQP to convergence (0: RTI)"), ("sqp_max_iter", "int", None, "SQP iterations"),
     ("qp_iter_max", "int", None, "QP iterations"), ("hpipm_mode", "int", None, "enum hpipm_mode"),
-    ("qp_cond", "int", None, "1: full condensing, hpipm's dense IPM on the inputs and x0 (0: Riccati on the OCP QP)"),
+    ("qp_cond", "int", None, "0: Riccati on the OCP QP; 1: full condensing, hpipm's dense IPM; 2: partial condensing"),
+    ("qp_cond_n", "int", None, "stages after partial condensing (qp_cond 2)"),
     ("u_drive", "int", None, "the drive's input index"), ("i_wprev", "int", None, "previous set-point in xa (-1)"),
     ("i_speed", "int", None, "objective body's speed in x"), ("window_n", "int", None, "supervision window"),
     ("force_n", "int", None, "the force band's moving window [DAQ samples] (0: every command in the band)"),
@@ -132,7 +134,7 @@ def nmpc_config(nmpc) -> dict:
         has_speed0=int(nmpc._speed0 is not None),
         model_servo=int(o.model_servo), prepare_ahead=int(o.prepare_ahead), use_load=int(o.use_load_estimate),
         iterate=int(o.solver == "sqp"), sqp_max_iter=o.sqp_max_iter, qp_iter_max=100, hpipm_mode=HPIPM_MODES["speed_abs"],
-        qp_cond=int(o.qp_condensing == "full"),
+        qp_cond=QP_CONDENSING.index(o.qp_condensing), qp_cond_n=qp_blocks(o.qp_blocks, nmpc.spec.horizon),
         u_drive=L.u_drive, i_wprev=-1 if L.i_wprev is None else L.i_wprev, i_speed=nmpc._i_speed,
         window_n=nmpc.supervisor.state.window.n, force_n=nmpc.start.window_n, look_n=list(nmpc._look_n),
         q_hold=L.q_hold, q_nom=L.q_nom, q_fc=L.q_fc, q_lin=L.q_lin,

@@ -17,10 +17,20 @@ from models.errors import ConfigError
 from mitigate.controllers.nmpc.qp import QP_SOLVERS
 from mitigate.metrics.quantities import straddles_one
 
-__all__ = ["NMPCOptions", "NMPCWeights", "MAX_HORIZON", "MAX_SUBSTEPS", "INPUT_MODES", "SOLVERS", "WEIGHT_NAMES"]
+__all__ = ["NMPCOptions", "NMPCWeights", "MAX_HORIZON", "MAX_SUBSTEPS", "INPUT_MODES", "SOLVERS", "WEIGHT_NAMES", "QP_CONDENSING",
+           "qp_blocks"]
 
-#: QP condensing of the compiled step (``qp_condensing``)
-QP_CONDENSING = ("none", "full")
+#: QP condensing of the compiled step (``qp_condensing``; its index is the C core's ``qp_cond``)
+QP_CONDENSING = ("none", "full", "partial")
+#: stages per block of the partially condensed QP where ``qp_blocks`` is not given (:func:`qp_blocks`)
+QP_BLOCK_STAGES = 5
+
+
+def qp_blocks(blocks: int | None, horizon: int) -> int:
+    """Stages of the partially condensed QP: ``blocks``, else ``ceil(horizon / QP_BLOCK_STAGES)``;
+    never more than the horizon."""
+    n = -(-horizon // QP_BLOCK_STAGES) if blocks is None else int(blocks)
+    return max(1, min(n, horizon))
 #: OCP solvers (:func:`mitigate.controllers.nmpc.solvers.make_ocp_solver`)
 SOLVERS = ("rti", "sqp", "ipopt")
 #: implementations of the step: the compiled C core, the Python reference
@@ -131,8 +141,11 @@ class NMPCOptions:
         interior-point iterations; "sqp" uses min(qp_tol, sqp_tol / 10)
     qp_condensing : "none": hpipm's Riccati interior point on the OCP QP; "full": the QP condensed onto
         the inputs (and x0), its matrices in the RTI preparation, hpipm's dense interior point in the
-        feedback (as acados' full condensing).  The compiled C step only (``implementation = "c"``);
-        not the default: its plans equal the structured solve's only to the QP's tolerance
+        feedback (as acados' full condensing); "partial": condensed in blocks to ``qp_blocks`` stages
+        (hpipm's partial condensing), Riccati on that.  The compiled C step only
+        (``implementation = "c"``); not the default: its plans equal the structured solve's only to
+        the QP's tolerance
+    qp_blocks : stages of the partially condensed QP (None: ``ceil(horizon / 5)``)
     sqp_max_iter : Gauss-Newton iterations of "sqp"
     model_servo : predict each servo's first-order lag (tau of the rig's actuator); without it
         the servo force is the previous command and the rate limit acts per interval
@@ -178,6 +191,7 @@ class NMPCOptions:
     qp_solver: str = option("hpipm", choices=QP_SOLVERS)
     qp_tol: float = option(1e-7, lo=0.0, lo_open=True)
     qp_condensing: str = option("none", choices=QP_CONDENSING)
+    qp_blocks: int | None = option(None, lo=1, none=True)
     sqp_max_iter: int = option(20, lo=1)
     model_servo: bool = option(True)
     prepare_ahead: bool = option(True)

@@ -20,6 +20,7 @@
 #include "hpipm_d_ocp_qp_ipm.h"
 #include "hpipm_d_ocp_qp_sol.h"
 #include "hpipm_d_cond.h"
+#include "hpipm_d_part_cond.h"
 #include "hpipm_d_dense_qp.h"
 #include "hpipm_d_dense_qp_dim.h"
 #include "hpipm_d_dense_qp_sol.h"
@@ -94,6 +95,16 @@ struct ssn_mem {
     struct d_dense_qp_ipm_ws dws;
     struct d_cond_qp_arg carg;
     struct d_cond_qp_ws cws;
+    /* partial condensing (qp_cond 2): the OCP QP condensed to qp_cond_n stages of blocks, left-hand side in
+       the preparation, right-hand side, hpipm's Riccati IPM on the smaller OCP QP and the expansion in the feedback */
+    int* bsize;
+    struct d_ocp_qp_dim pdim;
+    struct d_ocp_qp pqp;
+    struct d_ocp_qp_sol psol;
+    struct d_ocp_qp_ipm_arg parg;
+    struct d_ocp_qp_ipm_ws pws;
+    struct d_part_cond_qp_arg pcarg;
+    struct d_part_cond_qp_ws pcws;
 };
 
 /* ------------------------------------------------------------------ memory layout */
@@ -108,6 +119,7 @@ struct ssn_mem {
 static int valid(const ssn_config* c) {
     int k;
     if (c->N < 1 || c->nx < 1 || c->nxa < c->nx || c->nv < 1 || c->nu < 1 || c->window_n < 2) return 0;
+    if (c->qp_cond < 0 || c->qp_cond > 2 || (c->qp_cond == 2 && (c->qp_cond_n < 1 || c->qp_cond_n > c->N))) return 0;
     if (c->force_n < 0) return 0;
     for (k = 0; k < c->ns; k++) if (c->look_n[k] < 1) return 0;
     if (c->nq < c->q_fc + c->nfc || c->ns != c->nv - (c->drives ? 1 : 0)) return 0;
@@ -220,6 +232,38 @@ static size_t dense_bytes(const ssn_config* cfg, struct d_ocp_qp_dim* dim) {
     return n;
 }
 
+/* the partially condensed QP's memory (qp_cond_n stages) for an OCP QP of dimension dim (sizing only) */
+static size_t part_bytes(const ssn_config* cfg, struct d_ocp_qp_dim* dim) {
+    const int N2 = cfg->qp_cond_n;
+    struct d_ocp_qp_dim pdim;
+    struct d_ocp_qp_ipm_arg parg;
+    struct d_part_cond_qp_arg pcarg;
+    size_t n = 0, nd = d_ocp_qp_dim_memsize(N2), nc = d_part_cond_qp_arg_memsize(N2), na;
+    int* bs = (int*)malloc(sizeof(int) * (size_t)(N2 + 1));
+    void *dm = malloc(nd + ALIGN), *cm = malloc(nc + ALIGN), *am = NULL;
+    int it = cfg->qp_iter_max;
+    if (bs && dm && cm) {
+        d_part_cond_qp_compute_block_size(cfg->N, N2, bs);
+        d_ocp_qp_dim_create(N2, &pdim, (void*)(((size_t)dm + ALIGN - 1) / ALIGN * ALIGN));
+        d_part_cond_qp_compute_dim(dim, bs, &pdim);
+        d_part_cond_qp_arg_create(N2, &pcarg, (void*)(((size_t)cm + ALIGN - 1) / ALIGN * ALIGN));
+        d_part_cond_qp_arg_set_default(&pcarg);
+        na = d_ocp_qp_ipm_arg_memsize(&pdim);
+        am = malloc(na + ALIGN);
+        if (am) {
+            d_ocp_qp_ipm_arg_create(&pdim, &parg, (void*)(((size_t)am + ALIGN - 1) / ALIGN * ALIGN));
+            d_ocp_qp_ipm_arg_set_default((enum hpipm_mode)cfg->hpipm_mode, &parg);
+            d_ocp_qp_ipm_arg_set_iter_max(&it, &parg);
+            n = ss_block_up(sizeof(int) * (size_t)(N2 + 1)) + ss_block_up(nd) + ss_block_up(nc)
+              + ss_block_up(d_part_cond_qp_ws_memsize(dim, bs, &pdim, &pcarg))
+              + ss_block_up(d_ocp_qp_memsize(&pdim)) + ss_block_up(d_ocp_qp_sol_memsize(&pdim)) + ss_block_up(na)
+              + ss_block_up(d_ocp_qp_ipm_ws_memsize(&pdim, &parg)) + 8 * ALIGN;
+        }
+    }
+    free(am); free(cm); free(dm); free(bs);
+    return n;
+}
+
 /* hpipm's memory after the dimension (the workspace's size needs an argument, which needs memory:
    sized here with a temporary allocation; ssn_memsize is part of creating a controller, never of a step) */
 static size_t hpipm_bytes(const ssn_config* cfg) {
@@ -253,7 +297,7 @@ static size_t hpipm_bytes(const ssn_config* cfg) {
         n = ss_block_up(d_ocp_qp_memsize(&dim)) + ss_block_up(d_ocp_qp_sol_memsize(&dim)) + ss_block_up(na)
           + ss_block_up(d_ocp_qp_ipm_ws_memsize(&dim, &arg)) + 5 * ALIGN;
         if (cfg->qp_cond) {
-            size_t nc = dense_bytes(cfg, &dim);
+            size_t nc = cfg->qp_cond == 1 ? dense_bytes(cfg, &dim) : part_bytes(cfg, &dim);
             n = nc ? n + nc : 0;
         }
     }
@@ -343,7 +387,36 @@ ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* st
     wmem = ss_take(&b, d_ocp_qp_ipm_ws_memsize(&m->dim, &m->arg));
     if (b.n > size) return NULL;
     d_ocp_qp_ipm_ws_create(&m->dim, &m->arg, &m->ws, wmem);
-    if (cfg->qp_cond) {
+    if (cfg->qp_cond == 2) {
+        const int N2 = cfg->qp_cond_n;
+        void* p = ss_take(&b, sizeof(int) * (size_t)(N2 + 1));
+        m->bsize = (int*)p;
+        d_part_cond_qp_compute_block_size(cfg->N, N2, m->bsize);
+        p = ss_take(&b, d_ocp_qp_dim_memsize(N2));
+        d_ocp_qp_dim_create(N2, &m->pdim, p);
+        d_part_cond_qp_compute_dim(&m->dim, m->bsize, &m->pdim);
+        p = ss_take(&b, d_part_cond_qp_arg_memsize(N2));
+        d_part_cond_qp_arg_create(N2, &m->pcarg, p);
+        d_part_cond_qp_arg_set_default(&m->pcarg);
+        p = ss_take(&b, d_part_cond_qp_ws_memsize(&m->dim, m->bsize, &m->pdim, &m->pcarg));
+        d_part_cond_qp_ws_create(&m->dim, m->bsize, &m->pdim, &m->pcarg, &m->pcws, p);
+        p = ss_take(&b, d_ocp_qp_memsize(&m->pdim));
+        d_ocp_qp_create(&m->pdim, &m->pqp, p);
+        p = ss_take(&b, d_ocp_qp_sol_memsize(&m->pdim));
+        d_ocp_qp_sol_create(&m->pdim, &m->psol, p);
+        p = ss_take(&b, d_ocp_qp_ipm_arg_memsize(&m->pdim));
+        d_ocp_qp_ipm_arg_create(&m->pdim, &m->parg, p);
+        d_ocp_qp_ipm_arg_set_default((enum hpipm_mode)cfg->hpipm_mode, &m->parg);
+        d_ocp_qp_ipm_arg_set_iter_max(&it, &m->parg);
+        d_ocp_qp_ipm_arg_set_tol_stat(&tol, &m->parg);
+        d_ocp_qp_ipm_arg_set_tol_eq(&tol, &m->parg);
+        d_ocp_qp_ipm_arg_set_tol_ineq(&tol, &m->parg);
+        d_ocp_qp_ipm_arg_set_tol_comp(&tol, &m->parg);
+        p = ss_take(&b, d_ocp_qp_ipm_ws_memsize(&m->pdim, &m->parg));
+        if (b.n > size) return NULL;
+        d_ocp_qp_ipm_ws_create(&m->pdim, &m->parg, &m->pws, p);
+    }
+    if (cfg->qp_cond == 1) {
         void* p = ss_take(&b, d_dense_qp_dim_memsize());
         d_dense_qp_dim_create(&m->ddim, p);
         d_cond_qp_compute_dim(&m->dim, &m->ddim);
@@ -631,7 +704,8 @@ static int linearise(ssn_mem* m, const double* q) {
     m->cost = m->cstage[0] + m->cterm[0];
     pack_data(m);
     /* full condensing: the dense Hessian and constraint matrices now, in the preparation */
-    if (c->qp_cond) d_cond_qp_cond_lhs(&m->qp, &m->dqp, &m->carg, &m->cws);
+    if (c->qp_cond == 1) d_cond_qp_cond_lhs(&m->qp, &m->dqp, &m->carg, &m->cws);
+    else if (c->qp_cond == 2) d_part_cond_qp_cond_lhs(&m->qp, &m->pqp, &m->pcarg, &m->pcws);
     return SSF_NONE;
 }
 
@@ -686,7 +760,13 @@ static int qp_step(ssn_mem* m, ssn_info* info) {
     if (c->drives)
         for (k = 1; k <= N; k++) { m->lbx_all[(size_t)k * nxa] = m->lbx[k - 1]; m->ubx_all[(size_t)k * nxa] = m->ubx[k - 1]; }
     pack_bounds(m);
-    if (c->qp_cond) {
+    if (c->qp_cond == 2) {
+        d_part_cond_qp_cond_rhs(&m->qp, &m->pqp, &m->pcarg, &m->pcws);
+        d_ocp_qp_ipm_solve(&m->pqp, &m->psol, &m->parg, &m->pws);
+        d_ocp_qp_ipm_get_status(&m->pws, &st);
+        d_ocp_qp_ipm_get_iter(&m->pws, &it);
+        if (st == 0) d_part_cond_qp_expand_sol(&m->qp, &m->psol, &m->sol, &m->pcarg, &m->pcws);
+    } else if (c->qp_cond == 1) {
         d_cond_qp_cond_rhs(&m->qp, &m->dqp, &m->carg, &m->cws);
         d_dense_qp_ipm_solve(&m->dqp, &m->dsol, &m->darg, &m->dws);
         d_dense_qp_ipm_get_status(&m->dws, &st);
