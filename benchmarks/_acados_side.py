@@ -195,9 +195,11 @@ def formulate(data, fns, *, qp: str, cost: str, cflags: str):
     so.nlp_solver_type = "SQP_RTI"
     so.hessian_approx = "GAUSS_NEWTON"
     so.regularize_method = "NO_REGULARIZE"
-    so.qp_solver = "PARTIAL_CONDENSING_HPIPM" if qp == "partial" else "FULL_CONDENSING_HPIPM"
+    so.qp_solver = "FULL_CONDENSING_HPIPM" if qp == "full" else "PARTIAL_CONDENSING_HPIPM"
     if qp == "partial":
         so.qp_solver_cond_N = N          # no condensing: hpipm's OCP QP on all N stages, as ours
+    elif qp == "blocks":
+        so.qp_solver_cond_N = -(-N // 5)  # condensed to ceil(N / 5) stages, as ours with qp_condensing "partial"
     so.hpipm_mode = str(data["hpipm_mode"]).upper()
     tol = float(data["qp_tol"])
     so.qp_solver_tol_stat = so.qp_solver_tol_eq = so.qp_solver_tol_ineq = so.qp_solver_tol_comp = tol
@@ -416,8 +418,9 @@ def replay(data, solver) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("data", help="the .npz that bench_acados.py wrote")
-    ap.add_argument("--qp", choices=("partial", "full"), default="partial",
-                    help="PARTIAL_CONDENSING_HPIPM with cond_N = N (no condensing) or FULL_CONDENSING_HPIPM")
+    ap.add_argument("--qp", choices=("partial", "full", "blocks"), default="partial",
+                    help="PARTIAL_CONDENSING_HPIPM with cond_N = N (no condensing), FULL_CONDENSING_HPIPM, or "
+                         "PARTIAL_CONDENSING_HPIPM with cond_N = ceil(N / 5) (blocks)")
     ap.add_argument("--cost", choices=("external", "conl"), default="external")
     ap.add_argument("--cflags", default="-O2", help="acados' ext_fun_compile_flags (its default -O2)")
     ap.add_argument("--check", action="store_true", help="only rebuild and check the functions")

@@ -301,9 +301,10 @@ def main(argv=None) -> int:
                     help="our compiled step's QP (NMPCOptions.qp_condensing): none (hpipm's Riccati IPM on the OCP "
                          "QP, the default), full (condensed in the preparation, hpipm's dense IPM), partial (condensed "
                          "to ceil(N / 5) stages, Riccati on those)")
-    ap.add_argument("--qp", nargs="+", choices=("partial", "full"), default=["partial", "full"],
-                    help="acados' QP: partial condensing with cond_N = N (hpipm's OCP QP, as ours) and/or full "
-                         "condensing (hpipm's dense QP)")
+    ap.add_argument("--qp", nargs="+", choices=("partial", "full", "blocks"), default=["partial", "full"],
+                    help="acados' QP: partial condensing with cond_N = N (hpipm's OCP QP, as ours by default), full "
+                         "condensing (hpipm's dense QP) and/or blocks (partial condensing to ceil(N / 5) stages, as "
+                         "ours with --ours-qp partial)")
     ap.add_argument("--cost", nargs="+", choices=("external", "conl"), default=["external"],
                     help="acados' cost module: EXTERNAL with the Gauss-Newton custom Hessian, or "
                          "CONVEX_OVER_NONLINEAR; both give our Gauss-Newton Hessian exactly")
@@ -375,7 +376,8 @@ def main(argv=None) -> int:
                     key = ("ours" if v == "none" else f"ours, {v} condensing", N)
                 else:
                     res = _run_acados(args.acados_python, data[N], v[0], v[1], args.cflags, out)
-                    key = (f"acados {v[0]} condensing, {v[1]} cost", N)
+                    key = (f"acados {'partial condensing to ceil(N/5) stages' if v[0] == 'blocks' else v[0] + ' condensing'}"
+                           f", {v[1]} cost", N)
                     agree.setdefault(key, _agreement(data[N], res["moves"]))
                 runs.setdefault(key, []).append(res)
         load.append(os.getloadavg())
