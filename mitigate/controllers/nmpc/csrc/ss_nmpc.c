@@ -204,6 +204,9 @@ static ssn_mem* layout(ss_bump* b, const ssn_config* cfg, const ss_fn* stages, c
     return m;
 }
 
+/* p rounded up to ALIGN (the sizing functions' temporary allocations, each ALIGN bytes longer) */
+static void* aligned_up(void* p) { return (void*)(((size_t)p + ALIGN - 1) / ALIGN * ALIGN); }
+
 /* the condensed (dense) QP's memory for an OCP QP of dimension dim (temporary allocations: sizing only) */
 static size_t dense_bytes(const ssn_config* cfg, struct d_ocp_qp_dim* dim) {
     struct d_dense_qp_dim ddim;
@@ -213,14 +216,14 @@ static size_t dense_bytes(const ssn_config* cfg, struct d_ocp_qp_dim* dim) {
     void *dm = malloc(nd + ALIGN), *cm = malloc(nc + ALIGN), *am = NULL;
     int it = cfg->qp_iter_max;
     if (dm && cm) {
-        d_dense_qp_dim_create(&ddim, (void*)(((size_t)dm + ALIGN - 1) / ALIGN * ALIGN));
+        d_dense_qp_dim_create(&ddim, aligned_up(dm));
         d_cond_qp_compute_dim(dim, &ddim);
-        d_cond_qp_arg_create(&carg, (void*)(((size_t)cm + ALIGN - 1) / ALIGN * ALIGN));
+        d_cond_qp_arg_create(&carg, aligned_up(cm));
         d_cond_qp_arg_set_default(&carg);
         na = d_dense_qp_ipm_arg_memsize(&ddim);
         am = malloc(na + ALIGN);
         if (am) {
-            d_dense_qp_ipm_arg_create(&ddim, &darg, (void*)(((size_t)am + ALIGN - 1) / ALIGN * ALIGN));
+            d_dense_qp_ipm_arg_create(&ddim, &darg, aligned_up(am));
             d_dense_qp_ipm_arg_set_default((enum hpipm_mode)cfg->hpipm_mode, &darg);
             d_dense_qp_ipm_arg_set_iter_max(&it, &darg);
             n = ss_block_up(nd) + ss_block_up(nc) + ss_block_up(d_cond_qp_ws_memsize(dim, &carg))
@@ -244,14 +247,14 @@ static size_t part_bytes(const ssn_config* cfg, struct d_ocp_qp_dim* dim) {
     int it = cfg->qp_iter_max;
     if (bs && dm && cm) {
         d_part_cond_qp_compute_block_size(cfg->N, N2, bs);
-        d_ocp_qp_dim_create(N2, &pdim, (void*)(((size_t)dm + ALIGN - 1) / ALIGN * ALIGN));
+        d_ocp_qp_dim_create(N2, &pdim, aligned_up(dm));
         d_part_cond_qp_compute_dim(dim, bs, &pdim);
-        d_part_cond_qp_arg_create(N2, &pcarg, (void*)(((size_t)cm + ALIGN - 1) / ALIGN * ALIGN));
+        d_part_cond_qp_arg_create(N2, &pcarg, aligned_up(cm));
         d_part_cond_qp_arg_set_default(&pcarg);
         na = d_ocp_qp_ipm_arg_memsize(&pdim);
         am = malloc(na + ALIGN);
         if (am) {
-            d_ocp_qp_ipm_arg_create(&pdim, &parg, (void*)(((size_t)am + ALIGN - 1) / ALIGN * ALIGN));
+            d_ocp_qp_ipm_arg_create(&pdim, &parg, aligned_up(am));
             d_ocp_qp_ipm_arg_set_default((enum hpipm_mode)cfg->hpipm_mode, &parg);
             d_ocp_qp_ipm_arg_set_iter_max(&it, &parg);
             n = ss_block_up(sizeof(int) * (size_t)(N2 + 1)) + ss_block_up(nd) + ss_block_up(nc)
@@ -284,13 +287,13 @@ static size_t hpipm_bytes(const ssn_config* cfg) {
         dims[4 * (N + 1) + k] = k < N ? cfg->ns : 0;
         dims[5 * (N + 1) + k] = 0;
     }
-    d_ocp_qp_dim_create(N, &dim, (void*)(((size_t)dmem + ALIGN - 1) / ALIGN * ALIGN));
+    d_ocp_qp_dim_create(N, &dim, aligned_up(dmem));
     d_ocp_qp_dim_set_all(dims, dims + (N + 1), dims + 2 * (N + 1), dims + 3 * (N + 1), dims + 4 * (N + 1),
                          dims + 5 * (N + 1), &dim);
     na = d_ocp_qp_ipm_arg_memsize(&dim);
     amem = malloc(na + ALIGN);
     if (amem) {
-        d_ocp_qp_ipm_arg_create(&dim, &arg, (void*)(((size_t)amem + ALIGN - 1) / ALIGN * ALIGN));
+        d_ocp_qp_ipm_arg_create(&dim, &arg, aligned_up(amem));
         int it = cfg->qp_iter_max;
         d_ocp_qp_ipm_arg_set_default((enum hpipm_mode)cfg->hpipm_mode, &arg);
         d_ocp_qp_ipm_arg_set_iter_max(&it, &arg);   /* the workspace keeps per-iteration statistics */
