@@ -86,6 +86,15 @@ struct ssn_mem {
     struct d_ocp_qp_sol sol;
     struct d_ocp_qp_ipm_arg arg;
     struct d_ocp_qp_ipm_ws ws;
+    /* a condensed QP is made from the OCP QP with x0 eliminated (rdim, rqp, rsol: stage 0 has no state;
+       its b, r and general rows take x0's part in the feedback): x0's pinned bounds cost the interior point
+       iterations, and acados eliminates it too */
+    int *rnx_s, *rnbx_s;
+    double *rb0, *rr0, *rlg0, *rug0;   /* [nxa], [nv], [ns], [ns]: stage 0's vectors with x0 folded in */
+    double **rpb, **rpr, **rplg, **rpug;
+    struct d_ocp_qp_dim rdim;
+    struct d_ocp_qp rqp;
+    struct d_ocp_qp_sol rsol;
     /* full condensing (qp_cond): the dense QP of the inputs and x0; its left-hand side is built in the
        preparation (d_cond_qp_cond_lhs), its right-hand side, the dense IPM and the expansion in the feedback */
     struct d_dense_qp_dim ddim;
@@ -179,6 +188,7 @@ static ssn_mem* layout(ss_bump* b, const ssn_config* cfg, const ss_fn* stages, c
     D(lam_ug, N1 * (ng > 0 ? ng : 1)); D(zero, (nxa + nv + 1) * (nxa + nv + 1));
     D(cstage, 1); D(cterm, 1); D(Cm, ng * nxa); D(Dm, ng * nv);
     I(idx0, nxa); I(idxbx, nbx); I(idxbu, nv); I(no_slack, nxa + nbx + nv + ng);
+    I(rnx_s, N1); I(rnbx_s, N1); D(rb0, nxa); D(rr0, nv); D(rlg0, ns); D(rug0, ns);
     I(nx_s, N1); I(nu_s, N1); I(nbx_s, N1); I(nbu_s, N1); I(ng_s, N1); I(ns_s, N1);
 #undef D
 #undef I
@@ -188,6 +198,7 @@ static ssn_mem* layout(ss_bump* b, const ssn_config* cfg, const ss_fn* stages, c
     P(pD, double); P(plg, double); P(pug, double); P(pzero, double); P(px, double); P(pu, double);
     P(ppi, double); P(plam_lb, double); P(plam_ub, double); P(plam_lg, double); P(plam_ug, double);
     P(pnull, double); P(pidxbx, int); P(pidxbu, int); P(pidxs, int);
+    P(rpb, double); P(rpr, double); P(rplg, double); P(rpug, double);
 #undef P
     /* hpipm's structures */
     {
@@ -199,6 +210,14 @@ static ssn_mem* layout(ss_bump* b, const ssn_config* cfg, const ss_fn* stages, c
             }
             d_ocp_qp_dim_create(N, &m->dim, dmem);
             d_ocp_qp_dim_set_all(m->nx_s, m->nu_s, m->nbx_s, m->nbu_s, m->ng_s, m->ns_s, &m->dim);
+        }
+    }
+    if (cfg->qp_cond) {   /* the OCP QP with x0 eliminated, which the condensing starts from */
+        void* dmem = ss_take(b, d_ocp_qp_dim_memsize(N));
+        if (m) {
+            for (k = 0; k <= N; k++) { m->rnx_s[k] = k ? nxa : 0; m->rnbx_s[k] = k ? nbx : 0; }
+            d_ocp_qp_dim_create(N, &m->rdim, dmem);
+            d_ocp_qp_dim_set_all(m->rnx_s, m->nu_s, m->rnbx_s, m->nbu_s, m->ng_s, m->ns_s, &m->rdim);
         }
     }
     return m;
@@ -300,7 +319,18 @@ static size_t hpipm_bytes(const ssn_config* cfg) {
         n = ss_block_up(d_ocp_qp_memsize(&dim)) + ss_block_up(d_ocp_qp_sol_memsize(&dim)) + ss_block_up(na)
           + ss_block_up(d_ocp_qp_ipm_ws_memsize(&dim, &arg)) + 5 * ALIGN;
         if (cfg->qp_cond) {
-            size_t nc = cfg->qp_cond == 1 ? dense_bytes(cfg, &dim) : part_bytes(cfg, &dim);
+            void* rmem = malloc(nd + ALIGN);
+            struct d_ocp_qp_dim rdim;
+            size_t nc = 0;
+            if (rmem) {
+                dims[0] = 0; dims[2 * (N + 1)] = 0;          /* stage 0 without x0 */
+                d_ocp_qp_dim_create(N, &rdim, aligned_up(rmem));
+                d_ocp_qp_dim_set_all(dims, dims + (N + 1), dims + 2 * (N + 1), dims + 3 * (N + 1), dims + 4 * (N + 1),
+                                     dims + 5 * (N + 1), &rdim);
+                nc = cfg->qp_cond == 1 ? dense_bytes(cfg, &rdim) : part_bytes(cfg, &rdim);
+                if (nc) nc += ss_block_up(d_ocp_qp_memsize(&rdim)) + ss_block_up(d_ocp_qp_sol_memsize(&rdim)) + 2 * ALIGN;
+            }
+            free(rmem);
             n = nc ? n + nc : 0;
         }
     }
@@ -363,6 +393,12 @@ static void set_pointers(ssn_mem* m) {
         m->plam_ug[k] = m->lam_ug + (size_t)k * (ns > 0 ? ns : 1);
         m->pnull[k] = NULL;
     }
+    for (k = 0; k <= N; k++) {
+        m->rpb[k] = k ? m->pb[k] : m->rb0;
+        m->rpr[k] = k ? m->pr[k] : m->rr0;
+        m->rplg[k] = k || !ns ? m->plg[k] : m->rlg0;
+        m->rpug[k] = k || !ns ? m->pug[k] : m->rug0;
+    }
     m->QN = m->Q + (size_t)N * nxa * nxa;
     m->gN = m->qv + (size_t)N * nxa;
 }
@@ -390,6 +426,12 @@ ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* st
     wmem = ss_take(&b, d_ocp_qp_ipm_ws_memsize(&m->dim, &m->arg));
     if (b.n > size) return NULL;
     d_ocp_qp_ipm_ws_create(&m->dim, &m->arg, &m->ws, wmem);
+    if (cfg->qp_cond) {
+        void* p = ss_take(&b, d_ocp_qp_memsize(&m->rdim));
+        d_ocp_qp_create(&m->rdim, &m->rqp, p);
+        p = ss_take(&b, d_ocp_qp_sol_memsize(&m->rdim));
+        d_ocp_qp_sol_create(&m->rdim, &m->rsol, p);
+    }
     if (cfg->qp_cond == 2) {
         const int N2 = cfg->qp_cond_n;
         void* p = ss_take(&b, sizeof(int) * (size_t)(N2 + 1));
@@ -397,12 +439,12 @@ ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* st
         d_part_cond_qp_compute_block_size(cfg->N, N2, m->bsize);
         p = ss_take(&b, d_ocp_qp_dim_memsize(N2));
         d_ocp_qp_dim_create(N2, &m->pdim, p);
-        d_part_cond_qp_compute_dim(&m->dim, m->bsize, &m->pdim);
+        d_part_cond_qp_compute_dim(&m->rdim, m->bsize, &m->pdim);
         p = ss_take(&b, d_part_cond_qp_arg_memsize(N2));
         d_part_cond_qp_arg_create(N2, &m->pcarg, p);
         d_part_cond_qp_arg_set_default(&m->pcarg);
-        p = ss_take(&b, d_part_cond_qp_ws_memsize(&m->dim, m->bsize, &m->pdim, &m->pcarg));
-        d_part_cond_qp_ws_create(&m->dim, m->bsize, &m->pdim, &m->pcarg, &m->pcws, p);
+        p = ss_take(&b, d_part_cond_qp_ws_memsize(&m->rdim, m->bsize, &m->pdim, &m->pcarg));
+        d_part_cond_qp_ws_create(&m->rdim, m->bsize, &m->pdim, &m->pcarg, &m->pcws, p);
         p = ss_take(&b, d_ocp_qp_memsize(&m->pdim));
         d_ocp_qp_create(&m->pdim, &m->pqp, p);
         p = ss_take(&b, d_ocp_qp_sol_memsize(&m->pdim));
@@ -422,12 +464,12 @@ ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* st
     if (cfg->qp_cond == 1) {
         void* p = ss_take(&b, d_dense_qp_dim_memsize());
         d_dense_qp_dim_create(&m->ddim, p);
-        d_cond_qp_compute_dim(&m->dim, &m->ddim);
+        d_cond_qp_compute_dim(&m->rdim, &m->ddim);
         p = ss_take(&b, d_cond_qp_arg_memsize());
         d_cond_qp_arg_create(&m->carg, p);
         d_cond_qp_arg_set_default(&m->carg);
-        p = ss_take(&b, d_cond_qp_ws_memsize(&m->dim, &m->carg));
-        d_cond_qp_ws_create(&m->dim, &m->carg, &m->cws, p);
+        p = ss_take(&b, d_cond_qp_ws_memsize(&m->rdim, &m->carg));
+        d_cond_qp_ws_create(&m->rdim, &m->carg, &m->cws, p);
         p = ss_take(&b, d_dense_qp_memsize(&m->ddim));
         d_dense_qp_create(&m->ddim, &m->dqp, p);
         p = ss_take(&b, d_dense_qp_sol_memsize(&m->ddim));
@@ -449,6 +491,10 @@ ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* st
     d_ocp_qp_set_all(m->pA, m->pB, m->pb, m->pQ, m->pS, m->pR, m->pq, m->pr, m->pidxbx, m->plbx, m->pubx,
                      m->pidxbu, m->plbu, m->pubu, m->pC, m->pD, m->plg, m->pug, m->pzero, m->pzero, m->pzero,
                      m->pzero, m->pidxs, m->pidxs, m->pzero, m->pzero, &m->qp);
+    if (cfg->qp_cond)
+        d_ocp_qp_set_all(m->pA, m->pB, m->rpb, m->pQ, m->pS, m->pR, m->pq, m->rpr, m->pidxbx, m->plbx, m->pubx,
+                         m->pidxbu, m->plbu, m->pubu, m->pC, m->pD, m->rplg, m->rpug, m->pzero, m->pzero, m->pzero,
+                         m->pzero, m->pidxs, m->pidxs, m->pzero, m->pzero, &m->rqp);
     ssn_reset(m);
     return m;
 }
@@ -655,36 +701,38 @@ static void shift(ssn_mem* m, long steps) {
    call only sets the bounds (which hold the new initial state) and solves */
 static void pack_data(ssn_mem* m) {
     const int N = m->c.N;
+    struct d_ocp_qp* qp = m->c.qp_cond ? &m->rqp : &m->qp;
     int k;
     for (k = 0; k < N; k++) {
-        d_ocp_qp_set_A(k, m->pA[k], &m->qp);
-        d_ocp_qp_set_B(k, m->pB[k], &m->qp);
-        d_ocp_qp_set_b(k, m->pb[k], &m->qp);
-        d_ocp_qp_set_S(k, m->pS[k], &m->qp);
-        d_ocp_qp_set_R(k, m->pR[k], &m->qp);
-        d_ocp_qp_set_r(k, m->pr[k], &m->qp);
+        d_ocp_qp_set_A(k, m->pA[k], qp);
+        d_ocp_qp_set_B(k, m->pB[k], qp);
+        d_ocp_qp_set_b(k, m->pb[k], qp);
+        d_ocp_qp_set_S(k, m->pS[k], qp);
+        d_ocp_qp_set_R(k, m->pR[k], qp);
+        d_ocp_qp_set_r(k, m->pr[k], qp);
     }
     for (k = 0; k <= N; k++) {
-        d_ocp_qp_set_Q(k, m->pQ[k], &m->qp);
-        d_ocp_qp_set_q(k, m->pq[k], &m->qp);
+        d_ocp_qp_set_Q(k, m->pQ[k], qp);
+        d_ocp_qp_set_q(k, m->pq[k], qp);
     }
 }
 
 static void pack_bounds(ssn_mem* m) {
     const ssn_config* c = &m->c;
     const int N = c->N;
+    struct d_ocp_qp* qp = c->qp_cond ? &m->rqp : &m->qp;
     int k;
     for (k = 0; k <= N; k++) {
-        if (k == 0 || c->drives) {
-            d_ocp_qp_set_lbx(k, m->plbx[k], &m->qp);
-            d_ocp_qp_set_ubx(k, m->pubx[k], &m->qp);
+        if ((k == 0 && !c->qp_cond) || (k > 0 && c->drives)) {
+            d_ocp_qp_set_lbx(k, m->plbx[k], qp);
+            d_ocp_qp_set_ubx(k, m->pubx[k], qp);
         }
         if (k < N) {
-            d_ocp_qp_set_lbu(k, m->plbu[k], &m->qp);
-            d_ocp_qp_set_ubu(k, m->pubu[k], &m->qp);
-            if (c->ns) {
-                d_ocp_qp_set_lg(k, m->plg[k], &m->qp);
-                d_ocp_qp_set_ug(k, m->pug[k], &m->qp);
+            d_ocp_qp_set_lbu(k, m->plbu[k], qp);
+            d_ocp_qp_set_ubu(k, m->pubu[k], qp);
+            if (c->ns) {   /* a condensed QP's stage 0 rows have x0 folded in (fold_x0) */
+                d_ocp_qp_set_lg(k, c->qp_cond ? m->rplg[k] : m->plg[k], qp);
+                d_ocp_qp_set_ug(k, c->qp_cond ? m->rpug[k] : m->pug[k], qp);
             }
         }
     }
@@ -707,8 +755,8 @@ static int linearise(ssn_mem* m, const double* q) {
     m->cost = m->cstage[0] + m->cterm[0];
     pack_data(m);
     /* full condensing: the dense Hessian and constraint matrices now, in the preparation */
-    if (c->qp_cond == 1) d_cond_qp_cond_lhs(&m->qp, &m->dqp, &m->carg, &m->cws);
-    else if (c->qp_cond == 2) d_part_cond_qp_cond_lhs(&m->qp, &m->pqp, &m->pcarg, &m->pcws);
+    if (c->qp_cond == 1) d_cond_qp_cond_lhs(&m->rqp, &m->dqp, &m->carg, &m->cws);
+    else if (c->qp_cond == 2) d_part_cond_qp_cond_lhs(&m->rqp, &m->pqp, &m->pcarg, &m->pcws);
     return SSF_NONE;
 }
 
@@ -737,6 +785,33 @@ static void limits_and_bounds(ssn_mem* m) {
     }
 }
 
+/* x0 eliminated (a condensed QP): stage 0's dynamics offset, input gradient and general rows take
+   the fixed state step dx0 = lbx0 (b0 + A0 dx0, r0 + S0 dx0, lg0 - C dx0, ug0 - C dx0) */
+static void fold_x0(ssn_mem* m) {
+    const ssn_config* c = &m->c;
+    const int nxa = c->nxa, nv = c->nv, ns = c->ns;
+    const double* dx = m->lbx0;
+    int i, j;
+    for (i = 0; i < nxa; i++) {
+        double v = m->b[i];
+        for (j = 0; j < nxa; j++) v += m->A[(size_t)j * nxa + i] * dx[j];
+        m->rb0[i] = v;
+    }
+    for (i = 0; i < nv; i++) {
+        double v = m->rv[i];
+        for (j = 0; j < nxa; j++) v += m->S[(size_t)j * nv + i] * dx[j];
+        m->rr0[i] = v;
+    }
+    for (i = 0; i < ns; i++) {
+        double v = 0.0;
+        for (j = 0; j < nxa; j++) v += m->Cm[(size_t)j * ns + i] * dx[j];
+        m->rlg0[i] = m->lg[i] - v;
+        m->rug0[i] = m->ug[i] - v;
+    }
+    d_ocp_qp_set_b(0, m->rb0, &m->rqp);
+    d_ocp_qp_set_r(0, m->rr0, &m->rqp);
+}
+
 static int qp_step(ssn_mem* m, ssn_info* info) {
     const ssn_config* c = &m->c;
     const int N = c->N, nxa = c->nxa, nv = c->nv, ns = c->ns;
@@ -762,19 +837,20 @@ static int qp_step(ssn_mem* m, ssn_info* info) {
     for (i = 0; i < nxa; i++) { m->lbx_all[i] = m->lbx0[i]; m->ubx_all[i] = m->ubx0[i]; }
     if (c->drives)
         for (k = 1; k <= N; k++) { m->lbx_all[(size_t)k * nxa] = m->lbx[k - 1]; m->ubx_all[(size_t)k * nxa] = m->ubx[k - 1]; }
+    if (c->qp_cond) fold_x0(m);
     pack_bounds(m);
     if (c->qp_cond == 2) {
-        d_part_cond_qp_cond_rhs(&m->qp, &m->pqp, &m->pcarg, &m->pcws);
+        d_part_cond_qp_cond_rhs(&m->rqp, &m->pqp, &m->pcarg, &m->pcws);
         d_ocp_qp_ipm_solve(&m->pqp, &m->psol, &m->parg, &m->pws);
         d_ocp_qp_ipm_get_status(&m->pws, &st);
         d_ocp_qp_ipm_get_iter(&m->pws, &it);
-        if (st == 0) d_part_cond_qp_expand_sol(&m->qp, &m->psol, &m->sol, &m->pcarg, &m->pcws);
+        if (st == 0) d_part_cond_qp_expand_sol(&m->rqp, &m->psol, &m->rsol, &m->pcarg, &m->pcws);
     } else if (c->qp_cond == 1) {
-        d_cond_qp_cond_rhs(&m->qp, &m->dqp, &m->carg, &m->cws);
+        d_cond_qp_cond_rhs(&m->rqp, &m->dqp, &m->carg, &m->cws);
         d_dense_qp_ipm_solve(&m->dqp, &m->dsol, &m->darg, &m->dws);
         d_dense_qp_ipm_get_status(&m->dws, &st);
         d_dense_qp_ipm_get_iter(&m->dws, &it);
-        if (st == 0) d_cond_qp_expand_sol(&m->qp, &m->dsol, &m->sol, &m->carg, &m->cws);
+        if (st == 0) d_cond_qp_expand_sol(&m->rqp, &m->dsol, &m->rsol, &m->carg, &m->cws);
     } else {
         d_ocp_qp_ipm_solve(&m->qp, &m->sol, &m->arg, &m->ws);
         d_ocp_qp_ipm_get_status(&m->ws, &st);
@@ -782,8 +858,9 @@ static int qp_step(ssn_mem* m, ssn_info* info) {
     }
     info->qp_iterations = it;
     if (st != 0) { info->fail_detail = st; return SSF_QP; }
-    d_ocp_qp_sol_get_all(&m->sol, m->pu, m->px, m->pnull, m->pnull, m->ppi, m->plam_lb, m->plam_ub, m->plam_lg,
-                         m->plam_ug, m->pnull, m->pnull);
+    d_ocp_qp_sol_get_all(c->qp_cond ? &m->rsol : &m->sol, m->pu, m->px, m->pnull, m->pnull, m->ppi, m->plam_lb,
+                         m->plam_ub, m->plam_lg, m->plam_ug, m->pnull, m->pnull);
+    if (c->qp_cond) for (i = 0; i < nxa; i++) m->x[i] = m->lbx0[i];     /* x0 was eliminated: its step is fixed */
     return SSF_NONE;
 }
 
