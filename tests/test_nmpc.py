@@ -50,7 +50,7 @@ from nmpc_setup import M, P, U0, W0, apply_action as _apply, context as _ctx, es
     ({"qp_condensing": "dense"}, r"^controllers\[3\]\.qp_condensing must be one of none, full, partial, got 'dense'$"),
     ({"qp_blocks": 0}, r"^controllers\[3\]\.qp_blocks must be >= 1, got 0$"),
     ({"qp_condensing": "full", "implementation": "python"},
-     r"^controllers\[3\]\.qp_condensing: \"full\" needs the compiled C step .*implementation 'python'"),
+     r"^controllers\[3\]\.qp_condensing: \"full\" needs the compiled C step .*implementation 'python', compile false"),
 ])
 def test_bad_options_name_the_field(opts, match):
     with pytest.raises(ConfigError, match=match):

@@ -169,7 +169,8 @@ class NMPC(Controller):
         if o.qp_condensing != "none" and not use_c:
             raise ConfigError(f"{where}.qp_condensing: \"{o.qp_condensing}\" needs the compiled C step "
                               f"(implementation \"c\", compile true, solver rti or sqp, qp_solver hpipm); got "
-                              f"implementation {o.implementation!r}, solver {o.solver!r}, qp_solver {o.qp_solver!r}")
+                              f"implementation {o.implementation!r}, compile {str(o.compile).lower()}, solver {o.solver!r}, "
+                              f"qp_solver {o.qp_solver!r}")
         # the compiled step has the stages in its own library: the Python solver's own build is not needed then
         self.ocp = make_ocp_solver(m, self.spec, solver=o.solver, compile=o.compile and not use_c, qp_solver=o.qp_solver,
                                    qp_tol=o.qp_tol, sqp_max_iter=o.sqp_max_iter)
