@@ -403,6 +403,13 @@ static void set_pointers(ssn_mem* m) {
     m->gN = m->qv + (size_t)N * nxa;
 }
 
+/* an interior-point argument of hpipm's family P (d_ocp_qp or d_dense_qp): the configured mode, the
+   iteration limit and one tolerance for all four residuals */
+#define SET_IPM_ARG(P, arg, cfg, it, tol) do { \
+        P##_ipm_arg_set_default((enum hpipm_mode)(cfg)->hpipm_mode, (arg)); P##_ipm_arg_set_iter_max(&(it), (arg)); \
+        P##_ipm_arg_set_tol_stat(&(tol), (arg)); P##_ipm_arg_set_tol_eq(&(tol), (arg)); \
+        P##_ipm_arg_set_tol_ineq(&(tol), (arg)); P##_ipm_arg_set_tol_comp(&(tol), (arg)); } while (0)
+
 ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* stages, const ss_fn* forward) {
     ss_bump b = {(char*)mem, 0, 0};
     ssn_mem* m;
@@ -417,12 +424,7 @@ ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* st
     d_ocp_qp_create(&m->dim, &m->qp, qmem);
     d_ocp_qp_sol_create(&m->dim, &m->sol, smem);
     d_ocp_qp_ipm_arg_create(&m->dim, &m->arg, amem);
-    d_ocp_qp_ipm_arg_set_default((enum hpipm_mode)cfg->hpipm_mode, &m->arg);
-    d_ocp_qp_ipm_arg_set_iter_max(&it, &m->arg);
-    d_ocp_qp_ipm_arg_set_tol_stat(&tol, &m->arg);
-    d_ocp_qp_ipm_arg_set_tol_eq(&tol, &m->arg);
-    d_ocp_qp_ipm_arg_set_tol_ineq(&tol, &m->arg);
-    d_ocp_qp_ipm_arg_set_tol_comp(&tol, &m->arg);
+    SET_IPM_ARG(d_ocp_qp, &m->arg, cfg, it, tol);
     wmem = ss_take(&b, d_ocp_qp_ipm_ws_memsize(&m->dim, &m->arg));
     if (b.n > size) return NULL;
     d_ocp_qp_ipm_ws_create(&m->dim, &m->arg, &m->ws, wmem);
@@ -451,12 +453,7 @@ ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* st
         d_ocp_qp_sol_create(&m->pdim, &m->psol, p);
         p = ss_take(&b, d_ocp_qp_ipm_arg_memsize(&m->pdim));
         d_ocp_qp_ipm_arg_create(&m->pdim, &m->parg, p);
-        d_ocp_qp_ipm_arg_set_default((enum hpipm_mode)cfg->hpipm_mode, &m->parg);
-        d_ocp_qp_ipm_arg_set_iter_max(&it, &m->parg);
-        d_ocp_qp_ipm_arg_set_tol_stat(&tol, &m->parg);
-        d_ocp_qp_ipm_arg_set_tol_eq(&tol, &m->parg);
-        d_ocp_qp_ipm_arg_set_tol_ineq(&tol, &m->parg);
-        d_ocp_qp_ipm_arg_set_tol_comp(&tol, &m->parg);
+        SET_IPM_ARG(d_ocp_qp, &m->parg, cfg, it, tol);
         p = ss_take(&b, d_ocp_qp_ipm_ws_memsize(&m->pdim, &m->parg));
         if (b.n > size) return NULL;
         d_ocp_qp_ipm_ws_create(&m->pdim, &m->parg, &m->pws, p);
@@ -476,12 +473,7 @@ ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* st
         d_dense_qp_sol_create(&m->ddim, &m->dsol, p);
         p = ss_take(&b, d_dense_qp_ipm_arg_memsize(&m->ddim));
         d_dense_qp_ipm_arg_create(&m->ddim, &m->darg, p);
-        d_dense_qp_ipm_arg_set_default((enum hpipm_mode)cfg->hpipm_mode, &m->darg);
-        d_dense_qp_ipm_arg_set_iter_max(&it, &m->darg);
-        d_dense_qp_ipm_arg_set_tol_stat(&tol, &m->darg);
-        d_dense_qp_ipm_arg_set_tol_eq(&tol, &m->darg);
-        d_dense_qp_ipm_arg_set_tol_ineq(&tol, &m->darg);
-        d_dense_qp_ipm_arg_set_tol_comp(&tol, &m->darg);
+        SET_IPM_ARG(d_dense_qp, &m->darg, cfg, it, tol);
         p = ss_take(&b, d_dense_qp_ipm_ws_memsize(&m->ddim, &m->darg));
         if (b.n > size) return NULL;
         d_dense_qp_ipm_ws_create(&m->ddim, &m->darg, &m->dws, p);
