@@ -145,7 +145,8 @@ class NMPCOptions:
         (hpipm's partial condensing), Riccati on that.  The compiled C step only
         (``implementation = "c"``); not the default: its plans equal the structured solve's only to
         the QP's tolerance
-    qp_blocks : stages of the partially condensed QP (None: ``ceil(horizon / 5)``)
+    qp_blocks : stages of the partially condensed QP (None: ``ceil(horizon / 5)``; more than the
+        horizon counts as the horizon: no condensing)
     sqp_max_iter : Gauss-Newton iterations of "sqp"
     model_servo : predict each servo's first-order lag (tau of the rig's actuator); without it
         the servo force is the previous command and the rate limit acts per interval
