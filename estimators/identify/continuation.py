@@ -19,7 +19,12 @@ by single shooting (:mod:`~estimators.identify.single`); of two ends at the same
 only if it stalled, the cost falling by less than 0.1 % over five iterations; a budget that cut a
 progressing fit short is the user's), or it converged against a bound or a constraint (a degenerate
 corner: the lab string's v_s = 0 with mu_s = mu_k) and its residual shows that the structure misses
-(:mod:`~estimators.identify.diagnostics`).  A converged fit inside its bounds whose residual misses
+(:mod:`~estimators.identify.diagnostics`) by more than the sensors' noise: a residual variance per
+degree of freedom of at least :data:`CORNER_SIGMA2` noise variances.  A degenerate corner leaves orders
+of magnitude (the lab string's: 4.6e4); a fit at the sensors' noise has little to gain, and its bound is
+where the log leaves a parameter undetermined: the field-scale zoo rig (a torque drive at 1 rad/s) put
+mu_k and c0 at 0 with a residual variance of 0.31 noise variances (from the true set as well), and the
+continuation spent 26 iterations to end at twice the cost.  A converged fit inside its bounds whose residual misses
 is not repeated: on the zoo's logs of the exact plant (whose regularised model misses the exact
 stick) the continuation spent 20-38 iterations to end at the direct fit's cost (median 22, worst 51
 iterations a fit; benchmarks/results/identify.md, zoo).  Never after a warm start (a refit from a
@@ -45,13 +50,16 @@ import numpy as np
 from estimators.identify.gauss_newton import CONVERGED, GAP_OK, GNResult, solve_gn
 
 __all__ = ["Attempt", "attempt", "solve_continuation", "continuation_method", "wants_continuation", "choose",
-           "closed", "EPS_FACTORS", "STAGE_ITER", "STRATEGIES", "GN_METHOD"]
+           "closed", "EPS_FACTORS", "STAGE_ITER", "CORNER_SIGMA2", "STRATEGIES", "GN_METHOD"]
 
 #: the continuation's path: eps times these factors, the last one the target
 EPS_FACTORS = (10.0, math.sqrt(10.0), 1.0)
 #: iteration limit of the continuation's stages before the last (a 1-body DC-motor zoo rig spent 8 + 17
 #: iterations on them, the last stage 22, to end where the direct fit had)
 STAGE_ITER = 10
+#: a converged fit against a bound is repeated along the continuation only if its residual variance per
+#: degree of freedom is at least this many noise variances (module docstring)
+CORNER_SIGMA2 = 2.0
 STRATEGIES = ("auto", "always", "off")
 GN_METHOD = "Gauss-Newton (Levenberg-Marquardt damping, trust region, l1 merit line search)"
 
@@ -120,7 +128,8 @@ def wants_continuation(fit, strategy: str, warm: bool) -> str | None:
         if fit.reason != "max_iter" or (fit.attempts and fit.attempts[-1].stalled):
             return f"the direct fit did not converge ({fit.reason})"
         return None
-    if fit.structure is not None and fit.structure.misses and (fit.at_bound or fit.active_constraints):
+    if (fit.structure is not None and fit.structure.misses and (fit.at_bound or fit.active_constraints)
+            and not fit.sigma2 < CORNER_SIGMA2):          # (NaN: not known, repeated)
         held = ", ".join(tuple(fit.at_bound) + tuple(fit.active_constraints))
         return f"the direct fit's residual shows that the structure misses, and it ended against {held}"
     return None
