@@ -343,18 +343,36 @@ class FitResult(Outcome):
 
     @property
     def interval(self) -> np.ndarray:
-        """Half-width of each estimate's 95 % interval [SI]: :attr:`error`'s parts as they are
-        distributed, the statistical error and the regularisation's (or the refit's) as normal, each
-        encoder's phase (:attr:`phase_parts`) as uniform within a tick
-        (:func:`~estimators.identify.covariance.interval_halfwidth`).  ``1.96 error`` without phase parts;
-        shorter where a bounded phase error dominates."""
+        """Half-width of each parameter's 95 % interval [SI], about :attr:`centre`: the statistical error
+        (and the refit's ``syserr`` when estimated) as normal, each encoder's phase (:attr:`phase_parts`)
+        as uniform within a tick (:func:`~estimators.identify.covariance.interval_halfwidth`).  The
+        first-order regularisation bias ``eps_bias`` is signed and known: it moves the centre instead of
+        widening the interval (counted as +-, the user rig's mu_s, +1.23 % of bias and 0.19 % of spread,
+        was covered 200 times in 200).  ``1.96 stderr`` without phase parts."""
         normal = self.stderr ** 2
-        sys_ = self.syserr if self.syserr is not None else self.eps_bias
-        if sys_ is not None:
-            normal = normal + np.where(np.isfinite(sys_), sys_, 0.0) ** 2
+        if self.syserr is not None:
+            normal = normal + np.where(np.isfinite(self.syserr), self.syserr, 0.0) ** 2
         parts = self.phase_parts if self.phase_parts is not None else np.zeros((len(self.names), 0))
         return np.array([interval_halfwidth(math.sqrt(n), row) if np.isfinite(n) else math.nan
                          for n, row in zip(normal, parts)])
+
+    @property
+    def centre(self) -> np.ndarray:
+        """Each parameter's estimate corrected for the regularisation's first-order bias,
+        ``estimate - eps_bias`` [SI] (the rig's value, eps -> 0, to first order; the refit's unsigned
+        ``syserr``, when estimated, corrects nothing): the middle of :attr:`bounds`.  The correction's
+        own error is second order in eps and not in the interval: on the coverage study's rigs 6-14 %
+        of the bias, within the statistical error."""
+        if self.syserr is None and self.eps_bias is not None:
+            return self.estimate - np.where(np.isfinite(self.eps_bias), self.eps_bias, 0.0)
+        return np.array(self.estimate, float)
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(n_free, 2) the 95 % interval of each parameter's value on the rig [SI]:
+        ``centre -+ interval``."""
+        c, h = self.centre, self.interval
+        return np.column_stack([c - h, c + h])
 
     def as_dict(self) -> dict:
         """A JSON-friendly summary."""
@@ -367,8 +385,8 @@ class FitResult(Outcome):
             if part is not None:
                 for n, b, t in zip(self.names, part, self.error):
                     params[n].update({key: float(b), "error": float(t)})
-        for n, h in zip(self.names, self.interval):
-            params[n]["interval95"] = float(h)
+        for n, h, (lo, hi) in zip(self.names, self.interval, self.bounds):
+            params[n].update({"interval95": float(h), "bounds95": [float(lo), float(hi)]})
         v = self.validation
         return {
             "model": self.model,

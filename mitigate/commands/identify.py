@@ -335,10 +335,10 @@ def _run(args) -> int:
     elif fit.syserr is None:
         off = fit.offset_error if fit.offset_error is not None else [math.nan] * len(fit.names)
         bias = fit.eps_bias if fit.eps_bias is not None else [math.nan] * len(fit.names)
-        rows = [[n, e, s, b, o, t, h, i, pub[n], unit[n]] for n, e, s, b, o, t, h, i in
-                zip(fit.names, fit.estimate, fit.stderr, bias, off, fit.error, fit.interval, fit.initial)]
-        head = ["parameter", "estimate", "std. error", "eps bias", "enc. phase", "total error", "95 % +-", "initial",
-                "rig file", "unit"]
+        rows = [[n, e, s, b, o, t, f"{lo:.4g} .. {hi:.4g}", i, pub[n], unit[n]] for n, e, s, b, o, t, (lo, hi), i in
+                zip(fit.names, fit.estimate, fit.stderr, bias, off, fit.error, fit.bounds, fit.initial)]
+        head = ["parameter", "estimate", "std. error", "eps bias", "enc. phase", "total error", "95 % interval",
+                "initial", "rig file", "unit"]
     else:
         rows = [[n, e, s, y, t, h, i, pub[n], unit[n]] for n, e, s, y, t, h, i in
                 zip(fit.names, fit.estimate, fit.stderr, fit.syserr, fit.error, fit.interval, fit.initial)]
