@@ -434,6 +434,9 @@ def main(argv=None) -> int:
                                                           for k, f in fns.items()))
         return 0
     solver, t_build = build_solver(_Files(data), fns, qp=args.qp, cost=args.cost, cflags=args.cflags)
+    mu0 = float(data["qp_mu0"]) if "qp_mu0" in data else float("nan")
+    if np.isfinite(mu0):
+        solver.options_set("qp_mu0", mu0)      # hpipm's initial complementarity, as ours (NMPCOptions.qp_mu0)
     import acados
     out = dict(replay(data, solver), build=t_build, qp=args.qp, cost=args.cost, cflags=args.cflags, casadi=ca.__version__,
                acados=_version("comma-deps-acados"), python=sys.version.split()[0], acados_dir=acados.DIR)

@@ -76,11 +76,11 @@ DEFAULT_ACADOS_PYTHON = os.environ.get("ACADOS_PYTHON", "/work/venv-acados/bin/p
 
 
 # ----------------------------------------------------------------------------- the closed loop
-def _nmpc(horizon: int, qp_tol=None, implementation: str = "c", qp_condensing: str = "none"):
+def _nmpc(horizon: int, qp_tol=None, implementation: str = "c", qp_condensing: str = "none", hpipm=("speed_abs", None)):
     """The rig, the programme and the NMPC of the main scenario (``bench_nmpc.py``'s); the default
     options but ``qp_tol`` if given.  ``implementation``: "c" (the compiled step, what is timed) or
     "python" (the reference of the same step, whose OCP calls the recording reads; the two agree to
-    2e-15 on this loop, tests/test_nmpc.py)."""
+    2e-15 on this loop, tests/test_nmpc.py); ``hpipm``: ``(qp_mode, qp_mu0)``."""
     from bench_nmpc import DT, N1, W0
     from mitigate.controllers.base import ControlContext
     from mitigate.controllers.nmpc import NMPC, NMPCOptions
@@ -91,6 +91,7 @@ def _nmpc(horizon: int, qp_tol=None, implementation: str = "c", qp_condensing: s
     extra = {} if qp_tol is None else {"qp_tol": float(qp_tol)}
     if qp_condensing != "none":
         extra["qp_condensing"] = qp_condensing
+    extra["qp_mode"], extra["qp_mu0"] = hpipm
     return m, u_prog, NMPC(NMPCOptions(horizon=horizon, inputs="both", implementation=implementation, **extra), ctx)
 
 
@@ -129,18 +130,18 @@ def _loop(m, u_prog, c, duration: float):
     return plans, prep, plans_cpu, prep_cpu, c_plans, c_prep
 
 
-def time_ours(horizon: int, duration: float, qp_tol=None, qp_condensing: str = "none") -> dict:
+def time_ours(horizon: int, duration: float, qp_tol=None, qp_condensing: str = "none", hpipm=("speed_abs", None)) -> dict:
     """Our side, timed: the workbench NMPC's plan (feedback) and first held (preparation) calls,
     through Python (``Action.solve_time``, wall) and inside C (the compiled step's own
     ``step_time``: the whole NMPC step, supervision and fallbacks included) [s]."""
-    m, u_prog, c = _nmpc(horizon, qp_tol, qp_condensing=qp_condensing)
+    m, u_prog, c = _nmpc(horizon, qp_tol, qp_condensing=qp_condensing, hpipm=hpipm)
     plans, prep, plans_cpu, prep_cpu, c_plans, c_prep = _loop(m, u_prog, c, duration)
     return dict(feedback=plans[1:], preparation=prep[1:], feedback_c=c_plans[1:], preparation_c=c_prep[1:],
                 feedback_cpu=plans_cpu[1:], preparation_cpu=prep_cpu[1:], failures=c.counts.failures,
                 plans=len(plans))
 
 
-def record(horizon: int, duration: float, path: Path, qp_tol=None) -> dict:
+def record(horizon: int, duration: float, path: Path, qp_tol=None, hpipm=("speed_abs", None)) -> dict:
     """Run the closed loop once and write what acados needs to ``path`` (module docstring)."""
     import casadi as ca
     from _acados_side import dump_sx
@@ -148,7 +149,7 @@ def record(horizon: int, duration: float, path: Path, qp_tol=None) -> dict:
     from mitigate.controllers.nmpc.qp import HpipmQP
     rows = {k: [] for k in ("xa0", "q_lin", "lbv", "ubv", "lbw", "ubw", "dg", "u_ours", "prepared", "init")}
     inits: list[tuple] = []
-    m, u_prog, c = _nmpc(horizon, qp_tol, implementation="python")
+    m, u_prog, c = _nmpc(horizon, qp_tol, implementation="python", hpipm=hpipm)
     ocp = c.ocp
     solve, prepare = ocp.solve, ocp.prepare
     q_prep = {}
@@ -198,7 +199,8 @@ def record(horizon: int, duration: float, path: Path, qp_tol=None) -> dict:
         N=np.array(horizon), dt=np.array(spec.dt), nxa=np.array(L.nxa), nv=np.array(L.nv), nq=np.array(L.nq),
         i_wprev=np.array(-1 if L.i_wprev is None else L.i_wprev), C=L.C, D=L.D,
         tail_zero=np.array([0] if L.drive else [], dtype=np.int64),
-        qp_tol=np.array(ocp.qp_tol), hpipm_mode=np.array(hp["mode"].default),
+        qp_tol=np.array(ocp.qp_tol), hpipm_mode=np.array(hpipm[0]),
+        qp_mu0=np.array(np.nan if hpipm[1] is None else float(hpipm[1])),
         qp_iter_max=np.array(hp["iter_max"].default),
         u_scale=np.array(([spec.setpoint_scale] if L.drive else []) + list(spec.force_scales), float),
         X_init=np.array([x for x, _ in inits]), V_init=np.array([v_ for _, v_ in inits]),
@@ -228,10 +230,11 @@ def _run_acados(python: str, data: Path, qp: str, cost: str, cflags: str, out: P
     return json.loads(out.read_text())
 
 
-def _run_ours(horizon: int, duration: float, qp_tol, out: Path, cond: str = "none") -> dict:
+def _run_ours(horizon: int, duration: float, qp_tol, out: Path, cond: str = "none", hpipm=("speed_abs", None)) -> dict:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE.parent)] + os.environ.get("PYTHONPATH", "").split(os.pathsep)))
     cmd = [sys.executable, str(Path(__file__).resolve()), "--worker-ours", str(horizon), "--duration", str(duration),
-           "--json", str(out), "--ours-qp", cond] + ([] if qp_tol is None else ["--qp-tol", str(qp_tol)])
+           "--json", str(out), "--ours-qp", cond, "--qp-mode", hpipm[0]] + ([] if qp_tol is None else ["--qp-tol", str(qp_tol)])
+    cmd += [] if hpipm[1] is None else ["--qp-mu0", str(hpipm[1])]
     r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=3600)
     if r.returncode != 0:
         raise RuntimeError(f"our side failed: {r.stderr.strip()[-2000:]}")
@@ -311,6 +314,11 @@ def main(argv=None) -> int:
     ap.add_argument("--cflags", default="-O2", help="acados' ext_fun_compile_flags (default: acados' -O2)")
     ap.add_argument("--qp-tol", type=float, default=None,
                     help="the QP tolerance on both sides (default: the NMPC's default; a diagnostic)")
+    ap.add_argument("--qp-mode", default="speed_abs", choices=("speed_abs", "speed", "balance", "robust"),
+                    help="hpipm's preset on both sides (NMPCOptions.qp_mode; default speed_abs, the NMPC's default)")
+    ap.add_argument("--qp-mu0", type=float, default=None,
+                    help="hpipm's initial complementarity on both sides (NMPCOptions.qp_mu0; acados' qp_mu0; "
+                         "default: the preset's)")
     ap.add_argument("--acados-python", default=DEFAULT_ACADOS_PYTHON, help="acados' interpreter")
     ap.add_argument("--wait-load", type=float, default=None, metavar="L",
                     help="before each round wait (up to --wait-max s) until the 1-min load average is <= L")
@@ -323,7 +331,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default="", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker_ours is not None:
-        Path(args.json).write_text(json.dumps(time_ours(args.worker_ours, args.duration, args.qp_tol, args.ours_qp[0])))
+        Path(args.json).write_text(json.dumps(time_ours(args.worker_ours, args.duration, args.qp_tol, args.ours_qp[0],
+                                                        (args.qp_mode, args.qp_mu0))))
         return 0
     if args.quick:
         args.horizons, args.duration, args.rounds, args.qp, args.cost = [20], 0.5, 1, ["partial"], ["external"]
@@ -332,6 +341,7 @@ def main(argv=None) -> int:
            + ([f"--duration must be >= 0.2 s (a few plans), got {args.duration:g}"] if not args.duration >= 0.2 else [])
            + ([f"--rounds must be >= 0, got {args.rounds}"] if args.rounds < 0 else [])
            + ([f"--qp-tol must be > 0, got {args.qp_tol:g}"] if args.qp_tol is not None and not args.qp_tol > 0 else [])
+           + ([f"--qp-mu0 must be > 0, got {args.qp_mu0:g}"] if args.qp_mu0 is not None and not args.qp_mu0 > 0 else [])
            + (["--append needs --out"] if args.append and not args.out else []))
     if bad:
         ap.error(bad[0])
@@ -343,7 +353,7 @@ def main(argv=None) -> int:
     data = {}
     for N in args.horizons:
         data[N] = work / f"closed_loop_N{N}.npz"
-        info = record(N, args.duration, data[N], args.qp_tol)
+        info = record(N, args.duration, data[N], args.qp_tol, (args.qp_mode, args.qp_mu0))
         print(f"N = {N}: recorded {info['plans']} plans ({info['prepared']} prepared, {info['inits']} from scratch, "
               f"{info['failures']} failures; RK4 substeps {info['nsub']})", flush=True)
     variants = [(qp, cost) for qp in args.qp for cost in args.cost] if args.side != "ours" else []
@@ -372,7 +382,7 @@ def main(argv=None) -> int:
             for kind, v in (tasks if r % 2 == 0 else tasks[::-1]):
                 out = work / f"round{r}_{kind}_N{N}_{v if kind == 'ours' else '_'.join(v)}.json"
                 if kind == "ours":
-                    res = _run_ours(N, args.duration, args.qp_tol, out, v)
+                    res = _run_ours(N, args.duration, args.qp_tol, out, v, (args.qp_mode, args.qp_mu0))
                     key = ("ours" if v == "none" else f"ours, {v} condensing", N)
                 else:
                     res = _run_acados(args.acados_python, data[N], v[0], v[1], args.cflags, out)

@@ -148,7 +148,8 @@ def test_every_input_set_exports_and_replays(inputs, tmp_path):
     job, like a weight on bit) and a force window of rig3's period, so the band on the moving mean
     runs in the library too.  "both_full" / "both_partial": both inputs with ``qp_condensing = "full"``
     (the QP condensed in the preparation, hpipm's dense IPM in the feedback) or ``"partial"`` (condensed
-    to ceil(N / 5) stages) replay the workbench's run of the same option bit for bit too."""
+    to ceil(N / 5) stages; with hpipm's "speed" preset from mu0 = 0.01, the fast setting of
+    docs/export.md) replay the workbench's run of the same options bit for bit too."""
     path = MAIN
     if inputs == "pin":
         path = tmp_path / "pin10.toml"
@@ -158,6 +159,8 @@ def test_every_input_set_exports_and_replays(inputs, tmp_path):
     extra = {"force_window": 2.33} if inputs == "pin" else {}
     if inputs.startswith("both_"):
         inputs, extra = "both", {"qp_condensing": inputs[5:]}
+        if extra["qp_condensing"] == "partial":
+            extra.update(qp_mode="speed", qp_mu0=0.01)
     ctrls = tuple(replace(c, options={**dict(c.options), "inputs": inputs, **extra}) if c.name == "NMPC" else c
                   for c in sc.controllers)
     res = export_controller(replace(sc, controllers=ctrls), "NMPC", tmp_path / inputs, reference=25.0,

@@ -27,15 +27,12 @@ from models.cbuild import (CSRC, CStruct, blasfeo_override, build_library, c_vie
 from models.errors import SolverFailure
 from mitigate.controllers.nmpc.start import LOAD_FACTOR_RANGE
 from mitigate.controllers.nmpc.supervision import SLIDING_FRACTION, TRIM_DEADBAND, TRIM_LIMIT
-from mitigate.controllers.nmpc.options import QP_CONDENSING, qp_blocks
+from mitigate.controllers.nmpc.options import HPIPM_MODES, QP_CONDENSING, qp_blocks
 
 __all__ = ["NMPC_CONFIG", "NMPC_INFO", "nmpc_config", "CompiledStep", "NMPC_SOURCES", "FAILURES", "REASONS"]
 
 #: the C sources of the NMPC's step
 NMPC_SOURCES = Path(__file__).resolve().parent / "csrc"
-
-#: hpipm's modes (enum hpipm_mode)
-HPIPM_MODES = {"speed_abs": 0, "speed": 1, "balance": 2, "robust": 3}
 
 NMPC_CONFIG = CStruct("ssn_config", [
     ("nx", "int", None, "rig states"), ("nu", "int", None, "rig inputs"),
@@ -78,7 +75,7 @@ NMPC_CONFIG = CStruct("ssn_config", [
     ("trim_limit", "double", None, "largest trim / programme"), ("trim_deadband", "double", None, "trim deadband"),
     ("sliding_fraction", "double", None, "a body slides above this x nominal"),
     ("load_min", "double", None, "load factor clip"), ("load_max", "double", None, "load factor clip"),
-    ("qp_tol", "double", None, "QP tolerance"), ("sqp_tol", "double", None, "SQP step tolerance"),
+    ("qp_tol", "double", None, "QP tolerance"), ("qp_mu0", "double", None, "hpipm's initial complementarity (0: the mode's)"), ("sqp_tol", "double", None, "SQP step tolerance"),
     ("reader_off", "double", "nu", "load cells' offsets"), ("reader_gain", "double", "nu", "load cells' gains"),
     ("servo_tau", "double", "ns", "servos' lag [s]"), ("servo_rate", "double", "ns", "servos' rate [N/s]"),
     ("servo_nmin", "double", "ns", "servos' range [N]"), ("servo_nmax", "double", "ns", "servos' range [N]"),
@@ -133,7 +130,7 @@ def nmpc_config(nmpc) -> dict:
         drives=int(nmpc.drives), torque_drive=int(nmpc._torque_drive), reverses=int(m.drive.reverses),
         has_speed0=int(nmpc._speed0 is not None),
         model_servo=int(o.model_servo), prepare_ahead=int(o.prepare_ahead), use_load=int(o.use_load_estimate),
-        iterate=int(o.solver == "sqp"), sqp_max_iter=o.sqp_max_iter, qp_iter_max=100, hpipm_mode=HPIPM_MODES["speed_abs"],
+        iterate=int(o.solver == "sqp"), sqp_max_iter=o.sqp_max_iter, qp_iter_max=100, hpipm_mode=HPIPM_MODES[o.qp_mode],
         qp_cond=QP_CONDENSING.index(o.qp_condensing), qp_cond_n=qp_blocks(o.qp_blocks, nmpc.spec.horizon),
         u_drive=L.u_drive, i_wprev=-1 if L.i_wprev is None else L.i_wprev, i_speed=nmpc._i_speed,
         window_n=nmpc.supervisor.state.window.n, force_n=nmpc.start.window_n, look_n=list(nmpc._look_n),
@@ -149,7 +146,7 @@ def nmpc_config(nmpc) -> dict:
         calm_lo=o.calm_band[0], calm_hi=o.calm_band[1], hold_gain=cfg.hold_gain,
         trim_tau=nmpc.supervisor.trim_tau, trim_limit=TRIM_LIMIT, trim_deadband=TRIM_DEADBAND,
         sliding_fraction=SLIDING_FRACTION, load_min=LOAD_FACTOR_RANGE[0], load_max=LOAD_FACTOR_RANGE[1],
-        qp_tol=nmpc.ocp.qp_tol, sqp_tol=nmpc.ocp.sqp_tol,
+        qp_tol=nmpc.ocp.qp_tol, qp_mu0=0.0 if o.qp_mu0 is None else float(o.qp_mu0), sqp_tol=nmpc.ocp.sqp_tol,
         reader_off=off, reader_gain=gain,
         servo_tau=[float(a.tau) for a in acts], servo_rate=[float(a.rate_max) for a in acts],
         servo_nmin=[float(a.n_min) for a in acts], servo_nmax=[float(a.n_max) for a in acts],

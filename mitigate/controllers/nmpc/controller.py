@@ -171,9 +171,13 @@ class NMPC(Controller):
                               f"(implementation \"c\", compile true, solver rti or sqp, qp_solver hpipm); got "
                               f"implementation {o.implementation!r}, compile {str(o.compile).lower()}, solver {o.solver!r}, "
                               f"qp_solver {o.qp_solver!r}")
+        if (o.qp_mode != "speed_abs" or o.qp_mu0 is not None) and (o.qp_solver != "hpipm" or o.solver == "ipopt"):
+            what = "qp_mode" if o.qp_mode != "speed_abs" else "qp_mu0"
+            raise ConfigError(f"{where}.{what}: hpipm's setting needs qp_solver \"hpipm\" and solver rti or sqp; got "
+                              f"qp_solver {o.qp_solver!r}, solver {o.solver!r}")
         # the compiled step has the stages in its own library: the Python solver's own build is not needed then
         self.ocp = make_ocp_solver(m, self.spec, solver=o.solver, compile=o.compile and not use_c, qp_solver=o.qp_solver,
-                                   qp_tol=o.qp_tol, sqp_max_iter=o.sqp_max_iter)
+                                   qp_tol=o.qp_tol, sqp_max_iter=o.sqp_max_iter, qp_mode=o.qp_mode, qp_mu0=o.qp_mu0)
         L = self.ocp.layout
         self.layout = L
         self._q = L.q_template(self.spec, self.params.vector())

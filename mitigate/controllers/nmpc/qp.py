@@ -42,7 +42,7 @@ import scipy.sparse as sp
 
 from models.errors import ConfigError, SolverFailure
 
-__all__ = ["StageQP", "HpipmQP", "ConicQP", "make_qp", "QP_SOLVERS"]
+__all__ = ["StageQP", "HpipmQP", "ConicQP", "make_qp", "QP_SOLVERS", "HPIPM_MODES"]
 
 QP_SOLVERS = ("hpipm", "qrqp", "osqp")
 
@@ -88,8 +88,9 @@ class StageQP:
 
 
 # ----------------------------------------------------------------------------- hpipm
-#: enum hpipm_mode: SPEED_ABS, SPEED, BALANCE, ROBUST
-_HPIPM_MODES = {"speed_abs": 0, "speed": 1, "balance": 2, "robust": 3}
+#: hpipm's presets (the NMPC's ``qp_mode``): the value is hpipm's ``enum hpipm_mode``
+HPIPM_MODES = {"speed_abs": 0, "speed": 1, "balance": 2, "robust": 3}
+_HPIPM_MODES = HPIPM_MODES
 HPIPM_STATUS = ("success", "maximum iterations", "minimum step length", "NaN in the solution",
                  "inconsistent equality constraints")
 _LIB = None
@@ -158,7 +159,7 @@ class HpipmQP(StageQP):
     """
 
     def __init__(self, N, nx, nu, idxbx, idxbu, C, D, *, tol: float = 1e-7, iter_max: int = 100,
-                 mode: str = "speed_abs"):
+                 mode: str = "speed_abs", mu0: float | None = None):
         super().__init__(N, nx, nu, idxbx, idxbu, C, D)
         lib = _hpipm()
         self._lib = lib
@@ -189,6 +190,8 @@ class HpipmQP(StageQP):
         t = ctypes.c_double(float(tol))
         for name in ("stat", "eq", "ineq", "comp"):
             getattr(lib, f"d_ocp_qp_ipm_arg_set_tol_{name}")(ctypes.byref(t), ctypes.c_void_p(arg))
+        if mu0 is not None:
+            lib.d_ocp_qp_ipm_arg_set_mu0(ctypes.byref(ctypes.c_double(float(mu0))), ctypes.c_void_p(arg))
         ws = mem.block(lib.d_ocp_qp_ipm_ws_strsize())
         lib.d_ocp_qp_ipm_ws_create(ctypes.c_void_p(dim), ctypes.c_void_p(arg), ctypes.c_void_p(ws),
                                    ctypes.c_void_p(mem.block(lib.d_ocp_qp_ipm_ws_memsize(dim, arg))))
@@ -336,8 +339,10 @@ class ConicQP(StageQP):
         self.x[N] = z[N * nz:]
 
 
-def make_qp(solver: str, N, nx, nu, idxbx, idxbu, C, D, *, tol: float) -> StageQP:
-    """The QP backend ``solver`` ("hpipm", "qrqp" or "osqp") for these dimensions."""
+def make_qp(solver: str, N, nx, nu, idxbx, idxbu, C, D, *, tol: float, mode: str = "speed_abs",
+            mu0: float | None = None) -> StageQP:
+    """The QP backend ``solver`` ("hpipm", "qrqp" or "osqp") for these dimensions (``mode``, ``mu0``:
+    hpipm's, :class:`HpipmQP`)."""
     if solver == "hpipm":
-        return HpipmQP(N, nx, nu, idxbx, idxbu, C, D, tol=tol)
+        return HpipmQP(N, nx, nu, idxbx, idxbu, C, D, tol=tol, mode=mode, mu0=mu0)
     return ConicQP(N, nx, nu, idxbx, idxbu, C, D, solver=solver, tol=tol)

@@ -65,7 +65,8 @@ class GaussNewtonSolver(OCPSolver):
     :func:`mitigate.controllers.nmpc.solvers.make_ocp_solver`."""
 
     def __init__(self, model, spec: OCPSpec, *, iterate: bool = False, compile: bool = True,
-                 qp_solver: str = "hpipm", qp_tol: float = 1e-7, sqp_max_iter: int = 20, sqp_tol: float = 1e-6):
+                 qp_solver: str = "hpipm", qp_tol: float = 1e-7, sqp_max_iter: int = 20, sqp_tol: float = 1e-6,
+                 qp_mode: str = "speed_abs", qp_mu0: float | None = None):
         super().__init__(model, spec)
         self.solver = "sqp" if iterate else "rti"
         L, N = self.layout, self.N
@@ -74,7 +75,8 @@ class GaussNewtonSolver(OCPSolver):
         self.sqp_max_iter, self.sqp_tol = sqp_max_iter, sqp_tol
         self.compiled = bool(compile)
         idxbx = [L.i_wprev] if L.drive else []
-        self.qp = make_qp(qp_solver, N, L.nxa, L.nv, idxbx, np.arange(L.nv), L.C, L.D, tol=self.qp_tol)
+        self.qp = make_qp(qp_solver, N, L.nxa, L.nv, idxbx, np.arange(L.nv), L.C, L.D, tol=self.qp_tol,
+                          mode=qp_mode, mu0=qp_mu0)
         self._ev = StageEvaluator(self.stage_fn, self.term_fn, N, L.nxa, L.nv, L.nq, self.compiled,
                                   f"{model.cname}_nmpc_N{N}")
         self._cost = np.nan

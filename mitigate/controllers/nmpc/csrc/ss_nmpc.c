@@ -408,7 +408,8 @@ static void set_pointers(ssn_mem* m) {
 #define SET_IPM_ARG(P, arg, cfg, it, tol) do { \
         P##_ipm_arg_set_default((enum hpipm_mode)(cfg)->hpipm_mode, (arg)); P##_ipm_arg_set_iter_max(&(it), (arg)); \
         P##_ipm_arg_set_tol_stat(&(tol), (arg)); P##_ipm_arg_set_tol_eq(&(tol), (arg)); \
-        P##_ipm_arg_set_tol_ineq(&(tol), (arg)); P##_ipm_arg_set_tol_comp(&(tol), (arg)); } while (0)
+        P##_ipm_arg_set_tol_ineq(&(tol), (arg)); P##_ipm_arg_set_tol_comp(&(tol), (arg)); \
+        if ((cfg)->qp_mu0 > 0.0) { double mu0_ = (cfg)->qp_mu0; P##_ipm_arg_set_mu0(&mu0_, (arg)); } } while (0)
 
 ssn_mem* ssn_init(void* mem, size_t size, const ssn_config* cfg, const ss_fn* stages, const ss_fn* forward) {
     ss_bump b = {(char*)mem, 0, 0};
