@@ -18,6 +18,7 @@ Medians and 95th percentiles in microseconds.  Usage::
     python benchmarks/bench_export.py --quick                 # N = 20, 21 s of the run, one round (CI)
     python benchmarks/bench_export.py --horizons 20 50 --rounds 3
     python benchmarks/bench_export.py --horizons 20 --qp-condensing full   # the condensed QP exported
+    python benchmarks/bench_export.py --qp-condensing partial --qp-mode speed --qp-mu0 0.01   # the fast setting
 """
 
 from __future__ import annotations
@@ -64,11 +65,13 @@ int main(int argc, char** argv) {
 """
 
 
-def export_horizon(N: int, seconds: float, work: Path, qp_condensing: str = "none"):
+def export_horizon(N: int, seconds: float, work: Path, qp_condensing: str = "none", hpipm=("speed_abs", None)):
     from mitigate.export import build_export, export_controller
     from mitigate.scenario import load_scenario
     sc = load_scenario(MAIN)
     extra = {} if qp_condensing == "none" else {"qp_condensing": qp_condensing}
+    if hpipm != ("speed_abs", None):
+        extra.update(qp_mode=hpipm[0], qp_mu0=hpipm[1])
     ctrls = tuple(replace(c, options={**dict(c.options), "horizon": N, **extra}) if c.name == "NMPC" else c
                   for c in sc.controllers)
     sc = replace(sc, controllers=ctrls)
@@ -168,7 +171,12 @@ def main(argv=None) -> int:
     ap.add_argument("--qp-condensing", choices=("none", "full", "partial"), default="none",
                     help="the NMPC's qp_condensing (full: condensed in the preparation, hpipm's dense IPM; partial: "
                          "condensed to ceil(N / 5) stages)")
+    ap.add_argument("--qp-mode", choices=("speed_abs", "speed", "balance", "robust"), default="speed_abs",
+                    help="the NMPC's qp_mode (hpipm's preset; default speed_abs)")
+    ap.add_argument("--qp-mu0", type=float, default=None, help="the NMPC's qp_mu0 (default: the preset's)")
     args = ap.parse_args(argv)
+    if args.qp_mu0 is not None and not args.qp_mu0 > 0:
+        ap.error(f"--qp-mu0 must be > 0, got {args.qp_mu0:g}")
     if args.quick:
         args.horizons, args.seconds, args.rounds = [20], 21.0, 1
         os.environ.setdefault("CMAKE_BUILD_PARALLEL_LEVEL", str(os.cpu_count() or 1))  # its files side by side
@@ -181,7 +189,7 @@ def main(argv=None) -> int:
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, load average {load:.2f}")
     print("median / p95 [us] per call       feedback        preparation     hold         EKF alone")
     for N in args.horizons:
-        sc, res, so = export_horizon(N, args.seconds, work, args.qp_condensing)
+        sc, res, so = export_horizon(N, args.seconds, work, args.qp_condensing, (args.qp_mode, args.qp_mu0))
         c, py = {}, {}
         for r in range(args.rounds):           # interleaved: C, Python, C, Python, ...
             for k, v in time_c(res, so, work, 1).items():

@@ -5,6 +5,7 @@ rest, k and the kinetic level free, started 20 % off.  With the encoders' zero f
 level and the power-on twist trade off; the fit said mu_k 0.265 +- 0.003 against 0.3, status OK.
 """
 
+import dataclasses
 import warnings
 from pathlib import Path
 
@@ -67,8 +68,16 @@ def test_untwisted_counts_the_encoders_power_on_phase(case):
     # as the bounded error it is: shorter than 1.96 total errors, longer than the normal parts' 1.96
     assert fit.phase_parts.shape == (2, 2)
     np.testing.assert_allclose(np.sqrt(np.sum(fit.phase_parts ** 2, axis=1)), fit.offset_error)
-    normal = np.sqrt(fit.stderr ** 2 + fit.eps_bias ** 2)
-    assert np.all(fit.interval < 1.959 * fit.error) and np.all(fit.interval > 1.96 * normal)
+    assert np.all(fit.interval < 1.959 * fit.error) and np.all(fit.interval > 1.96 * fit.stderr)
+    # the regularisation's signed bias moves the interval's centre instead of widening it; a refit's
+    # unsigned syserr (systematic = true) widens it and moves nothing
+    np.testing.assert_allclose(fit.centre, fit.estimate - fit.eps_bias)
+    np.testing.assert_allclose(fit.bounds, np.column_stack([fit.centre - fit.interval, fit.centre + fit.interval]))
+    refit = dataclasses.replace(fit, syserr=np.abs(fit.eps_bias))
+    np.testing.assert_allclose(refit.centre, fit.estimate)
+    assert np.all(refit.interval > fit.interval)
+    lo, hi = fit.as_dict()["parameters"]["mu_k"]["bounds95"]
+    assert lo < fit.centre[1] < hi and hi - lo == pytest.approx(2 * fit.interval[1])
     # the deviation it stands for is the difference's own quantisation level
     assert fit.noise["theta_b0-theta_drive"] == pytest.approx(np.hypot(2 * np.pi / 2048, 2 * np.pi / 1024) / np.sqrt(12))
 
