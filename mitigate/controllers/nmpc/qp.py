@@ -90,7 +90,6 @@ class StageQP:
 # ----------------------------------------------------------------------------- hpipm
 #: hpipm's presets (the NMPC's ``qp_mode``): the value is hpipm's ``enum hpipm_mode``
 HPIPM_MODES = {"speed_abs": 0, "speed": 1, "balance": 2, "robust": 3}
-_HPIPM_MODES = HPIPM_MODES
 HPIPM_STATUS = ("success", "maximum iterations", "minimum step length", "NaN in the solution",
                  "inconsistent equality constraints")
 _LIB = None
@@ -182,9 +181,9 @@ class HpipmQP(StageQP):
         arg = mem.block(lib.d_ocp_qp_ipm_arg_strsize())
         lib.d_ocp_qp_ipm_arg_create(ctypes.c_void_p(dim), ctypes.c_void_p(arg),
                                     ctypes.c_void_p(mem.block(lib.d_ocp_qp_ipm_arg_memsize(dim))))
-        if mode not in _HPIPM_MODES:
-            raise ConfigError(f"hpipm mode must be one of {', '.join(_HPIPM_MODES)}, got {mode!r}")
-        lib.d_ocp_qp_ipm_arg_set_default(ctypes.c_int(_HPIPM_MODES[mode]), ctypes.c_void_p(arg))
+        if mode not in HPIPM_MODES:
+            raise ConfigError(f"hpipm mode must be one of {', '.join(HPIPM_MODES)}, got {mode!r}")
+        lib.d_ocp_qp_ipm_arg_set_default(ctypes.c_int(HPIPM_MODES[mode]), ctypes.c_void_p(arg))
         it = ctypes.c_int(int(iter_max))
         lib.d_ocp_qp_ipm_arg_set_iter_max(ctypes.byref(it), ctypes.c_void_p(arg))
         t = ctypes.c_double(float(tol))
