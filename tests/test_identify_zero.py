@@ -8,6 +8,7 @@ level and the power-on twist trade off; the fit said mu_k 0.265 +- 0.003 against
 import dataclasses
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -76,6 +77,9 @@ def test_untwisted_counts_the_encoders_power_on_phase(case):
     refit = dataclasses.replace(fit, syserr=np.abs(fit.eps_bias))
     np.testing.assert_allclose(refit.centre, fit.estimate)
     assert np.all(refit.interval > fit.interval)
+    # within the parameters' admissible range (here made to start at the centre): never below a bound
+    at_centre = dataclasses.replace(fit, problem=SimpleNamespace(lo=fit.centre, hi=fit.centre + 10 * fit.interval))
+    np.testing.assert_allclose(at_centre.bounds, np.column_stack([fit.centre, fit.centre + fit.interval]))
     lo, hi = fit.as_dict()["parameters"]["mu_k"]["bounds95"]
     assert lo < fit.centre[1] < hi and hi - lo == pytest.approx(2 * fit.interval[1])
     # the deviation it stands for is the difference's own quantisation level

@@ -370,9 +370,14 @@ class FitResult(Outcome):
     @property
     def bounds(self) -> np.ndarray:
         """(n_free, 2) the 95 % interval of each parameter's value on the rig [SI]:
-        ``centre -+ interval``."""
+        ``centre -+ interval``, within the parameter's admissible range (a damping fitted at 0 has no
+        interval below 0)."""
         c, h = self.centre, self.interval
-        return np.column_stack([c - h, c + h])
+        out = np.column_stack([c - h, c + h])
+        lo, hi = getattr(self.problem, "lo", None), getattr(self.problem, "hi", None)
+        if lo is not None and hi is not None and np.size(lo) == len(c) and np.size(hi) == len(c):
+            out = np.column_stack([np.maximum(out[:, 0], lo), np.minimum(out[:, 1], hi)])
+        return out
 
     def as_dict(self) -> dict:
         """A JSON-friendly summary."""
