@@ -148,6 +148,10 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1,
                     help="fits in parallel processes (default 1; the results do not depend on it)")
     args = ap.parse_args(argv)
+    if args.from_csv is not None and not args.from_csv.is_file():
+        ap.error(f"--from-csv: no file {args.from_csv}")
+    if args.workers < 1:
+        ap.error(f"--workers must be >= 1, got {args.workers}")
     rigs = tuple(r.strip() for r in args.rigs.split(",") if r.strip())
     seeds, duration = (2, 6.0) if args.quick else (args.seeds, args.duration)
     if args.quick:
