@@ -65,6 +65,7 @@ at about :data:`BYTES_PER_SAMPLE` per sample and controller.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -158,7 +159,12 @@ class Scenario:
 
     def programme(self, t: float) -> np.ndarray:
         """Scheduled inputs at ``t`` [s], in ``model.inputs`` order (SI)."""
-        return np.array([self.inputs[n](t) for n in self.model.inputs], dtype=float)
+        return np.array([f(t) for f in self._profiles], dtype=float)
+
+    @functools.cached_property
+    def _profiles(self) -> tuple[Profile, ...]:
+        """The profiles in ``model.inputs`` order (the programme is asked on every control call)."""
+        return tuple(self.inputs[n] for n in self.model.inputs)
 
     input_vector = programme
 

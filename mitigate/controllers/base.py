@@ -364,10 +364,14 @@ class Controller(ABC):
             if k not in commands:
                 raise PluginError(f"ValueError: command for {k!r}, which the rig cannot set "
                                   f"({', '.join(commands)})")
-            try:
-                ok = math.isfinite(float(v))
-            except (TypeError, ValueError):
-                raise PluginError(f"TypeError: command {k} must be a number, got {quote(v)} ({type(v).__name__})") from None
+            if type(v) is float:        # the usual case, without the conversion's try
+                ok = math.isfinite(v)
+            else:
+                try:
+                    ok = math.isfinite(float(v))
+                except (TypeError, ValueError):
+                    raise PluginError(f"TypeError: command {k} must be a number, got {quote(v)} "
+                                      f"({type(v).__name__})") from None
             if not ok:
                 raise PluginError(f"FloatingPointError: non-finite command {k} = {v}")
 

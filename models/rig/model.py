@@ -205,14 +205,15 @@ class RigModel(RigOutputs, FrictionStates):
         """The drive's input: a speed set-point (DC motor), a prescribed speed, or a torque."""
         return self.spec.drive.input
 
-    @property
+    @cached_property
     def servo_inputs(self) -> tuple[str, ...]:
         """Inputs set through a servo (normal forces a controller can modulate)."""
         return tuple(a.input for a in self.actuators)
 
-    @property
+    @cached_property
     def commands(self) -> tuple[str, ...]:
-        """Inputs a controller may set: the drive's input, then every servo's."""
+        """Inputs a controller may set: the drive's input, then every servo's (asked on every control
+        call: computed once, the rig's spec does not change)."""
         return (self.drive_input,) + self.servo_inputs
 
     def actuator(self, input_name: str):
