@@ -18,7 +18,10 @@ Medians and 95th percentiles in microseconds.  Usage::
     python benchmarks/bench_export.py --quick                 # N = 20, 21 s of the run, one round (CI)
     python benchmarks/bench_export.py --horizons 20 50 --rounds 3
     python benchmarks/bench_export.py --horizons 20 --qp-condensing full   # the condensed QP exported
-    python benchmarks/bench_export.py --qp-condensing partial --qp-mode speed --qp-mu0 0.01   # the fast setting
+    python benchmarks/bench_export.py --qp-condensing none --qp-mode speed_abs --qp-mu0 preset   # NMPCOptions' defaults
+
+The QP setting is the main scenario's (partial condensing, hpipm's "speed" preset from mu0 = 0.01)
+unless the options above replace it.
 """
 
 from __future__ import annotations
@@ -65,13 +68,13 @@ int main(int argc, char** argv) {
 """
 
 
-def export_horizon(N: int, seconds: float, work: Path, qp_condensing: str = "none", hpipm=("speed_abs", None)):
+def export_horizon(N: int, seconds: float, work: Path, qp: dict | None = None):
+    """Export and build the main scenario's NMPC at horizon ``N``; ``qp``: NMPC options replacing the
+    scenario's QP setting (``qp_condensing``, ``qp_mode``, ``qp_mu0``; None: as the scenario declares)."""
     from mitigate.export import build_export, export_controller
     from mitigate.scenario import load_scenario
     sc = load_scenario(MAIN)
-    extra = {} if qp_condensing == "none" else {"qp_condensing": qp_condensing}
-    if hpipm != ("speed_abs", None):
-        extra.update(qp_mode=hpipm[0], qp_mu0=hpipm[1])
+    extra = dict(qp or {})
     ctrls = tuple(replace(c, options={**dict(c.options), "horizon": N, **extra}) if c.name == "NMPC" else c
                   for c in sc.controllers)
     sc = replace(sc, controllers=ctrls)
@@ -173,15 +176,30 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=60.0, help="seconds of the reference run (default 60)")
     ap.add_argument("--rounds", type=int, default=3, help="replays per side, interleaved (default 3)")
     ap.add_argument("--keep", metavar="DIR", help="keep the exports in DIR")
-    ap.add_argument("--qp-condensing", choices=("none", "full", "partial"), default="none",
-                    help="the NMPC's qp_condensing (full: condensed in the preparation, hpipm's dense IPM; partial: "
-                         "condensed to ceil(N / 5) stages)")
-    ap.add_argument("--qp-mode", choices=("speed_abs", "speed", "balance", "robust"), default="speed_abs",
-                    help="the NMPC's qp_mode (hpipm's preset; default speed_abs)")
-    ap.add_argument("--qp-mu0", type=float, default=None, help="the NMPC's qp_mu0 (default: the preset's)")
+    ap.add_argument("--qp-condensing", choices=("none", "full", "partial"), default=None,
+                    help="the NMPC's qp_condensing (default: the scenario's, partial: condensed to ceil(N / 5) "
+                         "stages; full: condensed in the preparation, hpipm's dense IPM; none: the OCP QP)")
+    ap.add_argument("--qp-mode", choices=("speed_abs", "speed", "balance", "robust"), default=None,
+                    help="the NMPC's qp_mode, hpipm's preset (default: the scenario's, speed)")
+    ap.add_argument("--qp-mu0", default=None, metavar="MU0|preset",
+                    help="the NMPC's qp_mu0 (default: the scenario's, 0.01; preset: the preset's own, 10)")
     args = ap.parse_args(argv)
-    if args.qp_mu0 is not None and not args.qp_mu0 > 0:
-        ap.error(f"--qp-mu0 must be > 0, got {args.qp_mu0:g}")
+    qp = {}
+    if args.qp_condensing is not None:
+        qp["qp_condensing"] = args.qp_condensing
+    if args.qp_mode is not None:
+        qp["qp_mode"] = args.qp_mode
+    if args.qp_mu0 is not None:
+        if args.qp_mu0 == "preset":
+            qp["qp_mu0"] = None
+        else:
+            try:
+                mu0 = float(args.qp_mu0)
+            except ValueError:
+                mu0 = float("nan")
+            if not mu0 > 0:
+                ap.error(f"--qp-mu0 must be a number > 0 or 'preset', got {args.qp_mu0}")
+            qp["qp_mu0"] = mu0
     if args.quick:
         args.horizons, args.seconds, args.rounds = [20], 21.0, 1
         os.environ.setdefault("CMAKE_BUILD_PARALLEL_LEVEL", str(os.cpu_count() or 1))  # its files side by side
@@ -194,7 +212,7 @@ def main(argv=None) -> int:
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, load average {load:.2f}")
     print("median / p95 [us] per call       feedback        preparation     hold         EKF alone")
     for N in args.horizons:
-        sc, res, so = export_horizon(N, args.seconds, work, args.qp_condensing, (args.qp_mode, args.qp_mu0))
+        sc, res, so = export_horizon(N, args.seconds, work, qp)
         c, py = {}, {}
         for r in range(args.rounds):           # interleaved: C, Python, C, Python, ...
             for k, v in time_c(res, so, work, 1).items():
