@@ -479,8 +479,8 @@ NOTES = """\
   from Python (bounds at every stage; shift, parameters), which a C caller would do with memcpy.
   So compare a compiled step (issue 26's goal) against acados' C timer, and today's Python
   controller against either.
-- Compiled code: acados' generated functions at `--cflags` (acados' default -O2); ours at -O1
-  (models.codegen). acados' wheel ships blasfeo built with AVX2/FMA kernels; the casadi wheel's
+- Compiled code: acados' generated functions at `--cflags` (acados' default -O2); ours at -O2
+  (the Release build, models.codegen; strict IEEE arithmetic). acados' wheel ships blasfeo built with AVX2/FMA kernels; the casadi wheel's
   blasfeo is the generic C target (its hpipm itself uses AVX); ours calls the wheel's unless
   STICKSLIP_BLASFEO names another (the "Ours:" line above says which).
 - acados' preparation does the linearisation (and, with full condensing, the condensing); its

@@ -13,7 +13,9 @@ EKF) is exported (``mitigate export``), built with CMake, and its logged referen
   measurements and the same estimates (the reference's estimate columns): the same compiled NMPC step
   plus the ctypes call.
 
-Medians and 95th percentiles in microseconds.  Usage::
+Medians and 95th percentiles in microseconds.  "Python around it" is, call by call, the workbench's
+wall time less the compiled step's own timer inside it: the Python call's cost, which a slow period of
+a shared machine moves far less than the two sides' medians (measured minutes apart).  Usage::
 
     python benchmarks/bench_export.py --quick                 # N = 20, 21 s of the run, one round (CI)
     python benchmarks/bench_export.py --horizons 20 50 --rounds 3
@@ -225,6 +227,9 @@ def main(argv=None) -> int:
               f"{fmt(py['hold']):>12}       (EKF separate)")
         print(f"N = {N:<3}   its C step inside  {fmt(py['feedback_c']):>15} {fmt(py['preparation_c']):>15} "
               f"{fmt(py['hold_c']):>12}       (the step's own timer)")
+        d = {k: py[k] - py[k + "_c"] for k in ("feedback", "preparation", "hold")}
+        print(f"N = {N:<3}   Python around it   {fmt(d['feedback']):>15} {fmt(d['preparation']):>15} "
+              f"{fmt(d['hold']):>12}       (per call: wall - the step's timer)")
     if not args.keep:
         shutil.rmtree(work, ignore_errors=True)
     return 0
