@@ -159,12 +159,22 @@ class Scenario:
 
     def programme(self, t: float) -> np.ndarray:
         """Scheduled inputs at ``t`` [s], in ``model.inputs`` order (SI)."""
+        const = self._constant
+        if const is not None:
+            return const.copy()
         return np.array([f(t) for f in self._profiles], dtype=float)
 
     @functools.cached_property
     def _profiles(self) -> tuple[Profile, ...]:
         """The profiles in ``model.inputs`` order (the programme is asked on every control call)."""
         return tuple(self.inputs[n] for n in self.model.inputs)
+
+    @functools.cached_property
+    def _constant(self) -> np.ndarray | None:
+        """The programme when every profile is a constant (computed once), else None."""
+        if all(getattr(f, "kind", None) == "constant" for f in self._profiles):
+            return np.array([f(0.0) for f in self._profiles], dtype=float)
+        return None
 
     input_vector = programme
 

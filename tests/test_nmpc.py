@@ -283,6 +283,31 @@ def test_a_numerical_error_is_a_counted_failure_and_a_bug_fails_the_run(monkeypa
         c.step(0.10, meas, _est(0.10, x))
 
 
+def test_the_compiled_step_keeps_the_plug_in_rule(monkeypatch):
+    """The compiled step runs without the plug-in wrapper (its C checks its own plan), but with the
+    rule's outcome: an error of its Python glue fails the run (PluginError naming it), so does a call
+    longer than the loop's timeout; a failed plan is still a counted fallback."""
+    from dataclasses import replace
+    from models.errors import PluginError
+    x = M.steady_sliding(U0, P)
+    meas = {"n1": 20.0, "n2": 0.0}
+    c = make_controller({"kind": "nmpc", "horizon": 5}, _ctx())
+    assert c.compiled is not None
+    assert c.step(0.0, meas, _est(0.0, x)).status is Status.OK
+    assert c.last_decision is not None and c.last_decision.weight_factor > 0
+    c.inject_failure = lambda t: True
+    a = c.step(0.05, meas, _est(0.05, x))
+    assert a.status is Status.FALLBACK and "injected failure" in a.message and c.counts.failures == 1
+    c.inject_failure = None
+    monkeypatch.setattr(c.compiled, "step", lambda *a: (_ for _ in ()).throw(KeyError("bug")))
+    with pytest.raises(PluginError, match="KeyError"):
+        c.step(0.10, meas, _est(0.10, x))
+    ctx = _ctx()
+    slow = make_controller({"kind": "nmpc", "horizon": 5}, replace(ctx, control=replace(ctx.control, timeout=1e-9)))
+    with pytest.raises(PluginError, match=r"^TimeoutError: step did not return within 1e-09 s \(it took "):
+        slow.step(0.0, meas, _est(0.0, x))
+
+
 def test_no_estimate_falls_back_to_the_programme_without_raising():
     c = _nmpc({"horizon": 5})
     a = c.step(0.0, {"n1": 20.0}, None)

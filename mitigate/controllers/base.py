@@ -333,8 +333,7 @@ class Controller(ABC):
         t0 = time.perf_counter()
         self.counts.steps += 1
         try:
-            a = plugins.call(self._step_impl, float(t), measurement, estimate, timeout=ctx.timeout, what="step")
-            self._check_action(a)
+            a = self._guarded_step(float(t), measurement, estimate)
         except SolverFailure as exc:
             self.counts.failures += 1
             a = self._guarded_fallback(f"SolverFailure: {exc}")
@@ -348,6 +347,13 @@ class Controller(ABC):
         elif a.status is Status.HOLD:
             self.counts.holds += 1
         return Action(dict(a.u), a.status, a.message, took)
+
+    def _guarded_step(self, t: float, measurement: Mapping[str, float], estimate) -> Action:
+        """:meth:`_step_impl` under the plug-in rule (:func:`models.plugins.call`: its timeout, every
+        exception but a SolverFailure a PluginError) and the action's check (:meth:`_check_action`)."""
+        a = plugins.call(self._step_impl, t, measurement, estimate, timeout=self.context.timeout, what="step")
+        self._check_action(a)
+        return a
 
     def _check_action(self, a) -> None:
         # (exact-type tests first: this runs on every call, and an ABC's isinstance costs a microsecond)

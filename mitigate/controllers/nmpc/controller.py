@@ -31,6 +31,7 @@ and fails the run.
 from __future__ import annotations
 
 import math
+import time
 from typing import Mapping
 
 import numpy as np
@@ -48,7 +49,8 @@ from mitigate.controllers.nmpc.supervision import Decision, Supervisor
 from mitigate.metrics.quantities import FORCE_BAND
 from mitigate.tunables import Tunable
 from models.discretise import integration
-from models.errors import ConfigError, SolverFailure
+from models.errors import ConfigError, PluginError, SolverFailure
+from models.plugins import describe
 from models.status import Status
 
 __all__ = ["NMPC", "resolve_inputs"]
@@ -443,14 +445,35 @@ class NMPC(Controller):
         return a
 
     # ------------------------------------------------------------------ the compiled step
+    def _guarded_step(self, t: float, measurement, estimate) -> Action:
+        """The compiled step without the plug-in wrapper: it is this project's C, which checks its
+        plan itself (finite, within its bounds: ``Status.FALLBACK`` otherwise) and which the plug-in
+        timer could not interrupt anyway.  The rule's outcome is kept: an error of its Python glue,
+        or a call longer than the scenario's ``timeout``, is a PluginError (the run FAILED)."""
+        if self.compiled is None:
+            return super()._guarded_step(t, measurement, estimate)
+        t0 = time.perf_counter()
+        try:
+            a = self._step_compiled(t, measurement, estimate)
+        except (SolverFailure, KeyboardInterrupt, PluginError):   # as models.plugins.call
+            raise
+        except BaseException as exc:  # noqa: BLE001 - the plug-in rule: anything else fails the run
+            raise PluginError(describe(exc)) from exc
+        timeout = self.context.timeout
+        if timeout is not None:
+            took = time.perf_counter() - t0
+            if took > timeout:
+                raise PluginError(f"TimeoutError: step did not return within {timeout:g} s (it took {took:.3g} s)")
+        return a
+
     def _step_compiled(self, t: float, measurement, estimate) -> Action:
         """The same phases in one compiled call (csrc/ss_nmpc.c); the messages are written here."""
         u_prog = self.context.programme(t)
         target = self.context.target_speed(t) if self._torque_drive and self._speed0 is None else 0.0
         inject = self.inject_failure is not None and bool(self.inject_failure(t))
         info = self.compiled.step(t, measurement, estimate, u_prog, target, inject)
-        if info.planned:
-            self.last_decision = Decision(info.weight_factor, info.severity, info.nominal, info.trim, info.target)
+        if info.planned:   # the Decision is made when asked for (last_decision)
+            self._decided = (info.weight_factor, info.severity, info.nominal, info.trim, info.target)
         if info.failure:
             self.counts.failures += 1
         status = Status.HOLD if info.status == 1 else Status.FALLBACK if info.status == 2 else Status.OK
@@ -470,6 +493,16 @@ class NMPC(Controller):
             self._message = self._solve_text(info)
             self._plan_info = (info.cost, info.iterations, info.qp_iterations, bool(info.converged), info.solve_time)
         return Action(u, status, self._message)
+
+    @property
+    def last_decision(self):
+        """The supervision's decision for the last plan (:class:`.supervision.Decision`), or None."""
+        d = self._decided
+        return d if d is None or isinstance(d, Decision) else Decision(*d)
+
+    @last_decision.setter
+    def last_decision(self, value) -> None:
+        self._decided = value
 
     @property
     def last_result(self):
