@@ -22,7 +22,7 @@ a shared machine moves far less than the two sides' medians (measured minutes ap
     python benchmarks/bench_export.py --horizons 20 --qp-condensing full   # the condensed QP exported
     python benchmarks/bench_export.py --qp-condensing none --qp-mode speed_abs --qp-mu0 preset   # NMPCOptions' defaults
 
-The QP setting is the main scenario's (partial condensing, hpipm's "speed" preset from mu0 = 0.001)
+The QP setting is the main scenario's (partial condensing, hpipm's "speed" preset from mu0 = 1e-4)
 unless the options above replace it.
 """
 
@@ -184,7 +184,7 @@ def main(argv=None) -> int:
     ap.add_argument("--qp-mode", choices=("speed_abs", "speed", "balance", "robust"), default=None,
                     help="the NMPC's qp_mode, hpipm's preset (default: the scenario's, speed)")
     ap.add_argument("--qp-mu0", default=None, metavar="MU0|preset",
-                    help="the NMPC's qp_mu0 (default: the scenario's, 0.001; preset: the preset's own, 10)")
+                    help="the NMPC's qp_mu0 (default: the scenario's, 1e-4; preset: the preset's own, 10)")
     args = ap.parse_args(argv)
     qp = {}
     if args.qp_condensing is not None:
