@@ -141,15 +141,17 @@ def test_bad_exports_are_one_line_refusals_and_write_nothing(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("inputs", ["motor", "pin", "both_full", "both_partial"])
+@pytest.mark.parametrize("inputs", ["motor", "pin", "both_full", "both_none"])
 def test_every_input_set_exports_and_replays(inputs, tmp_path):
     """The motor-only and the pin-only NMPC export too (issue 26): 25 s of the main scenario (5 s of
     control) replay bit for bit without allocation.  The pin-only one with N2 programmed at 10 N (a
     job, like a weight on bit) and a force window of rig3's period, so the band on the moving mean
-    runs in the library too.  "both_full" / "both_partial": both inputs with ``qp_condensing = "full"``
-    (the QP condensed in the preparation, hpipm's dense IPM in the feedback) or ``"partial"`` (condensed
-    to ceil(N / 5) stages; with hpipm's "speed" preset from mu0 = 0.01, the fast setting of
-    docs/export.md) replay the workbench's run of the same options bit for bit too."""
+    runs in the library too.  The main scenario's QP is the partially condensed one (its NMPC table:
+    hpipm's "speed" preset from a small mu0, docs/export.md); "both_full" / "both_none": both inputs
+    with ``qp_condensing = "full"`` (the QP condensed in the preparation, hpipm's dense IPM in the
+    feedback) or the options' defaults (the structured QP, hpipm's "speed_abs" from its own mu0)
+    replay the workbench's run of the same options bit for bit too, and only the structured one
+    gets the export's hint."""
     path = MAIN
     if inputs == "pin":
         path = tmp_path / "pin10.toml"
@@ -157,15 +159,17 @@ def test_every_input_set_exports_and_replays(inputs, tmp_path):
     sc = load_scenario(path)
     assert sc.inputs["n2"](0.0) == (10.0 if inputs == "pin" else 0.0)
     extra = {"force_window": 2.33} if inputs == "pin" else {}
+    structured = inputs == "both_none"
     if inputs.startswith("both_"):
         inputs, extra = "both", {"qp_condensing": inputs[5:]}
-        if extra["qp_condensing"] == "partial":
-            extra.update(qp_mode="speed", qp_mu0=0.01)
+        if structured:
+            extra.update(qp_mode="speed_abs", qp_mu0=None)
     ctrls = tuple(replace(c, options={**dict(c.options), "inputs": inputs, **extra}) if c.name == "NMPC" else c
                   for c in sc.controllers)
     res = export_controller(replace(sc, controllers=ctrls), "NMPC", tmp_path / inputs, reference=25.0,
                             prefix=f"nmpc_{inputs}")
     assert [p.name for p in res.interface.outputs][:1] == (["n2"] if inputs == "pin" else ["omega_ref"])
+    assert bool(res.hints) is structured and all("qp_condensing = 'partial'" in h for h in res.hints), res.hints
     so = build_export(res.out, build_type=BUILD)
     code, out = _replay(so.parent / f"{res.prefix}_replay", res.out / "test" / "reference.csv")
     assert code == 0 and out["rows"] == "2501" and out["mismatches"] == "0", out

@@ -98,6 +98,8 @@ def run(args) -> int:
         emit_json(out)
     else:
         print(res.message)
+        for h in res.hints:
+            print(f"note: {h}")
         if args.fmu:
             print(f"FMU: {res.out / (res.prefix + '.fmu')}")
         if "library" in out:
