@@ -375,6 +375,8 @@ def test_hpipm_speed_mode_with_a_small_mu0_is_closer_to_the_exact_qp():
     shipped = {k: v for k, v in next(c for c in main.controllers if c.kind == "nmpc").options.items()
                if k in ("qp_condensing", "qp_mode", "qp_mu0")}
     assert shipped["qp_mode"] == "speed" and shipped["qp_mu0"] < 0.01, shipped   # what the docstring says
+    from mitigate.export import FAST_QP
+    assert shipped == FAST_QP     # the export's hint names the setting the main scenario ships
     x0 = M.steady_sliding(U0, P)
     x0[2] = 1.0
     tight = {"horizon": 20, "compile": True, "qp_tol": 1e-11, "qp_mode": "speed"}
