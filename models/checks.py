@@ -24,6 +24,7 @@ always reads ``"<where> must be ..., got <value>"``:
 from __future__ import annotations
 
 import contextvars
+import difflib
 import math
 import os
 import tomllib
@@ -404,6 +405,8 @@ def options_from_mapping(cls, table: Mapping[str, Any], where: str, *, kind: str
     for k in table:
         if k not in allowed:
             what = f" for kind {kind!r}" if kind else ""
+            near = difflib.get_close_matches(str(k), allowed, n=1)
+            what += f" (did you mean {near[0]!r}?)" if near else ""
             raise ConfigError(f"{where}.{k}: unknown key{what}; expected one of {', '.join(sorted(allowed))}")
     token = _READING.set(where)
     try:

@@ -55,7 +55,7 @@ def test_options_from_mapping_names_the_table_and_its_fields():
     assert options_from_mapping(_Opts, {"gain": 2.0}, "s.toml: ctl") == _Opts(gain=2.0)
     with pytest.raises(ConfigError, match=r"^s\.toml: ctl\.gain must be >= 0 N m s, got -1$"):
         options_from_mapping(_Opts, {"gain": -1}, "s.toml: ctl")
-    with pytest.raises(ConfigError, match=r"^s\.toml: ctl\.gian: unknown key for kind 'k'; expected one of gain, steps$"):
+    with pytest.raises(ConfigError, match=r"^s\.toml: ctl\.gian: unknown key for kind 'k' \(did you mean 'gain'\?\); expected one of gain, steps$"):
         options_from_mapping(_Opts, {"gian": 1}, "s.toml: ctl", kind="k")
     with pytest.raises(ConfigError, match=r"^s\.toml: ctl must be a table, got 3$"):
         options_from_mapping(_Opts, 3, "s.toml: ctl")

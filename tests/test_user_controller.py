@@ -67,7 +67,7 @@ def test_its_options_are_validated_like_the_built_in_ones():
     with pytest.raises(ConfigError, match=r"^t\.toml: controller 2 '[^']*'\.gain must be >= 0 rad/s per N m, got -1\.0$"):
         make_controller(sc.controllers[1], context_for(sc, 1))
     sc = _scenario(REF, gian=1.0)
-    with pytest.raises(ConfigError, match=r"^t\.toml: controller 2 '[^']*'\.gian: unknown key; expected one of gain, tau"):
+    with pytest.raises(ConfigError, match=r"^t\.toml: controller 2 '[^']*'\.gian: unknown key \(did you mean 'gain'\?\); expected one of gain, tau"):
         make_controller(sc.controllers[1], context_for(sc, 1))
 
 
