@@ -52,6 +52,9 @@ def test_the_exported_library_replays_the_workbench_bit_for_bit_without_allocati
     assert out["rows"] == "3001" and out["mismatches"] == "0" and float(out["worst_relative"]) <= 1e-9
     assert out["allocations_after_create"] == "0"
     assert int(out["ok"]) > 0 and int(out["hold"]) > 0 and out["failed"] == "0"   # it planned and held
+    doc = res.cli                 # the command's --json: the replay's line as numbers too, no hint
+    assert doc["replay_values"]["rows"] == 3001 and doc["replay_values"]["mismatches"] == 0
+    assert doc["replay_values"]["allocations_after_create"] == 0 and doc["hints"] == []
 
 
 @pytest.mark.slow

@@ -83,6 +83,12 @@ def run(args) -> int:
                 exe = so.parent / f"{res.prefix}_replay"
                 r = subprocess.run([str(exe), str(res.out / "test" / "reference.csv")], capture_output=True, text=True)
                 out["replay"] = (r.stdout or r.stderr).strip()
+                words = out["replay"].split()      # "rows 3001 mismatches 0 ...": the same as numbers
+                try:
+                    if r.returncode == 0 and len(words) % 2 == 0:
+                        out["replay_values"] = {k: float(v) for k, v in zip(words[::2], words[1::2])}
+                except ValueError:
+                    pass
                 code = 0 if r.returncode == 0 else 1
         except RuntimeError as exc:
             out["build_error"] = str(exc).splitlines()[0]
